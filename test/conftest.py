@@ -1,0 +1,41 @@
+"""Test-suite setup: keep every DDS participant on this machine and on a private domain.
+
+This runs before any test module is imported, so before anything imports rclpy. Child
+processes started by tests inherit the environment set here.
+"""
+
+import os
+import random
+
+import pytest
+
+#: Domain ids used when the environment does not force one. ROS 2 allows 0-232 on Linux;
+#: 0 (the default every other ROS program uses) is left out.
+_DOMAIN_RANGE = (1, 200)
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+_forced = os.environ.get("INFOMAX_TEST_DOMAIN_ID", "").strip()
+if _forced:
+    if not _forced.isdigit() or not 0 <= int(_forced) <= 232:
+        raise pytest.UsageError(
+            f"INFOMAX_TEST_DOMAIN_ID={_forced!r}: expected an integer in 0..232"
+        )
+    os.environ["ROS_DOMAIN_ID"] = _forced
+else:
+    # A fresh id per run, so that test runs in parallel do not hear each other.
+    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(*_DOMAIN_RANGE))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Register the markers used by the suite."""
+    config.addinivalue_line(
+        "markers", "slow: long-running test (several seconds or more); deselect with -m 'not slow'"
+    )
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    """Show the DDS isolation settings at the top of the run."""
+    return (
+        f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} "
+        f"ROS_AUTOMATIC_DISCOVERY_RANGE={os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}"
+    )
