@@ -1,0 +1,247 @@
+"""Controllers, simulated rooms, the offline simulator and the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from infomax_contingency import cli
+from infomax_contingency.controllers import (
+    FixedIntervalController,
+    GreedyController,
+    PolicyController,
+    RandomController,
+    RuleController,
+    make_controller,
+)
+from infomax_contingency.model import ModelParams, Statistic
+from infomax_contingency.policy_table import PolicyTable
+from infomax_contingency.resources import resource_path
+from infomax_contingency.simulation import simulate
+from infomax_contingency.solver import solve_episodic, solve_receding
+from infomax_contingency.statespace import count_tuples
+from infomax_contingency.world import make_room
+
+PAPER = ModelParams.named("paper")
+ROBOT = ModelParams.named("robot")
+
+
+def test_greedy_equals_the_one_step_table() -> None:
+    table = solve_receding(ROBOT, 1, 8)
+    greedy = GreedyController(ROBOT)
+    vocalizes = 0
+    for counts in count_tuples(8):
+        for z in range(ROBOT.n_timer_values):
+            statistic = Statistic(z, *map(int, counts))
+            assert greedy.decide(statistic) == table.action(statistic)
+            vocalizes += greedy.decide(statistic)
+    # one step ahead, asking is never worth it: the next window is a self-feedback window
+    assert vocalizes == 0
+
+
+def test_rule_controller() -> None:
+    rule = RuleController(PAPER, c=9)
+    assert rule.decide(Statistic(3, 0, 0, 0, 5)) == 0  # still inside the agent period
+    assert rule.decide(Statistic(4, 0, 0, 0, 5)) == 1  # no agent data yet
+    assert rule.decide(Statistic(4, 0, 0, 0, 0)) == 0  # no background data yet
+    # Var(K2)/n2 vs 9 Var(K3)/n3: few agent observations against many background ones
+    assert rule.decide(Statistic(4, 1, 1, 1, 40)) == 1
+    assert rule.decide(Statistic(4, 10, 10, 1, 5)) == 0
+    with pytest.raises(ValueError, match="c must be > 0"):
+        RuleController(PAPER, c=0)
+
+
+def test_fixed_and_random_controllers() -> None:
+    fixed = FixedIntervalController(PAPER, 3)
+    assert [fixed.step(0) for _ in range(9)] == [0, 0, 1] * 3
+    fixed.reset()
+    assert fixed.step(0) == 0
+    rng = np.random.default_rng(0)
+    share = np.mean([RandomController(PAPER, 0.3, rng).step(0) for _ in range(4000)])
+    assert 0.27 < share < 0.33
+    with pytest.raises(ValueError, match="interval"):
+        FixedIntervalController(PAPER, 0)
+
+
+def test_policy_controller_follows_the_table_and_restarts_episodes() -> None:
+    table = solve_episodic(PAPER, 6)
+    controller = PolicyController(table)
+    rng = np.random.default_rng(5)
+    z, statistic, step = PAPER.timer_long_ago, Statistic(PAPER.timer_long_ago), 0
+    for _ in range(20):
+        y = int(rng.integers(0, 2))
+        step += 1
+        if step >= table.horizon:  # a new episode: zero counts, current timer
+            statistic, step = Statistic(z), 1
+        statistic = statistic.observe(PAPER, y)
+        expected = table.action(statistic, step=step)
+        assert controller.step(y) == expected
+        statistic = statistic.act(PAPER, expected)
+        z = statistic.z
+
+
+def test_receding_policy_controller_keeps_its_memory() -> None:
+    table = solve_receding(PAPER, 3, 4)
+    controller = PolicyController(table)
+    for y in [1, 0, 1, 1, 0, 0, 1, 0, 1, 1, 1, 0]:
+        controller.step(y)  # would leave the table without the sliding memory
+        counts = controller.tracker.statistic.counts
+        assert sum(counts) <= 4
+
+
+def test_make_controller_specs(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    assert make_controller("rule:4", PAPER, rng).c == 4
+    assert make_controller("greedy", PAPER, rng).name == "greedy"
+    assert make_controller("fixed:5", PAPER, rng).interval == 5
+    assert make_controller("random:0.25", PAPER, rng).probability == 0.25
+    paper_table = str(resource_path("policies", "paper_episodic_T40.npz"))
+    assert make_controller(f"policy:{paper_table}", PAPER, rng).table.horizon == 40
+    for spec, message in [
+        ("wizard", "unknown controller"),
+        ("fixed:two", "bad number"),
+        ("random:2", "probability"),
+        ("policy:", "table file"),
+        (f"policy:{tmp_path / 'missing.npz'}", "does not exist"),
+        (f"policy:{paper_table}", "other model parameters"),  # with robot parameters
+    ]:
+        with pytest.raises(ValueError, match=message):
+            make_controller(spec, ROBOT, rng)
+
+
+def test_rooms() -> None:
+    rng = np.random.default_rng(1)
+    responsive = make_room("responsive:k2=0.7,k3=0.05", ROBOT, rng)
+    assert responsive.partner_present
+    # robot set: z = 0, 1 self; 2..4 agent; 5 background
+    assert responsive.rates == (0.9, 0.9, 0.7, 0.7, 0.7, 0.05)
+    silent = make_room("silent", ROBOT, rng)
+    assert not silent.partner_present and len(set(silent.rates[2:])) == 1
+    assert make_room("baby9", PAPER, rng).rates == (0.0, 1.0, 1.0, 1.0, 0.0)
+    assert make_room("baby9:reply=2", PAPER, rng).rates == (0.0, 0.0, 1.0, 0.0, 0.0)
+    drawn = [make_room("prior:pi=0.5", ROBOT, rng) for _ in range(400)]
+    assert 0.4 < np.mean([room.partner_present for room in drawn]) < 0.6
+    assert all(room.rates[2] == room.rates[5] for room in drawn if not room.partner_present)
+    for spec, message in [
+        ("kitchen", "unknown room"),
+        ("responsive:k2=1.5", "k2 must be a probability"),
+        ("responsive:k9=0.1", "unknown option"),
+        ("baby9:reply=7", "agent period"),
+        ("silent:k3", "key=value"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            make_room(spec, ROBOT, rng)
+
+
+def test_simulation_is_reproducible_and_detects() -> None:
+    table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"), ROBOT)
+
+    def run(room: str, seed: int) -> list:
+        rng = np.random.default_rng(seed)
+        return simulate(ROBOT, PolicyController(table), make_room(room, ROBOT, rng), 120, rng)
+
+    assert run("responsive", 3) == run("responsive", 3)
+    assert run("responsive", 3)[-1].belief > 0.95
+    assert run("silent", 3)[-1].belief < 0.05
+    assert run("noisy", 3)[-1].belief < 0.05
+    records = run("responsive", 4)
+    assert [r.t for r in records] == list(range(1, 121))
+    # the timer column is the statistic's timer: 0 right after every vocalization
+    for before, after in zip(records, records[1:], strict=False):
+        assert after.z == (0 if before.u else min(before.z + 1, ROBOT.timer_long_ago))
+
+
+def test_cli_simulate_json_and_table(capsys) -> None:
+    assert (
+        cli.main(
+            [
+                "simulate",
+                "--params",
+                "paper",
+                "--controller",
+                "rule",
+                "--world",
+                "baby9",
+                "--steps",
+                "20",
+                "--json",
+            ]
+        )
+        == 0
+    )
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 20
+    first = json.loads(lines[0])
+    assert {"t", "z", "y", "u", "belief", "entropy", "ratio"} <= set(first)
+    assert first["ratio"] is None
+    assert any(json.loads(line)["ratio"] is not None for line in lines)
+    assert cli.main(["simulate", "--params", "paper", "--world", "baby9", "--steps", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "belief" in out and "vocalizations in 5 steps" in out
+
+
+def test_cli_solve_and_info(tmp_path, capsys) -> None:
+    out = tmp_path / "t.npz"
+    assert (
+        cli.main(
+            [
+                "solve",
+                "--params",
+                "paper",
+                "--mode",
+                "episodic",
+                "--horizon",
+                "8",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert PolicyTable.load(out, PAPER).same_policy_as(solve_episodic(PAPER, 8))
+    assert cli.main(["info", str(out)]) == 0
+    assert '"horizon": 8' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            [
+                "solve",
+                "--params",
+                "paper",
+                "--mode",
+                "receding",
+                "--horizon",
+                "3",
+                "--out",
+                "x.npz",
+            ],
+            "needs --memory",
+        ),
+        (["simulate", "--params", "nope"], "unknown parameter set"),
+        (["simulate", "--world", "kitchen"], "unknown room"),
+        (["info", "missing.npz"], "does not exist"),
+        (["simulate", "--steps", "0"], "steps must be >= 1"),
+    ],
+)
+def test_cli_user_errors_are_one_line(tmp_path, monkeypatch, capsys, argv, message) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_console_script_runs() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "infomax_contingency.cli", "simulate", "--steps", "3", "--json"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert len(result.stdout.splitlines()) == 3
