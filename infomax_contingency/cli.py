@@ -18,6 +18,7 @@ import numpy as np
 
 from .audio import AudioError
 from .controllers import CONTROLLER_KINDS, make_controller
+from .experiments_cli import register_experiment, register_learn, register_plot
 from .model import ModelParams, ParameterError
 from .policy_table import EPISODIC, RECEDING, PolicyTable, PolicyTableError
 from .simulation import simulate
@@ -143,6 +144,9 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_solve,
     register_simulate,
     register_info,
+    register_experiment,
+    register_learn,
+    register_plot,
 ]
 
 

@@ -18,6 +18,7 @@ is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and r
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +27,24 @@ from .model import ModelParams, Statistic, StatisticTracker
 from .policy_table import EPISODIC, PolicyTable
 
 CONTROLLER_KINDS = ("policy:FILE", "rule[:C]", "greedy", "fixed:K", "random:P")
+
+
+def rule_decisions(
+    params: ModelParams, c: float, z: Any, p2: Any, q2: Any, p3: Any, q3: Any
+) -> Any:
+    """Decisions of the interpretable rule, vectorised over statistics (1 = vocalize).
+
+    Vocalize iff ``z > ta2`` and ``Var(K2)/n2 > c Var(K3)/n3``; no agent data (``n2 = 0``)
+    counts as infinitely uncertain and no background data (``n3 = 0``) as never worth
+    asking, like the controller.
+    """
+    p2, q2, p3, q3 = (np.asarray(v) for v in (p2, q2, p3, q3))
+    n2, n3 = p2 + q2, p3 + q3
+    var2, var3 = model.rate_variances(params, p2, q2, p3, q3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        asks = var2 / n2 > c * var3 / n3
+    asks = np.where(n3 == 0, False, np.where(n2 == 0, True, asks))
+    return (np.asarray(z) > params.ta2) & asks
 
 
 class Controller:
@@ -96,16 +115,7 @@ class RuleController(Controller):
 
     def decide(self, statistic: Statistic) -> int:
         """Vocalize iff the timer is past the agent period and agent data is the scarcer."""
-        if statistic.z <= self.params.ta2:
-            return 0
-        n2 = statistic.p2 + statistic.q2
-        n3 = statistic.p3 + statistic.q3
-        if n3 == 0:
-            return 0
-        if n2 == 0:
-            return 1
-        var2, var3 = model.rate_variances(self.params, *statistic.counts)
-        return int(var2 / n2 > self.c * var3 / n3)
+        return int(rule_decisions(self.params, self.c, *statistic))
 
 
 class GreedyController(Controller):

@@ -20,11 +20,16 @@ most ``N_k = N_0 - k``, every layer fully vectorised over all count tuples (numb
 Ties go to silence: vocalize only when its value exceeds silence's by more than
 :data:`~infomax_contingency.model.TIE_TOLERANCE` bits, so floating-point noise never
 decides an exact tie.
+
+The same backward step, given actions instead of maximising over them, evaluates any
+policy exactly (``fixed_actions`` of :func:`backward_induction`); the evaluation suite
+scores controllers with it and TD learning reads its greedy policy off it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -65,11 +70,14 @@ class Solution:
     values: dict[int, np.ndarray]
 
 
-def _tuple_quantities(params: ModelParams, max_count: int) -> dict:
+def tuple_quantities(params: ModelParams, max_count: int) -> dict:
     """Per count tuple: negative entropy, predictive P(y=1) and the neighbours' indices.
 
-    ``neighbours[(period, y)]`` is the index of the tuple one observation ``y`` in
-    ``period`` later; it is given for tuples with sum <= max_count - 1.
+    Tuples are those with sum <= max_count, in :mod:`~infomax_contingency.statespace` index
+    order. ``neg_entropy`` is ``-H`` (bits) of every tuple; ``tuples[AGENT]`` and
+    ``tuples[BACKGROUND]`` are P(y=1) of the next bit in that period, and
+    ``neighbours[(period, y)]`` the index of the tuple one observation ``y`` in ``period``
+    later; both are given for tuples with sum <= max_count - 1.
     """
     s1, s2, s3, s4 = partial_sums(max_count)
     p2, q2, p3, q3 = s1, s2 - s1, s3 - s2, s4 - s3
@@ -97,8 +105,80 @@ def _tuple_quantities(params: ModelParams, max_count: int) -> dict:
     }
 
 
+def bellman_layer(
+    params: ModelParams,
+    tuples: dict,
+    next_values: np.ndarray,
+    max_count: int,
+    fixed_actions: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One backward step: ``V_k`` and its actions from ``V_{k-1}``, for counts <= max_count.
+
+    ``V_k(a) = -H(a) + max_u sum_y P(y | a, u) V_{k-1}(f(a, u, y))`` (ties: silence), or,
+    with ``fixed_actions``, the same sum for the given action instead of the maximum
+    (exact evaluation of a given policy).
+
+    Args:
+        params: model parameters.
+        tuples: :func:`tuple_quantities` for a max count > ``max_count``.
+        next_values: ``V_{k-1}``, shape ``(n_timer_values, >= n_count_tuples(max_count + 1))``.
+        max_count: the layer's largest count sum.
+        fixed_actions: None to optimise; else boolean actions of shape
+            ``(n_timer_values, n_count_tuples(max_count))`` to evaluate.
+
+    Returns:
+        ``(values, actions)``, both of shape ``(n_timer_values, n_count_tuples(max_count))``.
+    """
+    n_timer = params.n_timer_values
+    neighbours = tuples["neighbours"]
+    periods = [period_of(params, z) for z in range(n_timer)]
+    size = n_count_tuples(max_count)
+    new_values = np.empty((n_timer, size))
+    actions = np.empty((n_timer, size), dtype=bool)
+    if fixed_actions is not None:
+        if fixed_actions.shape != actions.shape:
+            raise ValueError(
+                f"fixed actions have shape {fixed_actions.shape}, need {actions.shape}"
+            )
+        actions[...] = fixed_actions
+    for start in range(0, size, CHUNK):
+        chunk = slice(start, min(start + CHUNK, size))
+        # Expected next value sum_y P(y) V_{k-1} for every timer value z' reached.
+        expected = []
+        for z_next, period in enumerate(periods):
+            row = next_values[z_next]
+            if period == SELF:
+                expected.append(row[chunk])
+                continue
+            after_active = row[neighbours[(period, 1)][chunk]]
+            after_inactive = row[neighbours[(period, 0)][chunk]]
+            after_active -= after_inactive
+            after_active *= tuples[period][chunk]
+            after_active += after_inactive
+            expected.append(after_active)
+        vocalize_value = expected[0]
+        neg_entropy = tuples["neg_entropy"][chunk]
+        for z in range(n_timer):
+            silent_value = expected[min(z + 1, n_timer - 1)]
+            out_values, out_actions = new_values[z, chunk], actions[z, chunk]
+            if fixed_actions is None:
+                np.subtract(vocalize_value, silent_value, out=out_values)
+                np.greater(out_values, TIE_TOLERANCE, out=out_actions)
+                np.maximum(vocalize_value, silent_value, out=out_values)
+            else:
+                np.copyto(out_values, silent_value)
+                np.copyto(out_values, vocalize_value, where=out_actions)
+            out_values += neg_entropy
+    return new_values, actions
+
+
 def backward_induction(
-    params: ModelParams, base_max_count: int, steps: int, keep: set[int], keep_values: bool = False
+    params: ModelParams,
+    base_max_count: int,
+    steps: int,
+    keep: set[int],
+    keep_values: bool = False,
+    fixed_actions: Callable[[int], np.ndarray] | None = None,
 ) -> Solution:
     """Solve ``V_k`` for ``k = 0 .. steps`` over layers with counts summing to ``base - k``.
 
@@ -108,46 +188,21 @@ def backward_induction(
         steps: the last layer to compute (``K``); requires ``K <= N_0``.
         keep: the layers ``k`` whose actions (and values) are returned.
         keep_values: also return the values of the kept layers (for tests and analysis).
+        fixed_actions: None for the optimal policy; else a function of ``k`` giving the
+            boolean actions of layer ``k`` (see :func:`bellman_layer`), whose values are
+            then computed exactly instead (policy evaluation).
     """
     if steps < 1 or steps > base_max_count:
         raise ValueError(f"need 1 <= steps <= base_max_count, got {steps}, {base_max_count}")
     n_timer = params.n_timer_values
-    tuples = _tuple_quantities(params, base_max_count)
-    neighbours = tuples["neighbours"]
-    periods = [period_of(params, z) for z in range(n_timer)]
+    tuples = tuple_quantities(params, base_max_count)
     values = np.broadcast_to(tuples["neg_entropy"], (n_timer, n_count_tuples(base_max_count)))
     solution = Solution(max_counts={}, actions={}, values={})
 
     for k in range(1, steps + 1):
         max_count = base_max_count - k
-        size = n_count_tuples(max_count)
-        new_values = np.empty((n_timer, size))
-        actions = np.empty((n_timer, size), dtype=bool)
-        for start in range(0, size, CHUNK):
-            chunk = slice(start, min(start + CHUNK, size))
-            # Expected next value sum_y P(y) V_{k-1} for every timer value z' reached.
-            expected = []
-            for z_next, period in enumerate(periods):
-                row = values[z_next]
-                if period == SELF:
-                    expected.append(row[chunk])
-                    continue
-                after_active = row[neighbours[(period, 1)][chunk]]
-                after_inactive = row[neighbours[(period, 0)][chunk]]
-                after_active -= after_inactive
-                after_active *= tuples[period][chunk]
-                after_active += after_inactive
-                expected.append(after_active)
-            vocalize_value = expected[0]
-            neg_entropy = tuples["neg_entropy"][chunk]
-            for z in range(n_timer):
-                silent_value = expected[min(z + 1, n_timer - 1)]
-                out_values, out_actions = new_values[z, chunk], actions[z, chunk]
-                np.subtract(vocalize_value, silent_value, out=out_values)
-                np.greater(out_values, TIE_TOLERANCE, out=out_actions)
-                np.maximum(vocalize_value, silent_value, out=out_values)
-                out_values += neg_entropy
-        values = new_values
+        given = None if fixed_actions is None else fixed_actions(k)
+        values, actions = bellman_layer(params, tuples, values, max_count, given)
         if k in keep:
             solution.max_counts[k] = max_count
             solution.actions[k] = np.packbits(actions)

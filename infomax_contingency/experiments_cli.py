@@ -1,0 +1,625 @@
+"""Command-line sub-commands of the evaluation suite: ``experiment``, ``learn``, ``plot``.
+
+* ``experiment baby9 | rule | greedy | horizon | efficiency`` — the experiments of
+  :mod:`infomax_contingency.evaluation` (readable tables, or ``--json``).
+* ``learn`` — infomax TD learning curves (:mod:`infomax_contingency.learning`).
+* ``plot`` — the four-panel figure of a simulated or recorded session.
+
+Every command is deterministic given its seeds; docs/RESULTS.md lists the commands that
+produced every reported number and figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import evaluation, learning, plots
+from .controllers import CONTROLLER_KINDS, PolicyController, make_controller
+from .model import NAMED_PARAMS, ModelParams
+from .resources import resource_path
+from .simulation import simulate
+from .world import ROOM_NAMES, make_room
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(item) for item in text.split(",") if item.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected integers separated by commas, got {text!r}"
+        ) from None
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one integer")
+    return values
+
+
+def _name_list(text: str) -> list[str]:
+    return [item.strip() for item in text.split(",") if item.strip()]
+
+
+def _step_range(text: str) -> tuple[int, int]:
+    first, _, last = text.partition("-")
+    try:
+        return int(first), int(last or first)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected FIRST-LAST steps, e.g. 18-24, got {text!r}"
+        ) from None
+
+
+def _dump(result: Any) -> None:
+    print(json.dumps(result, indent=1, default=_json_default))
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+def _number(value: float | None, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, float) and math.isinf(value):
+        return "never"
+    return f"{value:.{digits}g}"
+
+
+def _cache_dir(args: argparse.Namespace) -> Path | None:
+    return Path(args.cache_dir) if args.cache_dir else None
+
+
+# --------------------------------------------------------------------------------------
+# experiment NAME
+
+
+def _run_baby9(args: argparse.Namespace) -> int:
+    result = evaluation.experiment_baby9(
+        args.params, args.horizon, args.memory, args.steps, args.replies, _cache_dir(args)
+    )
+    if args.plot:
+        params = ModelParams.load(args.params)
+        table, _ = evaluation.obtain_table(
+            params, "receding", args.horizon, args.memory, _cache_dir(args)
+        )
+        rng = np.random.default_rng(0)
+        room = make_room(f"baby9:reply={args.replies[0]}", params, rng)
+        records = simulate(params, PolicyController(table), room, args.steps, rng)
+        plots.plot_session(
+            params,
+            [r.__dict__ for r in records],
+            args.plot,
+            title=f"baby-9 (reply={args.replies[0]}): {args.params} parameters,"
+            f" receding H={args.horizon}",
+        )
+        result["plot"] = args.plot
+    if args.json:
+        _dump(result)
+        return 0
+    print(
+        f"baby-9: {result['params']} parameters (dt = {result['dt']} s), receding H ="
+        f" {result['horizon']}, memory M = {result['memory']} (>= {result['steps']} steps:"
+        f" unbounded), {result['steps']} steps = {result['duration_s']:g} s"
+    )
+    print("(a vocalization decided at step t is played at t * dt seconds)")
+    for run in result["runs"]:
+        print(f"\nreply = {run['reply']}:")
+        print(f"  {'step':>4} {'time_s':>7} {'belief':>10} {'ratio':>8}")
+        for step, when, belief, ratio in zip(
+            run["vocalization_steps"],
+            run["vocalization_times_s"],
+            run["belief_at_vocalization"],
+            run["ratio_at_vocalization"],
+            strict=True,
+        ):
+            print(f"  {step:>4} {when:>7.1f} {belief:>10.6f} {_number(ratio, 4):>8}")
+        intervals = ", ".join(f"{i:g}" for i in run["intervals_s"])
+        print(f"  intervals (s): {intervals}")
+        print(f"  final P(S=1) = {run['final_belief']:.10f}")
+    if args.plot:
+        print(f"\nwrote {args.plot}")
+    return 0
+
+
+def _run_rule(args: argparse.Namespace) -> int:
+    first, last = args.steps
+    result = evaluation.experiment_rule(
+        args.params, args.horizon, first, last, args.c, _cache_dir(args)
+    )
+    if args.json:
+        _dump(result)
+        return 0
+    print(
+        f"rule (c = {args.c:g}) vs optimal episodic table, {args.params} parameters, T ="
+        f" {args.horizon}, steps {first}..{last}"
+    )
+    print(
+        f"{'measure':36} {'statistics':>10} {'agree':>7} {'z>ta2':>7} {'opt1/rule0':>10}"
+        f" {'opt0/rule1':>10} {'best c':>8} {'agree@best':>10}"
+    )
+    for name, m in result["measures"].items():
+        low, high = m["best_c_interval"]
+        print(
+            f"{name:36} {m['statistics']:>10} {m['agreement']:>7.2%}"
+            f" {m['agreement_timer_past_agent_period']:>7.2%}"
+            f" {m['optimal_vocalizes_rule_silent']:>10.2%}"
+            f" {m['rule_vocalizes_optimal_silent']:>10.3%} {m['best_c']:>8.3f}"
+            f" {m['best_c_agreement']:>10.2%}   (best c in ({low:.4g}, {high:.4g}))"
+        )
+    for name, m in result["measures"].items():
+        print(
+            f"{name}: the optimal controller vocalizes at {m['optimal_vocalizes']:.2%} of the"
+            f" measure, the rule at {m['rule_vocalizes']:.3%}"
+        )
+    print(
+        f"exact episode score (0 = never vocalize, 1 = optimal): rule c = {args.c:g}:"
+        f" {result['episode_score_rule_c']:.4f}; rule with the best weighted c:"
+        f" {result['episode_score_rule_best_weighted_c']:.4f}"
+    )
+    return 0
+
+
+def _run_greedy(args: argparse.Namespace) -> int:
+    result = evaluation.experiment_greedy(args.params, args.max_count, steps=args.steps)
+    if args.json:
+        _dump(result)
+        return 0
+    for entry in result["sets"]:
+        print(f"{entry['params']}:")
+        print(
+            f"  greedy (H = 1) vocalizes at {entry['greedy_vocalizing_statistics']} of"
+            f" {entry['statistics']:,} statistics (counts n <= {result['max_count']}, every z)"
+        )
+        by_horizon = ", ".join(
+            f"H={h}: {n:,}" for h, n in entry["vocalizing_statistics_by_horizon"].items()
+        )
+        print(f"  vocalizing statistics by horizon: {by_horizon}")
+        print(f"  smallest horizon that ever vocalizes: {entry['smallest_vocalizing_horizon']}")
+        print(
+            f"  at a = {tuple(entry['example_statistic'])}: H(a) ="
+            f" {entry['example_entropy_bits']:.6f} bits; expected next entropy if silent"
+            f" {entry['example_next_entropy_silent_bits']:.6f}, if vocalizing"
+            f" {entry['example_next_entropy_vocalize_bits']:.6f} (the next window is"
+            " self-feedback: nothing is learned)"
+        )
+        print(
+            f"  greedy in a responsive room, {entry['run_steps']} steps:"
+            f" {entry['run_vocalizations']} vocalizations, final P(S=1) ="
+            f" {entry['run_final_belief']:.6f} (prior {entry['prior']})"
+        )
+    return 0
+
+
+def _run_horizon(args: argparse.Namespace) -> int:
+    result = evaluation.experiment_horizon(args.params, args.horizons, args.domain, args.longest)
+    if args.plot:
+        for name in args.params:
+            target = Path(args.plot)
+            if len(args.params) > 1:
+                target = target.with_name(f"{target.stem}_{name}{target.suffix}")
+            plots.plot_horizon_maps(result, target, name)
+            print(f"wrote {target}", file=sys.stderr if args.json else sys.stdout)
+    if args.json:
+        _dump(result)
+        return 0
+    print(
+        f"receding policy_H on counts n2 + n3 <= {result['domain_max_count']} (every z),"
+        f" horizons 1..{result['longest_horizon']} solved"
+    )
+    for entry in result["sets"]:
+        print(f"{entry['params']} ({entry['statistics']:,} statistics):")
+        print(f"  {'H':>4} {'vocalize':>9} {'vs prev':>8} {'vs last':>8} {'vs H_max':>8}")
+        for item in entry["horizons"]:
+            print(
+                f"  {item['horizon']:>4} {item['vocalizing_statistics']:>9}"
+                f" {_number(item['differs_from_previous'])!s:>8}"
+                f" {item['differs_from_largest_listed']:>8} {item['differs_from_longest']:>8}"
+            )
+        print(
+            f"  the map stops changing from H = {entry['stable_from']} on (identical up to"
+            f" H = {result['longest_horizon']})"
+        )
+    return 0
+
+
+def _run_efficiency(args: argparse.Namespace) -> int:
+    config = evaluation.EfficiencyConfig(
+        params_name=args.params,
+        prior_rooms=args.prior_rooms,
+        named_runs=args.named_runs,
+        switch_runs=args.switch_runs,
+        switch_step=args.switch_step,
+        tuning_rooms=args.tuning_rooms,
+        steps=args.steps,
+        seed=args.seed,
+        workers=args.workers,
+    )
+    started = time.perf_counter()
+    result = evaluation.experiment_efficiency(config, _cache_dir(args))
+    result["seconds"] = time.perf_counter() - started
+    if args.plot:
+        plots.plot_efficiency(result, args.plot)
+    if args.json:
+        _dump(result)
+        return 0
+    print_efficiency(result)
+    if args.plot:
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _ci(pair: Any, digits: int = 3) -> str:
+    return f"[{_number(pair[0], digits)}, {_number(pair[1], digits)}]"
+
+
+def print_efficiency(result: dict) -> None:
+    """The efficiency tables, readable."""
+    config, dt = result["config"], result["dt"]
+    print(
+        f"detection efficiency: {config['params_name']} parameters (dt = {dt} s), runs of"
+        f" {config['steps']} windows ({config['steps'] * dt:g} s), seed {config['seed']}"
+    )
+    print(
+        f"best fixed interval K = {result['best_fixed_interval']} (least restricted mean"
+        f" detection time on {config['tuning_rooms']} tuning rooms)"
+    )
+    summaries = result["summaries"]
+    print(
+        f"\nA. rooms drawn from the prior (partner in half of them); 95 % intervals;"
+        f" entropy/step weighted to the model's prior, and minus {result['reference']}'s"
+        " in the same rooms; detection within the run"
+    )
+    print(
+        f"{'controller':28} {'entropy/step (prior)':>26} {'minus reference':>27} {'acc@10':>6}"
+        f" {'acc@20':>6} {'acc@40':>6} {'detected':>8} {'restr.mean s':>19} {'false al.':>9}"
+    )
+    for label in result["controllers"]:
+        s = summaries[label]
+        partner, empty = s["prior, partner"], s["prior, no partner"]
+        both = partner["runs"] + empty["runs"]
+        accuracy = [
+            (partner[f"accuracy_{n}"] * partner["runs"] + empty[f"accuracy_{n}"] * empty["runs"])
+            / both
+            for n in result["checkpoints"]
+        ]
+        entropy_ci = _ci(s["prior_weighted_entropy_ci"], 4)
+        difference_ci = _ci(s["entropy_minus_reference_ci"], 2)
+        print(
+            f"{label:28} {s['prior_weighted_entropy']:.4f} {entropy_ci:>19}"
+            f" {s['entropy_minus_reference']:>+9.5f} {difference_ci:>17}"
+            + "".join(f" {a:>6.1%}" for a in accuracy)
+            + f" {partner['detected']:>8.1%} {partner['detection_s_restricted_mean']:>5.1f}"
+            f" {_ci(partner['detection_s_restricted_mean_ci']):>13}"
+            f" {empty['false_alarm_rate']:>9.1%}"
+        )
+    print(
+        "\nB. named rooms with a partner: median seconds [95 % CI] and vocalizations to"
+        " P(S=1) >= 0.95 (whole-history belief)"
+    )
+    rooms = [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
+    print(f"{'controller':28}" + "".join(f" {room:>30}" for room in rooms))
+    for label in result["controllers"]:
+        cells = []
+        for room in rooms:
+            r = summaries[label][room]
+            cells.append(
+                f"{_number(r['detection_s_median'])} s {_ci(r['detection_s_ci'])}"
+                f" {_number(r['detection_vocalizations_median'])} voc"
+            )
+        print(f"{label:28}" + "".join(f" {cell:>30}" for cell in cells))
+    print(
+        "\nC. the robot's own belief (sliding memory M, as deployed): median s to P(S=1) >="
+        " 0.95 in named partner rooms (detected within the run); a partner who leaves or"
+        " arrives at the middle of the run, in the runs where the robot was sure before"
+    )
+    memories = result["receding_memories"]
+    print(
+        f"{'controller':28}"
+        + "".join(f" {room:>22}" for room in rooms)
+        + f" {'leaves: s to <0.5':>24} {'arrives: s to >=0.95':>24}"
+    )
+    for label in memories:
+        s = summaries[label]
+        cells = [
+            f"{_number(s[room]['own_detection_s_median'])} s ({s[room]['own_detected']:.0%})"
+            for room in rooms
+        ]
+        switches = [
+            f"{_number(s[g]['switch_response_s_median'])} s {_ci(s[g]['switch_response_s_ci'])}"
+            for g in ("partner leaves", "partner arrives")
+        ]
+        print(
+            f"{label:28}"
+            + "".join(f" {cell:>22}" for cell in cells)
+            + "".join(f" {cell:>24}" for cell in switches)
+        )
+    print(
+        f"\nD. exact episode score, T = {config['episodic_horizon']} (0 = never vocalize,"
+        " 1 = optimal; as episodic policies on the statistic, from the episode start)"
+    )
+    for label, score in result["exact_episode_scores"].items():
+        text = "not a deterministic policy of (t, a)" if score is None else f"{score:.4f}"
+        print(f"{label:28} {text}")
+    print(f"\n({result.get('seconds', 0.0):.0f} s)")
+
+
+def register_experiment(subparsers: argparse._SubParsersAction) -> None:
+    """``experiment NAME``: the evaluation experiments (docs/RESULTS.md)."""
+    parser = subparsers.add_parser(
+        "experiment", help="run an evaluation experiment (baby9, rule, greedy, horizon, efficiency)"
+    )
+    names = parser.add_subparsers(dest="experiment", required=True, metavar="NAME")
+
+    def add(name: str, help_text: str, run: Any) -> argparse.ArgumentParser:
+        sub = names.add_parser(name, help=help_text)
+        sub.add_argument("--json", action="store_true", help="print the result as JSON")
+        sub.add_argument(
+            "--cache-dir",
+            help="where tables solved at run time are cached (default: $INFOMAX_CACHE_DIR or"
+            " a directory under the system temp dir)",
+        )
+        sub.set_defaults(run=run)
+        return sub
+
+    sub = add("baby9", "the baby-9 scenario (MODEL.md section 5)", _run_baby9)
+    sub.add_argument("--params", default="paper", help="parameter set (default: paper)")
+    sub.add_argument("--horizon", type=int, default=24, help="receding horizon H (default 24)")
+    sub.add_argument("--memory", type=int, default=60, help="table memory M >= steps (default 60)")
+    sub.add_argument("--steps", type=int, default=54, help="steps (default 54 = 43.2 s)")
+    sub.add_argument(
+        "--replies",
+        type=_name_list,
+        default=["all", "1", "2", "3"],
+        help="reply conventions: all, or a timer value of the agent period (default all,1,2,3)",
+    )
+    sub.add_argument("--plot", help="write the session figure of the first reply to this PNG")
+
+    sub = add("rule", "the interpretable rule against the optimal controller", _run_rule)
+    sub.add_argument("--params", default="paper", help="parameter set (default: paper)")
+    sub.add_argument("--horizon", type=int, default=40, help="episodic horizon T (default 40)")
+    sub.add_argument(
+        "--steps", type=_step_range, default=(18, 24), help="steps FIRST-LAST (default 18-24)"
+    )
+    sub.add_argument("--c", type=float, default=9.0, help="the rule's constant (default 9)")
+
+    sub = add("greedy", "what one-step (H = 1) infomax control does", _run_greedy)
+    sub.add_argument(
+        "--params", type=_name_list, default=["paper", "robot"], help="sets (default paper,robot)"
+    )
+    sub.add_argument(
+        "--max-count", type=int, default=60, help="check statistics with n <= this (default 60)"
+    )
+    sub.add_argument("--steps", type=int, default=80, help="steps of the example run (default 80)")
+
+    sub = add("horizon", "how the optimal action map changes with the horizon", _run_horizon)
+    sub.add_argument(
+        "--params", type=_name_list, default=["paper", "robot"], help="sets (default paper,robot)"
+    )
+    sub.add_argument(
+        "--horizons",
+        type=_int_list,
+        default=[4, 8, 12, 16, 24, 40],
+        help="horizons to list (default 4,8,12,16,24,40)",
+    )
+    sub.add_argument(
+        "--domain", type=int, default=12, help="compare on counts n2 + n3 <= this (default 12)"
+    )
+    sub.add_argument(
+        "--longest", type=int, default=60, help="solve horizons up to this one (default 60)"
+    )
+    sub.add_argument("--plot", help="write the action maps to this PNG (one per set)")
+
+    defaults = evaluation.EfficiencyConfig()
+    sub = add("efficiency", "detection efficiency of all controllers", _run_efficiency)
+    sub.add_argument("--params", default=defaults.params_name, help="parameter set (robot)")
+    for option, default, text in (
+        ("--prior-rooms", defaults.prior_rooms, "rooms drawn from the prior"),
+        ("--named-runs", defaults.named_runs, "runs per named room"),
+        ("--switch-runs", defaults.switch_runs, "runs per switching scenario"),
+        ("--switch-step", defaults.switch_step, "step at which the partner leaves/arrives"),
+        ("--tuning-rooms", defaults.tuning_rooms, "prior rooms for choosing the fixed K"),
+        ("--steps", defaults.steps, "steps per run"),
+        ("--seed", defaults.seed, "master seed"),
+        ("--workers", defaults.workers, "processes"),
+    ):
+        sub.add_argument(option, type=int, default=default, help=f"{text} (default {default})")
+    sub.add_argument("--plot", help="write the comparison figure to this PNG")
+
+
+# --------------------------------------------------------------------------------------
+# learn
+
+
+def parse_method(text: str, default_budget: int) -> tuple[str, learning.LearningSettings, int]:
+    """``NAME[@BUDGET]`` or ``epsilon=E,backup=B,initial=I[@BUDGET]``."""
+    spec, _, budget_text = text.partition("@")
+    try:
+        budget = int(budget_text) if budget_text else default_budget
+    except ValueError:
+        raise ValueError(f"method {text!r}: the budget after @ must be a whole number") from None
+    if "=" not in spec:
+        if spec not in learning.METHODS:
+            raise ValueError(
+                f"unknown learning method {spec!r}; use one of {sorted(learning.METHODS)} or"
+                " epsilon=E,backup=B,initial=I"
+            )
+        return spec, learning.METHODS[spec], budget
+    fields: dict[str, Any] = {}
+    for item in spec.split(","):
+        key, _, value = item.partition("=")
+        if key not in ("epsilon", "backup", "initial"):
+            raise ValueError(f"method {text!r}: unknown setting {key!r} (epsilon, backup, initial)")
+        if key == "epsilon":
+            try:
+                fields[key] = float(value)
+            except ValueError:
+                raise ValueError(
+                    f"method {text!r}: epsilon must be a number, got {value!r}"
+                ) from None
+        else:
+            fields[key] = value
+    settings = learning.LearningSettings(**fields)
+    name = f"eps={settings.epsilon:g}, {settings.backup} backup, {settings.initial} init"
+    return name, settings, budget
+
+
+def _run_learn(args: argparse.Namespace) -> int:
+    params = ModelParams.load(args.params)
+    scorer = evaluation.Scorer(params, args.horizon)
+    methods = [parse_method(text, args.budget) for text in args.method or ["plain"]]
+    curves = []
+    for name, settings, budget in methods:
+        for seed in args.seeds:
+            curve, _ = learning.learn(
+                params,
+                args.horizon,
+                settings,
+                budget,
+                seed,
+                evaluate_every=args.evaluate_every,
+                evaluate_growth=args.evaluate_growth,
+                target=args.target,
+                scorer=scorer,
+            )
+            curve.method = name
+            curves.append(curve.to_dict())
+    if args.plot:
+        plots.plot_learning_curves(curves, args.plot, args.target)
+    if args.json:
+        _dump({"params": args.params, "horizon": args.horizon, "curves": curves})
+        return 0
+    print(
+        f"infomax TD learning, {args.params} parameters, T = {args.horizon}; score of the"
+        f" greedy learned policy (exact; 0 = never vocalize, 1 = optimal), target {args.target}"
+    )
+    print(
+        f"{'method':44} {'seed':>5} {'budget':>10} {'trials':>9} {'final':>7} {'max':>7}"
+        f" {'first >= target':>16} {'stays from':>12} {'time':>7}"
+    )
+    for curve in curves:
+        print(
+            f"{curve['method']:44} {curve['seed']:>5} {curve['vocalizations'][-1]:>10,}"
+            f" {curve['trials'][-1]:>9,} {curve['scores'][-1]:>7.4f} {max(curve['scores']):>7.4f}"
+            f" {learning.format_vocalizations(curve['first_reaching']):>16}"
+            f" {learning.format_vocalizations(curve['staying_from']):>12}"
+            f" {curve['seconds']:>6.1f}s"
+        )
+    if args.plot:
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def register_learn(subparsers: argparse._SubParsersAction) -> None:
+    """``learn``: infomax TD learning curves, scored exactly."""
+    parser = subparsers.add_parser(
+        "learn", help="learn the episodic policy by infomax TD learning; exact learning curves"
+    )
+    parser.add_argument("--params", default="paper", help="parameter set (default: paper)")
+    parser.add_argument("--horizon", type=int, default=12, help="episode length T (default 12)")
+    parser.add_argument(
+        "--method",
+        action="append",
+        help="NAME[@BUDGET] with NAME plain (MODEL.md) or improved, or"
+        " epsilon=E,backup=taken|best,initial=zero|entropy|listening[@BUDGET];"
+        " repeat for several (default: plain)",
+    )
+    parser.add_argument(
+        "--budget", type=int, default=60_000, help="vocalizations per run (default 60000)"
+    )
+    parser.add_argument(
+        "--seeds", type=_int_list, default=[1], help="seeds, e.g. 1,2,3 (default 1)"
+    )
+    parser.add_argument(
+        "--evaluate-every", type=int, default=1000, help="score every N vocalizations (1000)"
+    )
+    parser.add_argument(
+        "--evaluate-growth",
+        type=float,
+        default=0.0,
+        help="also wait until the vocalizations grew by this fraction (e.g. 0.05: log-spaced"
+        " points on long runs; default 0)",
+    )
+    parser.add_argument("--target", type=float, default=0.995, help="score target (0.995)")
+    parser.add_argument("--plot", help="write the learning curves to this PNG")
+    parser.add_argument("--json", action="store_true", help="print the curves as JSON")
+    parser.set_defaults(run=_run_learn)
+
+
+# --------------------------------------------------------------------------------------
+# plot
+
+
+DEFAULT_TABLES = {"robot": "robot_receding_H24_M60.npz", "paper": "paper_episodic_T40.npz"}
+
+
+def _default_controller(params: ModelParams) -> str:
+    """The committed optimal table of a reference set, else the rule."""
+    for name, file_name in DEFAULT_TABLES.items():
+        if NAMED_PARAMS[name] == params:
+            return f"policy:{resource_path('policies', file_name)}"
+    return "rule"
+
+
+def _run_plot(args: argparse.Namespace) -> int:
+    params = ModelParams.load(args.params)
+    if args.session:
+        records = plots.read_session(args.session)
+        title = args.title or f"session {Path(args.session).name}"
+    else:
+        rng = np.random.default_rng(args.seed)
+        room = make_room(args.world, params, rng)
+        controller = make_controller(
+            args.controller or _default_controller(params), params, rng, memory=args.memory
+        )
+        steps = simulate(params, controller, room, args.steps, rng, memory=args.memory)
+        records = [record.__dict__ for record in steps]
+        title = args.title or (
+            f"{args.params} parameters, {controller.name} in room {room.name}, seed {args.seed}"
+        )
+    path = plots.plot_session(params, records, args.out, title=title, memory=args.memory)
+    print(f"wrote {path} ({path.stat().st_size:,} bytes, {len(records)} steps)")
+    return 0
+
+
+def register_plot(subparsers: argparse._SubParsersAction) -> None:
+    """``plot``: the four-panel figure of a simulated or recorded session."""
+    parser = subparsers.add_parser(
+        "plot", help="plot a session (simulated now, or a `simulate --json` file) to a PNG"
+    )
+    parser.add_argument("--out", required=True, help="PNG file to write")
+    parser.add_argument(
+        "--session", help="JSON-lines session file (`simulate --json` output); else simulate"
+    )
+    parser.add_argument(
+        "--params", default="robot", help="parameter set of the session (default: robot)"
+    )
+    parser.add_argument(
+        "--controller",
+        help=f"controller to simulate: {', '.join(CONTROLLER_KINDS)} (default: the committed"
+        " optimal table of the paper or robot set, else the rule)",
+    )
+    parser.add_argument(
+        "--world",
+        default="responsive",
+        help=f"room to simulate: {' | '.join(ROOM_NAMES)}[:key=value,...] (default responsive)",
+    )
+    parser.add_argument("--steps", type=int, default=120, help="steps to simulate (default 120)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--memory",
+        type=int,
+        default=0,
+        help="sliding memory of the replayed counts (and of rule/greedy); 0 = all (default)",
+    )
+    parser.add_argument("--title", help="figure title")
+    parser.set_defaults(run=_run_plot)

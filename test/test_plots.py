@@ -1,0 +1,139 @@
+"""Figures: the session plot (simulated and recorded), learning curves, efficiency, horizons."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from infomax_contingency import cli, plots
+from infomax_contingency.controllers import make_controller
+from infomax_contingency.model import ModelParams
+from infomax_contingency.simulation import simulate
+from infomax_contingency.world import make_room
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+ROBOT = ModelParams.named("robot")
+
+
+def _session(steps: int = 60) -> list[dict]:
+    rng = np.random.default_rng(2)
+    room = make_room("responsive", ROBOT, rng)
+    records = simulate(ROBOT, make_controller("rule", ROBOT, rng), room, steps, rng)
+    return [record.__dict__ for record in records]
+
+
+def test_session_figure_has_four_panels_sharing_time() -> None:
+    figure = plots.session_figure(ROBOT, _session())
+    time_axes = [axis for axis in figure.axes if axis.get_xlabel() != "density"]
+    assert len(time_axes) == 4
+    shared = time_axes[0].get_shared_x_axes()
+    assert all(shared.joined(time_axes[0], axis) for axis in time_axes[1:])
+    assert time_axes[-1].get_xlabel() == "time (s)"
+    assert time_axes[-1].get_xlim()[1] == pytest.approx(60 * ROBOT.dt)
+
+
+def test_plot_command_writes_png(tmp_path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "session.png"
+    args = ["plot", "--out", str(out), "--world", "responsive", "--steps", "40", "--seed", "1"]
+    assert cli.main(args) == 0
+    data = out.read_bytes()
+    assert data.startswith(PNG_MAGIC) and len(data) > 20_000
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_plot_recorded_session(tmp_path, capsys: pytest.CaptureFixture) -> None:
+    session = tmp_path / "run.jsonl"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        cli.main(
+            ["simulate", "--params", "paper", "--controller", "rule", "--steps", "30", "--json"]
+        )
+    session.write_text(stdout.getvalue())
+    out = tmp_path / "recorded.png"
+    assert (
+        cli.main(["plot", "--params", "paper", "--session", str(session), "--out", str(out)]) == 0
+    )
+    assert out.read_bytes().startswith(PNG_MAGIC)
+    # Other parameters than the session's: the timers cannot be replayed.
+    assert (
+        cli.main(["plot", "--params", "robot", "--session", str(session), "--out", str(out)]) == 2
+    )
+    assert "differs from the replayed" in capsys.readouterr().err
+
+
+def test_bad_session_files(tmp_path, capsys: pytest.CaptureFixture) -> None:
+    out = str(tmp_path / "x.png")
+    broken = tmp_path / "broken.jsonl"
+    broken.write_text('{"t": 1}\nnot json\n')
+    assert cli.main(["plot", "--session", str(broken), "--out", out]) == 2
+    error = capsys.readouterr().err
+    assert "line 1 lacks the field(s)" in error and error.count("\n") == 1
+    broken.write_text("not json\n")
+    assert cli.main(["plot", "--session", str(broken), "--out", out]) == 2
+    assert "line 1 is not JSON" in capsys.readouterr().err
+    assert cli.main(["plot", "--session", str(tmp_path / "none"), "--out", out]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert cli.main(["plot", "--steps", "5", "--out", str(tmp_path / "x.jpg")]) == 2
+    assert "must end in .png" in capsys.readouterr().err
+
+
+def test_learning_horizon_and_efficiency_figures(tmp_path) -> None:
+    curve = {"method": "plain", "horizon": 12, "vocalizations": [0, 10, 100], "scores": [0, 0.5, 1]}
+    path = plots.plot_learning_curves([curve, {**curve, "method": "improved"}], tmp_path / "l.png")
+    assert path.read_bytes().startswith(PNG_MAGIC)
+    horizon = {
+        "domain_max_count": 2,
+        "sets": [
+            {
+                "params": "paper",
+                "stable_from": 3,
+                "horizons": [
+                    {
+                        "horizon": h,
+                        "map_long_ago": [[0.0, 1.0, None], [0.5, None, None], [None] * 3],
+                    }
+                    for h in (2, 4)
+                ],
+            }
+        ],
+    }
+    assert plots.plot_horizon_maps(horizon, tmp_path / "h.png").stat().st_size > 5_000
+    summary = {
+        "prior_weighted_entropy": 0.05,
+        "prior_weighted_entropy_ci": (0.04, 0.06),
+        **{
+            f"{room}+partner": {"detection_s_median": 20.0, "detection_s_ci": (15.0, float("inf"))}
+            for room in ("quiet", "office")
+        },
+    }
+    efficiency = {
+        "controllers": ["a", "b"],
+        "summaries": {"a": summary, "b": summary},
+        "rooms": {"backgrounds_k3": {"quiet": 0.05, "office": 0.2}},
+        "config": {"steps": 80, "params_name": "robot"},
+        "dt": 0.5,
+    }
+    assert plots.plot_efficiency(efficiency, tmp_path / "e.png").stat().st_size > 5_000
+
+
+def test_package_imports_without_matplotlib() -> None:
+    code = (
+        "import sys, infomax_contingency.cli, infomax_contingency.evaluation;"
+        " sys.exit('matplotlib' in sys.modules)"
+    )
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_read_session_round_trip(tmp_path) -> None:
+    records = _session(10)
+    path = tmp_path / "s.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert plots.read_session(path) == records
+    counts = plots.session_counts(ROBOT, records)
+    assert counts.shape == (10, 4) and counts[-1].sum() <= 10
