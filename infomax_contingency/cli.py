@@ -19,6 +19,7 @@ import numpy as np
 from .audio import AudioError
 from .controllers import CONTROLLER_KINDS, make_controller
 from .experiments_cli import register_experiment, register_learn, register_plot
+from .live_cli import register_calibrate, register_devices, register_measure_latency
 from .model import ModelParams, ParameterError
 from .policy_table import EPISODIC, RECEDING, PolicyTable, PolicyTableError
 from .simulation import simulate
@@ -144,6 +145,9 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_solve,
     register_simulate,
     register_info,
+    register_devices,
+    register_calibrate,
+    register_measure_latency,
     register_experiment,
     register_learn,
     register_plot,

@@ -1,0 +1,241 @@
+"""Command-line tools for live audio: ``devices``, ``calibrate`` and ``measure-latency``.
+
+Registered in :mod:`infomax_contingency.cli`; errors follow its rules (one line on stderr,
+exit status 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+from .audio import PROCESSING_RATE_HZ, AudioError, kmeans_split, save_threshold
+from .live_audio import (
+    INPUT,
+    OUTPUT,
+    energies_from_wav,
+    energy_histogram,
+    format_devices,
+    measure_latency,
+    record_energies,
+    self_period_windows,
+)
+from .model import ModelParams
+
+_MIN_SEPARATION_DB = 10.0
+"""Cluster means closer than this (dB) get a warning: the audio may lack quiet or sound."""
+
+
+def _print_log(level: str, message: str) -> None:
+    if level != "info":
+        print(f"{level}: {message}")
+
+
+# --------------------------------------------------------------------------- devices
+
+
+def _run_devices(args: argparse.Namespace) -> int:
+    print("input devices (microphones):")
+    print(format_devices(INPUT))
+    print("output devices (loudspeakers):")
+    print(format_devices(OUTPUT))
+    print("Choose a device by its index or by a part of its name; empty = system default.")
+    return 0
+
+
+def register_devices(subparsers: argparse._SubParsersAction) -> None:
+    """``devices``: list the audio devices PortAudio sees."""
+    parser = subparsers.add_parser("devices", help="list the audio input and output devices")
+    parser.set_defaults(run=_run_devices)
+
+
+# --------------------------------------------------------------------------- calibrate
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
+    if args.wav is not None and (args.device is not None or args.seconds is not None):
+        raise ValueError("calibrate from --wav FILE or from --device/--seconds, not both")
+    if args.wav is not None:
+        energies = energies_from_wav(args.wav, args.window_s, args.channel)
+        source = f"wav:{args.wav}"
+        what = str(args.wav)
+    else:
+        seconds = 10.0 if args.seconds is None else args.seconds
+        print(
+            f"recording {seconds:g} s from the microphone: let it hear the room quiet and with"
+            " sound (speech, claps) ..."
+        )
+        recording = record_energies(
+            args.device, seconds, args.window_s, channel=args.channel, log=_print_log
+        )
+        energies = recording.energies_db
+        source = f"device:{recording.device}"
+        what = f"{recording.device} ({recording.device_rate} Hz)"
+        if recording.lost_samples or recording.gaps:
+            print(
+                f"warning: {recording.lost_samples} samples lost and {recording.gaps} gap(s)"
+                " during the recording"
+            )
+    if energies.size < 2:
+        raise AudioError(
+            f"{what} holds {energies.size} window(s) of {args.window_s} s; calibration needs"
+            " at least 2"
+        )
+    fit = kmeans_split(energies)
+    print(f"calibrated on {energies.size} windows of {args.window_s:g} s from {what}")
+    print(
+        f"threshold: {fit.threshold_db:.2f} dB (quiet: {fit.n_low} windows, mean"
+        f" {fit.low_mean_db:.1f} dB; sound: {fit.n_high} windows, mean {fit.high_mean_db:.1f} dB)"
+    )
+    print(energy_histogram(energies, fit.threshold_db, bin_db=args.bin_db))
+    if fit.high_mean_db - fit.low_mean_db < _MIN_SEPARATION_DB:
+        print(
+            f"warning: the two clusters lie only {fit.high_mean_db - fit.low_mean_db:.1f} dB"
+            " apart; the audio may lack quiet or sound. Calibrate again with both."
+        )
+    save_threshold(args.out, fit, window_s=args.window_s, rate=PROCESSING_RATE_HZ, source=source)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _positive(kind: type) -> Callable[[str], float]:
+    """An argparse type: a finite number > 0 of ``kind`` (int or float)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+        if not (value > 0 and math.isfinite(value)):
+            raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        return value
+
+    return parse
+
+
+def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
+    """``calibrate``: fit the sound threshold on a recording or on the live microphone."""
+    parser = subparsers.add_parser(
+        "calibrate",
+        help="fit the sound threshold (k-means) on a wav file or the live microphone",
+        description="Fit the sound/quiet threshold by two-cluster k-means of window energies, "
+        "print it with a histogram, and write a threshold file for mic_node.",
+    )
+    parser.add_argument("--wav", type=Path, help="calibrate on this WAV file")
+    parser.add_argument(
+        "--device",
+        help="microphone: index or part of its name (default: system default)",
+    )
+    parser.add_argument(
+        "--seconds", type=_positive(float), help="seconds to record live (default: 10)"
+    )
+    parser.add_argument(
+        "--window-s", type=_positive(float), default=0.5, help="window length, s (default: 0.5)"
+    )
+    parser.add_argument(
+        "--channel", type=int, help="use this 0-based channel (default: mix all channels)"
+    )
+    parser.add_argument(
+        "--bin-db", type=_positive(float), default=3.0, help="histogram bin width, dB"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="threshold file to write (YAML)")
+    parser.set_defaults(run=_run_calibrate)
+
+
+# --------------------------------------------------------------------------- measure-latency
+
+
+def _run_measure_latency(args: argparse.Namespace) -> int:
+    params = ModelParams.load(args.params)
+    window_s = params.dt if args.window_s is None else args.window_s
+    if not (args.tail_s >= 0 and math.isfinite(args.tail_s)):
+        raise ValueError(f"--tail-s must be >= 0 seconds, got {args.tail_s}")
+    report = measure_latency(
+        args.input_device,
+        args.output_device,
+        repeats=args.repeats,
+        interval_s=args.interval_s,
+        volume=args.volume,
+        sound=args.sound,
+        log=_print_log,
+    )
+    print(f"microphone: {report.input_device}; loudspeaker: {report.output_device}")
+    for failure in report.failures:
+        print(failure)
+    if not report.trials:
+        raise AudioError(
+            "the sound was not heard in any repeat: check the devices, raise --volume or move"
+            " the microphone closer to the loudspeaker"
+        )
+    for i, trial in enumerate(report.trials, 1):
+        print(
+            f"heard {1000 * trial.delay_s:.1f} ms after the play command (output"
+            f" {1000 * trial.output_s:.1f} ms; match {trial.score:.2f}) [{i}]"
+        )
+    delays = report.delays_s
+    print(
+        f"self-feedback delay: mean {1000 * delays.mean():.1f} ms, min {1000 * delays.min():.1f}"
+        f" ms, max {1000 * delays.max():.1f} ms over {delays.size} repeat(s)"
+    )
+    heard_s = report.sound_s + args.tail_s
+    ts1, ts2 = self_period_windows(float(delays.min()), float(delays.max()), heard_s, window_s)
+    print(
+        f"the sound ({1000 * report.sound_s:.0f} ms + {1000 * args.tail_s:.0f} ms tail) is heard"
+        f" in windows z = {ts1}..{ts2} after a vocalization (windows of {window_s:g} s)"
+    )
+    verdict = (
+        "consistent"
+        if (ts1, ts2) == (params.ts1, params.ts2) and ts2 < params.ta1
+        else "different: set ts1/ts2 in the parameter file"
+        if ts2 < params.ta1
+        else f"NOT usable: ts2 = {ts2} reaches the agent period (ta1 = {params.ta1}); lower"
+        " the latency or use longer windows"
+    )
+    print(
+        f"implied self period: ts1 = {ts1}, ts2 = {ts2} (parameters {args.params}: ts1 ="
+        f" {params.ts1}, ts2 = {params.ts2}, ta1 = {params.ta1}: {verdict})"
+    )
+    return 0
+
+
+def register_measure_latency(subparsers: argparse._SubParsersAction) -> None:
+    """``measure-latency``: play the sound, hear it, and derive the self period."""
+    parser = subparsers.add_parser(
+        "measure-latency",
+        help="measure the self-feedback delay (speaker -> microphone) and the self period",
+        description="Play the robot's sound and record it on the microphone, REPEATS times; "
+        "report the delay from the play command to the sound's onset at the microphone, and "
+        "the self period (ts1, ts2): the windows z = 0, 1, ... after a vocalization that the "
+        "sound overlaps, window z covering [z dt, (z+1) dt) after the command.",
+    )
+    parser.add_argument("--input-device", help="microphone: index or part of its name")
+    parser.add_argument("--output-device", help="loudspeaker: index or part of its name")
+    parser.add_argument("--repeats", type=_positive(int), default=5, help="plays (default: 5)")
+    parser.add_argument(
+        "--interval-s",
+        type=_positive(float),
+        default=1.0,
+        help="recording after each play, s (default: 1.0)",
+    )
+    parser.add_argument(
+        "--volume", type=float, default=1.0, help="gain of the sound, 0..1 (default: 1)"
+    )
+    parser.add_argument("--sound", type=Path, help="WAV file to play instead of the chirp")
+    parser.add_argument(
+        "--params",
+        default="robot",
+        metavar="NAME|FILE",
+        help="model parameters to compare with (default: robot)",
+    )
+    parser.add_argument(
+        "--window-s", type=_positive(float), help="window length dt, s (default: the params' dt)"
+    )
+    parser.add_argument(
+        "--tail-s",
+        type=float,
+        default=0.1,
+        help="room reverberation added to the sound's length, s (default: 0.1)",
+    )
+    parser.set_defaults(run=_run_measure_latency)

@@ -1,0 +1,165 @@
+"""Tests of the live-audio commands: ``devices``, ``calibrate`` and ``measure-latency``.
+
+``calibrate`` and ``devices`` run through the real PortAudio/ALSA stack on virtual devices
+(a subprocess per configuration, see alsa_devices.py). ``measure-latency`` needs an
+acoustic loop, which file-plugin devices cannot give (they have no clock): its
+measurement runs on the fake PortAudio's simulated room; through ALSA only the devices'
+opening and the "not heard" error are checked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from alsa_devices import VirtualAlsa
+from fake_portaudio import FakeBackend, Room, device
+from infomax_contingency import audio, cli, live_audio
+from test_live_audio import write_recording
+
+RUN_CLI = """
+import json, sys
+from infomax_contingency.cli import main
+rc = main({args!r})
+sys.stdout.flush()
+print(json.dumps(dict(rc=rc)))
+"""
+
+
+def run_cli(alsa: VirtualAlsa, *args: str) -> tuple[int, str, str]:
+    result = alsa.run(RUN_CLI.format(args=list(args)))
+    stdout = result["_stdout"].rsplit("\n", 2)[0]
+    return result["rc"], stdout, result["_stderr"]
+
+
+@pytest.fixture
+def room_wav(tmp_path):
+    return write_recording(tmp_path / "room.wav", 16000, seconds=7.0)
+
+
+def test_calibrate_on_a_wav_prints_threshold_and_histogram(room_wav, tmp_path, capsys) -> None:
+    out = tmp_path / "cal" / "threshold.yaml"
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    energies = audio.window_energies_db(audio.load_mono(room_wav), 16000, 0.5)
+    fit = audio.kmeans_split(energies)
+    assert audio.load_threshold(out) == fit.threshold_db
+    record = yaml.safe_load(out.read_text())
+    assert record["window_s"] == 0.5 and record["source"] == f"wav:{room_wav}"
+    assert f"calibrated on {energies.size} windows of 0.5 s from {room_wav}" in text
+    assert f"threshold: {fit.threshold_db:.2f} dB (quiet: {fit.n_low} windows" in text
+    assert f"threshold {fit.threshold_db:.1f} dB" in text  # the histogram's marker
+    bars = [line for line in text.splitlines() if " dB | " in line]
+    assert sum(int(line.rsplit(" ", 1)[1]) for line in bars) == energies.size
+    assert "warning" not in text
+    assert f"wrote {out}" in text
+
+
+def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
+    out = tmp_path / "t.yaml"
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--device", "1", "--out", str(out)]) == 2
+    assert "not both" in capsys.readouterr().err
+    silent = tmp_path / "silent.wav"
+    audio.write_wav_int16(silent, np.zeros(16000), 16000)
+    assert cli.main(["calibrate", "--wav", str(silent), "--out", str(out)]) == 2
+    assert "no boundary between quiet and sound" in capsys.readouterr().err
+    assert cli.main(["calibrate", "--wav", str(tmp_path / "none.wav"), "--out", str(out)]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert not out.exists()
+    with pytest.raises(SystemExit):
+        cli.main(["calibrate", "--wav", str(room_wav), "--window-s", "0", "--out", str(out)])
+
+
+def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) -> None:
+    alsa = VirtualAlsa(tmp_path / "alsa")
+    alsa.wav_microphone("fakemic", room_wav)
+    alsa.write(default_capture="fakemic")
+    live = tmp_path / "live.yaml"
+    rc, stdout, _ = run_cli(
+        alsa, "calibrate", "--device", "fake", "--seconds", "7", "--out", str(live)
+    )
+    assert rc == 0, stdout
+    offline = tmp_path / "offline.yaml"
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(offline)]) == 0
+    assert audio.load_threshold(live) == audio.load_threshold(offline)
+    assert yaml.safe_load(live.read_text())["source"] == "device:fakemic"
+    assert "calibrated on 14 windows of 0.5 s from fakemic (16000 Hz)" in stdout
+    assert "threshold" in stdout and " dB | " in stdout
+
+
+def test_calibrate_on_a_missing_device_lists_the_devices(tmp_path) -> None:
+    alsa = VirtualAlsa(tmp_path / "alsa")
+    alsa.microphone("fakemic", np.zeros(1600))
+    alsa.write(default_capture="fakemic")
+    rc, _, stderr = run_cli(alsa, "calibrate", "--device", "USB", "--out", str(tmp_path / "t"))
+    assert rc == 2
+    assert "infomax-contingency calibrate: error: no input device name contains 'USB'" in stderr
+    assert "[0] fakemic (ALSA" in stderr
+
+
+def test_devices_lists_inputs_and_outputs(tmp_path) -> None:
+    alsa = VirtualAlsa(tmp_path / "alsa")
+    alsa.microphone("fakemic", np.zeros(1600))
+    alsa.speaker("fakespeaker")
+    alsa.write(default_capture="fakemic", default_playback="fakespeaker")
+    rc, stdout, _ = run_cli(alsa, "devices")
+    assert rc == 0
+    inputs, outputs = stdout.split("output devices (loudspeakers):")
+    assert "[0] fakemic (ALSA" in inputs and "fakespeaker" not in inputs
+    assert "[1] fakespeaker (ALSA" in outputs and "fakemic" not in outputs
+    assert "default" in inputs and "<- system default" in inputs
+
+
+def test_measure_latency_on_virtual_devices_reports_not_heard(tmp_path) -> None:
+    # file-plugin devices: the loudspeaker writes a file, the microphone hears silence
+    alsa = VirtualAlsa(tmp_path / "alsa")
+    alsa.microphone("fakemic", np.zeros(1600))
+    out = alsa.speaker("fakespeaker")
+    alsa.write(default_capture="fakemic", default_playback="fakespeaker")
+    rc, stdout, stderr = run_cli(
+        alsa, "measure-latency", "--repeats", "2", "--interval-s", "0.3", "--volume", "0.2"
+    )
+    assert rc == 2
+    assert "microphone: default; loudspeaker: default" in stdout
+    assert stdout.count("the sound was not heard") == 2
+    assert "measure-latency: error: the sound was not heard in any repeat" in stderr
+    assert np.fromfile(out, dtype="<f4").any()  # the chirps were played
+
+
+@pytest.mark.slow
+def test_measure_latency_reports_delay_and_self_period(monkeypatch, capsys) -> None:
+    room = Room(16000, delay_s=0.25)
+    backend = FakeBackend(
+        [device(0, "robot mic", 1, 0, 16000), device(1, "robot speaker", 0, 1, 16000)],
+        default_input=0,
+        default_output=1,
+        realtime=True,
+        source=room.source,
+        sink=room.sink,
+        output_latency_s=0.03,
+    )
+    monkeypatch.setattr(live_audio, "SoundDeviceBackend", lambda: backend)
+    rc = cli.main(["measure-latency", "--repeats", "2", "--interval-s", "0.7"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "microphone: robot mic; loudspeaker: robot speaker" in text
+    lines = [line for line in text.splitlines() if line.startswith("heard ")]
+    assert len(lines) == 2
+    delays = [float(line.split()[1]) for line in lines]
+    assert all(280 <= d <= 330 for d in delays)  # 250 ms room + 30 ms output + a block
+    assert "self-feedback delay: mean" in text and "over 2 repeat(s)" in text
+    # heard over [~0.29, ~0.59] s (200 ms sound + 100 ms tail): windows 0 and 1 of 0.5 s
+    assert "heard in windows z = 0..1 after a vocalization (windows of 0.5 s)" in text
+    assert "implied self period: ts1 = 0, ts2 = 1 (parameters robot" in text
+    assert "consistent" in text
+    rc = cli.main(["measure-latency", "--repeats", "1", "--interval-s", "0.7", "--params", "paper"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert "ts1 = 0, ts2 = 0 (parameters paper" in text and "consistent" in text
+
+
+def test_cli_registers_the_live_commands() -> None:
+    parser = cli.build_parser()
+    choices = parser._subparsers._group_actions[0].choices
+    assert {"devices", "calibrate", "measure-latency"} <= set(choices)
