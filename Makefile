@@ -24,8 +24,10 @@ SETUP_INPUTS := requirements.txt requirements-colcon.txt setup.py setup.cfg pack
 APT_PACKAGES := libportaudio2 sox espeak-ng alsa-utils
 
 PYTEST_ARGS ?=
-DEMO_ARGS ?= simulate --params paper --controller policy:policies/paper_episodic_T40.npz \
-	--world responsive --steps 40 --seed 1
+# The demo: the whole node graph (mic, controller, belief, posture, speaker, fake room) as
+# separate processes over DDS, in lockstep: a partner answers for 60 s, then leaves.
+# Replay a recording instead with: make demo DEMO_ARGS="demo --wav FILE".
+DEMO_ARGS ?= demo --steps 240 --seed 1 --leave-at 60
 
 # Keep DDS traffic on this machine and off the default domain, for every target (and so
 # for every process a target starts), unless the caller already chose otherwise.

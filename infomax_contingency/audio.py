@@ -29,7 +29,6 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 from scipy.io import wavfile
-from scipy.signal import resample_poly
 
 PROCESSING_RATE_HZ = 16000
 """Sample rate (Hz) at which audio is windowed and measured."""
@@ -221,6 +220,8 @@ def resample(samples: ArrayLike, from_rate: int, to_rate: int) -> NDArray[np.flo
     x = np.asarray(samples, dtype=np.float64)
     if from_rate == to_rate:
         return x.copy()
+    from scipy.signal import resample_poly  # imported here: scipy.signal costs ~0.5 s to load
+
     g = math.gcd(from_rate, to_rate)
     return resample_poly(x, to_rate // g, from_rate // g, axis=0)
 

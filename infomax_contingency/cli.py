@@ -21,6 +21,7 @@ from .controllers import CONTROLLER_KINDS, make_controller
 from .experiments_cli import register_experiment, register_learn, register_plot
 from .live_cli import register_calibrate, register_devices, register_measure_latency
 from .model import ModelParams, ParameterError
+from .nodes.demo import register_demo
 from .policy_table import EPISODIC, RECEDING, PolicyTable, PolicyTableError
 from .simulation import simulate
 from .solver import solve
@@ -151,6 +152,7 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_experiment,
     register_learn,
     register_plot,
+    register_demo,
 ]
 
 

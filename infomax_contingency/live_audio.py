@@ -52,7 +52,6 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import correlate, firwin, upfirdn
 
 from .audio import (
     PROCESSING_RATE_HZ,
@@ -419,6 +418,9 @@ class StreamResampler:
         if self.up == self.down:
             return
         half_len = 10 * max(self.up, self.down)
+        from scipy.signal import firwin, upfirdn  # lazy: scipy.signal takes ~0.5 s to load
+
+        self._upfirdn = upfirdn
         h = firwin(2 * half_len + 1, 1.0 / max(self.up, self.down), window=("kaiser", 5.0))
         pre_pad = self.down - half_len % self.down
         self._h = np.concatenate((np.zeros(pre_pad), h * self.up))
@@ -448,7 +450,7 @@ class StreamResampler:
         if end <= self._n_out:
             return np.empty(0)
         start = self._first_input_needed(self._n_out)
-        y = upfirdn(self._h, self._buf[start - self._buf_start :], self.up, self.down)
+        y = self._upfirdn(self._h, self._buf[start - self._buf_start :], self.up, self.down)
         offset = start * self.up // self.down - self._skip
         out = y[self._n_out - offset : end - offset]
         self._n_out = end
@@ -1655,6 +1657,8 @@ def find_onset(
     n = h.size
     if n == 0 or x.size < n:
         return None
+    from scipy.signal import correlate  # lazy: scipy.signal takes ~0.5 s to load
+
     raw = correlate(x, h, mode="valid", method="fft")
     c = np.concatenate(([0.0], np.cumsum(x * x)))
     local = np.sqrt(np.maximum(c[n:] - c[:-n], 0.0)) * math.sqrt(float(h @ h))

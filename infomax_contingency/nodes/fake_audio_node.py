@@ -1,0 +1,207 @@
+"""fake_audio_node: a simulated room that publishes the sound a microphone would hear.
+
+The room (:class:`~infomax_contingency.fake_room.FakeRoom`) is chosen by ``room``
+(responsive | silent | noisy) and every one of its parameters can be overridden (noise
+floor, background events, the robot's own sound, the partner's arrival, departure,
+reply probability, delays and level; see :mod:`infomax_contingency.fake_room`).
+Deterministic for a given ``seed``.
+
+Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
+``vocalize`` for window t arrived (or after ``lockstep_timeout_s``), so the robot's own
+sound and the partner's reply land in the right windows however fast the graph runs; in
+real time one window is published every ``window_s / speed`` seconds. One message per
+window. Publishing starts ``start_delay_s`` after ``audio`` has ``wait_for_listeners``
+subscribers, ``partner_present`` ``wait_for_truth_listeners`` (and, in lockstep,
+``vocalize`` a publisher) and every subscriber seen on its topics is connected; it
+stops after ``max_windows`` windows (0 = never).
+
+Subscribes ``vocalize`` (Bool); publishes ``audio`` (Float32MultiArray, mono samples in
+[-1, 1] at ``rate_hz``), ``partner_present`` (Bool, the ground truth of each window, right
+after its audio) and ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import array
+import sys
+import time
+from typing import Any
+
+from std_msgs.msg import Bool, Float32MultiArray
+
+from ..fake_room import PRESETS, FakeRoom, FakeRoomConfig, as_transmitted, timing_warnings
+from ..stepclock import LockstepPacer
+from .common import OK, STREAM_QOS, WARN, ConfigError, GraphNode, run_node
+
+ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
+    (
+        "window_s",
+        "Window length; must equal the mic's window_s and the model's dt",
+        0.01,
+        10.0,
+        "s",
+    ),
+    ("noise_floor_db", "RMS level of the background hiss", -150.0, 0.0, "dB"),
+    ("event_rate_hz", "Background sound events per second", 0.0, 100.0, "1/s"),
+    ("event_level_db", "RMS level of a background event", -150.0, 0.0, "dB"),
+    ("event_min_s", "Shortest background event", 0.001, 60.0, "s"),
+    ("event_max_s", "Longest background event", 0.001, 60.0, "s"),
+    ("self_delay_s", "Delay from the start of the window to the robot's sound", 0.0, 10.0, "s"),
+    ("self_level_db", "RMS level of the robot's own sound at the microphone", -150.0, 0.0, "dB"),
+    ("partner_arrive_s", "Room time the partner arrives; negative = no partner", -1.0, 1e9, "s"),
+    ("partner_leave_s", "Room time the partner leaves; negative = never", -1.0, 1e9, "s"),
+    ("reply_probability", "Probability that the partner answers a vocalization", 0.0, 1.0, ""),
+    ("reply_level_db", "RMS level of a reply", -150.0, 0.0, "dB"),
+    ("reply_delay_min_s", "Earliest reply start after a vocalization", 0.0, 60.0, "s"),
+    ("reply_delay_max_s", "Latest reply start after a vocalization", 0.0, 60.0, "s"),
+    ("reply_min_s", "Shortest reply", 0.001, 60.0, "s"),
+    ("reply_max_s", "Longest reply", 0.001, 60.0, "s"),
+    ("syllable_rate_hz", "Syllables per second in a reply", 0.1, 50.0, "1/s"),
+)
+"""(name, description, low, high, unit) of the room's floating-point parameters."""
+
+
+class FakeAudioNode(GraphNode):
+    """Fake audio: a simulated room with or without a responsive partner."""
+
+    NODE_NAME = "fake_audio_node"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        read = self.parameters
+        params = read.model()
+        room = read.text(
+            "room", "responsive", "Room preset the other parameters start from", tuple(PRESETS)
+        )
+        defaults = FakeRoomConfig.preset(room)
+        values: dict[str, Any] = {
+            "rate_hz": read.integer(
+                "rate_hz", defaults.rate_hz, "Sample rate of the audio", 1000, 384000
+            )
+        }
+        for name, description, low, high, unit in ROOM_PARAMETERS:
+            values[name] = read.number(name, getattr(defaults, name), description, low, high, unit)
+        seed = read.integer("seed", 0, "Random seed (same seed, same room)", 0, 2**31 - 1)
+        lockstep = read.flag("lockstep", True, "Publish window t+1 after the vocalize for window t")
+        timeout_s = read.number(
+            "lockstep_timeout_s",
+            2.0,
+            "Publish the next window anyway after this long",
+            0.01,
+            3600.0,
+            "s",
+        )
+        speed = read.number(
+            "speed", 1.0, "Real-time pacing factor (2 = twice as fast)", 0.01, 1000.0
+        )
+        self.max_windows = read.integer(
+            "max_windows", 0, "Stop after this many windows; 0 = never", 0, 2**31 - 1
+        )
+        self.wait_for_listeners = read.integer(
+            "wait_for_listeners",
+            1,
+            "Subscribers of 'audio' to wait for before the first window",
+            0,
+            1000,
+        )
+        self.wait_for_truth_listeners = read.integer(
+            "wait_for_truth_listeners",
+            0,
+            "Subscribers of 'partner_present' to wait for before the first window",
+            0,
+            1000,
+        )
+        self.start_delay_s = read.number(
+            "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
+        )
+        try:
+            config = FakeRoomConfig(**values)
+        except ValueError as error:
+            raise ConfigError(str(error)) from None
+        for warning in timing_warnings(config, params):
+            self.get_logger().warning(f"room timing vs model parameters: {warning}")
+        self.room = FakeRoom(config, seed)
+        self.pacer = LockstepPacer(timeout_s) if lockstep else None
+        self.period_s = config.window_s / speed
+        self.started = False
+        self.audio_pub = self.create_publisher(Float32MultiArray, "audio", STREAM_QOS)
+        self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
+        self.vocalize_sub = self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.start_when_ready(
+            self._ready,
+            self.start_delay_s,
+            self._start,
+            self.pacer,
+            self._on_timeout,
+            "is controller_node running, and does mic_node decide on every window? In"
+            " lockstep mic_node needs threshold_mode fixed or file: calibrating on this"
+            " stream would wait for windows that only come after a decision",
+        )
+        self.get_logger().info(
+            f"room '{room}' (seed {seed}), {'lockstep' if lockstep else f'real time x{speed:g}'}"
+        )
+        self.start_diagnostics()
+
+    def _ready(self) -> bool:
+        return (
+            self.audio_pub.get_subscription_count() >= self.wait_for_listeners
+            and self.truth_pub.get_subscription_count() >= self.wait_for_truth_listeners
+            and (self.pacer is None or self.vocalize_sub.get_publisher_count() > 0)
+        )
+
+    def _start(self) -> None:
+        self.started = True
+        if self.pacer is None:
+            self.create_timer(self.period_s, self._publish_window)
+        self._publish_window()
+
+    def _on_timeout(self) -> None:
+        self.get_logger().warning(
+            f"no 'vocalize' within {self.pacer.timeout_s} s: publishing the next window anyway"
+        )
+        self._publish_window()
+
+    def _on_vocalize(self, msg: Bool, stamp: int) -> None:
+        if msg.data:
+            self.room.vocalize()
+        if self.started and self.pacer is not None and self.pacer.answered():
+            self._publish_window()
+
+    def _publish_window(self) -> None:
+        if self.max_windows and self.room.windows_made >= self.max_windows:
+            return
+        window = self.room.next_window()
+        message = Float32MultiArray()
+        message.data = array.array("f", as_transmitted(window.samples).tobytes())
+        if self.pacer is not None:
+            self.pacer.sent(time.monotonic())
+        self.audio_pub.publish(message)
+        self.truth_pub.publish(Bool(data=window.partner_present))
+
+    def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
+        """Windows, vocalizations heard, replies, events, lockstep timeouts."""
+        room = self.room
+        values: dict[str, Any] = {
+            "windows": room.windows_made,
+            "room_time_s": room.now_s,
+            "partner_present": room.config.partner_present_at(room.now_s),
+            "vocalizations": room.vocalizations,
+            "replies": room.replies,
+            "events": room.events,
+        }
+        if self.pacer is not None:
+            values["lockstep_timeouts"] = self.pacer.timeouts
+        if not self.started:
+            return WARN, "waiting for a listener on 'audio'", values
+        if values.get("lockstep_timeouts"):
+            return WARN, "lockstep timeouts (is the controller running?)", values
+        return OK, f"{room.windows_made} windows", values
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the fake audio node."""
+    return run_node(FakeAudioNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,314 @@
+"""Run the node graph as separate processes and watch it: for the demo, tests and benchmarks.
+
+* :class:`GraphProcesses` starts nodes as child processes (by default ``python -m
+  infomax_contingency.nodes.<node>``, the same code as the console scripts), with their
+  parameters in one ROS parameter file, their output in log files, and stops them with
+  SIGINT (then SIGTERM, then SIGKILL).
+* :class:`StepRecorder` is a node that records the step-clock topics (``sound``,
+  ``sound_energy``, ``vocalize``, ``belief``, ``posture``, ``partner_present``) with the
+  time each message arrived and the time it was published.
+
+This module imports rclpy; the callers set ``ROS_AUTOMATIC_DISCOVERY_RANGE`` and
+``ROS_DOMAIN_ID`` first.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, String
+
+from .common import LATCHED_READER_QOS, STREAM_QOS
+
+NODES = (
+    "mic_node",
+    "controller_node",
+    "belief_node",
+    "posture_node",
+    "fake_audio_node",
+    "speaker_node",
+)
+"""Node executables (module names under ``infomax_contingency.nodes``)."""
+
+PUBLISHES: dict[str, tuple[str, ...]] = {
+    "mic_node": ("sound", "sound_energy"),
+    "controller_node": ("vocalize",),
+    "belief_node": ("belief",),
+    "posture_node": ("posture", "joint_targets"),
+    "fake_audio_node": ("audio", "partner_present"),
+    "speaker_node": (),
+}
+"""Topics each node publishes (besides /diagnostics)."""
+
+
+class GraphError(RuntimeError):
+    """The graph did not come up, or a node died; the message holds the nodes' logs."""
+
+
+class GraphProcesses:
+    """Node processes started from this process; :meth:`stop_all` ends them.
+
+    Args:
+        workdir: where the parameter files and the nodes' log files go.
+        env: environment of the children (default: this process's).
+        executable: the command that runs a node, given its name (default:
+            ``python -m infomax_contingency.nodes.<node>`` with this interpreter).
+        parameter_files: ROS parameter files every node reads first (e.g.
+            ``config/robot.yaml``); the parameters given to :meth:`start` override them.
+    """
+
+    def __init__(
+        self,
+        workdir: str | Path,
+        env: Mapping[str, str] | None = None,
+        executable: Callable[[str], list[str]] | None = None,
+        parameter_files: list[str | Path] | None = None,
+    ) -> None:
+        self.parameter_files = [str(path) for path in parameter_files or []]
+        self.executable = executable or (
+            lambda node: [sys.executable, "-m", f"infomax_contingency.nodes.{node}"]
+        )
+        self.workdir = Path(workdir)
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.env = dict(os.environ if env is None else env)
+        self.processes: dict[str, subprocess.Popen] = {}
+        self.stopped: set[str] = set()
+        """Nodes stopped on purpose (not reported by :meth:`dead`)."""
+        self._starts = 0
+
+    def command(self, node: str, parameters: Mapping[str, Any]) -> list[str]:
+        """The command line of ``node`` with ``parameters`` in a fresh parameter file."""
+        if node not in NODES:
+            raise ValueError(f"unknown node {node!r}; nodes: {', '.join(NODES)}")
+        self._starts += 1
+        path = self.workdir / f"{node}.{self._starts}.params.yaml"
+        path.write_text(yaml.safe_dump({node: {"ros__parameters": dict(parameters)}}))
+        files = [arg for file in (*self.parameter_files, path) for arg in ("--params-file", file)]
+        return [*self.executable(node), "--ros-args", *map(str, files)]
+
+    def start(self, node: str, parameters: Mapping[str, Any] | None = None) -> subprocess.Popen:
+        """Start ``node`` (replacing a stopped process of the same name)."""
+        if node in self.processes and self.processes[node].poll() is None:
+            raise RuntimeError(f"{node} is already running")
+        command = self.command(node, parameters or {})
+        log = (self.workdir / f"{node}.log").open("ab")
+        process = subprocess.Popen(
+            command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env
+        )
+        log.close()
+        self.processes[node] = process
+        self.stopped.discard(node)
+        return process
+
+    def log(self, node: str) -> str:
+        """What the node printed so far."""
+        path = self.workdir / f"{node}.log"
+        return path.read_text(errors="replace") if path.exists() else ""
+
+    def dead(self) -> dict[str, int]:
+        """Nodes that exited without being stopped, with their exit status."""
+        return {
+            name: process.returncode
+            for name, process in self.processes.items()
+            if process.poll() is not None and name not in self.stopped
+        }
+
+    def report(self) -> str:
+        """Exit statuses and last log lines of the nodes that exited."""
+        lines = []
+        for name, status in self.dead().items():
+            tail = "\n    ".join(self.log(name).strip().splitlines()[-8:])
+            lines.append(f"{name} exited with status {status}:\n    {tail}")
+        return "\n".join(lines) or "all nodes are running"
+
+    def stop(self, node: str, timeout_s: float = 10.0) -> int | None:
+        """Stop one node: SIGINT, then SIGTERM, then SIGKILL; returns its exit status."""
+        process = self.processes.get(node)
+        if process is None:
+            return None
+        self.stopped.add(node)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if process.poll() is not None:
+                break
+            process.send_signal(sig)
+            try:
+                process.wait(timeout=timeout_s / 2 if sig != signal.SIGKILL else None)
+            except subprocess.TimeoutExpired:
+                continue
+        return process.returncode
+
+    def stop_all(self, timeout_s: float = 10.0) -> dict[str, int | None]:
+        """Stop every node (all get SIGINT at once); returns their exit statuses."""
+        self.stopped.update(self.processes)
+        for process in self.processes.values():
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout_s / 2
+        for process in self.processes.values():
+            try:
+                process.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        return {name: self.stop(name, timeout_s) for name in self.processes}
+
+
+class StepRecorder(Node):
+    """Records the step-clock topics as they arrive.
+
+    Attributes (lists, in arrival order): ``sound``, ``energy``, ``vocalize``, ``belief``,
+    ``partner_present``, ``posture`` (every posture message, with the number of beliefs
+    received before it); ``times[topic]``: ``(received, published)`` per message, both
+    system-clock nanoseconds (DDS reception and source timestamps).
+
+    Args:
+        name: node name.
+        audio: also record the arrival times of the ``audio`` chunks (not their samples).
+    """
+
+    def __init__(self, name: str = "step_recorder", audio: bool = False, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self.lock = threading.Lock()
+        self.sound: list[bool] = []
+        self.energy: list[float] = []
+        self.vocalize: list[bool] = []
+        self.belief: list[float] = []
+        self.partner_present: list[bool] = []
+        self.posture: list[tuple[int, str]] = []
+        self.times: dict[str, list[tuple[float, int]]] = {}
+        self.on_message: Callable[[str], None] | None = None
+        for topic, kind, store, qos in (
+            ("sound", Bool, self.sound, STREAM_QOS),
+            ("sound_energy", Float32, self.energy, STREAM_QOS),
+            ("vocalize", Bool, self.vocalize, STREAM_QOS),
+            ("belief", Float64, self.belief, STREAM_QOS),
+            ("partner_present", Bool, self.partner_present, STREAM_QOS),
+            ("posture", String, None, LATCHED_READER_QOS),
+        ):
+            self.times[topic] = []
+            self.create_subscription(kind, topic, self._recorder(topic, store), qos)
+        if audio:
+            self.times["audio"] = []
+            self.create_subscription(
+                Float32MultiArray, "audio", self._recorder("audio", None), STREAM_QOS
+            )
+
+    def _recorder(self, topic: str, store: list | None) -> Callable[[Any, dict], None]:
+        def record(msg: Any, info: dict) -> None:
+            # When DDS received it (not when this executor got round to it), if known.
+            received = int(info.get("received_timestamp", 0)) or time.time_ns()
+            with self.lock:
+                self.times[topic].append((received, int(info.get("source_timestamp", 0))))
+                if topic == "posture":
+                    self.posture.append((len(self.belief), msg.data))
+                elif store is not None:
+                    store.append(msg.data)
+            if self.on_message is not None:
+                self.on_message(topic)
+
+        return record
+
+    def sees(self, nodes: list[str] | tuple[str, ...]) -> bool:
+        """True once ``nodes`` are in the graph and their topics reach this recorder."""
+        if not set(nodes) <= set(self.get_node_names()):
+            return False
+        recorded = {sub.topic_name.lstrip("/"): sub for sub in self.subscriptions}
+        for node in nodes:
+            for topic in PUBLISHES[node]:
+                if topic in recorded and recorded[topic].get_publisher_count() == 0:
+                    return False
+        return True
+
+    @property
+    def current_posture(self) -> str | None:
+        """The last posture received (None before any)."""
+        with self.lock:
+            return self.posture[-1][1] if self.posture else None
+
+    def counts(self) -> dict[str, int]:
+        """Messages received per topic."""
+        with self.lock:
+            return {topic: len(times) for topic, times in self.times.items()}
+
+
+class SpinThread:
+    """Spins nodes on an executor in a background thread (``with SpinThread(node): ...``)."""
+
+    def __init__(self, *nodes: Node) -> None:
+        self.executor = SingleThreadedExecutor()
+        for node in nodes:
+            self.executor.add_node(node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._stop = threading.Event()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except ExternalShutdownException:  # Ctrl-C or SIGTERM: rclpy shut down
+                return
+
+    def __enter__(self) -> SpinThread:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+        self.executor.shutdown(timeout_sec=1.0)
+
+
+def wait_until(
+    condition: Callable[[], bool],
+    timeout_s: float,
+    processes: GraphProcesses | None = None,
+    poll_s: float = 0.02,
+) -> bool:
+    """Poll ``condition`` until it holds (True) or ``timeout_s`` passes (False).
+
+    With ``processes``, stop early (False) as soon as one of them has exited.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        if processes is not None and processes.dead():
+            return condition()
+        time.sleep(poll_s)
+    return condition()
+
+
+def start_graph(
+    processes: GraphProcesses,
+    recorder: StepRecorder,
+    nodes: Mapping[str, Mapping[str, Any]],
+    clock: str,
+    timeout_s: float = 60.0,
+) -> None:
+    """Start ``nodes`` (name -> parameters); the ``clock`` node last.
+
+    The clock node (the fake room, or the mic replaying a file) sets the pace of the
+    whole graph, so it starts only once every other node is up and its topics reach the
+    recorder: then no node misses the first steps. ``recorder`` must be spinning.
+
+    Raises:
+        GraphError: a node exited, or the graph did not connect within ``timeout_s``.
+    """
+    others = [name for name in nodes if name != clock]
+    for name in others:
+        processes.start(name, nodes[name])
+    if not wait_until(lambda: recorder.sees(others), timeout_s, processes):
+        raise GraphError(
+            f"the nodes {others} did not connect within {timeout_s} s\n{processes.report()}"
+        )
+    processes.start(clock, nodes[clock])

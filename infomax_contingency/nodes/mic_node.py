@@ -1,0 +1,482 @@
+"""mic_node: audio windows to bits — the step clock of the graph.
+
+Sources (parameter ``source``):
+
+* ``wav`` — a WAV file (any PCM/float format, rate and channel count; mixed down or one
+  ``channel``, resampled to 16 kHz). Paced in real time (one window every ``window_s``)
+  or in **lockstep** (window t+1 goes out once ``vocalize`` for window t arrived, or
+  after ``lockstep_timeout_s``). Optional ``loop``; ``exit_at_end`` stops the node after
+  the last window.
+* ``topic`` — chunks of mono samples on ``audio`` (std_msgs/Float32MultiArray, in
+  [-1, 1], at ``audio_rate_hz``), windowed as they come. A gap in the stream (a missing
+  publication sequence number) drops the incomplete window and is counted.
+* ``sounddevice`` — a live microphone through PortAudio
+  (:class:`~infomax_contingency.live_audio.MicrophoneStream`): ``device`` is empty (the
+  system default), an index, or a part of the device's name (first match; the match is
+  logged); one ``channel`` or the mix of all. The device is opened at 16 kHz, or at its
+  own rate and resampled exactly. Capture starts with the step clock (after the start
+  gate below) and runs in real time: a 20 ms timer on the node's thread reads the
+  finished windows (the PortAudio callback only queues blocks, up to ``queue_s`` seconds
+  of audio; more is dropped and counted). A window that lost samples (an input
+  overflow, a reader too slow) is still published and the loss counted; if the device
+  vanishes, it is reopened with back-off and the step clock goes on after the gap
+  without made-up windows. Window times are PortAudio's ADC times
+  (``window_delay_s`` in the diagnostics: from a window's last sample to its bit). A
+  device that is not there at start-up stops the node with the list of input devices.
+
+Threshold (``threshold_mode``): ``fixed`` (``threshold_db``), ``file`` (a threshold file
+written by calibration, ``threshold_file``), or ``calibrate``: the two-cluster k-means
+of the first ``calibration_s`` seconds. A wav file is calibrated by reading its first
+seconds ahead, so every window of the file gets a bit; a stream's calibration windows
+are consumed (their ``sound_energy`` is published, but no ``sound``: the step clock
+starts after calibration). ``refresh_s > 0`` refits the threshold online on the last
+``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db`` apart).
+
+Start: the first bit goes out once ``sound`` has ``wait_for_listeners`` subscribers
+(and, in wav lockstep, ``vocalize`` a publisher) and every subscriber seen on its topics
+is connected, plus ``start_delay_s`` for the rest of the graph to connect; windows of the
+``audio`` topic that arrive meanwhile wait, none is lost. ``max_windows > 0`` stops the
+node (exit status 0) after that many bits, once the subscribers have acknowledged them.
+
+Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB),
+``/diagnostics`` (for a live microphone also the device, its state, overflows, dropped
+blocks, lost samples, gaps and reconnections).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.node import Node
+from std_msgs.msg import Bool, Float32, Float32MultiArray
+
+from ..audio import AudioError, WindowAssembler, load_threshold
+from ..live_audio import (
+    DISCONNECTED,
+    INPUT,
+    AudioDeviceError,
+    MicrophoneStream,
+    Window,
+    resolve_device,
+)
+from ..sources import Binarizer, WavReplay, calibration_window_count
+from ..stepclock import LockstepPacer
+from .common import ERROR, OK, STREAM_QOS, WARN, ConfigError, GraphNode, run_node
+
+SOURCES = ("wav", "topic", "sounddevice")
+THRESHOLD_MODES = ("calibrate", "fixed", "file")
+
+MICROPHONE_POLL_S = 0.02
+"""Seconds between reads of the live microphone's finished windows."""
+
+ACK_TIMEOUT_S = 5.0
+"""Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
+
+
+def device_parameter(node: Node, what: str) -> str:
+    """Declare and read the ``device`` parameter: ``""``, an index or a part of a name.
+
+    ``-p device:=3`` arrives as an integer, ``-p device:=USB`` as a string; both are
+    accepted (the parameter is dynamically typed) and returned as text, which
+    :func:`~infomax_contingency.live_audio.resolve_device` understands.
+    """
+    allowed = "empty (the system default), a device index, or a part of a device name"
+    descriptor = ParameterDescriptor(
+        name="device",
+        description=f"{what}: empty = the system default, an index, or a part of its name"
+        " (first match; `infomax-contingency devices` lists them)",
+        additional_constraints=allowed,
+        dynamic_typing=True,
+    )
+    value = node.declare_parameter("device", "", descriptor).value
+    if isinstance(value, bool) or not isinstance(value, int | str):
+        raise ConfigError(f"parameter 'device' = {value!r} is not allowed: {allowed}")
+    return str(value).strip()
+
+
+class MicNode(GraphNode):
+    """Microphone: audio windows to sound bits."""
+
+    NODE_NAME = "mic_node"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        read = self.parameters
+        self.source = read.text(
+            "source",
+            "wav",
+            "Where audio comes from: wav (a file), topic (the 'audio' topic),"
+            " sounddevice (a live microphone)",
+            SOURCES,
+        )
+        self.window_s = read.number(
+            "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
+        )
+        mode = read.text(
+            "threshold_mode", "calibrate", "How the sound threshold is set", THRESHOLD_MODES
+        )
+        threshold_db = read.number(
+            "threshold_db", -40.0, "Fixed threshold (threshold_mode fixed)", -150.0, 0.0, "dB"
+        )
+        threshold_file = read.text(
+            "threshold_file", "", "Threshold file written by calibration (threshold_mode file)"
+        )
+        calibration_s = read.number(
+            "calibration_s", 10.0, "Calibration audio (threshold_mode calibrate)", 0.02, 3600.0, "s"
+        )
+        refresh_s = read.number(
+            "refresh_s", 0.0, "Online threshold refresh buffer; 0 = off", 0.0, 86400.0, "s"
+        )
+        min_separation_db = read.number(
+            "min_separation_db",
+            10.0,
+            "Least gap between cluster means to accept a refit",
+            0.0,
+            100.0,
+            "dB",
+        )
+        self.wait_for_listeners = read.integer(
+            "wait_for_listeners",
+            2,
+            "Subscribers of 'sound' to wait for before the first bit",
+            0,
+            1000,
+        )
+        self.start_delay_s = read.number(
+            "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
+        )
+        self.max_windows = read.integer(
+            "max_windows", 0, "Stop the node after this many bits; 0 = never", 0, 2**31 - 1
+        )
+
+        wav = {
+            "path": read.text("wav_file", "", "WAV file to replay (source wav)"),
+            "channel": read.integer(
+                "channel",
+                -1,
+                "Channel of the file or microphone to use; -1 = mix all channels",
+                -1,
+                1023,
+            ),
+            "loop": read.flag("loop", False, "Replay the file again and again (source wav)"),
+            "lockstep": read.flag(
+                "lockstep", True, "Release each window after the 'vocalize' on the previous one"
+            ),
+            "timeout_s": read.number(
+                "lockstep_timeout_s",
+                2.0,
+                "Release the next window anyway after this long without a 'vocalize'",
+                0.01,
+                3600.0,
+                "s",
+            ),
+        }
+        self.exit_at_end = read.flag(
+            "exit_at_end", False, "Stop the node after the last window of the file"
+        )
+        audio_rate_hz = read.integer(
+            "audio_rate_hz", 16000, "Sample rate of the 'audio' topic (source topic)", 1000, 384000
+        )
+        live = {
+            "device": device_parameter(self, "Microphone (source sounddevice)"),
+            "queue_s": read.number(
+                "queue_s",
+                4.0,
+                "Live audio held for the node's reader (source sounddevice); blocks beyond it"
+                " are dropped and counted",
+                0.1,
+                600.0,
+                "s",
+            ),
+        }
+        refresh_windows = round(refresh_s / self.window_s) if refresh_s > 0 else 0
+        if refresh_s > 0 and refresh_windows < 2:
+            raise ConfigError(
+                f"parameter 'refresh_s' = {refresh_s}: must be 0 (off) or at least two windows"
+                f" ({2 * self.window_s:g} s)"
+            )
+        if mode == "fixed":
+            self.binarizer = Binarizer(threshold_db, 0, refresh_windows, min_separation_db)
+        elif mode == "file":
+            if not threshold_file:
+                raise ConfigError(
+                    "parameter 'threshold_file' is empty: threshold_mode 'file' needs the path"
+                    " of a threshold file written by calibration"
+                )
+            loaded = load_threshold(threshold_file)
+            self.binarizer = Binarizer(loaded, 0, refresh_windows, min_separation_db)
+        else:
+            windows = calibration_window_count(calibration_s, self.window_s)
+            self.binarizer = Binarizer(None, windows, refresh_windows, min_separation_db)
+
+        self.sound_pub = self.create_publisher(Bool, "sound", STREAM_QOS)
+        self.energy_pub = self.create_publisher(Float32, "sound_energy", STREAM_QOS)
+        self.windows = 0
+        self.last_energy_db = float("nan")
+        self.dropped_chunks = 0
+        self.bad_chunks = 0
+        self.started = False
+        self._held: deque[float] = deque()
+        self.replay: WavReplay | None = None
+        self.pacer: LockstepPacer | None = None
+        self._vocalize_sub = None
+        self._pace_timer = None
+        self.ended = False
+        self.microphone: MicrophoneStream | None = None
+        self.segment = 0
+        self.windows_with_loss = 0
+        self.window_delay_s = float("nan")
+        self.max_window_delay_s = float("nan")
+
+        if self.source == "wav":
+            self._setup_wav(mode, calibration_s, wav)
+        elif self.source == "topic":
+            self._setup_topic(audio_rate_hz)
+        else:
+            self._setup_microphone(live["device"], wav["channel"], live["queue_s"])
+        self.start_when_ready(
+            self._listeners_ready,
+            self.start_delay_s,
+            self._start,
+            self.pacer,
+            self._on_timeout,
+            "is controller_node running?",
+        )
+        self.start_diagnostics()
+
+    # ------------------------------------------------------------------ sources
+
+    def _setup_wav(self, mode: str, calibration_s: float, wav: dict[str, Any]) -> None:
+        path, channel, loop, lockstep = wav["path"], wav["channel"], wav["loop"], wav["lockstep"]
+        if not path:
+            raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")
+        self.replay = WavReplay(path, self.window_s, None if channel < 0 else channel, loop)
+        if mode == "calibrate":
+            fit = self.binarizer.calibrate(
+                self.replay.calibration_energies(calibration_s, self.window_s)
+            )
+            self.get_logger().info(
+                f"threshold {fit.threshold_db:.2f} dB from the first {fit.n_low + fit.n_high}"
+                f" windows of {path} (quiet {fit.low_mean_db:.1f} dB, sound"
+                f" {fit.high_mean_db:.1f} dB)"
+            )
+        if lockstep:
+            self.pacer = LockstepPacer(wav["timeout_s"])
+            self._vocalize_sub = self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.get_logger().info(
+            f"replaying {path}: {self.replay.n_windows} windows of {self.window_s} s,"
+            f" {'lockstep' if lockstep else 'real time'}{', looping' if loop else ''}"
+        )
+
+    def _setup_topic(self, rate: int) -> None:
+        self.assembler = WindowAssembler(rate, self.window_s)
+        self._last_sequence: int | None = None
+        self.create_subscription(Float32MultiArray, "audio", self._on_audio, STREAM_QOS)
+
+    def _setup_microphone(self, device: str, channel: int, queue_s: float) -> None:
+        try:
+            found = resolve_device(device, INPUT)
+        except AudioDeviceError as error:  # the message lists the input devices
+            raise ConfigError(f"parameter 'device' = {device!r}: {error}") from None
+        if channel >= found.max_input_channels:
+            raise ConfigError(
+                f"parameter 'channel' = {channel}: {found.name} has"
+                f" {found.max_input_channels} input channel(s), numbered 0 .."
+                f" {found.max_input_channels - 1}; -1 mixes them all"
+            )
+        self.microphone = MicrophoneStream(
+            device,
+            window_s=self.window_s,
+            channel=None if channel < 0 else channel,
+            queue_s=queue_s,
+            log=self._log_audio,
+        )
+        chosen = f"device {device!r}" if device else "the system default"
+        self.get_logger().info(
+            f"microphone: {chosen} is {found.describe(INPUT)}; capture starts with the step"
+            f" clock, windows of {self.window_s} s in real time"
+        )
+
+    def _log_audio(self, level: str, message: str) -> None:
+        # one call site per severity: rclpy refuses a call site whose severity changes
+        logger = self.get_logger()
+        if level == "error":
+            logger.error(message)
+        elif level == "warning":
+            logger.warning(message)
+        else:
+            logger.info(message)
+
+    # ------------------------------------------------------------------ start gate
+
+    def _start(self) -> None:
+        self.started = True
+        self.get_logger().info("listeners connected: starting the step clock")
+        if self.replay is not None:
+            if self.pacer is None:
+                self._pace_timer = self.create_timer(self.window_s, self._emit_from_file)
+            self._emit_from_file()
+        if self.microphone is not None:
+            self.microphone.start()
+            self.create_timer(MICROPHONE_POLL_S, self._read_microphone)
+        while self._held:
+            self._window(self._held.popleft())
+
+    def _on_timeout(self) -> None:
+        self.get_logger().warning(
+            f"no 'vocalize' within {self.pacer.timeout_s} s of window {self.windows}:"
+            " releasing the next window anyway"
+        )
+        self._emit_from_file()
+
+    def _listeners_ready(self) -> bool:
+        if self.sound_pub.get_subscription_count() < self.wait_for_listeners:
+            return False
+        return self._vocalize_sub is None or self._vocalize_sub.get_publisher_count() > 0
+
+    # ------------------------------------------------------------------ windows
+
+    def _emit_from_file(self) -> None:
+        energy = self.replay.next_energy()
+        if energy is None:
+            if not self.ended:
+                self.ended = True
+                if self._pace_timer is not None:
+                    self._pace_timer.cancel()
+                self.get_logger().info(f"end of {self.replay.path} after {self.windows} windows")
+                if self.exit_at_end:
+                    self._finish_publishing()
+            return
+        if self.pacer is not None:
+            self.pacer.sent(time.monotonic())
+        self._window(energy)
+
+    def _on_vocalize(self, msg: Bool, stamp: int) -> None:
+        if self.started and self.pacer is not None and self.pacer.answered():
+            self._emit_from_file()
+
+    def _on_audio(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
+        if 0 < int(info.get("source_timestamp", 0)) < self.started_ns:
+            self.stale_messages += 1  # published before this node started
+            return
+        sequence = info.get("publication_sequence_number")
+        if isinstance(sequence, int) and 0 < sequence < 2**63:
+            if self._last_sequence is not None and sequence > self._last_sequence + 1:
+                self.dropped_chunks += sequence - self._last_sequence - 1
+                self.assembler.reset()
+            self._last_sequence = sequence
+        try:
+            energies = self.assembler.push(np.frombuffer(msg.data, dtype=np.float32))
+        except AudioError as error:
+            self.bad_chunks += 1
+            self.get_logger().warning(f"audio chunk ignored: {error}", throttle_duration_sec=5.0)
+            return
+        for energy in energies:
+            if self.started:
+                self._window(energy)
+            else:
+                self._held.append(energy)
+
+    def _read_microphone(self) -> None:
+        for window in self.microphone.read_windows(0.0):
+            if self.finished.done():
+                return
+            self._note_window(window)
+            self._window(window.energy_db)
+            self.window_delay_s = time.monotonic() - window.end_time
+            self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
+
+    def _note_window(self, window: Window) -> None:
+        """Count a live window's losses; log the gap before it, if any."""
+        if window.segment != self.segment:
+            self.segment = window.segment
+            self.get_logger().warning(
+                f"audio gap of {window.gap_s:.2f} s before window {window.index}: the step"
+                " clock goes on, without bits for the missing time"
+            )
+        if not window.intact:
+            self.windows_with_loss += 1
+
+    def _window(self, energy_db: float) -> None:
+        """Publish one window: its energy, then (after calibration) its bit."""
+        self.last_energy_db = energy_db
+        self.energy_pub.publish(Float32(data=energy_db))
+        was_calibrating = self.binarizer.calibrating
+        bit = self.binarizer.push(energy_db)
+        if bit is None:
+            return
+        if was_calibrating:
+            fit = self.binarizer.fit
+            self.get_logger().info(
+                f"calibrated: threshold {fit.threshold_db:.2f} dB (quiet {fit.low_mean_db:.1f}"
+                f" dB, sound {fit.high_mean_db:.1f} dB)"
+            )
+        self.windows += 1
+        self.sound_pub.publish(Bool(data=bit))
+        if self.max_windows and self.windows >= self.max_windows:
+            self.get_logger().info(f"{self.windows} bits published (max_windows): stopping")
+            self._finish_publishing()
+
+    def _finish_publishing(self) -> None:
+        """Publish the final diagnostics; finish (exit status 0) once all was acknowledged."""
+        self.publish_diagnostics()
+        for publisher in self.publishers:
+            publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+        self.finish(0)
+
+    def destroy_node(self) -> None:
+        """Release the microphone, then the node."""
+        if self.microphone is not None:
+            self.microphone.close()
+        super().destroy_node()
+
+    # ------------------------------------------------------------------ diagnostics
+
+    def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
+        """Threshold, windows, last energy, losses, lockstep timeouts, the live device."""
+        b = self.binarizer
+        values: dict[str, Any] = {
+            "source": self.source,
+            "windows": self.windows,
+            "threshold_db": b.threshold_db if b.threshold_db is not None else "calibrating",
+            "last_energy_db": self.last_energy_db,
+            "dropped_chunks": self.dropped_chunks,
+            "bad_chunks": self.bad_chunks,
+            "refits_accepted": b.refits_accepted,
+            "refits_rejected": b.refits_rejected,
+            "calibration_failures": b.calibration_failures,
+        }
+        if self.pacer is not None:
+            values["lockstep_timeouts"] = self.pacer.timeouts
+        if self.microphone is not None:
+            live = self.microphone.status().as_dict()
+            live["captured_windows"] = live.pop("windows")
+            values.update(live)
+            values["windows_with_loss"] = self.windows_with_loss
+            values["window_delay_s"] = self.window_delay_s
+            values["max_window_delay_s"] = self.max_window_delay_s
+        if not self.started:
+            return WARN, f"waiting for {self.wait_for_listeners} listeners on 'sound'", values
+        if values.get("state") == DISCONNECTED:
+            return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
+        if b.calibrating:
+            return OK, "calibrating the threshold", values
+        losses = ("dropped_chunks", "bad_chunks", "overflows", "lost_samples", "gaps")
+        if any(values.get(key) for key in losses) or values.get("lockstep_timeouts"):
+            return WARN, "audio lost or lockstep timeouts (see values)", values
+        return OK, f"{self.windows} windows", values
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the mic node."""
+    return run_node(MicNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""posture_node: the belief shown as a posture, ``attentive`` or ``bored``.
+
+Hysteresis (:class:`~infomax_contingency.posture.PostureHysteresis`): attentive when the
+belief rises above ``attentive_above``, bored again when it falls below ``bored_below``.
+On every change (and once at start-up, with the initial posture) the node publishes
+``posture`` (std_msgs/String) and ``joint_targets`` (trajectory_msgs/JointTrajectory:
+one point, ``joint_names`` at ``attentive_positions`` or ``bored_positions``, reached in
+``move_duration_s``), both transient-local so a late joiner gets the current posture.
+
+Subscribes ``belief`` (Float64); publishes ``posture``, ``joint_targets``, ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from builtin_interfaces.msg import Duration
+from std_msgs.msg import Float64, String
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from ..posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
+from .common import LATCHED_QOS, OK, ConfigError, GraphNode, run_node
+
+DEFAULT_JOINTS = ("head_pan", "head_tilt", "left_arm_lift", "right_arm_lift")
+DEFAULT_ATTENTIVE = (0.0, 0.15, 0.3, 0.3)
+DEFAULT_BORED = (0.6, -0.35, 0.0, 0.0)
+
+
+class PostureNode(GraphNode):
+    """Posture: attentive or bored, from the belief with hysteresis."""
+
+    NODE_NAME = "posture_node"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        read = self.parameters
+        attentive_above = read.number(
+            "attentive_above", 0.9, "Turn attentive when the belief rises above this", 0.0, 1.0
+        )
+        bored_below = read.number(
+            "bored_below", 0.2, "Turn bored when the belief falls below this", 0.0, 1.0
+        )
+        initial = read.text("initial_posture", BORED, "Posture at start-up", POSTURES)
+        self.joint_names = read.texts(
+            "joint_names", DEFAULT_JOINTS, "Joints moved by the posture (JointTrajectory names)"
+        )
+        self.positions = {
+            ATTENTIVE: read.numbers(
+                "attentive_positions", DEFAULT_ATTENTIVE, "Joint positions when attentive (rad)"
+            ),
+            BORED: read.numbers(
+                "bored_positions", DEFAULT_BORED, "Joint positions when bored (rad)"
+            ),
+        }
+        self.move_duration_s = read.number(
+            "move_duration_s", 1.0, "Time to reach a new posture", 0.0, 60.0, "s"
+        )
+        for posture, positions in self.positions.items():
+            if len(positions) != len(self.joint_names):
+                raise ConfigError(
+                    f"parameter '{posture}_positions' = {positions}: must hold one position per"
+                    f" joint in 'joint_names' ({len(self.joint_names)}: {self.joint_names})"
+                )
+        if not bored_below < attentive_above:
+            raise ConfigError(
+                f"parameter 'bored_below' = {bored_below}: must be below 'attentive_above'"
+                f" (= {attentive_above}), or the posture could not change back"
+            )
+        self.hysteresis = PostureHysteresis(attentive_above, bored_below, initial)
+        self.changes = 0
+        self.belief = float("nan")
+        self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
+        self.joints_pub = self.create_publisher(JointTrajectory, "joint_targets", LATCHED_QOS)
+        self.subscribe(Float64, "belief", self._on_belief)
+        self._publish(initial)
+        self.start_diagnostics()
+
+    def _on_belief(self, msg: Float64, stamp: int) -> None:
+        self.belief = msg.data
+        try:
+            changed = self.hysteresis.update(msg.data)
+        except ValueError as error:
+            self.get_logger().warning(f"belief ignored: {error}", throttle_duration_sec=5.0)
+            return
+        if changed is not None:
+            self.changes += 1
+            self.get_logger().info(f"{changed} (belief {msg.data:.3f})")
+            self._publish(changed)
+
+    def _publish(self, posture: str) -> None:
+        seconds, nanoseconds = divmod(round(self.move_duration_s * 1e9), 10**9)
+        point = JointTrajectoryPoint(
+            positions=self.positions[posture],
+            time_from_start=Duration(sec=seconds, nanosec=nanoseconds),
+        )
+        trajectory = JointTrajectory(joint_names=self.joint_names, points=[point])
+        trajectory.header.stamp = self.get_clock().now().to_msg()
+        self.joints_pub.publish(trajectory)
+        self.posture_pub.publish(String(data=posture))
+
+    def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
+        """Posture, last belief, number of changes."""
+        return (
+            OK,
+            self.hysteresis.posture,
+            {"posture": self.hysteresis.posture, "belief": self.belief, "changes": self.changes},
+        )
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the posture node."""
+    return run_node(PostureNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

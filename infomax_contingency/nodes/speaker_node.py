@@ -1,0 +1,170 @@
+"""speaker_node: plays the robot's sound on ``vocalize: true``.
+
+The sound is the robot's chirp (:func:`~infomax_contingency.audio.synthesize_chirp`,
+``duration_s`` long) or the WAV file ``sound_file``, scaled by ``volume``, played through
+:class:`~infomax_contingency.live_audio.SpeakerOutput` on ``device`` (empty: the system
+default output; an index; or a part of the device's name, first match). The output
+stream runs all the time (playing silence), so a command starts the sound at the next
+10 ms block without blocking the node. Commands never queue up: one that comes while
+the sound still plays starts it again (``overlap`` ``restart``) or is ignored
+(``skip``). A device that vanishes is reopened on a later command (at most every 2 s).
+A device that is not there at start-up stops the node with the list of output devices.
+
+With ``dry_run`` (the default, for machines without a loudspeaker) no device is opened:
+vocalizations are only counted and logged at debug level.
+
+Subscribes ``vocalize`` (Bool). Publishes ``speaker_started``
+(builtin_interfaces/Time, reliable): for every sound played, the time its first sample
+reached the loudspeaker (PortAudio's DAC time, on the node's clock like any message
+stamp), so the self-feedback delay can be measured against the microphone; nothing in
+dry run. And ``/diagnostics``: device, rate, vocalizations, sounds played, interrupted
+and skipped, underflows, output errors, and ``start_delay_s`` (from the last command to
+its sound's start).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+from builtin_interfaces.msg import Time as TimeMsg
+from rclpy.time import Time
+from std_msgs.msg import Bool
+
+from ..audio import read_wav
+from ..live_audio import CONNECTED, OVERLAP_POLICIES, AudioDeviceError, SpeakerOutput
+from .common import ERROR, OK, STREAM_QOS, WARN, ConfigError, GraphNode, run_node
+from .mic_node import device_parameter
+
+EVENTS_POLL_S = 0.01
+"""Seconds between checks for sounds that started."""
+
+
+class SpeakerNode(GraphNode):
+    """Speaker: the robot's voice."""
+
+    NODE_NAME = "speaker_node"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        read = self.parameters
+        self.dry_run = read.flag("dry_run", True, "Only count vocalizations, play nothing")
+        device = device_parameter(self, "Loudspeaker (without dry_run)")
+        sound_file = read.text("sound_file", "", "WAV file to play; empty = the robot's chirp")
+        volume = read.number(
+            "volume",
+            0.5,
+            "Gain of the sound (the chirp's peak amplitude; full scale = 1)",
+            0.001,
+            1.0,
+        )
+        duration_s = read.number(
+            "duration_s", 0.2, "Length of the robot's chirp (without sound_file)", 0.01, 5.0, "s"
+        )
+        overlap = read.text(
+            "overlap",
+            "restart",
+            "A vocalization while the sound still plays: restart the sound, or skip the command",
+            OVERLAP_POLICIES,
+        )
+        self.requests = 0
+        self.start_delay_s = float("nan")
+        self._errors_reported = 0
+        self.speaker: SpeakerOutput | None = None
+        self.started_pub = self.create_publisher(TimeMsg, "speaker_started", STREAM_QOS)
+        if self.dry_run:
+            if sound_file:
+                read_wav(sound_file)  # a bad file is refused in a dry run too
+            self.get_logger().info("dry run: vocalizations are counted, not played")
+        else:
+            speaker = SpeakerOutput(
+                device or None,
+                sound=sound_file or None,
+                duration_s=duration_s,
+                volume=volume,
+                overlap=overlap,
+                log=self._log_audio,
+            )
+            try:
+                self.speaker = speaker.start()
+            except AudioDeviceError as error:
+                raise ConfigError(
+                    f"parameter 'device' = {device!r}: {error}\n"
+                    "(dry_run:=true runs the node without a loudspeaker)"
+                ) from None
+            self.create_timer(EVENTS_POLL_S, self._publish_starts)
+        self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.start_diagnostics()
+
+    def _log_audio(self, level: str, message: str) -> None:
+        # one call site per severity: rclpy refuses a call site whose severity changes
+        logger = self.get_logger()
+        if level == "error":
+            logger.error(message)
+        elif level == "warning":
+            logger.warning(message)
+        else:
+            logger.info(message)
+
+    def _on_vocalize(self, msg: Bool, stamp: int) -> None:
+        if not msg.data:
+            return
+        self.requests += 1
+        if self.speaker is None:
+            self.get_logger().debug("vocalize (dry run)")
+            return
+        if self.speaker.play() is None:
+            self.get_logger().error(
+                f"cannot play: {self.speaker.status().last_error}", throttle_duration_sec=5.0
+            )
+
+    def _publish_starts(self) -> None:
+        """Publish the start time of every sound that started since the last call."""
+        events = self.speaker.events(0.0)
+        if not events:
+            return
+        now_ns = self.get_clock().now().nanoseconds
+        now_s = time.monotonic()
+        for event in events:
+            started_ns = now_ns - round((now_s - event.start_time) * 1e9)
+            self.started_pub.publish(Time(nanoseconds=started_ns).to_msg())
+            self.start_delay_s = event.start_time - event.requested_time
+
+    def destroy_node(self) -> None:
+        """Release the loudspeaker, then the node."""
+        if self.speaker is not None:
+            self.speaker.close()
+        super().destroy_node()
+
+    def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
+        """Device, vocalizations, sounds played, output errors, start delay."""
+        values: dict[str, Any] = {"dry_run": self.dry_run, "requests": self.requests}
+        if self.speaker is None:
+            values["played"] = 0
+            return OK, f"{self.requests} vocalizations (dry run)", values
+        status = self.speaker.status()
+        values.update(status.as_dict())
+        values["start_delay_s"] = self.start_delay_s
+        new_errors = status.errors > self._errors_reported
+        self._errors_reported = status.errors
+        if status.state != CONNECTED:
+            return (
+                ERROR,
+                f"speaker unavailable (retried on a vocalization): {status.last_error}",
+                values,
+            )
+        if new_errors:
+            return ERROR, f"output errors: {status.last_error}", values
+        if status.errors or status.underflows:
+            return WARN, f"{status.errors} output errors, {status.underflows} underflows", values
+        return OK, f"{status.played} sounds played for {self.requests} vocalizations", values
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the speaker node."""
+    return run_node(SpeakerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,127 @@
+"""The audio-level simulated room: timing of the robot's sound and replies, determinism."""
+
+import numpy as np
+import pytest
+
+from infomax_contingency.audio import window_energies_db
+from infomax_contingency.controllers import PolicyController
+from infomax_contingency.fake_room import (
+    FakeRoom,
+    FakeRoomConfig,
+    simulate_audio_loop,
+    timing_warnings,
+)
+from infomax_contingency.model import ModelParams
+from infomax_contingency.policy_table import PolicyTable
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sources import Binarizer
+
+ROBOT = ModelParams.named("robot")
+QUIET = {"event_rate_hz": 0.0}
+
+
+def energy(window) -> float:
+    return float(window_energies_db(window.samples, 16000, 0.5)[0])
+
+
+def run(room: FakeRoom, vocalize_at: set[int], windows: int) -> list[float]:
+    out = []
+    for k in range(windows):
+        out.append(energy(room.next_window()))
+        if k in vocalize_at:
+            room.vocalize()
+    return out
+
+
+def test_robot_hears_itself_in_the_window_after_it_vocalizes() -> None:
+    room = FakeRoom(FakeRoomConfig.preset("silent", **QUIET), seed=1)
+    e = run(room, {3}, 8)
+    loud = [k for k, x in enumerate(e) if x > -40]
+    assert loud == [4]
+    assert -24 < e[4] < -18 and all(-61 < x < -59 for k, x in enumerate(e) if k != 4)
+
+
+def test_partner_replies_inside_the_agent_period() -> None:
+    config = FakeRoomConfig.preset("responsive", reply_probability=1.0, **QUIET)
+    for seed in range(20):
+        room = FakeRoom(config, seed)
+        e = run(room, {0}, 9)
+        # vocalization after window 0: timer z = 0 in window 1, agent period z = 2..4
+        loud = {k for k, x in enumerate(e) if x > -40}
+        assert 1 in loud and 2 not in loud
+        assert loud - {1} and loud - {1} <= {3, 4, 5}, (seed, e)
+        assert room.replies == 1
+
+
+def test_no_reply_without_partner_or_after_it_left() -> None:
+    config = FakeRoomConfig.preset(
+        "responsive", reply_probability=1.0, partner_arrive_s=2.0, partner_leave_s=4.0, **QUIET
+    )
+    room = FakeRoom(config, 0)
+    windows = []
+    for k in range(12):
+        windows.append(room.next_window())
+        if k in (0, 4, 8):  # vocalizations at 0.5 s, 2.5 s, 4.5 s
+            room.vocalize()
+    assert room.replies == 1
+    assert [w.partner_present for w in windows] == [k in (4, 5, 6, 7) for k in range(12)]
+
+
+def test_same_seed_same_sound_and_background_independent_of_the_robot() -> None:
+    config = FakeRoomConfig.preset("noisy")
+    a, b = FakeRoom(config, 5), FakeRoom(config, 5)
+    assert run(a, {2, 9}, 20) == run(b, {2, 9}, 20)
+    quiet_robot = FakeRoom(config, 5)
+    silent_run = run(quiet_robot, set(), 20)
+    assert run(FakeRoom(config, 6), set(), 20) != silent_run
+    assert a.events == quiet_robot.events > 0, "the robot does not change the background"
+
+
+def test_background_event_rate() -> None:
+    room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=2.0), seed=3)
+    run(room, set(), 400)  # 200 s
+    assert 300 < room.events < 500
+
+
+def test_default_timing_fits_the_robot_and_paper_models() -> None:
+    assert timing_warnings(FakeRoomConfig(), ROBOT) == []
+    paper = ModelParams.named("paper")
+    assert timing_warnings(FakeRoomConfig(window_s=0.8), paper) == []
+    warnings = timing_warnings(FakeRoomConfig(reply_delay_min_s=0.2), ROBOT)
+    assert len(warnings) == 1 and "before the agent period" in warnings[0]
+    assert "dt" in timing_warnings(FakeRoomConfig(window_s=0.25), ROBOT)[0]
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("window_s", 0.0, "window_s"),
+        ("reply_probability", 1.5, "probability"),
+        ("noise_floor_db", 3.0, "noise_floor_db"),
+        ("reply_max_s", 0.1, "reply_max_s"),
+        ("partner_leave_s", 1.0, "partner_leave_s"),
+        ("event_rate_hz", float("nan"), "finite"),
+    ],
+)
+def test_bad_room_parameters_are_refused(field: str, value: float, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        FakeRoomConfig(**{"partner_arrive_s": 2.0, field: value})
+
+
+def test_unknown_preset() -> None:
+    with pytest.raises(ValueError, match="rooms: responsive, silent, noisy"):
+        FakeRoomConfig.preset("party")
+
+
+def test_closed_loop_finds_the_partner_and_not_the_noise() -> None:
+    table = PolicyTable.load(
+        resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=ROBOT
+    )
+    results = {}
+    for room in ("responsive", "noisy"):
+        records = simulate_audio_loop(
+            PolicyController(table), FakeRoom(FakeRoomConfig.preset(room), 1), Binarizer(-40.0), 200
+        )
+        results[room] = np.array([r.belief for r in records])
+        assert [r.t for r in records] == list(range(1, 201))
+    assert results["responsive"][-1] > 0.99 and results["noisy"].max() < 0.05

@@ -1,0 +1,151 @@
+"""Node start-up as users meet it: bad parameters refused in one line, clean stops.
+
+Every node runs as its own process (``python -m infomax_contingency.nodes.<node>``, the
+code of the console scripts) with ROS arguments on the command line.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+CASES = {
+    "window": (
+        "mic_node",
+        ["source:=topic", "window_s:=0.0"],
+        "parameter 'window_s' = 0.0 is not allowed: a number in [0.01, 10] s",
+    ),
+    "window_type": (
+        "mic_node",
+        ["source:=topic", "window_s:=half"],
+        "parameter 'window_s' = 'half' is not allowed: a number in [0.01, 10] s",
+    ),
+    "missing_wav": (
+        "mic_node",
+        ["wav_file:=/nonexistent/a.wav"],
+        "/nonexistent/a.wav does not exist",
+    ),
+    "no_threshold_file": (
+        "mic_node",
+        ["source:=topic", "threshold_mode:=file"],
+        "parameter 'threshold_file' is empty",
+    ),
+    "foreign_table": (
+        "controller_node",
+        ["params:=paper"],
+        "was built for other model parameters (table vs expected: dt: 0.5 != 0.8",
+    ),
+    "unknown_table": (
+        "controller_node",
+        ["policy_file:=nope.npz"],
+        "cannot find 'policies/nope.npz'",
+    ),
+    "memory": (
+        "belief_node",
+        ["memory_steps:=-1"],
+        "parameter 'memory_steps' = -1 is not allowed: a whole number in [0, 1000000]",
+    ),
+    "model_file": ("belief_node", ["params:=/nonexistent/model.yaml"], "does not exist"),
+    "room": (
+        "fake_audio_node",
+        ["room:=party"],
+        "parameter 'room' = 'party' is not allowed: one of responsive, silent, noisy",
+    ),
+    "reply_times": (
+        "fake_audio_node",
+        ["reply_min_s:=2.0", "reply_max_s:=1.0"],
+        "reply_max_s = 1.0: must be >= reply_min_s (= 2.0)",
+    ),
+    "joints": (
+        "posture_node",
+        ["attentive_positions:=[0.0]"],
+        "parameter 'attentive_positions' = [0.0]: must hold one position per joint",
+    ),
+    "thresholds": (
+        "posture_node",
+        ["attentive_above:=0.3", "bored_below:=0.5"],
+        "parameter 'bored_below' = 0.5: must be below 'attentive_above' (= 0.3)",
+    ),
+    "volume": (
+        "speaker_node",
+        ["volume:=2.0"],
+        "parameter 'volume' = 2.0 is not allowed: a number in [0.001, 1]",
+    ),
+}
+
+
+def node_command(node: str, parameters: list[str]) -> list[str]:
+    command = [sys.executable, "-m", f"infomax_contingency.nodes.{node}", "--ros-args"]
+    for parameter in parameters:
+        command += ["-p", parameter]
+    return command
+
+
+@pytest.fixture(scope="module")
+def refusals() -> Iterator[dict[str, subprocess.CompletedProcess]]:
+    """Start every bad configuration at once (in parallel) and collect the results."""
+    processes = {
+        name: subprocess.Popen(
+            node_command(node, parameters),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for name, (node, parameters, _) in CASES.items()
+    }
+    results = {}
+    try:
+        for name, process in processes.items():
+            out, _ = process.communicate(timeout=120)
+            results[name] = subprocess.CompletedProcess(process.args, process.returncode, out)
+        yield results
+    finally:
+        for process in processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_configuration_is_refused_in_one_line(
+    refusals: dict[str, subprocess.CompletedProcess], case: str
+) -> None:
+    node, _, expected = CASES[case]
+    result = refusals[case]
+    assert result.returncode == 2, result.stdout
+    assert "Traceback" not in result.stdout
+    errors = [line for line in result.stdout.splitlines() if "[ERROR]" in line]
+    assert len(errors) == 1, result.stdout
+    assert f"[{node}]" in errors[0] and expected in errors[0], errors[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_running_node_stops_cleanly(sig: signal.Signals) -> None:
+    process = subprocess.Popen(
+        node_command("controller_node", []),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        first_line = process.stdout.readline()  # the node logs its table once it is up
+        assert "receding, horizon 24, memory 60" in first_line, first_line
+        assert process.poll() is None
+        process.send_signal(sig)
+        out, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 0, out
+    assert "Traceback" not in out and "[ERROR]" not in out

@@ -1,0 +1,116 @@
+"""The layout a real ROS 2 install uses: colcon build, ``ros2 run``, ``ros2 launch``.
+
+``ros2 run PKG EXE`` is: find the package prefix in the ament index, then exec
+``<prefix>/lib/PKG/EXE``. The test builds the package with colcon into a temporary
+workspace, resolves three executables exactly that way, starts them with the install's
+Python path (as ``. install/setup.sh`` would), and reads ``belief`` from this process,
+as ``ros2 topic echo /belief`` would. The launch file cannot run here (ros2launch is not
+installable from PyPI), so it is checked statically.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import rclpy
+
+from infomax_contingency.nodes.graph import GraphProcesses, SpinThread, StepRecorder, start_graph
+
+ROOT = Path(__file__).resolve().parent.parent
+PKG = "infomax_contingency"
+WAV = ROOT / "test" / "data" / "interaction.wav"
+
+
+def colcon_build(workspace: Path) -> Path:
+    """Build the package into ``workspace``; returns its install prefix."""
+    venv_bin = str(Path(sys.executable).parent)
+    colcon = shutil.which("colcon", path=venv_bin) or shutil.which("colcon")
+    if colcon is None:
+        pytest.skip("colcon is not installed (make setup installs it)")
+    env = dict(os.environ)
+    env["AMENT_PREFIX_PATH"] = os.pathsep.join(
+        p for p in (sys.prefix, env.get("AMENT_PREFIX_PATH", "")) if p
+    )
+    env["PATH"] = os.pathsep.join((venv_bin, env.get("PATH", "")))
+    command = [colcon, "--log-base", str(workspace / "log"), "build", "--base-paths", str(ROOT)]
+    command += ["--packages-select", PKG, "--build-base", str(workspace / "build")]
+    command += ["--install-base", str(workspace / "install")]
+    result = subprocess.run(
+        command, cwd=workspace, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    return workspace / "install" / PKG
+
+
+@pytest.mark.slow
+def test_ros2_run_layout_runs_the_graph(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    install = colcon_build(tmp_path)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", os.pathsep.join((str(install), sys.prefix)))
+    from ament_index_python.packages import get_package_prefix
+
+    prefix = Path(get_package_prefix(PKG))
+    assert prefix == install
+    site_packages = next(prefix.glob("lib/python3*/site-packages"))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(site_packages), env.get("PYTHONPATH")) if p)
+
+    def ros2_run(node: str) -> list[str]:
+        executable = prefix / "lib" / PKG / node
+        assert executable.is_file() and os.access(executable, os.X_OK), executable
+        return [str(executable)]
+
+    processes = GraphProcesses(tmp_path / "run", env=env, executable=ros2_run)
+    rclpy.init()
+    recorder = StepRecorder("belief_echo")
+    try:
+        with SpinThread(recorder):
+            mic = {"source": "wav", "wav_file": str(WAV), "exit_at_end": True}
+            mic["wait_for_listeners"] = 3
+            nodes = {"controller_node": {}, "belief_node": {"memory_steps": 0}, "mic_node": mic}
+            start_graph(processes, recorder, nodes, "mic_node", timeout_s=120.0)
+            assert processes.processes["mic_node"].wait(timeout=120) == 0, processes.report()
+            steps = len(recorder.sound)
+            assert steps == 36  # 18 s of audio in 0.5 s windows
+            processes.stop_all()
+    finally:
+        processes.stop_all()
+        recorder.destroy_node()
+        rclpy.try_shutdown()
+    assert len(recorder.belief) == steps and all(0.0 < b < 1.0 for b in recorder.belief)
+    # The nodes ran the installed code and found the installed data files.
+    share = prefix / "share" / PKG
+    assert f"policy {share}/policies/robot_receding_H24_M60.npz" in processes.log("controller_node")
+
+
+def test_launch_file_starts_the_installed_executables_with_installed_config() -> None:
+    path = ROOT / "launch" / "contingency.launch.py"
+    tree = ast.parse(path.read_text(), filename=str(path))
+    compile(tree, str(path), "exec")
+    functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+    assert "generate_launch_description" in functions
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)]
+    started = {
+        call.args[0].value
+        for call in calls
+        if getattr(call.func, "id", None) == "node" and isinstance(call.args[0], ast.Constant)
+    }
+    assert started == {
+        "mic_node",
+        "fake_audio_node",
+        "controller_node",
+        "belief_node",
+        "posture_node",
+        "speaker_node",
+    }
+    setup = (ROOT / "setup.py").read_text()
+    for executable in started:
+        assert f'"{executable} = {PKG}.nodes.{executable}:main"' in setup
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
+    for config in ("robot.yaml", "fake_room.yaml"):
+        assert config in strings and (ROOT / "config" / config).is_file()

@@ -1,0 +1,117 @@
+"""Wav replay and the binarizer: the mic node's core, without ROS."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from infomax_contingency.audio import (
+    AudioError,
+    kmeans_split,
+    load_mono,
+    window_energies_db,
+    write_wav_int16,
+)
+from infomax_contingency.sources import Binarizer, WavReplay, calibration_window_count
+
+WAV = Path(__file__).parent / "data" / "interaction.wav"
+
+
+def test_committed_interaction_is_small_and_resampled_on_replay() -> None:
+    assert WAV.stat().st_size < 300_000
+    replay = WavReplay(WAV, 0.5)
+    expected = window_energies_db(load_mono(WAV), 16000, 0.5)
+    served = [replay.next_energy() for _ in range(replay.n_windows)]
+    assert served == expected.tolist()
+    assert replay.next_energy() is None and replay.finished
+
+
+def test_loop_starts_again(tmp_path: Path) -> None:
+    path = tmp_path / "two.wav"
+    rng = np.random.default_rng(0)
+    write_wav_int16(
+        path, np.concatenate([rng.normal(0, 0.001, 800), rng.normal(0, 0.3, 800)]), 1600
+    )
+    replay = WavReplay(path, 0.5, loop=True)
+    energies = [replay.next_energy() for _ in range(5)]
+    assert energies[0] == energies[2] == energies[4] and energies[1] == energies[3]
+    assert energies[1] > energies[0] + 30 and not replay.finished
+
+
+def test_channel_choice(tmp_path: Path) -> None:
+    path = tmp_path / "stereo.wav"
+    quiet, loud = np.full(16000, 0.001), np.full(16000, 0.5)
+    write_wav_int16(path, np.stack([quiet, loud], axis=1), 16000)
+    left, right = (WavReplay(path, 0.5, channel=c).next_energy() for c in (0, 1))
+    assert right > left + 40
+    with pytest.raises(AudioError, match="channel 2 does not exist"):
+        WavReplay(path, 0.5, channel=2)
+
+
+def test_file_shorter_than_a_window_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "short.wav"
+    write_wav_int16(path, np.zeros(100), 16000)
+    with pytest.raises(AudioError, match="shorter than one window"):
+        WavReplay(path, 0.5)
+
+
+def test_calibration_window_count() -> None:
+    assert calibration_window_count(10.0, 0.5) == 20
+    assert calibration_window_count(0.1, 0.5) == 2
+    with pytest.raises(AudioError):
+        calibration_window_count(0.0, 0.5)
+
+
+def test_fixed_threshold_is_strict() -> None:
+    binarizer = Binarizer(-40.0)
+    assert [binarizer.push(e) for e in (-60.0, -40.0, -39.99)] == [False, False, True]
+
+
+def test_streaming_calibration_consumes_its_windows_then_splits() -> None:
+    energies = [-60.0, -20.0, -61.0, -22.0, -59.0, -21.0]
+    binarizer = Binarizer(None, calibration_windows=4)
+    out = [binarizer.push(e) for e in energies]
+    assert out[:4] == [None] * 4 and out[4:] == [False, True]
+    assert binarizer.threshold_db == kmeans_split(energies[:4]).threshold_db
+
+
+def test_calibration_without_boundary_starts_again() -> None:
+    binarizer = Binarizer(None, calibration_windows=2)
+    assert binarizer.push(-120.0) is None and binarizer.push(-120.0) is None
+    assert binarizer.calibrating and binarizer.calibration_failures == 1
+    binarizer.push(-60.0)
+    binarizer.push(-20.0)
+    assert binarizer.threshold_db == pytest.approx(-40.0)
+
+
+def test_read_ahead_calibration() -> None:
+    binarizer = Binarizer()
+    fit = binarizer.calibrate([-60.0, -20.0])
+    assert binarizer.threshold_db == fit.threshold_db == -40.0 and not binarizer.calibrating
+    with pytest.raises(AudioError):
+        Binarizer().calibrate([-50.0, -50.0])
+
+
+def test_refresh_follows_a_louder_room_but_ignores_pure_silence() -> None:
+    binarizer = Binarizer(-40.0, refresh_windows=4, min_separation_db=10.0)
+    for e in (-30.0, -10.0, -31.0, -11.0):  # the floor rose to -30 dB
+        binarizer.push(e)
+    assert binarizer.threshold_db == pytest.approx(-20.5) and binarizer.refits_accepted == 1
+    for e in (-30.0, -30.5, -29.5, -30.2):  # only floor: two clusters 1 dB apart
+        binarizer.push(e)
+    assert binarizer.threshold_db == pytest.approx(-20.5)
+    assert binarizer.refits_rejected >= 1
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"threshold_db": float("nan")},
+        {"calibration_windows": 1},
+        {"threshold_db": -40.0, "refresh_windows": 1},
+        {"threshold_db": -40.0, "min_separation_db": -1.0},
+    ],
+)
+def test_bad_binarizer_settings_are_refused(kwargs: dict) -> None:
+    with pytest.raises(AudioError):
+        Binarizer(**kwargs)
