@@ -39,11 +39,12 @@ ROS_DOMAIN_ID := 42
 endif
 export ROS_AUTOMATIC_DISCOVERY_RANGE ROS_DOMAIN_ID
 
-.PHONY: help setup demo test lint build clean distclean system-deps apt-missing
+.PHONY: help setup demo live test lint build clean distclean system-deps apt-missing
 
 help:
 	@echo "make demo       set up (if needed) and run the demo"
 	@echo "make test       set up (if needed), lint, run the test suite (PYTEST_ARGS=... passes options)"
+	@echo "make live       calibrate on the microphone, then run the graph live (LIVE_DEVICE=...)"
 	@echo "make setup      install missing system packages, create $(VENV), install the package"
 	@echo "make lint       ruff check ."
 	@echo "make build      colcon build into build/ install/ log/, as a ROS workspace would"
@@ -120,6 +121,21 @@ system-deps:
 
 demo: $(STAMP)
 	"$(VENV)/bin/infomax-contingency" $(DEMO_ARGS)
+
+# The live robot: calibrate the threshold on the microphone for 10 s, then the whole graph
+# in one process on the microphone and loudspeaker (LIVE_DEVICE / LIVE_OUTPUT_DEVICE: an
+# index or a part of the name; empty = the system default).
+LIVE_DEVICE ?=
+LIVE_OUTPUT_DEVICE ?=
+LIVE_THRESHOLD ?= $(HOME)/.infomax/threshold.yaml
+live: $(STAMP)
+	"$(VENV)/bin/infomax-contingency" calibrate --seconds 10 --device "$(LIVE_DEVICE)" \
+		--out "$(LIVE_THRESHOLD)"
+	"$(VENV)/bin/bringup" --ros-args --params-file config/robot.yaml \
+		-p mic_node:source:=sounddevice $(if $(LIVE_DEVICE),-p "mic_node:device:=$(LIVE_DEVICE)") \
+		-p mic_node:threshold_mode:=file -p "mic_node:threshold_file:=$(LIVE_THRESHOLD)" \
+		-p speaker_node:dry_run:=false \
+		$(if $(LIVE_OUTPUT_DEVICE),-p "speaker_node:device:=$(LIVE_OUTPUT_DEVICE)")
 
 test: $(STAMP)
 	"$(VENV)/bin/ruff" check .

@@ -24,7 +24,7 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from .belief_node import BeliefNode
-from .common import USER_ERRORS, GraphNode
+from .common import USER_ERRORS, GraphNode, init_ros
 from .controller_node import ControllerNode
 from .fake_audio_node import FakeAudioNode
 from .mic_node import MicNode
@@ -47,8 +47,9 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 def main(args: list[str] | None = None) -> int:
     """Run the graph in this process; returns the exit status."""
     argv = list(sys.argv if args is None else args)
+    if not init_ros(argv, "bringup"):
+        return 2
     options = _parse(argv)
-    rclpy.init(args=argv)
     nodes: list[GraphNode] = []
     logger = rclpy.logging.get_logger("bringup")
     try:

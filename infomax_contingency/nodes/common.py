@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -27,6 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
@@ -387,13 +389,29 @@ def _format_value(value: Any) -> str:
     return str(value)
 
 
+def init_ros(args: Sequence[str] | None, program: str) -> bool:
+    """``rclpy.init``; malformed ``--ros-args`` give one line on stderr and False."""
+    try:
+        rclpy.init(args=args)
+    except rclpy_implementation.RCLError as error:
+        reason = str(error).split(", at ")[0]
+        print(
+            f"{program}: invalid ROS arguments: {reason} (a parameter is given as"
+            " `-p name:=value` with a non-empty value)",
+            file=sys.stderr,
+        )
+        return False
+    return True
+
+
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Create the node, spin it until it finishes or is interrupted; return the exit status.
 
     Bad parameters and other user errors are logged as one error line (status 2);
     Ctrl-C and SIGTERM end the node cleanly (status 0).
     """
-    rclpy.init(args=args)
+    if not init_ros(args, getattr(factory, "NODE_NAME", "node")):
+        return 2
     executor = SingleThreadedExecutor()
     node = None
     try:
