@@ -344,6 +344,19 @@ class GraphNode(Node):
 
         gate = self.create_timer(_GATE_POLL_S, poll)
 
+    def log_at(self, level: str, message: str) -> None:
+        """Log at ``level`` (``error``, ``warning``, else info): the core's log callback.
+
+        One call site per severity: rclpy refuses a call site whose severity changes.
+        """
+        logger = self.get_logger()
+        if level == "error":
+            logger.error(message)
+        elif level == "warning":
+            logger.warning(message)
+        else:
+            logger.info(message)
+
     def start_diagnostics(self, period_s: float = DIAGNOSTICS_PERIOD_S) -> None:
         """Publish diagnostics every ``period_s`` seconds."""
         self.create_timer(period_s, self.publish_diagnostics)

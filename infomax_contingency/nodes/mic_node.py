@@ -295,23 +295,13 @@ class MicNode(GraphNode):
             window_s=self.window_s,
             channel=None if channel < 0 else channel,
             queue_s=queue_s,
-            log=self._log_audio,
+            log=self.log_at,
         )
         chosen = f"device {device!r}" if device else "the system default"
         self.get_logger().info(
             f"microphone: {chosen} is {found.describe(INPUT)}; capture starts with the step"
             f" clock, windows of {self.window_s} s in real time"
         )
-
-    def _log_audio(self, level: str, message: str) -> None:
-        # one call site per severity: rclpy refuses a call site whose severity changes
-        logger = self.get_logger()
-        if level == "error":
-            logger.error(message)
-        elif level == "warning":
-            logger.warning(message)
-        else:
-            logger.info(message)
 
     # ------------------------------------------------------------------ start gate
 

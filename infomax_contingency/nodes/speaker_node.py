@@ -84,7 +84,7 @@ class SpeakerNode(GraphNode):
                 duration_s=duration_s,
                 volume=volume,
                 overlap=overlap,
-                log=self._log_audio,
+                log=self.log_at,
             )
             try:
                 self.speaker = speaker.start()
@@ -96,16 +96,6 @@ class SpeakerNode(GraphNode):
             self.create_timer(EVENTS_POLL_S, self._publish_starts)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
         self.start_diagnostics()
-
-    def _log_audio(self, level: str, message: str) -> None:
-        # one call site per severity: rclpy refuses a call site whose severity changes
-        logger = self.get_logger()
-        if level == "error":
-            logger.error(message)
-        elif level == "warning":
-            logger.warning(message)
-        else:
-            logger.info(message)
 
     def _on_vocalize(self, msg: Bool, stamp: int) -> None:
         if not msg.data:
