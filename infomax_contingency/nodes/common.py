@@ -402,6 +402,27 @@ def _format_value(value: Any) -> str:
     return str(value)
 
 
+def device_parameter(node: Node, what: str) -> str:
+    """Declare and read the ``device`` parameter: ``""``, an index or a part of a name.
+
+    ``-p device:=3`` arrives as an integer, ``-p device:=USB`` as a string; both are
+    accepted (the parameter is dynamically typed) and returned as text, which
+    :func:`~infomax_contingency.live_audio.resolve_device` understands.
+    """
+    allowed = "empty (the system default), a device index, or a part of a device name"
+    descriptor = ParameterDescriptor(
+        name="device",
+        description=f"{what}: empty = the system default, an index, or a part of its name"
+        " (first match; `infomax-contingency devices` lists them)",
+        additional_constraints=allowed,
+        dynamic_typing=True,
+    )
+    value = node.declare_parameter("device", "", descriptor).value
+    if isinstance(value, bool) or not isinstance(value, int | str):
+        raise ConfigError(f"parameter 'device' = {value!r} is not allowed: {allowed}")
+    return str(value).strip()
+
+
 def init_ros(args: Sequence[str] | None, program: str) -> bool:
     """``rclpy.init``; malformed ``--ros-args`` give one line on stderr and False."""
     try:

@@ -51,9 +51,7 @@ from collections import deque
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
-from rclpy.node import Node
 from std_msgs.msg import Bool, Float32, Float32MultiArray
 
 from ..audio import AudioError, WindowAssembler, load_threshold
@@ -67,7 +65,16 @@ from ..live_audio import (
 )
 from ..sources import Binarizer, WavReplay, calibration_window_count
 from ..stepclock import LockstepPacer
-from .common import ERROR, OK, STREAM_QOS, WARN, ConfigError, GraphNode, run_node
+from .common import (
+    ERROR,
+    OK,
+    STREAM_QOS,
+    WARN,
+    ConfigError,
+    GraphNode,
+    device_parameter,
+    run_node,
+)
 
 SOURCES = ("wav", "topic", "sounddevice")
 THRESHOLD_MODES = ("calibrate", "fixed", "file")
@@ -77,27 +84,6 @@ MICROPHONE_POLL_S = 0.02
 
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
-
-
-def device_parameter(node: Node, what: str) -> str:
-    """Declare and read the ``device`` parameter: ``""``, an index or a part of a name.
-
-    ``-p device:=3`` arrives as an integer, ``-p device:=USB`` as a string; both are
-    accepted (the parameter is dynamically typed) and returned as text, which
-    :func:`~infomax_contingency.live_audio.resolve_device` understands.
-    """
-    allowed = "empty (the system default), a device index, or a part of a device name"
-    descriptor = ParameterDescriptor(
-        name="device",
-        description=f"{what}: empty = the system default, an index, or a part of its name"
-        " (first match; `infomax-contingency devices` lists them)",
-        additional_constraints=allowed,
-        dynamic_typing=True,
-    )
-    value = node.declare_parameter("device", "", descriptor).value
-    if isinstance(value, bool) or not isinstance(value, int | str):
-        raise ConfigError(f"parameter 'device' = {value!r} is not allowed: {allowed}")
-    return str(value).strip()
 
 
 class MicNode(GraphNode):

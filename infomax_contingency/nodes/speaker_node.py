@@ -34,8 +34,16 @@ from std_msgs.msg import Bool
 
 from ..audio import read_wav
 from ..live_audio import CONNECTED, OVERLAP_POLICIES, AudioDeviceError, SpeakerOutput
-from .common import ERROR, OK, STREAM_QOS, WARN, ConfigError, GraphNode, run_node
-from .mic_node import device_parameter
+from .common import (
+    ERROR,
+    OK,
+    STREAM_QOS,
+    WARN,
+    ConfigError,
+    GraphNode,
+    device_parameter,
+    run_node,
+)
 
 EVENTS_POLL_S = 0.01
 """Seconds between checks for sounds that started."""
