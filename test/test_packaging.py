@@ -3,7 +3,6 @@
 import ast
 import configparser
 import os
-import shutil
 import subprocess
 import sys
 import tomllib
@@ -14,6 +13,7 @@ import pytest
 
 import infomax_contingency
 from infomax_contingency import resources
+from test_ros2_run import colcon_build
 
 ROOT = Path(__file__).resolve().parent.parent
 PKG = "infomax_contingency"
@@ -226,30 +226,7 @@ def test_resources_module_does_not_import_rclpy() -> None:
 
 @pytest.mark.slow
 def test_colcon_build_layout(tmp_path: Path) -> None:
-    venv_bin = str(Path(sys.executable).parent)
-    colcon = shutil.which("colcon", path=venv_bin) or shutil.which("colcon")
-    if colcon is None:
-        pytest.skip("colcon is not installed (make setup installs it)")
-    env = dict(os.environ)
-    env["AMENT_PREFIX_PATH"] = os.pathsep.join(
-        p for p in (sys.prefix, env.get("AMENT_PREFIX_PATH", "")) if p
-    )
-    env["PATH"] = os.pathsep.join((venv_bin, env.get("PATH", "")))
-    command = [colcon, "--log-base", str(tmp_path / "log"), "build"]
-    command += ["--base-paths", str(ROOT), "--packages-select", PKG]
-    command += ["--build-base", str(tmp_path / "build")]
-    command += ["--install-base", str(tmp_path / "install")]
-    result = subprocess.run(
-        command,
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 0, result.stdout + result.stderr
-
-    prefix = tmp_path / "install" / PKG
+    prefix = colcon_build(tmp_path)
     for executable in EXECUTABLES:
         path = prefix / "lib" / PKG / executable
         assert path.is_file() and os.access(path, os.X_OK), f"missing executable {path}"
@@ -266,7 +243,7 @@ def test_colcon_build_layout(tmp_path: Path) -> None:
 
     # What `ros2 run` does first: find the package prefix through the ament index; and
     # resources then serves data files from the installed share directory.
-    env["AMENT_PREFIX_PATH"] = str(prefix)
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(prefix))
     code = (
         "from ament_index_python.packages import get_package_prefix; "
         "from infomax_contingency import resources; "
