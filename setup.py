@@ -40,7 +40,7 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
-            "infomax-contingency = infomax_contingency.cli:main",
+            "infomax-contingency = infomax_contingency.cli.main:main",
             "mic_node = infomax_contingency.nodes.mic_node:main",
             "controller_node = infomax_contingency.nodes.controller_node:main",
             "belief_node = infomax_contingency.nodes.belief_node:main",

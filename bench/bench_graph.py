@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.nodes.demo import isolate_dds
+from infomax_contingency.cli.demo import isolate_dds
 
 NODES = ("mic_node", "controller_node", "belief_node", "posture_node", "speaker_node")
 TIMEOUT_S = 300.0
@@ -61,7 +61,7 @@ def run_graph(workdir: Path, room: dict, steps: int, audio: bool):
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from infomax_contingency.nodes.graph import (
+    from infomax_contingency.testing.graph import (
         GraphError,
         GraphProcesses,
         SpinThread,

@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from infomax_contingency import learning
-from infomax_contingency.evaluation import Scorer
-from infomax_contingency.model import ModelParams
+from infomax_contingency.core import learning
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.eval.experiments import Scorer
 
 
 def main() -> None:

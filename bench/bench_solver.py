@@ -26,16 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.model import ModelParams, Statistic
-from infomax_contingency.policy_table import PolicyTable
-from infomax_contingency.solver import solve_episodic
-from infomax_contingency.statespace import count_index, n_count_tuples
+from infomax_contingency.core.model import ModelParams, Statistic
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.solver import solve_episodic
+from infomax_contingency.core.statespace import count_index, n_count_tuples
 
 CHILD = """
 import json, resource, sys, time
 from pathlib import Path
-from infomax_contingency.model import ModelParams
-from infomax_contingency.solver import solve_episodic
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.solver import solve_episodic
 horizon, out = int(sys.argv[1]), Path(sys.argv[2])
 start = time.perf_counter()
 table = solve_episodic(ModelParams.named("paper"), horizon)

@@ -11,7 +11,7 @@ import math
 
 from scipy.special import betaln
 
-from infomax_contingency.model import ModelParams
+from infomax_contingency.core.model import ModelParams
 
 SELF, AGENT, BACKGROUND = "self", "agent", "background"
 

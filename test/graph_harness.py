@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 import rclpy
 
-from infomax_contingency.nodes.graph import (
+from infomax_contingency.testing.graph import (
     GraphProcesses,
     SpinThread,
     StepRecorder,

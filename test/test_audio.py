@@ -9,8 +9,8 @@ import pytest
 import yaml
 from scipy.io import wavfile
 
-from infomax_contingency import audio
-from infomax_contingency.audio import (
+from infomax_contingency.audio import signal as audio
+from infomax_contingency.audio.signal import (
     ENERGY_FLOOR_DB,
     AudioError,
     OnlineThreshold,

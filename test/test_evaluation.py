@@ -9,14 +9,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from infomax_contingency import cli, evaluation
-from infomax_contingency.controllers import RuleController, make_controller
-from infomax_contingency.model import ModelParams, Statistic, period_of
-from infomax_contingency.policy_table import PolicyTable
-from infomax_contingency.simulation import simulate
-from infomax_contingency.solver import solve_episodic, solve_receding
-from infomax_contingency.statespace import count_index, count_tuples, n_count_tuples
-from infomax_contingency.world import make_room
+from infomax_contingency.cli import main as cli
+from infomax_contingency.core import controllers, scoring
+from infomax_contingency.core.controllers import RuleController, make_controller
+from infomax_contingency.core.model import ModelParams, Statistic, period_of
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.solver import solve_episodic, solve_receding
+from infomax_contingency.core.statespace import count_index, count_tuples, n_count_tuples
+from infomax_contingency.eval import experiments as evaluation
+from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.sim.world import make_room
 
 PAPER = ModelParams.named("paper")
 ROBOT = ModelParams.named("robot")
@@ -33,11 +35,11 @@ def cache_dir(tmp_path_factory: pytest.TempPathFactory):
 
 @pytest.mark.parametrize("params", [PAPER, ROBOT], ids=["paper", "robot"])
 def test_scores_of_optimal_never_and_rule(params: ModelParams) -> None:
-    scorer = evaluation.Scorer(params, 10)
+    scorer = scoring.Scorer(params, 10)
     table = solve_episodic(params, 10)
-    assert scorer.score(evaluation.table_actions(table)) == pytest.approx(1.0, abs=1e-9)
-    assert scorer.score(evaluation.never_actions(params)) == pytest.approx(0.0, abs=1e-12)
-    rule = scorer.score(evaluation.rule_actions(params, 9.0))
+    assert scorer.score(scoring.table_actions(table)) == pytest.approx(1.0, abs=1e-9)
+    assert scorer.score(scoring.never_actions(params)) == pytest.approx(0.0, abs=1e-12)
+    rule = scorer.score(scoring.rule_actions(params, 9.0))
     assert 0.0 < rule < 1.0
     # The optimal value is the solver's own maximum, evaluated independently here.
     always = scorer.score(lambda t: np.ones((params.n_timer_values, n_count_tuples(t)), dtype=bool))
@@ -48,23 +50,23 @@ def test_forward_visits_and_backward_values_agree() -> None:
     """Sum over t of E[-H(a_t)] from the forward visit distributions = the backward value."""
     horizon = 9
     for actions in (
-        evaluation.table_actions(solve_episodic(PAPER, horizon)),
-        evaluation.rule_actions(PAPER, 9.0),
-        evaluation.never_actions(PAPER),
+        scoring.table_actions(solve_episodic(PAPER, horizon)),
+        scoring.rule_actions(PAPER, 9.0),
+        scoring.never_actions(PAPER),
     ):
-        visits = evaluation.visit_distributions(PAPER, horizon, actions)
+        visits = scoring.visit_distributions(PAPER, horizon, actions)
         assert all(v.sum() == pytest.approx(1.0, abs=1e-12) for v in visits)
         forward = 0.0
         for t, visit in enumerate(visits, start=1):
             counts = count_tuples(t).T
             forward -= np.sum(visit * _entropies(PAPER, counts)[None, :])
         assert forward == pytest.approx(
-            evaluation.episode_value(PAPER, horizon, actions), abs=1e-12
+            scoring.episode_value(PAPER, horizon, actions), abs=1e-12
         )
 
 
 def _entropies(params: ModelParams, counts: np.ndarray) -> np.ndarray:
-    from infomax_contingency.model import entropy
+    from infomax_contingency.core.model import entropy
 
     return entropy(params, *counts)
 
@@ -90,7 +92,7 @@ def test_episode_value_matches_monte_carlo() -> None:
             statistic = statistic.observe(params, y)
             total -= statistic.entropy(params)
         totals[episode] = total
-    exact = evaluation.episode_value(params, horizon, evaluation.table_actions(table))
+    exact = scoring.episode_value(params, horizon, scoring.table_actions(table))
     error = totals.std(ddof=1) / math.sqrt(episodes)
     assert abs(totals.mean() - exact) < 4 * error
 
@@ -98,7 +100,7 @@ def test_episode_value_matches_monte_carlo() -> None:
 def test_reachable_statistics_equal_enumeration() -> None:
     """Reachability under some policy against a search over every action and bit."""
     params, horizon = PAPER, 6
-    reachable = evaluation.reachable_statistics(params, horizon)
+    reachable = scoring.reachable_statistics(params, horizon)
     frontier = set()
     for z in range(1, params.timer_long_ago + 1):
         for y in (0, 1):
@@ -129,7 +131,7 @@ def test_rule_decisions_equal_a_scalar_reference() -> None:
             controller = RuleController(params, c)
             counts = count_tuples(7)
             for z in range(params.n_timer_values):
-                vectorised = evaluation.rule_decisions(params, c, z, *counts.T)
+                vectorised = controllers.rule_decisions(params, c, z, *counts.T)
                 for index, tuple_ in enumerate(counts):
                     statistic = Statistic(z, *map(int, tuple_))
                     expected = reference(params, c, statistic)
@@ -196,7 +198,7 @@ def test_rule_experiment_small(cache_dir) -> None:
 @pytest.mark.parametrize("params", [PAPER, ROBOT], ids=["paper", "robot"])
 def test_greedy_never_vocalizes(params: ModelParams) -> None:
     """Vocalizing leads to a self-feedback window, so one step ahead it never pays."""
-    assert not evaluation.greedy_actions(params, 25).any()
+    assert not scoring.greedy_actions(params, 25).any()
     rng = np.random.default_rng(3)
     room = make_room("responsive", params, rng)
     records = simulate(params, make_controller("greedy", params, rng), room, 60, rng)

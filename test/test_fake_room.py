@@ -3,18 +3,18 @@
 import numpy as np
 import pytest
 
-from infomax_contingency.audio import window_energies_db
-from infomax_contingency.controllers import PolicyController
-from infomax_contingency.fake_room import (
+from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.signal import window_energies_db
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import (
     FakeRoom,
     FakeRoomConfig,
     simulate_audio_loop,
     timing_warnings,
 )
-from infomax_contingency.model import ModelParams
-from infomax_contingency.policy_table import PolicyTable
-from infomax_contingency.resources import resource_path
-from infomax_contingency.sources import Binarizer
 
 ROBOT = ModelParams.named("robot")
 QUIET = {"event_rate_hz": 0.0}

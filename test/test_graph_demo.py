@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from graph_harness import Graph, graph_fixture
-from infomax_contingency.nodes.graph import wait_until
+from infomax_contingency.testing.graph import wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
 WAV = ROOT / "test" / "data" / "interaction.wav"

@@ -15,12 +15,12 @@ import pytest
 from std_srvs.srv import Trigger
 
 from graph_harness import FIXED_THRESHOLD, Graph, graph_fixture, room_nodes
-from infomax_contingency.controllers import PolicyController
-from infomax_contingency.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
-from infomax_contingency.model import ModelParams, StatisticTracker
-from infomax_contingency.policy_table import PolicyTable
+from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sources import Binarizer
+from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
 
 make_graph = graph_fixture()
 pytestmark = pytest.mark.slow

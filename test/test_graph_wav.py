@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from graph_harness import Graph, graph_fixture
-from infomax_contingency.audio import kmeans_threshold, load_mono, window_energies_db
-from infomax_contingency.model import ModelParams, StatisticTracker
-from infomax_contingency.sources import calibration_window_count
+from infomax_contingency.audio.binarizer import calibration_window_count
+from infomax_contingency.audio.signal import kmeans_threshold, load_mono, window_energies_db
+from infomax_contingency.core.model import ModelParams, StatisticTracker
 
 make_graph = graph_fixture()
 pytestmark = pytest.mark.slow

@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from infomax_contingency import cli, evaluation, learning
-from infomax_contingency.model import ModelParams
-from infomax_contingency.solver import solve_episodic
+from infomax_contingency.cli import main as cli
+from infomax_contingency.core import learning, scoring
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.solver import solve_episodic
 
 PAPER = ModelParams.named("paper")
 
@@ -19,9 +20,9 @@ def test_learned_t6_policy_equals_the_dp_policy() -> None:
     curve, learner = learning.learn(
         PAPER, horizon, "improved", budget=4000, seed=1, evaluate_every=500
     )
-    optimal = evaluation.table_actions(solve_episodic(PAPER, horizon))
+    optimal = scoring.table_actions(solve_episodic(PAPER, horizon))
     learned = learner.greedy_actions()
-    visits = evaluation.visit_distributions(PAPER, horizon, optimal)
+    visits = scoring.visit_distributions(PAPER, horizon, optimal)
     compared = 0
     for t in range(1, horizon):
         reached = visits[t - 1] > 0
@@ -39,8 +40,8 @@ def test_listening_values_stay_between_never_and_optimal() -> None:
     learner = learning.TDLearner(PAPER, horizon, settings, np.random.default_rng(4))
     for _ in range(400):
         learner.trial()
-    never = evaluation.episode_values(PAPER, horizon, evaluation.never_actions(PAPER))
-    optimal = evaluation.episode_values(PAPER, horizon)
+    never = scoring.episode_values(PAPER, horizon, scoring.never_actions(PAPER))
+    optimal = scoring.episode_values(PAPER, horizon)
     raised = 0
     for t in range(1, horizon):
         values = np.array(learner.values[t])

@@ -23,8 +23,9 @@ import pytest
 
 from alsa_devices import VirtualAlsa, fifo_prelude, read_raw
 from fake_portaudio import FakeBackend, Room, Rule, device
-from infomax_contingency import audio, live_audio
-from infomax_contingency.live_audio import (
+from infomax_contingency.audio import live as live_audio
+from infomax_contingency.audio import signal as audio
+from infomax_contingency.audio.live import (
     AudioDeviceError,
     MicrophoneStream,
     SpeakerOutput,
@@ -563,7 +564,7 @@ def test_measure_latency_through_a_simulated_room() -> None:
 
 CAPTURE = """
 import json, time
-from infomax_contingency.live_audio import MicrophoneStream
+from infomax_contingency.audio.live import MicrophoneStream
 logs = []
 mic = MicrophoneStream({spec!r}, window_s={window_s}, channel={channel!r},
                        channels={channels!r}, queue_s=60,
@@ -643,7 +644,7 @@ def test_alsa_48khz_only_device_is_resampled_to_the_same_bits(tmp_path) -> None:
 
 MISSING = """
 import json
-from infomax_contingency.live_audio import AudioDeviceError, MicrophoneStream, SpeakerOutput
+from infomax_contingency.audio.live import AudioDeviceError, MicrophoneStream, SpeakerOutput
 messages = []
 for make in (lambda: MicrophoneStream('ReSpeaker'), lambda: MicrophoneStream(5),
              lambda: SpeakerOutput('HDMI')):
@@ -681,7 +682,7 @@ def test_alsa_missing_device_lists_the_devices(tmp_path) -> None:
 
 SPEAKER = """
 import json, dataclasses, time
-from infomax_contingency.live_audio import SpeakerOutput
+from infomax_contingency.audio.live import SpeakerOutput
 speaker = SpeakerOutput('fakespeaker', volume=0.5).start()
 events = []
 if {play}:
@@ -726,7 +727,7 @@ VANISH = """
 {prelude}
 import fcntl, json, shutil, threading, time
 import numpy as np
-from infomax_contingency.live_audio import MicrophoneStream
+from infomax_contingency.audio.live import MicrophoneStream
 fd = FIFO_FDS[{fifo!r}]
 fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, 1 << 20)  # room for a whole part: no short reads
 a, b = np.load({a!r}), np.load({b!r})
@@ -818,7 +819,7 @@ def test_alsa_device_that_stalls_and_vanishes_is_reopened_when_back(tmp_path) ->
 
 def test_live_audio_imports_neither_rclpy_nor_sounddevice() -> None:
     code = (
-        "import sys, infomax_contingency.live_audio, infomax_contingency.live_cli\n"
+        "import sys, infomax_contingency.audio.live, infomax_contingency.cli.live\n"
         "print(json.dumps(dict(bad=[m for m in ('rclpy', 'sounddevice') if m in sys.modules])))"
     )
     import subprocess

@@ -15,12 +15,14 @@ import yaml
 
 from alsa_devices import VirtualAlsa
 from fake_portaudio import FakeBackend, Room, device
-from infomax_contingency import audio, cli, live_audio
+from infomax_contingency.audio import live as live_audio
+from infomax_contingency.audio import signal as audio
+from infomax_contingency.cli import main as cli
 from test_live_audio import write_recording
 
 RUN_CLI = """
 import json, sys
-from infomax_contingency.cli import main
+from infomax_contingency.cli.main import main
 rc = main({args!r})
 sys.stdout.flush()
 print(json.dumps(dict(rc=rc)))

@@ -36,15 +36,15 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, Float32
 
 from alsa_devices import VirtualAlsa
-from infomax_contingency.audio import (
+from infomax_contingency.audio.signal import (
     kmeans_threshold,
     load_mono,
     synthesize_chirp,
     window_energies_db,
     write_wav_int16,
 )
-from infomax_contingency.nodes.common import STREAM_QOS
-from infomax_contingency.nodes.graph import SpinThread, wait_until
+from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.testing.graph import SpinThread, wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
 INTERACTION = Path(__file__).parent / "data" / "interaction.wav"

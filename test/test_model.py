@@ -10,8 +10,8 @@ import pytest
 from scipy import integrate, special, stats
 
 import brute_force
-from infomax_contingency import model
-from infomax_contingency.model import ModelParams, ParameterError, Statistic, StatisticTracker
+from infomax_contingency.core import model
+from infomax_contingency.core.model import ModelParams, ParameterError, Statistic, StatisticTracker
 
 PARAM_SETS = {
     "paper": ModelParams.named("paper"),

@@ -16,20 +16,20 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from infomax_contingency.audio import kmeans_split, window_energies_db
-from infomax_contingency.controllers import PolicyController
-from infomax_contingency.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
-from infomax_contingency.model import ModelParams, StatisticTracker
+from infomax_contingency.audio.signal import kmeans_split, window_energies_db
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.belief_node import BeliefNode
-from infomax_contingency.nodes.common import LATCHED_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
-from infomax_contingency.nodes.graph import SpinThread, wait_until
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.speaker_node import SpeakerNode
-from infomax_contingency.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.testing.graph import SpinThread, wait_until
 
 ROBOT = ModelParams.named("robot")
 TIMEOUT_S = 30.0

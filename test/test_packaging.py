@@ -103,7 +103,7 @@ def test_setup_py_entry_points_and_name() -> None:
         (name.strip(), target.strip()) for name, target in (s.split("=") for s in scripts)
     )
     assert set(parsed) == EXECUTABLES
-    assert parsed["infomax-contingency"] == f"{PKG}.cli:main"
+    assert parsed["infomax-contingency"] == f"{PKG}.cli.main:main"
     for node in EXECUTABLES - {"infomax-contingency"}:
         assert parsed[node] == f"{PKG}.nodes.{node}:main"
 

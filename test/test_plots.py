@@ -11,11 +11,12 @@ import sys
 import numpy as np
 import pytest
 
-from infomax_contingency import cli, plots
-from infomax_contingency.controllers import make_controller
-from infomax_contingency.model import ModelParams
-from infomax_contingency.simulation import simulate
-from infomax_contingency.world import make_room
+from infomax_contingency.cli import main as cli
+from infomax_contingency.core.controllers import make_controller
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.eval import plots
+from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.sim.world import make_room
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ROBOT = ModelParams.named("robot")
@@ -124,7 +125,7 @@ def test_learning_horizon_and_efficiency_figures(tmp_path) -> None:
 
 def test_package_imports_without_matplotlib() -> None:
     code = (
-        "import sys, infomax_contingency.cli, infomax_contingency.evaluation;"
+        "import sys, infomax_contingency.cli.main, infomax_contingency.eval.experiments;"
         " sys.exit('matplotlib' in sys.modules)"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

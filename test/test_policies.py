@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from infomax_contingency.model import ModelParams
-from infomax_contingency.policy_table import PolicyTable
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.solver import solve
 from infomax_contingency.resources import resource_path
-from infomax_contingency.solver import solve
 
 COMMITTED = [
     ("paper_episodic_T40.npz", "paper", "episodic", 40, 0),

@@ -8,10 +8,10 @@ import shutil
 import numpy as np
 import pytest
 
-from infomax_contingency.model import ModelParams, Statistic
-from infomax_contingency.policy_table import PolicyTable, PolicyTableError
-from infomax_contingency.solver import solve_episodic, solve_receding
-from infomax_contingency.statespace import count_tuples
+from infomax_contingency.core.model import ModelParams, Statistic
+from infomax_contingency.core.policy_table import PolicyTable, PolicyTableError
+from infomax_contingency.core.solver import solve_episodic, solve_receding
+from infomax_contingency.core.statespace import count_tuples
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,7 @@
 
 import pytest
 
-from infomax_contingency.posture import ATTENTIVE, BORED, PostureHysteresis
+from infomax_contingency.core.posture import ATTENTIVE, BORED, PostureHysteresis
 
 
 def test_switches_only_past_each_threshold() -> None:

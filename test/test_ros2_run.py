@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 import rclpy
 
-from infomax_contingency.nodes.graph import GraphProcesses, SpinThread, StepRecorder, start_graph
+from infomax_contingency.testing.graph import GraphProcesses, SpinThread, StepRecorder, start_graph
 
 ROOT = Path(__file__).resolve().parent.parent
 PKG = "infomax_contingency"

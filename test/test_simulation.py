@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from infomax_contingency import cli
-from infomax_contingency.controllers import (
+from infomax_contingency.cli import main as cli
+from infomax_contingency.core.controllers import (
     FixedIntervalController,
     GreedyController,
     PolicyController,
@@ -18,13 +18,13 @@ from infomax_contingency.controllers import (
     RuleController,
     make_controller,
 )
-from infomax_contingency.model import ModelParams, Statistic
-from infomax_contingency.policy_table import PolicyTable
+from infomax_contingency.core.model import ModelParams, Statistic
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.solver import solve_episodic, solve_receding
+from infomax_contingency.core.statespace import count_tuples
 from infomax_contingency.resources import resource_path
-from infomax_contingency.simulation import simulate
-from infomax_contingency.solver import solve_episodic, solve_receding
-from infomax_contingency.statespace import count_tuples
-from infomax_contingency.world import make_room
+from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.sim.world import make_room
 
 PAPER = ModelParams.named("paper")
 ROBOT = ModelParams.named("robot")

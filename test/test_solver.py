@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import brute_force
-from infomax_contingency.model import TIE_TOLERANCE, ModelParams, Statistic
-from infomax_contingency.solver import solve_episodic, solve_receding
-from infomax_contingency.statespace import (
+from infomax_contingency.core.model import TIE_TOLERANCE, ModelParams, Statistic
+from infomax_contingency.core.solver import solve_episodic, solve_receding
+from infomax_contingency.core.statespace import (
     count_index,
     count_index_array,
     count_tuples,

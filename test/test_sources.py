@@ -5,14 +5,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from infomax_contingency.audio import (
+from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
+from infomax_contingency.audio.signal import (
     AudioError,
     kmeans_split,
     load_mono,
     window_energies_db,
     write_wav_int16,
 )
-from infomax_contingency.sources import Binarizer, WavReplay, calibration_window_count
 
 WAV = Path(__file__).parent / "data" / "interaction.wav"
 

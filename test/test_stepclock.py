@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from infomax_contingency.stepclock import LockstepPacer, StepPairer
+from infomax_contingency.core.stepclock import LockstepPacer, StepPairer
 
 
 def _pairer() -> tuple[StepPairer, list[str]]:

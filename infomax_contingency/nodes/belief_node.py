@@ -1,11 +1,11 @@
 """belief_node: P(S=1 | history) from the bits and the decisions, once per step.
 
-The statistic is the same :class:`~infomax_contingency.model.StatisticTracker` the
+The statistic is the same :class:`~infomax_contingency.core.model.StatisticTracker` the
 controller uses, with its own memory: ``memory_steps`` counted observations (0 = the
 whole history; a bounded memory lets the belief fall again after a partner leaves).
 
 Step clock: each ``vocalize`` is paired with the ``sound`` it answers, by their
-publication stamps (:class:`~infomax_contingency.stepclock.StepPairer`, whatever order
+publication stamps (:class:`~infomax_contingency.core.stepclock.StepPairer`, whatever order
 they arrive in). Once both are in, the bit is counted, **then the belief is published**,
 then the decision advances the timer. A node started in the middle of a run starts from
 zero counts at the first step for which it received both messages.
@@ -22,9 +22,11 @@ from typing import Any
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
-from ..model import StatisticTracker
-from ..stepclock import StepPairer
-from .common import OK, STREAM_QOS, WARN, GraphNode, run_node
+from infomax_contingency.core.model import StatisticTracker
+from infomax_contingency.core.stepclock import StepPairer
+from infomax_contingency.nodes.graph_node import OK, WARN, GraphNode
+from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.runtime import run_node
 
 
 class BeliefNode(GraphNode):

@@ -23,13 +23,15 @@ from rclpy.parameter import Parameter
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from .belief_node import BeliefNode
-from .common import USER_ERRORS, GraphNode, init_ros
-from .controller_node import ControllerNode
-from .fake_audio_node import FakeAudioNode
-from .mic_node import MicNode
-from .posture_node import PostureNode
-from .speaker_node import SpeakerNode
+from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.nodes.belief_node import BeliefNode
+from infomax_contingency.nodes.controller_node import ControllerNode
+from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
+from infomax_contingency.nodes.graph_node import GraphNode
+from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.runtime import init_ros
+from infomax_contingency.nodes.speaker_node import SpeakerNode
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:

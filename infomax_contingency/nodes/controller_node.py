@@ -1,7 +1,7 @@
 """controller_node: answers every ``sound`` bit with one ``vocalize`` decision.
 
 The decision comes from a solved policy table
-(:class:`~infomax_contingency.controllers.PolicyController`): ``policy_file``, a file or
+(:class:`~infomax_contingency.core.controllers.PolicyController`): ``policy_file``, a file or
 the name of a table in the package's ``policies/`` directory (default: the committed
 robot table, found through the share directory). A table solved for other model
 parameters than ``params`` is refused at start-up with the differences named. Episodic
@@ -20,10 +20,13 @@ from typing import Any
 
 from std_msgs.msg import Bool
 
-from ..controllers import PolicyController
-from ..policy_table import PolicyTable
-from ..resources import resource_path
-from .common import OK, STREAM_QOS, ConfigError, GraphNode, run_node
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.nodes.graph_node import OK, GraphNode
+from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.resources import resource_path
 
 DEFAULT_TABLE = ("policies", "robot_receding_H24_M60.npz")
 """The committed table for the ``robot`` parameters (share-directory relative)."""

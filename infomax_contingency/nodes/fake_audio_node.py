@@ -1,9 +1,9 @@
 """fake_audio_node: a simulated room that publishes the sound a microphone would hear.
 
-The room (:class:`~infomax_contingency.fake_room.FakeRoom`) is chosen by ``room``
+The room (:class:`~infomax_contingency.sim.fake_room.FakeRoom`) is chosen by ``room``
 (responsive | silent | noisy) and every one of its parameters can be overridden (noise
 floor, background events, the robot's own sound, the partner's arrival, departure,
-reply probability, delays and level; see :mod:`infomax_contingency.fake_room`).
+reply probability, delays and level; see :mod:`infomax_contingency.sim.fake_room`).
 Deterministic for a given ``seed``.
 
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
@@ -29,9 +29,18 @@ from typing import Any
 
 from std_msgs.msg import Bool, Float32MultiArray
 
-from ..fake_room import PRESETS, FakeRoom, FakeRoomConfig, as_transmitted, timing_warnings
-from ..stepclock import LockstepPacer
-from .common import OK, STREAM_QOS, WARN, ConfigError, GraphNode, run_node
+from infomax_contingency.core.stepclock import LockstepPacer
+from infomax_contingency.nodes.graph_node import OK, WARN, GraphNode
+from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.sim.fake_room import (
+    PRESETS,
+    FakeRoom,
+    FakeRoomConfig,
+    as_transmitted,
+    timing_warnings,
+)
 
 ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
     (

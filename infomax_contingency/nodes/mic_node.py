@@ -11,7 +11,7 @@ Sources (parameter ``source``):
   [-1, 1], at ``audio_rate_hz``), windowed as they come. A gap in the stream (a missing
   publication sequence number) drops the incomplete window and is counted.
 * ``sounddevice`` — a live microphone through PortAudio
-  (:class:`~infomax_contingency.live_audio.MicrophoneStream`): ``device`` is empty (the
+  (:class:`~infomax_contingency.audio.live.MicrophoneStream`): ``device`` is empty (the
   system default), an index, or a part of the device's name (first match; the match is
   logged); one ``channel`` or the mix of all. The device is opened at 16 kHz, or at its
   own rate and resampled exactly. Capture starts with the step clock (after the start
@@ -54,8 +54,8 @@ import numpy as np
 from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray
 
-from ..audio import AudioError, WindowAssembler, load_threshold
-from ..live_audio import (
+from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
+from infomax_contingency.audio.live import (
     DISCONNECTED,
     INPUT,
     AudioDeviceError,
@@ -63,18 +63,12 @@ from ..live_audio import (
     Window,
     resolve_device,
 )
-from ..sources import Binarizer, WavReplay, calibration_window_count
-from ..stepclock import LockstepPacer
-from .common import (
-    ERROR,
-    OK,
-    STREAM_QOS,
-    WARN,
-    ConfigError,
-    GraphNode,
-    device_parameter,
-    run_node,
-)
+from infomax_contingency.audio.signal import AudioError, WindowAssembler, load_threshold
+from infomax_contingency.core.stepclock import LockstepPacer
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.parameters import ConfigError, device_parameter
+from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.runtime import run_node
 
 SOURCES = ("wav", "topic", "sounddevice")
 THRESHOLD_MODES = ("calibrate", "fixed", "file")

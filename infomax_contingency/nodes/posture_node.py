@@ -1,6 +1,6 @@
 """posture_node: the belief shown as a posture, ``attentive`` or ``bored``.
 
-Hysteresis (:class:`~infomax_contingency.posture.PostureHysteresis`): attentive when the
+Hysteresis (:class:`~infomax_contingency.core.posture.PostureHysteresis`): attentive when the
 belief rises above ``attentive_above``, bored again when it falls below ``bored_below``.
 On every change (and once at start-up, with the initial posture) the node publishes
 ``posture`` (std_msgs/String) and ``joint_targets`` (trajectory_msgs/JointTrajectory:
@@ -19,8 +19,11 @@ from builtin_interfaces.msg import Duration
 from std_msgs.msg import Float64, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from ..posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
-from .common import LATCHED_QOS, OK, ConfigError, GraphNode, run_node
+from infomax_contingency.core.posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
+from infomax_contingency.nodes.graph_node import OK, GraphNode
+from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.qos import LATCHED_QOS
+from infomax_contingency.nodes.runtime import run_node
 
 DEFAULT_JOINTS = ("head_pan", "head_tilt", "left_arm_lift", "right_arm_lift")
 DEFAULT_ATTENTIVE = (0.0, 0.15, 0.3, 0.3)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.audio import load_mono, synthesize_chirp, write_wav_int16
+from infomax_contingency.audio.signal import load_mono, synthesize_chirp, write_wav_int16
 
 RATE_HZ = 8000
 DURATION_S = 18.0

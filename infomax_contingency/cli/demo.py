@@ -26,9 +26,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..fake_room import PRESETS
-from ..posture import BORED, PostureHysteresis
-from ..resources import resource_path
+from infomax_contingency.core.posture import BORED, PostureHysteresis
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import PRESETS
 
 RUN_TIMEOUT_S = 180.0
 """Seconds the graph may take to come up and finish before the demo gives up."""
@@ -130,7 +130,14 @@ def run_demo(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from .graph import GraphError, GraphProcesses, SpinThread, StepRecorder, start_graph, wait_until
+    from infomax_contingency.testing.graph import (
+        GraphError,
+        GraphProcesses,
+        SpinThread,
+        StepRecorder,
+        start_graph,
+        wait_until,
+    )
 
     window_s = 0.5
     nodes, clock = _nodes(args)

@@ -1,6 +1,6 @@
 """Controllers: from the bit of each window to the decision to vocalize.
 
-Every controller keeps its own :class:`~infomax_contingency.model.StatisticTracker` and
+Every controller keeps its own :class:`~infomax_contingency.core.model.StatisticTracker` and
 is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and returns
 ``u_t`` (1 = vocalize). Specifications for the command line:
 
@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from . import model
-from .model import ModelParams, Statistic, StatisticTracker
-from .policy_table import EPISODIC, PolicyTable
+from infomax_contingency.core import model
+from infomax_contingency.core.model import ModelParams, Statistic, StatisticTracker
+from infomax_contingency.core.policy_table import EPISODIC, PolicyTable
 
 CONTROLLER_KINDS = ("policy:FILE", "rule[:C]", "greedy", "fixed:K", "random:P")
 

@@ -1,8 +1,8 @@
 """Live audio through PortAudio (sounddevice): microphone windows, the robot's sound, calibration.
 
 The live counterpart of the wav source: a :class:`MicrophoneStream` turns a real
-microphone into the same window energies that :func:`~infomax_contingency.audio.load_mono`
-plus :func:`~infomax_contingency.audio.window_energies_db` give for a recording of it, and a
+microphone into the same window energies that :func:`~infomax_contingency.audio.signal.load_mono`
+plus :func:`~infomax_contingency.audio.signal.window_energies_db` give for a recording of it, and a
 :class:`SpeakerOutput` plays the robot's sound and reports when it really started.
 
 Conventions:
@@ -15,7 +15,7 @@ Conventions:
       two clocks are the same (CLOCK_MONOTONIC). To stamp a ROS message, use
       ``now_ros - (time.monotonic() - t)``.
     * Samples are float32 from PortAudio, float64 after mixing; the processing rate is
-      :data:`~infomax_contingency.audio.PROCESSING_RATE_HZ`.
+      :data:`~infomax_contingency.audio.signal.PROCESSING_RATE_HZ`.
 
 Threads: the PortAudio callbacks only copy data into bounded queues and bump counters.
 Everything else (resampling, windows, reconnecting) runs in the thread that calls
@@ -53,7 +53,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .audio import (
+from infomax_contingency.audio.signal import (
     PROCESSING_RATE_HZ,
     AudioError,
     WindowAssembler,
@@ -395,7 +395,7 @@ def negotiate_format(
 
 
 class StreamResampler:
-    """Streaming polyphase resampler that reproduces :func:`~infomax_contingency.audio.resample`.
+    """Streaming polyphase resampler reproducing :func:`~infomax_contingency.audio.signal.resample`.
 
     ``audio.resample`` is ``scipy.signal.resample_poly`` over a whole signal. This class
     computes exactly the same output samples (bit for bit) from chunks of any size: the
@@ -469,7 +469,7 @@ class Window:
 
     Attributes:
         index: windows emitted by this stream before this one.
-        energy_db: mean energy, dB (as :func:`~infomax_contingency.audio.window_energies_db`).
+        energy_db: mean energy, dB (as :func:`..signal.window_energies_db`).
         start_time: ADC time of the window's first sample, ``time.monotonic()`` seconds.
         end_time: ADC time just after its last sample (``start_time + window_s`` plus any
             lost audio inside).
@@ -591,7 +591,7 @@ class MicrophoneStream:
     block and counts it). The reader thread (:meth:`read_windows` or :meth:`read_audio`)
     mixes the blocks to mono (mean, or one ``channel``), resamples them exactly to
     ``rate`` (:class:`StreamResampler`) when the device runs at another rate, and cuts
-    windows with :class:`~infomax_contingency.audio.WindowAssembler`. Uninterrupted
+    windows with :class:`~infomax_contingency.audio.signal.WindowAssembler`. Uninterrupted
     audio therefore gives exactly the energies of the offline computation on a recording
     of the same samples.
 
@@ -1210,7 +1210,7 @@ class SpeakerOutput:
     Args:
         device: output device spec (see :func:`resolve_device`).
         sound: the sound: None for the robot's chirp
-            (:func:`~infomax_contingency.audio.synthesize_chirp`, ``duration_s``, made at
+            (:func:`~infomax_contingency.audio.signal.synthesize_chirp`, ``duration_s``, made at
             the device rate), a WAV file path, or mono samples at ``sound_rate``.
         sound_rate: rate of ``sound`` samples, Hz (only for arrays).
         duration_s: chirp length, seconds (only for the default sound).

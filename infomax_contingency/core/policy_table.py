@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from .model import ModelParams, ParameterError, Statistic
-from .statespace import count_index, n_count_tuples
+from infomax_contingency.core.model import ModelParams, ParameterError, Statistic
+from infomax_contingency.core.statespace import count_index, n_count_tuples
 
 FORMAT_NAME = "infomax_contingency.policy_table"
 FORMAT_VERSION = 1

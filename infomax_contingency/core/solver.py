@@ -9,7 +9,7 @@ The statistic ``a = (z, p2, q2, p3, q3)`` is finite once the counts are bounded,
 from a layer whose counts sum to at most N the next layer's counts sum to at most N + 1.
 The solver therefore sweeps backwards over layers ``k = 1 .. K`` whose counts sum to at
 most ``N_k = N_0 - k``, every layer fully vectorised over all count tuples (numbered by
-:mod:`infomax_contingency.statespace`) and all timer values:
+:mod:`infomax_contingency.core.statespace`) and all timer values:
 
 * **episodic**, horizon T: ``N_0 = T``; step ``t`` uses layer ``k = T - t`` (counts sum
   to at most t); all layers ``t = 1 .. T-1`` are stored.
@@ -18,7 +18,7 @@ most ``N_k = N_0 - k``, every layer fully vectorised over all count tuples (numb
   applied by the caller between decisions.
 
 Ties go to silence: vocalize only when its value exceeds silence's by more than
-:data:`~infomax_contingency.model.TIE_TOLERANCE` bits, so floating-point noise never
+:data:`~infomax_contingency.core.model.TIE_TOLERANCE` bits, so floating-point noise never
 decides an exact tie.
 
 The same backward step, given actions instead of maximising over them, evaluates any
@@ -33,7 +33,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .model import (
+from infomax_contingency.core.model import (
     AGENT,
     BACKGROUND,
     SELF,
@@ -45,8 +45,8 @@ from .model import (
     period_of,
     predictive_active,
 )
-from .policy_table import EPISODIC, RECEDING, PolicyTable
-from .statespace import n_count_tuples, partial_sums
+from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
+from infomax_contingency.core.statespace import n_count_tuples, partial_sums
 
 SOLVER_VERSION = 1
 
@@ -73,7 +73,7 @@ class Solution:
 def tuple_quantities(params: ModelParams, max_count: int) -> dict:
     """Per count tuple: negative entropy, predictive P(y=1) and the neighbours' indices.
 
-    Tuples are those with sum <= max_count, in :mod:`~infomax_contingency.statespace` index
+    Tuples are those with sum <= max_count, in :mod:`~infomax_contingency.core.statespace` index
     order. ``neg_entropy`` is ``-H`` (bits) of every tuple; ``tuples[AGENT]`` and
     ``tuples[BACKGROUND]`` are P(y=1) of the next bit in that period, and
     ``neighbours[(period, y)]`` the index of the tuple one observation ``y`` in ``period``

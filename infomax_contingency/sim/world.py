@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from .model import AGENT, BACKGROUND, SELF, ModelParams, period_of
+from infomax_contingency.core.model import AGENT, BACKGROUND, SELF, ModelParams, period_of
 
 ROOM_NAMES = ("prior", "responsive", "silent", "noisy", "baby9")
 

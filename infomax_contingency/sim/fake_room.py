@@ -1,6 +1,6 @@
 """A simulated room at the level of audio, one window at a time.
 
-Where :mod:`infomax_contingency.world` draws bits, this module makes the sound a
+Where :mod:`infomax_contingency.sim.world` draws bits, this module makes the sound a
 microphone would pick up, so the whole audio path (energies, threshold, bits) runs as it
 would on a robot. The room holds:
 
@@ -8,7 +8,7 @@ would on a robot. The room holds:
 * background sound events (knocks, clatter): a Poisson process of ``event_rate_hz``,
   each a decaying noise burst of ``event_min_s`` .. ``event_max_s`` at ``event_level_db``;
 * the robot hearing itself: after each vocalization, its 200 ms chirp
-  (:func:`~infomax_contingency.audio.synthesize_chirp`) starts ``self_delay_s`` after the
+  (:func:`~infomax_contingency.audio.signal.synthesize_chirp`) starts ``self_delay_s`` after the
   start of the next window, at ``self_level_db``;
 * a partner, present from ``partner_arrive_s`` until ``partner_leave_s`` (room time),
   who answers a vocalization with probability ``reply_probability``: a speech-like
@@ -34,10 +34,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .audio import PROCESSING_RATE_HZ, synthesize_chirp, window_energies_db, window_samples
-from .controllers import Controller
-from .model import ModelParams, StatisticTracker
-from .sources import Binarizer
+from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.signal import (
+    PROCESSING_RATE_HZ,
+    synthesize_chirp,
+    window_energies_db,
+    window_samples,
+)
+from infomax_contingency.core.controllers import Controller
+from infomax_contingency.core.model import ModelParams, StatisticTracker
 
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""

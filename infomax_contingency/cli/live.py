@@ -1,6 +1,6 @@
 """Command-line tools for live audio: ``devices``, ``calibrate`` and ``measure-latency``.
 
-Registered in :mod:`infomax_contingency.cli`; errors follow its rules (one line on stderr,
+Registered in :mod:`infomax_contingency.cli.main`; errors follow its rules (one line on stderr,
 exit status 2).
 """
 
@@ -11,8 +11,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from .audio import PROCESSING_RATE_HZ, AudioError, kmeans_split, save_threshold
-from .live_audio import (
+from infomax_contingency.audio.live import (
     INPUT,
     OUTPUT,
     energies_from_wav,
@@ -22,7 +21,13 @@ from .live_audio import (
     record_energies,
     self_period_windows,
 )
-from .model import ModelParams
+from infomax_contingency.audio.signal import (
+    PROCESSING_RATE_HZ,
+    AudioError,
+    kmeans_split,
+    save_threshold,
+)
+from infomax_contingency.core.model import ModelParams
 
 _MIN_SEPARATION_DB = 10.0
 """Cluster means closer than this (dB) get a warning: the audio may lack quiet or sound."""

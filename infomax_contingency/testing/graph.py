@@ -29,7 +29,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, String
 
-from .common import LATCHED_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
 
 NODES = (
     "mic_node",

@@ -2,9 +2,9 @@
 
 Finite-horizon TD on the statistic ``a = (z, p2, q2, p3, q3)``. Values ``V_t(a)`` for
 ``t = 1 .. T`` live in arrays indexed like the solver's layers (timer z, then
-:func:`~infomax_contingency.statespace.count_index`), so a trial step is a few list
+:func:`~infomax_contingency.core.statespace.count_index`), so a trial step is a few list
 lookups and reading off the greedy policy is one vectorised backward step per layer
-(:func:`~infomax_contingency.solver.bellman_layer` on the learned next-layer values).
+(:func:`~infomax_contingency.core.solver.bellman_layer` on the learned next-layer values).
 
 A trial draws ``s, k1, k2, k3`` from the prior, starts with zero counts and ``z_1``
 uniform in ``1 .. ta2 + 1``, observes ``y_1``, and for ``t = 1 .. T-1`` acts and observes
@@ -41,10 +41,18 @@ import time
 
 import numpy as np
 
-from .evaluation import ActionsByStep, Scorer, episode_values, never_actions
-from .model import AGENT, BACKGROUND, SELF, TIE_TOLERANCE, ModelParams, advance_timer, period_of
-from .solver import bellman_layer, tuple_quantities
-from .statespace import n_count_tuples
+from infomax_contingency.core.model import (
+    AGENT,
+    BACKGROUND,
+    SELF,
+    TIE_TOLERANCE,
+    ModelParams,
+    advance_timer,
+    period_of,
+)
+from infomax_contingency.core.scoring import ActionsByStep, Scorer, episode_values, never_actions
+from infomax_contingency.core.solver import bellman_layer, tuple_quantities
+from infomax_contingency.core.statespace import n_count_tuples
 
 BACKUPS = ("taken", "best")
 INITIAL_VALUES = ("zero", "entropy", "listening")

@@ -16,18 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from .audio import AudioError
-from .controllers import CONTROLLER_KINDS, make_controller
-from .experiments_cli import register_experiment, register_learn, register_plot
-from .live_cli import register_calibrate, register_devices, register_measure_latency
-from .model import ModelParams, ParameterError
-from .nodes.demo import register_demo
-from .policy_table import EPISODIC, RECEDING, PolicyTable, PolicyTableError
-from .simulation import simulate
-from .solver import solve
-from .world import ROOM_NAMES, make_room
-
-USER_ERRORS = (ParameterError, PolicyTableError, AudioError, ValueError, OSError)
+from infomax_contingency.cli.demo import register_demo
+from infomax_contingency.cli.experiments import register_experiment, register_learn, register_plot
+from infomax_contingency.cli.live import (
+    register_calibrate,
+    register_devices,
+    register_measure_latency,
+)
+from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
+from infomax_contingency.core.solver import solve
+from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.sim.world import ROOM_NAMES, make_room
 
 
 def _params_argument(parser: argparse.ArgumentParser, default: str = "robot") -> None:

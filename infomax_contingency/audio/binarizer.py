@@ -1,14 +1,14 @@
 """The microphone's side of the step clock: where windows come from and how they become bits.
 
 * :class:`WavReplay` — a WAV file (any PCM/float format, rate and channel count) read
-  with :func:`~infomax_contingency.audio.load_mono`, resampled to the processing rate
-  and cut into windows by :func:`~infomax_contingency.audio.window_energies_db`, so a
+  with :func:`~infomax_contingency.audio.signal.load_mono`, resampled to the processing rate
+  and cut into windows by :func:`~infomax_contingency.audio.signal.window_energies_db`, so a
   replay yields exactly the energies of the offline computation on the same file.
 * :class:`Binarizer` — window energy to bit with a threshold that is fixed, loaded from
   a threshold file, or calibrated by k-means on the first windows, optionally refreshed
   online on a rolling buffer.
 
-Energies are in dB (see :mod:`infomax_contingency.audio`); durations in seconds.
+Energies are in dB (see :mod:`infomax_contingency.audio.signal`); durations in seconds.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .audio import (
+from infomax_contingency.audio.signal import (
     PROCESSING_RATE_HZ,
     AudioError,
     OnlineThreshold,
@@ -160,7 +160,7 @@ class Binarizer:
 
         Raises:
             AudioError: the energies have no boundary (see
-                :func:`~infomax_contingency.audio.kmeans_split`).
+                :func:`~infomax_contingency.audio.signal.kmeans_split`).
         """
         fit = kmeans_split(energies_db)
         self.fit, self.threshold_db = fit, fit.threshold_db

@@ -5,8 +5,8 @@ matplotlib is imported only when a figure is drawn, and only its object-oriented
 state, and the rest of the package never needs matplotlib.
 
 A *session* is a list of per-step records with the fields of
-:class:`~infomax_contingency.simulation.StepRecord` (``t, time_s, z, y, u, belief,
-entropy, ratio``), from :func:`~infomax_contingency.simulation.simulate` or read from the
+:class:`~infomax_contingency.sim.simulation.StepRecord` (``t, time_s, z, y, u, belief,
+entropy, ratio``), from :func:`~infomax_contingency.sim.simulation.simulate` or read from the
 JSON-lines output of ``infomax-contingency simulate --json``.
 """
 
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .model import AGENT, SELF, ModelParams, StatisticTracker, period_of
+from infomax_contingency.core.model import AGENT, SELF, ModelParams, StatisticTracker, period_of
 
 SESSION_FIELDS = ("t", "time_s", "z", "y", "u", "belief", "entropy", "ratio")
 DPI = 100
@@ -226,7 +226,7 @@ def session_figure(
 def plot_learning_curves(curves: Sequence[dict], path: str | Path, target: float = 0.995) -> Path:
     """Score of the learned policy against vocalizations, one line per curve.
 
-    Each curve is a :meth:`~infomax_contingency.learning.LearningCurve.to_dict` record.
+    Each curve is a :meth:`~infomax_contingency.core.learning.LearningCurve.to_dict` record.
     """
     figure = _figure(7.5, 4.2)
     axis = figure.add_subplot()

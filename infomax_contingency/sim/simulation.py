@@ -6,9 +6,9 @@ import dataclasses
 
 import numpy as np
 
-from .controllers import Controller
-from .model import ModelParams, StatisticTracker
-from .world import Room
+from infomax_contingency.core.controllers import Controller
+from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.sim.world import Room
 
 
 @dataclasses.dataclass(frozen=True)

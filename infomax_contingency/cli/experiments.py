@@ -1,8 +1,8 @@
 """Command-line sub-commands of the evaluation suite: ``experiment``, ``learn``, ``plot``.
 
 * ``experiment baby9 | rule | greedy | horizon | efficiency`` — the experiments of
-  :mod:`infomax_contingency.evaluation` (readable tables, or ``--json``).
-* ``learn`` — infomax TD learning curves (:mod:`infomax_contingency.learning`).
+  :mod:`infomax_contingency.eval.experiments` (readable tables, or ``--json``).
+* ``learn`` — infomax TD learning curves (:mod:`infomax_contingency.core.learning`).
 * ``plot`` — the four-panel figure of a simulated or recorded session.
 
 Every command is deterministic given its seeds; docs/RESULTS.md lists the commands that
@@ -21,12 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from . import evaluation, learning, plots
-from .controllers import CONTROLLER_KINDS, PolicyController, make_controller
-from .model import NAMED_PARAMS, ModelParams
-from .resources import resource_path
-from .simulation import simulate
-from .world import ROOM_NAMES, make_room
+from infomax_contingency.core import learning, scoring
+from infomax_contingency.core.controllers import CONTROLLER_KINDS, PolicyController, make_controller
+from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
+from infomax_contingency.eval import experiments as evaluation
+from infomax_contingency.eval import plots
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.sim.world import ROOM_NAMES, make_room
 
 
 def _int_list(text: str) -> list[int]:
@@ -475,7 +477,7 @@ def parse_method(text: str, default_budget: int) -> tuple[str, learning.Learning
 
 def _run_learn(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
-    scorer = evaluation.Scorer(params, args.horizon)
+    scorer = scoring.Scorer(params, args.horizon)
     methods = [parse_method(text, args.budget) for text in args.method or ["plain"]]
     curves = []
     for name, settings, budget in methods:

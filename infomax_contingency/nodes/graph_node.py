@@ -1,0 +1,195 @@
+"""The base class of the graph's nodes: stamped subscriptions, start gate, diagnostics.
+
+Diagnostics: each node publishes a ``diagnostic_msgs/DiagnosticArray`` on
+``/diagnostics`` about once a second, built directly (no diagnostic_updater).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rclpy.subscription import Subscription
+from rclpy.task import Future
+
+from infomax_contingency.core.stepclock import LockstepPacer
+from infomax_contingency.nodes.parameters import ParameterReader
+from infomax_contingency.nodes.qos import STREAM_QOS
+
+DIAGNOSTICS_PERIOD_S = 1.0
+"""Seconds between diagnostics messages."""
+
+_GATE_POLL_S = 0.02
+"""Seconds between checks of a start gate."""
+
+_TIMEOUT_POLL_S = 0.1
+"""Seconds between checks of a lockstep timeout."""
+
+_CONNECT_WAIT_S = 5.0
+"""Seconds a start gate waits for seen but unconnected listeners."""
+
+_STALLED_WARNING_S = 5.0
+"""Seconds without a first decision before a lockstep node warns (and between warnings)."""
+
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+
+
+
+class GraphNode(Node):
+    """Base of the graph's nodes: parameters, diagnostics and a completion future.
+
+    Subclasses call :meth:`start_diagnostics` once set up and implement
+    :meth:`diagnostic_status`. A node that finishes on its own (e.g. the end of a replayed
+    file) sets :attr:`finished`; :func:`run_node` then returns its result as exit status.
+    """
+
+    def __init__(self, node_name: str, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.started_ns = time.time_ns()
+        self.stale_messages = 0
+        """Messages ignored because they were published before this node started."""
+        self.parameters = ParameterReader(self)
+        self.finished: Future = Future()
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+
+    def subscribe(
+        self,
+        kind: type,
+        topic: str,
+        callback: Callable[[Any, int], None],
+        qos: QoSProfile = STREAM_QOS,
+    ) -> Subscription:
+        """Subscribe; ``callback(msg, stamp)`` gets the publication stamp (ns, 0 = unknown).
+
+        Messages published before this node started are ignored: a node that is
+        restarted in the middle of a run does not act on the past (DDS may hand a late
+        joiner recent samples from a writer's shared-memory history).
+        """
+
+        def receive(msg: Any, info: dict[str, Any]) -> None:
+            stamp = int(info.get("source_timestamp", 0))
+            if 0 < stamp < self.started_ns:
+                self.stale_messages += 1
+                return
+            callback(msg, stamp)
+
+        return self.create_subscription(kind, topic, receive, qos)
+
+    def start_when_ready(
+        self,
+        ready: Callable[[], bool],
+        delay_s: float,
+        start: Callable[[], None],
+        pacer: LockstepPacer | None = None,
+        on_timeout: Callable[[], None] | None = None,
+        stalled_hint: str = "",
+    ) -> None:
+        """Call ``start`` once ``ready()`` has held for ``delay_s`` seconds.
+
+        The start gate of a node that sets the pace of the graph: ``ready`` checks that
+        its listeners are there; then every subscriber it sees on its topics must be
+        connected (:meth:`listeners_connected`, waited for at most a few seconds); the
+        delay lets the rest of the graph connect too. Afterwards, with a lockstep ``pacer``,
+        ``on_timeout`` is called whenever the pacer's timeout expires; while the first
+        window waits for its decision (no timeout applies then) a warning with
+        ``stalled_hint`` is logged every few seconds.
+        """
+        ready_since: list[float] = []
+        connected_since: list[float] = []
+
+        def check_timeout() -> None:
+            now = time.monotonic()
+            if pacer.timed_out(now):
+                on_timeout()
+            elif pacer.answers == 0 and pacer.waited_s(now) > _STALLED_WARNING_S:
+                self.get_logger().warning(
+                    f"no 'vocalize' for the first window after {pacer.waited_s(now):.0f} s:"
+                    f" {stalled_hint}",
+                    throttle_duration_sec=_STALLED_WARNING_S,
+                )
+
+        def poll() -> None:
+            now = time.monotonic()
+            if not ready():
+                ready_since.clear()
+                connected_since.clear()
+                return
+            ready_since[:1] = ready_since[:1] or [now]
+            # Listeners seen but not connected yet get a few seconds (one that can never
+            # connect, e.g. with incompatible QoS, must not stop the graph).
+            if self.listeners_connected() or now - ready_since[0] > _CONNECT_WAIT_S:
+                connected_since[:1] = connected_since[:1] or [now]
+            else:
+                connected_since.clear()
+            if not connected_since or now - connected_since[0] < delay_s:
+                return
+            gate.cancel()
+            self.destroy_timer(gate)
+            if pacer is not None and on_timeout is not None:
+                self.create_timer(_TIMEOUT_POLL_S, check_timeout)
+            start()
+
+        gate = self.create_timer(_GATE_POLL_S, poll)
+
+    def log_at(self, level: str, message: str) -> None:
+        """Log at ``level`` (``error``, ``warning``, else info): the core's log callback.
+
+        One call site per severity: rclpy refuses a call site whose severity changes.
+        """
+        logger = self.get_logger()
+        if level == "error":
+            logger.error(message)
+        elif level == "warning":
+            logger.warning(message)
+        else:
+            logger.info(message)
+
+    def start_diagnostics(self, period_s: float = DIAGNOSTICS_PERIOD_S) -> None:
+        """Publish diagnostics every ``period_s`` seconds."""
+        self.create_timer(period_s, self.publish_diagnostics)
+
+    def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
+        """``(level, message, key values)`` of the node's current state."""
+        raise NotImplementedError
+
+    def publish_diagnostics(self) -> None:
+        """Publish one DiagnosticArray with this node's status."""
+        level, message, values = self.diagnostic_status()
+        status = DiagnosticStatus(
+            level=level,
+            name=f"{self.get_name()}: {type(self).__doc__.splitlines()[0].rstrip('.')}",
+            message=message,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=key, value=_format_value(value)) for key, value in values.items()],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
+
+    def listeners_connected(self) -> bool:
+        """True when every subscription this node sees on its topics is matched to it.
+
+        A clock node checks this before its first message, so that a listener that has
+        been discovered but not yet connected does not miss the first steps.
+        """
+        return all(
+            pub.get_subscription_count() >= self.count_subscribers(pub.topic_name)
+            for pub in self.publishers
+        )
+
+    def finish(self, exit_status: int = 0) -> None:
+        """Ask :func:`run_node` to stop spinning and return ``exit_status``."""
+        if not self.finished.done():
+            self.finished.set_result(exit_status)
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+

@@ -1,0 +1,202 @@
+"""Parameter declaration with descriptors, ranges and one-line refusals.
+
+Parameters are declared with a description and a range (``ros2 param describe`` shows
+them); a bad value stops the node at start-up with one line naming the parameter, the
+value and what is allowed (:class:`ConfigError`), never a traceback. An integer given
+for a floating-point parameter (``-p window_s:=1``) is accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+
+from infomax_contingency.core.model import ModelParams, ParameterError
+
+
+class ConfigError(ValueError):
+    """A parameter value the node cannot work with; the message says what is allowed."""
+
+
+def _range_text(low: float, high: float, unit: str) -> str:
+    return f"a number in [{low:g}, {high:g}]" + (f" {unit}" if unit else "")
+
+
+class ParameterReader:
+    """Declares a node's parameters with descriptors and checks their values."""
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+
+    def _declare(
+        self,
+        name: str,
+        default: Any,
+        descriptor: ParameterDescriptor,
+        coerce: Callable[[Any], Any],
+        allowed: str,
+    ) -> Any:
+        """Declare; on a value ROS refuses (type or range), explain it as a ConfigError."""
+        descriptor.name = name
+        descriptor.additional_constraints = allowed
+        try:
+            return coerce(self._node.declare_parameter(name, default, descriptor).value)
+        except (InvalidParameterTypeException, InvalidParameterValueException):
+            pass
+        loose = ParameterDescriptor(name=name, dynamic_typing=True)
+        raw = self._node.declare_parameter(name, default, loose).value
+        self._node.undeclare_parameter(name)
+        value = coerce(raw)  # raises ConfigError when the value cannot be used at all
+        try:
+            self._node.declare_parameter(name, value, descriptor, ignore_override=True)
+        except (InvalidParameterTypeException, InvalidParameterValueException):
+            raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}") from None
+        return value
+
+    def number(
+        self,
+        name: str,
+        default: float,
+        description: str,
+        low: float,
+        high: float,
+        unit: str = "",
+    ) -> float:
+        """A floating-point parameter in ``[low, high]``."""
+        allowed = _range_text(low, high, unit)
+
+        def coerce(raw: Any) -> float:
+            if isinstance(raw, bool) or not isinstance(raw, int | float):
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            value = float(raw)
+            if not math.isfinite(value) or not low <= value <= high:
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            return value
+
+        descriptor = ParameterDescriptor(
+            description=description,
+            floating_point_range=[FloatingPointRange(from_value=low, to_value=high, step=0.0)],
+        )
+        return self._declare(name, float(default), descriptor, coerce, allowed)
+
+    def integer(self, name: str, default: int, description: str, low: int, high: int) -> int:
+        """An integer parameter in ``[low, high]``."""
+        allowed = f"a whole number in [{low}, {high}]"
+
+        def coerce(raw: Any) -> int:
+            if isinstance(raw, bool) or not isinstance(raw, int) or not low <= raw <= high:
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            return int(raw)
+
+        descriptor = ParameterDescriptor(
+            description=description,
+            integer_range=[IntegerRange(from_value=low, to_value=high, step=1)],
+        )
+        return self._declare(name, int(default), descriptor, coerce, allowed)
+
+    def flag(self, name: str, default: bool, description: str) -> bool:
+        """A boolean parameter."""
+        allowed = "true or false"
+
+        def coerce(raw: Any) -> bool:
+            if not isinstance(raw, bool):
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            return raw
+
+        return self._declare(
+            name, bool(default), ParameterDescriptor(description=description), coerce, allowed
+        )
+
+    def text(
+        self, name: str, default: str, description: str, choices: Sequence[str] | None = None
+    ) -> str:
+        """A string parameter, optionally one of ``choices``."""
+        allowed = f"one of {', '.join(choices)}" if choices else "a string"
+
+        def coerce(raw: Any) -> str:
+            if not isinstance(raw, str) or (choices and raw not in choices):
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            return raw
+
+        return self._declare(
+            name, str(default), ParameterDescriptor(description=description), coerce, allowed
+        )
+
+    def texts(self, name: str, default: Sequence[str], description: str) -> list[str]:
+        """A non-empty list of strings."""
+        allowed = "a non-empty list of strings"
+
+        def coerce(raw: Any) -> list[str]:
+            if not isinstance(raw, list | tuple) or not raw:
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            if not all(isinstance(item, str) and item for item in raw):
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            return list(raw)
+
+        return self._declare(
+            name, list(default), ParameterDescriptor(description=description), coerce, allowed
+        )
+
+    def numbers(self, name: str, default: Sequence[float], description: str) -> list[float]:
+        """A non-empty list of finite numbers."""
+        allowed = "a non-empty list of finite numbers"
+
+        def coerce(raw: Any) -> list[float]:
+            if not isinstance(raw, list | tuple) or not raw:
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            if not all(
+                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                for v in raw
+            ):
+                raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
+            return [float(v) for v in raw]
+
+        return self._declare(
+            name,
+            [float(v) for v in default],
+            ParameterDescriptor(description=description),
+            coerce,
+            allowed,
+        )
+
+    def model(self) -> ModelParams:
+        """The ``params`` parameter: a named model parameter set or a YAML file."""
+        name = self.text(
+            "params",
+            "robot",
+            "Model parameters (MODEL.md): a named set (robot, paper) or a YAML file holding"
+            " dt, ts1, ts2, ta1, ta2, pi and optionally the Beta priors b11 .. b32",
+        )
+        try:
+            return ModelParams.load(name)
+        except ParameterError as error:
+            raise ConfigError(f"parameter 'params' = {name!r}: {error}") from None
+
+
+
+def device_parameter(node: Node, what: str) -> str:
+    """Declare and read the ``device`` parameter: ``""``, an index or a part of a name.
+
+    ``-p device:=3`` arrives as an integer, ``-p device:=USB`` as a string; both are
+    accepted (the parameter is dynamically typed) and returned as text, which
+    :func:`~infomax_contingency.audio.live.resolve_device` understands.
+    """
+    allowed = "empty (the system default), a device index, or a part of a device name"
+    descriptor = ParameterDescriptor(
+        name="device",
+        description=f"{what}: empty = the system default, an index, or a part of its name"
+        " (first match; `infomax-contingency devices` lists them)",
+        additional_constraints=allowed,
+        dynamic_typing=True,
+    )
+    value = node.declare_parameter("device", "", descriptor).value
+    if isinstance(value, bool) or not isinstance(value, int | str):
+        raise ConfigError(f"parameter 'device' = {value!r} is not allowed: {allowed}")
+    return str(value).strip()
+
+

@@ -1,0 +1,40 @@
+"""QoS profiles of the graph's topics.
+
+The step-clock topics (``audio``, ``sound``, ``sound_energy``, ``vocalize``, ``belief``,
+``partner_present`` and their stamped companions) are reliable, keep-last
+:data:`STREAM_DEPTH`; slow-changing state (``posture``, ``joint_targets``) is reliable and
+transient-local with depth 1, so a late joiner gets the current value.
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+STREAM_DEPTH = 100
+"""History depth of the step-clock topics (messages kept for a slow reader)."""
+
+STREAM_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=STREAM_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+"""QoS of the per-window topics."""
+
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+"""QoS of slow-changing state: late joiners receive the last value."""
+
+LATCHED_READER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+"""QoS to read slow-changing state: the last value on joining, then every change (a
+deeper queue than the writer's, so two quick changes are both received)."""
+
