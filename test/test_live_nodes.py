@@ -33,7 +33,7 @@ import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
-from std_msgs.msg import Bool, Float32
+from std_msgs.msg import Bool, Float32, Int64MultiArray
 
 from alsa_devices import VirtualAlsa
 from infomax_contingency.audio.signal import (
@@ -44,6 +44,7 @@ from infomax_contingency.audio.signal import (
     write_wav_int16,
 )
 from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.step_topics import StepDecision, decision_message, parse_bit
 from infomax_contingency.testing.graph import SpinThread, wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -135,17 +136,31 @@ class Probe(Node):
         self.create_subscription(kind, topic, store, STREAM_QOS)
         return received
 
-    def answer(self, sound_topic: str, vocalize_topic: str) -> list[bool]:
-        """Answer each bit on ``sound_topic`` with ``vocalize: false`` (lockstep); the bits."""
+    def record_bits(self, namespace: str) -> list[bool]:
+        """The bits on ``<namespace>/sound_step`` (whose subscriber starts a mic's clock)."""
         bits: list[bool] = []
-        vocalize = self.create_publisher(Bool, vocalize_topic, STREAM_QOS)
 
-        def on_sound(msg: Bool) -> None:
+        def store(msg: Int64MultiArray) -> None:
             with self.lock:
-                bits.append(msg.data)
-            vocalize.publish(Bool(data=False))
+                bits.append(parse_bit(msg).bit)
 
-        self.create_subscription(Bool, sound_topic, on_sound, STREAM_QOS)
+        self.create_subscription(Int64MultiArray, f"{namespace}/sound_step", store, STREAM_QOS)
+        return bits
+
+    def answer(self, namespace: str) -> list[bool]:
+        """Answer each bit of ``<namespace>/sound_step`` with "do not vocalize"; the bits."""
+        bits: list[bool] = []
+        vocalize = self.create_publisher(
+            Int64MultiArray, f"{namespace}/vocalize_step", STREAM_QOS
+        )
+
+        def on_bit(msg: Int64MultiArray) -> None:
+            bit = parse_bit(msg)
+            with self.lock:
+                bits.append(bit.bit)
+            vocalize.publish(decision_message(StepDecision(bit.stream, bit.step, False, 1)))
+
+        self.create_subscription(Int64MultiArray, f"{namespace}/sound_step", on_bit, STREAM_QOS)
         return bits
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -241,15 +256,16 @@ def test_live_capture_publishes_the_bits_of_the_wav_source(
     )
     heard_from(probe, live, replay, names=("/live/mic_node", "/replay/mic_node"))
     live_bits = probe.record("live/sound", Bool)
+    live_steps = probe.record_bits("live")
     live_energies = probe.record("live/sound_energy", Float32)
-    replay_bits = probe.answer("replay/sound", "replay/vocalize")
+    replay_bits = probe.answer("replay")
     replay_energies = probe.record("replay/sound_energy", Float32)
     assert live.wait() == 0, live.output()
     assert replay.wait() == 0, replay.output()
     wait_for(lambda: len(live_bits) >= n and len(replay_bits) >= n, f"{n} bits", live, replay)
 
     assert [msg.data for msg, _ in live_bits] == bits  # one per window, in order, none lost
-    assert replay_bits == bits
+    assert live_steps == bits and replay_bits == bits
     assert np.array_equal(
         np.array([msg.data for msg, _ in live_energies], np.float32), energies.astype(np.float32)
     )
@@ -289,10 +305,11 @@ def test_live_capture_from_a_48khz_only_microphone_gives_the_same_bits(
     )
     heard_from(probe, mic, names=("/mic_node",))
     live_bits = probe.record("sound", Bool)
+    live_steps = probe.record_bits("")
     live_energies = probe.record("sound_energy", Float32)
     assert mic.wait() == 0, mic.output()
-    wait_for(lambda: len(live_bits) >= len(bits), f"{len(bits)} bits", mic)
-    assert [msg.data for msg, _ in live_bits] == bits
+    wait_for(lambda: len(live_steps) >= len(bits), f"{len(bits)} bits", mic)
+    assert [msg.data for msg, _ in live_bits] == bits == live_steps
     assert np.array_equal(
         np.array([msg.data for msg, _ in live_energies], np.float32), energies.astype(np.float32)
     )
@@ -330,6 +347,7 @@ def test_live_microphone_that_stalls_is_reopened_and_the_gap_stays_a_gap(
     fd = os.open(fifo, os.O_RDWR)
     fcntl.fcntl(fd, 1031, 1 << 20)  # F_SETPIPE_SZ: room for every part at once
     bits = probe.record("sound", Bool)
+    steps = probe.record_bits("")
     try:
         mic = spawn(
             "mic_node",
@@ -351,6 +369,7 @@ def test_live_microphone_that_stalls_is_reopened_and_the_gap_stays_a_gap(
         )
         status = next(s for s in probe.statuses("/mic_node") if s.get("gaps") == "1")
         published = [msg.data for msg, _ in bits]
+        assert steps[: len(published)] == published
     finally:
         os.close(fd)  # no writer left: the device's reads return, its streams close
     mic.stop()

@@ -1,4 +1,8 @@
-"""Each node on its own, in the test process, driven over real DDS by a probe node."""
+"""Each node on its own, in the test process, on a hand-stepped executor with a probe.
+
+Messages travel over real DDS between the probe and the node under test; the executor
+runs only inside ``graph.run_until``, so nothing happens between the test's steps.
+"""
 
 from __future__ import annotations
 
@@ -10,9 +14,8 @@ import numpy as np
 import pytest
 import rclpy
 from rcl_interfaces.msg import ParameterType
-from rclpy.node import Node
 from rclpy.parameter import Parameter
-from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, String
+from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
@@ -23,34 +26,27 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
+from infomax_contingency.nodes.graph_node import ERROR, OK
 from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
-from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import SpeakerNode
+from infomax_contingency.nodes.step_topics import (
+    StepBit,
+    StepDecision,
+    bit_message,
+    decision_message,
+    parse_bit,
+    parse_decision,
+)
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
-from infomax_contingency.testing.graph import SpinThread, wait_until
+from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
 ROBOT = ModelParams.named("robot")
-TIMEOUT_S = 30.0
-
-
-class Probe(Node):
-    """Publishes to and records from the node under test."""
-
-    def __init__(self) -> None:
-        super().__init__("probe")
-        self.received: dict[str, list[Any]] = {}
-        self.pubs: dict[str, Any] = {}
-
-    def listen(self, topic: str, kind: type, qos=STREAM_QOS) -> list[Any]:
-        self.received[topic] = []
-        self.create_subscription(kind, topic, self.received[topic].append, qos)
-        return self.received[topic]
-
-    def talk(self, topic: str, kind: type) -> Any:
-        self.pubs[topic] = self.create_publisher(kind, topic, STREAM_QOS)
-        return self.pubs[topic]
+WINDOW_US = 500_000
+STREAM = 77
 
 
 def params(**values: Any) -> list[Parameter]:
@@ -58,116 +54,250 @@ def params(**values: Any) -> list[Parameter]:
 
 
 @pytest.fixture
-def run() -> Iterator[Callable[..., tuple[Any, Probe]]]:
-    """``run(NodeClass, **parameters)`` -> (node, probe), both spinning; cleaned up after."""
+def run() -> Iterator[Callable[..., tuple[Any, Probe, SteppedExecutor]]]:
+    """``run(NodeClass, **parameters)`` -> (node, probe, stepped executor); cleaned up after."""
     rclpy.init()
-    made: list[Node] = []
-    spinners: list[SpinThread] = []
+    executors: list[SteppedExecutor] = []
 
-    def start(node_class: type, **parameters: Any) -> tuple[Any, Probe]:
+    def start(node_class: type, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor]:
         node = node_class(parameter_overrides=params(**parameters))
         probe = Probe()
-        made.extend([node, probe])
-        spinner = SpinThread(node, probe)
-        spinners.append(spinner.__enter__())
-        return node, probe
+        executors.append(SteppedExecutor([node, probe]))
+        return node, probe, executors[-1]
 
     try:
         yield start
     finally:
-        for spinner in spinners:
-            spinner.__exit__(None, None, None)
-        for node in made:
-            node.destroy_node()
+        for executor in executors:
+            executor.close()
         rclpy.try_shutdown()
 
 
-def connected(publisher: Any, count: int = 1) -> None:
-    assert wait_until(lambda: publisher.get_subscription_count() >= count, TIMEOUT_S)
+def bits_of(stream: int, bits: Any, first_step: int = 1) -> list[Int64MultiArray]:
+    return [
+        bit_message(StepBit(stream, first_step + i, bool(y), WINDOW_US)) for i, y in enumerate(bits)
+    ]
 
 
-def wait_len(items: list, n: int) -> None:
-    assert wait_until(lambda: len(items) >= n, TIMEOUT_S), f"got {len(items)} of {n}"
+def decisions_of(stream: int, decisions: Any, controller: int = 5, first_step: int = 1) -> list:
+    return [
+        decision_message(StepDecision(stream, first_step + i, bool(u), controller))
+        for i, u in enumerate(decisions)
+    ]
+
+
+def offline_beliefs(bits: Any, decisions: Any, memory: int = 0) -> tuple[list[float], Any]:
+    tracker = StatisticTracker(ROBOT, memory=memory)
+    beliefs = []
+    for y, u in zip(bits, decisions, strict=True):
+        beliefs.append(tracker.observe(y).belief(ROBOT))
+        tracker.act(u)
+    return beliefs, tracker
+
+
+# ---------------------------------------------------------------------- controller
 
 
 def test_controller_answers_every_bit_like_the_offline_controller(run: Callable) -> None:
-    node, probe = run(ControllerNode)
+    node, probe, graph = run(ControllerNode)
     decisions = probe.listen("vocalize", Bool)
-    sound = probe.talk("sound", Bool)
-    connected(sound)
-    assert wait_until(lambda: node.vocalize_pub.get_subscription_count() >= 1, TIMEOUT_S)
+    steps = probe.listen("vocalize_step", Int64MultiArray)
+    sound = probe.talk("sound_step", Int64MultiArray)
+    graph.connected(sound)
+    graph.connected(node.step_pub)
     bits = np.random.default_rng(4).random(80) < 0.3
-    for y in bits:
-        sound.publish(Bool(data=bool(y)))
-    wait_len(decisions, len(bits))
-    table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"))
-    offline = PolicyController(table)
-    assert [m.data for m in decisions] == [bool(offline.step(int(y))) for y in bits]
-    assert any(m.data for m in decisions)
+    for message in bits_of(STREAM, bits):
+        sound.publish(message)
+    graph.run_until(lambda: len(steps) == 80 and len(decisions) == 80, "80 decisions")
+    offline = PolicyController(PolicyTable.load(resource_path("policies",
+                                                               "robot_receding_H24_M60.npz")))
+    expected = [bool(offline.step(int(y))) for y in bits]
+    assert [m.data for m in decisions] == expected
+    answered = [parse_decision(m) for m in steps]
+    assert [d.step for d in answered] == list(range(1, 81))
+    assert [d.vocalize for d in answered] == expected
+    assert {d.stream for d in answered} == {STREAM} and {d.controller for d in answered} == {
+        node.controller_id
+    }
+    assert any(expected)
+
+
+def test_controller_ignores_a_second_stream_and_repeated_steps(run: Callable) -> None:
+    node, probe, graph = run(ControllerNode)
+    steps = probe.listen("vocalize_step", Int64MultiArray)
+    sound = probe.talk("sound_step", Int64MultiArray)
+    graph.connected(sound)
+    graph.connected(node.step_pub)
+    first, intruder = bits_of(STREAM, [1, 0, 0, 1]), bits_of(STREAM + 1, [1, 1, 1])
+    for message in (first[0], intruder[0], first[1], first[1], intruder[1], first[2],
+                    intruder[2], first[3]):  # fmt: skip
+        sound.publish(message)
+    graph.run_until(lambda: node.steps == 4 and node.foreign.count == 3, "4 steps, 3 foreign")
+    graph.run_for_callbacks(20)
+    assert [parse_decision(m).step for m in steps] == [1, 2, 3, 4]
+    assert node.stale_bits.count == 1
+    level, message, values = node.diagnostic_status()
+    assert level == ERROR and values["foreign_messages"] == 3 and values["stream"] == STREAM
+
+
+def test_controller_counts_steps_it_never_saw(run: Callable) -> None:
+    node, probe, graph = run(ControllerNode)
+    steps = probe.listen("vocalize_step", Int64MultiArray)
+    sound = probe.talk("sound_step", Int64MultiArray)
+    graph.connected(sound)
+    graph.connected(node.step_pub)
+    messages = bits_of(STREAM, [0] * 10)
+    for message in messages[:3] + messages[7:]:
+        sound.publish(message)
+    graph.run_until(lambda: len(steps) == 6, "6 decisions")
+    assert [parse_decision(m).step for m in steps] == [1, 2, 3, 8, 9, 10]
+    assert node.missed_steps == 4
 
 
 def test_controller_takes_a_table_by_name_and_matching_params(run: Callable) -> None:
-    node, _ = run(ControllerNode, params="paper", policy_file="paper_episodic_T40.npz")
+    node, _, _ = run(ControllerNode, params="paper", policy_file="paper_episodic_T40.npz",
+                     window_s=0.8)  # fmt: skip
     assert node.controller.table.mode == "episodic" and node.controller.table.horizon == 40
 
 
-def test_belief_pairs_bits_and_decisions_whatever_their_order(run: Callable) -> None:
-    node, probe = run(BeliefNode, memory_steps=5)
+@pytest.mark.parametrize("node_class", [ControllerNode, BeliefNode, MicNode])
+def test_a_window_other_than_the_model_dt_is_refused(node_class: type) -> None:
+    rclpy.init()
+    try:
+        with pytest.raises(ConfigError, match=r"'window_s' = 0.25 s differs from the model's dt"):
+            node_class(parameter_overrides=params(window_s=0.25))
+    finally:
+        rclpy.try_shutdown()
+
+
+# ---------------------------------------------------------------------- belief
+
+
+def _belief_graph(run: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Any,
+                                                               Any, list]:  # fmt: skip
+    node, probe, graph = run(BeliefNode, **parameters)
     beliefs = probe.listen("belief", Float64)
-    sound, vocalize = probe.talk("sound", Bool), probe.talk("vocalize", Bool)
-    connected(sound)
-    connected(vocalize)
-    assert wait_until(lambda: node.belief_pub.get_subscription_count() >= 1, TIMEOUT_S)
+    sound = probe.talk("sound_step", Int64MultiArray)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(sound)
+    graph.connected(vocalize)
+    graph.connected(node.belief_pub)
+    return node, probe, graph, sound, vocalize, beliefs
+
+
+def test_belief_joins_bits_and_decisions_by_step_whatever_their_order(run: Callable) -> None:
+    node, _, graph, sound, vocalize, beliefs = _belief_graph(run, memory_steps=5)
     rng = np.random.default_rng(2)
-    bits, decisions = rng.random(40) < 0.4, rng.random(40) < 0.2
-    vocalize.publish(Bool(data=True))  # answers a window the node never saw: dropped
-    for y, u in zip(bits, decisions, strict=True):
-        sound.publish(Bool(data=bool(y)))
-        vocalize.publish(Bool(data=bool(u)))
-    wait_len(beliefs, len(bits))
-    assert wait_until(lambda: node.pairer.steps == 40 and node.pairer.pending_decisions == 0, 10)
-    assert node.pairer.dropped_decisions == 1
-    tracker = StatisticTracker(ROBOT, memory=5)
-    offline = []
-    for y, u in zip(bits, decisions, strict=True):
-        offline.append(tracker.observe(y).belief(ROBOT))
-        tracker.act(u)
+    bits, decisions = rng.random(60) < 0.4, rng.random(60) < 0.2
+    bit_messages, decision_messages = bits_of(STREAM, bits), decisions_of(STREAM, decisions)
+    # decisions first for the first 20 steps, bits first for the next 20, then interleaved
+    for message in decision_messages[:20] + bit_messages[:40]:
+        (vocalize if message in decision_messages else sound).publish(message)
+    graph.run_until(lambda: len(beliefs) >= 20, "20 beliefs")
+    for message in decision_messages[20:40]:
+        vocalize.publish(message)
+    for b, d in zip(bit_messages[40:], decision_messages[40:], strict=True):
+        vocalize.publish(d)
+        sound.publish(b)
+    graph.run_until(lambda: len(beliefs) == 60, "60 beliefs")
+    offline, tracker = offline_beliefs(bits, decisions, memory=5)
     assert [m.data for m in beliefs] == offline
     assert node.tracker.statistic == tracker.statistic
+    counts = node.joiner.counts
+    assert (counts.steps, counts.missing_bits, counts.missing_decisions) == (60, 0, 0)
+    assert node.diagnostic_status()[0] == OK
+
+
+def test_belief_follows_one_stream_and_one_controller(run: Callable) -> None:
+    node, _, graph, sound, vocalize, beliefs = _belief_graph(run)
+    rng = np.random.default_rng(3)
+    bits, decisions = rng.random(30) < 0.5, rng.random(30) < 0.3
+    true_bits, true_decisions = bits_of(STREAM, bits), decisions_of(STREAM, decisions)
+    stray_bits = bits_of(STREAM + 9, rng.random(30) < 0.5)
+    stray_decisions = decisions_of(STREAM, ~decisions, controller=99)
+    for step in range(30):
+        sound.publish(true_bits[step])
+        sound.publish(stray_bits[step])
+        vocalize.publish(stray_decisions[step] if step % 2 else true_decisions[step])
+        vocalize.publish(true_decisions[step] if step % 2 else stray_decisions[step])
+    graph.run_until(lambda: len(beliefs) == 30, "30 beliefs")
+    graph.run_for_callbacks(20)
+    assert [m.data for m in beliefs] == offline_beliefs(bits, decisions)[0]
+    assert node.foreign.count >= 30 + 29  # every stray bit; every stray decision but a first
+    level, message, _ = node.diagnostic_status()
+    assert level == ERROR and "second stream or controller" in message
+
+
+def test_belief_never_guesses_a_missing_decision(run: Callable) -> None:
+    node, _, graph, sound, vocalize, beliefs = _belief_graph(run)
+    bits = [1, 0, 1, 1, 0, 1, 1, 1, 0, 1, 1, 0]
+    decisions = [0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0]
+    for step, (b, d) in enumerate(zip(bits_of(STREAM, bits), decisions_of(STREAM, decisions),
+                                      strict=True), start=1):  # fmt: skip
+        sound.publish(b)
+        if step != 2:  # the vocalization of step 2 is lost
+            vocalize.publish(d)
+    graph.run_until(lambda: len(beliefs) == 11, "11 beliefs")  # step 12 waits for its decision
+    tracker = StatisticTracker(ROBOT)
+    expected = []
+    for step, (y, u) in enumerate(zip(bits[:11], decisions[:11], strict=True), start=1):
+        expected.append(tracker.observe(y).belief(ROBOT))
+        tracker.act_unknown() if step == 2 else tracker.act(u)
+    assert [m.data for m in beliefs] == expected
+    assert node.joiner.counts.missing_decisions == 1 and node.tracker.uncounted > 0
+    assert node.diagnostic_status()[0] != OK  # the gap is shown while it is recent
 
 
 def test_belief_reset_service_forgets_the_history(run: Callable) -> None:
-    node, probe = run(BeliefNode)
-    sound, vocalize = probe.talk("sound", Bool), probe.talk("vocalize", Bool)
-    connected(sound)
-    connected(vocalize)
-    for _ in range(3):
-        sound.publish(Bool(data=True))
-        vocalize.publish(Bool(data=False))
-    assert wait_until(lambda: node.tracker.statistic.p3 > 0, TIMEOUT_S)
+    node, probe, graph, sound, vocalize, beliefs = _belief_graph(run)
+    for b, d in zip(bits_of(STREAM, [1, 1, 1]), decisions_of(STREAM, [0, 0, 0]), strict=True):
+        sound.publish(b)
+        vocalize.publish(d)
+    graph.run_until(lambda: node.tracker.statistic.p3 > 0, "a counted bit")
     client = probe.create_client(Trigger, "reset")
-    assert client.wait_for_service(timeout_sec=TIMEOUT_S)
+    graph.run_until(client.service_is_ready, "the reset service")
     future = client.call_async(Trigger.Request())
-    assert wait_until(future.done, TIMEOUT_S)
+    graph.run_until(future.done, "the reset answer")
     assert future.result().success and "reset after" in future.result().message
     assert node.tracker.statistic.counts == (0, 0, 0, 0)
     assert node.belief == pytest.approx(ROBOT.pi)
 
 
+def test_belief_names_a_second_publisher(run: Callable) -> None:
+    node, probe, graph, sound, vocalize, beliefs = _belief_graph(run)
+    other = Probe("intruder")
+    graph.add(other)
+    intruder = other.talk("vocalize", Bool)
+    controller = probe.talk("vocalize", Bool)
+    graph.run_until(lambda: node.count_publishers("vocalize") == 2, "two publishers")
+    node.publish_diagnostics()
+    level, message, values = node.diagnostic_status()
+    assert level == ERROR and "'vocalize'" in message
+    publishers = values["publishers_vocalize"]
+    assert "/intruder" in publishers and "/probe" in publishers
+    other.destroy_publisher(intruder)
+    graph.run_until(lambda: node.count_publishers("vocalize") == 1, "the intruder gone")
+    node.publish_diagnostics()
+    assert node.diagnostic_status()[0] == OK
+    assert controller is not None
+
+
+# ---------------------------------------------------------------------- posture
+
+
 def test_posture_follows_the_belief_with_hysteresis(run: Callable) -> None:
-    node, probe = run(PostureNode, joint_names=["pan", "tilt"], attentive_positions=[0.0, 0.2],
-                      bored_positions=[0.5, -0.3], move_duration_s=1.5)  # fmt: skip
+    node, probe, graph = run(PostureNode, joint_names=["pan", "tilt"],
+                             attentive_positions=[0.0, 0.2], bored_positions=[0.5, -0.3],
+                             move_duration_s=1.5)  # fmt: skip
     postures = probe.listen("posture", String, LATCHED_READER_QOS)
     targets = probe.listen("joint_targets", JointTrajectory, LATCHED_READER_QOS)
-    wait_len(postures, 1)  # the initial posture reaches a late joiner
-    wait_len(targets, 1)
+    graph.run_until(lambda: postures and targets, "the initial posture (to a late joiner)")
     assert postures[0].data == "bored"
     belief = probe.talk("belief", Float64)
-    connected(belief)
+    graph.connected(belief)
     for b in (0.5, 0.95, 0.5, 0.1, 0.3):
         belief.publish(Float64(data=b))
-    wait_len(postures, 3)
-    assert wait_until(lambda: len(targets) >= 3, TIMEOUT_S)
+    graph.run_until(lambda: len(postures) >= 3 and len(targets) >= 3, "two posture changes")
     assert [m.data for m in postures] == ["bored", "attentive", "bored"]
     assert list(targets[1].joint_names) == ["pan", "tilt"]
     assert list(targets[1].points[0].positions) == [0.0, 0.2]
@@ -177,49 +307,91 @@ def test_posture_follows_the_belief_with_hysteresis(run: Callable) -> None:
     assert node.changes == 2
 
 
+# ---------------------------------------------------------------------- mic
+
+
+def _room_audio(windows: int, seed: int = 1) -> np.ndarray:
+    room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=2.0), seed=seed)
+    return np.concatenate([as_transmitted(room.next_window().samples) for _ in range(windows)])
+
+
+def _audio_message(chunk: np.ndarray) -> Float32MultiArray:
+    message = Float32MultiArray()
+    message.data = array.array("f", chunk.astype(np.float32).tobytes())
+    return message
+
+
 def test_mic_topic_source_windows_any_chunking_and_calibrates(run: Callable) -> None:
-    node, probe = run(MicNode, source="topic", calibration_s=2.0, wait_for_listeners=1,
-                      start_delay_s=0.0)  # fmt: skip
+    node, probe, graph = run(MicNode, source="topic", calibration_s=2.0, wait_for_listeners=1,
+                             start_delay_s=0.0)  # fmt: skip
     bits = probe.listen("sound", Bool)
+    steps = probe.listen("sound_step", Int64MultiArray)
     energies = probe.listen("sound_energy", Float32)
     audio = probe.talk("audio", Float32MultiArray)
-    connected(audio)
-    room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=2.0), seed=1)
-    samples = np.concatenate([as_transmitted(room.next_window().samples) for _ in range(16)])
+    graph.connected(audio)
+    graph.run_until(lambda: node.started, "the mic's start gate")
+    samples = _room_audio(16)
     for chunk in np.array_split(samples, 37):  # chunks that do not line up with windows
-        message = Float32MultiArray()
-        message.data = array.array("f", chunk.tobytes())
-        audio.publish(message)
-    wait_len(energies, 16)
-    wait_len(bits, 12)
+        audio.publish(_audio_message(chunk))
+    graph.run_until(lambda: len(energies) == 16 and len(steps) == 12, "16 windows, 12 bits")
     expected = window_energies_db(samples.astype(np.float64), 16000, 0.5)
     assert np.array_equal(np.float32([m.data for m in energies]), expected.astype(np.float32))
     threshold = kmeans_split(expected[:4]).threshold_db  # 2 s of calibration = 4 windows
-    assert [m.data for m in bits] == [bool(e > threshold) for e in expected[4:]]
+    expected_bits = [bool(e > threshold) for e in expected[4:]]
+    assert [m.data for m in bits] == expected_bits
+    parsed = [parse_bit(m) for m in steps]
+    assert [p.step for p in parsed] == list(range(1, 13))
+    assert [p.bit for p in parsed] == expected_bits
+    assert {(p.stream, p.window_us) for p in parsed} == {(node.stream_id, WINDOW_US)}
     assert node.dropped_chunks == 0 and node.windows == 12
 
 
+def test_mic_holds_a_burst_until_the_controller_answers(run: Callable) -> None:
+    node, probe, graph = run(MicNode, source="topic", threshold_mode="fixed",
+                             threshold_db=-40.0, wait_for_listeners=1, start_delay_s=0.0,
+                             max_steps_ahead=4)  # fmt: skip
+    steps = probe.listen("sound_step", Int64MultiArray)
+    audio = probe.talk("audio", Float32MultiArray)
+    answers = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(audio)
+    graph.run_until(lambda: node.started and node._decisions_sub.get_publisher_count() == 1,
+                    "start, with a controller")  # fmt: skip
+    audio.publish(_audio_message(_room_audio(30)))  # 15 s in one message
+    graph.run_until(lambda: len(steps) == 4, "the first 4 steps")
+    graph.run_for_callbacks(30)
+    assert len(steps) == 4 and node.outbox.backlog == 26, "no step beyond max_steps_ahead"
+    while len(steps) < 30:
+        published = len(steps)  # answer the last step out: 4 more may go
+        answers.publish(decisions_of(node.stream_id, [0] * published)[-1])
+        graph.run_until(lambda n=published: len(steps) == min(30, n + 4), "the next 4 steps")
+    assert [parse_bit(m).step for m in steps] == list(range(1, 31))
+    assert node.outbox.dropped == 0
+
+
 def test_mic_accepts_an_integer_for_a_float_parameter(run: Callable) -> None:
-    node, _ = run(MicNode, source="topic", window_s=1)
-    assert node.window_s == 1.0
-    parameter = node.get_parameter("window_s")
+    node, _, _ = run(MicNode, source="topic", start_delay_s=1)
+    parameter = node.get_parameter("start_delay_s")
     assert parameter.type_ == Parameter.Type.DOUBLE and parameter.value == 1.0
+
+
+# ---------------------------------------------------------------------- fake room, speaker
 
 
 def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     run: Callable,
 ) -> None:
-    node, probe = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4, start_delay_s=0.0)
+    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
+                             start_delay_s=0.0)  # fmt: skip
     audio = probe.listen("audio", Float32MultiArray)
     truth = probe.listen("partner_present", Bool)
-    vocalize = probe.talk("vocalize", Bool)
-    connected(vocalize)
-    wait_len(audio, 1)
-    assert not wait_until(lambda: len(audio) > 1, 0.5), "lockstep: no window before vocalize"
-    for u in (True, False, False):
-        vocalize.publish(Bool(data=u))
-    wait_len(audio, 4)
-    wait_len(truth, 4)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    graph.run_for_callbacks(30)
+    assert len(audio) == 1, "lockstep: no window before a decision"
+    for message in decisions_of(STREAM, [True, False, False]):
+        vocalize.publish(message)
+    graph.run_until(lambda: len(audio) == 4 and len(truth) == 4, "3 more windows")
     offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
     expected = [offline.next_window()]
     offline.vocalize()
@@ -233,13 +405,29 @@ def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     assert [m.data for m in truth] == [False] * 4
 
 
+def test_fake_room_hears_one_controller_once_per_step(run: Callable) -> None:
+    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
+                             start_delay_s=0.0)  # fmt: skip
+    audio = probe.listen("audio", Float32MultiArray)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    true, repeated = decisions_of(STREAM, [False]), decisions_of(STREAM, [False])
+    second = decisions_of(STREAM, [True], controller=6)
+    for message in true + repeated + second:
+        vocalize.publish(message)
+    graph.run_until(lambda: node.foreign.count == 1, "the second controller seen")
+    graph.run_for_callbacks(30)
+    assert len(audio) == 2 and node.room.vocalizations == 0
+
+
 def test_speaker_dry_run_counts_vocalizations(run: Callable) -> None:
-    node, probe = run(SpeakerNode)
+    node, probe, graph = run(SpeakerNode)
     vocalize = probe.talk("vocalize", Bool)
-    connected(vocalize)
+    graph.connected(vocalize)
     for u in (True, False, True, False):
         vocalize.publish(Bool(data=u))
-    assert wait_until(lambda: node.requests == 2, TIMEOUT_S)
+    graph.run_until(lambda: node.requests == 2, "2 vocalizations")
     level, message, values = node.diagnostic_status()
     assert "dry run" in message and values["played"] == 0
 
@@ -250,8 +438,7 @@ def test_speaker_dry_run_counts_vocalizations(run: Callable) -> None:
 def test_every_parameter_has_a_description_and_numbers_a_range(
     run: Callable, node_class: type
 ) -> None:
-    extra = {"source": "topic"} if node_class is MicNode else {}
-    node, _ = run(node_class, **extra)
+    node, _, _ = run(node_class)
     builtin = {"use_sim_time", "start_type_description_service"}
     names = [name for name in node.list_parameters([], 0).names if name not in builtin]
     assert len(names) >= 2

@@ -29,8 +29,18 @@ CASES = {
     ),
     "missing_wav": (
         "mic_node",
-        ["wav_file:=/nonexistent/a.wav"],
+        ["source:=wav", "wav_file:=/nonexistent/a.wav"],
         "/nonexistent/a.wav does not exist",
+    ),
+    "window_not_dt": (
+        "mic_node",
+        ["window_s:=0.25"],
+        "parameter 'window_s' = 0.25 s differs from the model's dt = 0.5 s",
+    ),
+    "belief_window_not_dt": (
+        "belief_node",
+        ["window_s:=1.0"],
+        "parameter 'window_s' = 1 s differs from the model's dt = 0.5 s",
     ),
     "no_threshold_file": (
         "mic_node",

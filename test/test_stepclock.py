@@ -1,81 +1,232 @@
-"""Step clock: bits and decisions paired in order; lockstep release and timeout."""
+"""Step clock: joining by step, following one source, flow control, pacing; gaps exact."""
 
+import itertools
 import math
 
+import numpy as np
 import pytest
 
-from infomax_contingency.core.stepclock import LockstepPacer, StepPairer
+from infomax_contingency.core.model import (
+    AGENT,
+    BACKGROUND,
+    ModelParams,
+    StatisticTracker,
+    advance_timer,
+    period_of,
+)
+from infomax_contingency.core.stepclock import (
+    Arrival,
+    LockstepPacer,
+    RecentEvents,
+    SourceLock,
+    StepJoiner,
+    StepOutbox,
+)
+
+ROBOT = ModelParams.named("robot")
 
 
-def _pairer() -> tuple[StepPairer, list[str]]:
-    events: list[str] = []
-    pairer = StepPairer(
-        lambda y: events.append(f"y{int(y)}"), lambda u: events.append(f"u{int(u)}")
-    )
-    return pairer, events
+def _joiner(max_pending: int = 600) -> tuple[StepJoiner, list[tuple]]:
+    applied: list[tuple] = []
+    return StepJoiner(lambda s, y, u: applied.append((s, y, u)), max_pending), applied
 
 
-def test_in_order_messages_apply_at_once() -> None:
-    pairer, events = _pairer()
-    for y, u in ((1, 0), (0, 1), (1, 1)):
-        pairer.bit(y)
-        pairer.decision(u)
-    assert events == ["y1", "u0", "y0", "u1", "y1", "u1"]
-    assert pairer.steps == 3 and pairer.pending_bits == pairer.pending_decisions == 0
+# ---------------------------------------------------------------------- StepJoiner
 
 
-def test_a_step_is_applied_once_both_messages_are_in() -> None:
-    pairer, events = _pairer()
-    pairer.bit(1)
-    pairer.bit(0)  # arrived before the decision on bit 1
-    assert events == [] and pairer.pending_bits == 2
-    pairer.decision(1)
-    assert events == ["y1", "u1"] and pairer.pending_bits == 1
-    pairer.decision(0)
-    assert events == ["y1", "u1", "y0", "u0"]
+def test_steps_apply_in_order_once_both_messages_are_in() -> None:
+    joiner, applied = _joiner()
+    joiner.bit(1, True)
+    joiner.bit(2, False)
+    assert applied == [] and joiner.pending_bits == 2
+    joiner.decision(1, False)
+    assert applied == [(1, True, False)]
+    joiner.decision(2, True)
+    assert applied == [(1, True, False), (2, False, True)]
+    assert joiner.pending_bits == joiner.pending_decisions == 0
 
 
-def test_a_decision_waits_for_its_bit() -> None:
-    pairer, events = _pairer()
-    pairer.bit(1)
-    pairer.decision(0)
-    pairer.decision(1)  # the decision on bit 2, ahead of bit 2
-    assert events == ["y1", "u0"] and pairer.pending_decisions == 1
-    pairer.bit(0)
-    assert events == ["y1", "u0", "y0", "u1"]
+def test_decisions_may_arrive_long_before_their_bits() -> None:
+    joiner, applied = _joiner()
+    for step in range(1, 51):
+        joiner.decision(step, step % 7 == 0)
+    for step in range(1, 51):
+        joiner.bit(step, step % 3 == 0)
+    assert applied == [(s, s % 3 == 0, s % 7 == 0) for s in range(1, 51)]
 
 
-def test_unstamped_decisions_before_the_first_bit_are_dropped() -> None:
-    pairer, events = _pairer()
-    pairer.decision(1)  # answers a window this listener never saw
-    pairer.bit(0)
-    pairer.decision(0)
-    assert events == ["y0", "u0"] and pairer.dropped_decisions == 1
+def test_a_later_message_from_the_same_source_proves_an_earlier_one_lost() -> None:
+    joiner, applied = _joiner()
+    joiner.bit(1, True)
+    joiner.decision(1, False)
+    joiner.decision(2, True)  # the bit of step 2 is lost ...
+    joiner.bit(3, True)  # ... which bit 3 proves
+    joiner.bit(4, False)  # and the decision on 3 is lost, which decision 4 proves
+    joiner.decision(4, False)
+    assert applied == [(1, True, False), (2, None, True), (3, True, None), (4, False, False)]
+    assert (joiner.counts.missing_bits, joiner.counts.missing_decisions) == (1, 1)
 
 
-def test_stamps_pair_a_listener_that_joins_mid_run() -> None:
-    # Bits stamped 10, 20, 30, ...; the decision on bit k is stamped 10 k + 5. This
-    # listener's 'vocalize' subscription connected late: decisions 5 and 15 never came,
-    # and the bit stamped 10 arrived after the decision stamped 25.
-    pairer, events = _pairer()
-    pairer.decision(1, stamp=5)  # answers an earlier window: dropped
-    pairer.bit(0, stamp=20)
-    pairer.decision(1, stamp=25)
-    assert events == ["y0", "u1"] and pairer.dropped_decisions == 1
-    pairer.bit(1, stamp=30)
-    pairer.bit(0, stamp=40)
-    pairer.decision(0, stamp=45)  # the decision stamped 35 was lost: bit 30 is skipped
-    assert events == ["y0", "u1", "y0", "u0"] and pairer.skipped_bits == 1
-    pairer.bit(1, stamp=50)
-    pairer.decision(1, stamp=55)
-    assert events[-2:] == ["y1", "u1"] and pairer.steps == 3
+def test_repeated_backward_and_unknown_steps_are_refused() -> None:
+    joiner, applied = _joiner(max_pending=10)
+    joiner.bit(5, True)  # joins at step 5
+    assert not joiner.bit(5, False) and not joiner.bit(3, True)
+    assert joiner.decision(5, True) and not joiner.decision(5, False)
+    assert not joiner.decision(4, True)
+    assert not joiner.decision(500, True)  # answers no bit received
+    counts = joiner.counts
+    assert (counts.stale_bits, counts.stale_decisions, counts.unknown_step_decisions) == (2, 2, 1)
+    assert applied == [(5, True, True)]
 
 
-def test_stamped_decision_ahead_of_its_bit_is_kept() -> None:
-    pairer, events = _pairer()
-    pairer.decision(1, stamp=15)  # overtook its own bit on the way
-    pairer.bit(1, stamp=10)
-    assert events == ["y1", "u1"] and pairer.dropped_decisions == 0
+def test_decisions_before_the_join_are_dropped() -> None:
+    joiner, applied = _joiner()
+    joiner.decision(3, True)
+    joiner.decision(4, False)
+    joiner.bit(4, True)
+    assert applied == [(4, True, False)] and joiner.counts.early_decisions == 1
+
+
+def test_pending_steps_are_bounded() -> None:
+    joiner, applied = _joiner(max_pending=5)
+    for step in range(1, 13):
+        joiner.bit(step, False)  # no controller answers
+    assert [s for s, _, u in applied] == list(range(1, 8)) and all(u is None for *_, u in applied)
+    assert joiner.pending_bits == 5 and joiner.counts.forced == 7
+
+
+def test_restart_begins_a_new_stream() -> None:
+    joiner, applied = _joiner()
+    joiner.bit(1, True)
+    joiner.decision(1, True)
+    joiner.bit(2, True)
+    joiner.restart()
+    joiner.bit(1, False)
+    joiner.decision(1, False)
+    assert applied == [(1, True, True), (1, False, False)]
+
+
+# ---------------------------------------------------------------------- SourceLock, outbox
+
+
+def test_source_lock_follows_the_first_source_until_it_falls_silent() -> None:
+    lock = SourceLock(silence_s=3.0)
+    assert lock.accept(10, now=0.0) is Arrival.FIRST
+    assert lock.accept(11, now=1.0) is Arrival.FOREIGN
+    assert lock.accept(10, now=2.0) is Arrival.FOLLOWED
+    assert lock.accept(11, now=4.9) is Arrival.FOREIGN and lock.intruders(4.9) == [11]
+    assert lock.accept(11, now=5.0) is Arrival.SWITCHED
+    assert (lock.source, lock.previous, lock.switches, lock.foreign_messages) == (11, 10, 1, 2)
+    assert lock.accept(10, now=5.1) is Arrival.FOREIGN
+    assert lock.intruders(now=100.0) == []
+    with pytest.raises(ValueError, match="silence_s"):
+        SourceLock(0.0)
+
+
+def test_outbox_releases_at_most_max_ahead_unanswered_steps() -> None:
+    outbox = StepOutbox(max_ahead=3, max_backlog=100)
+    for window in "abcdefg":
+        outbox.push(window)
+    assert outbox.release(paced=True) == [(1, "a"), (2, "b"), (3, "c")]
+    assert outbox.release(paced=True) == [] and outbox.in_flight == 3
+    outbox.answered(2)
+    outbox.answered(1)  # an older answer changes nothing
+    assert outbox.release(paced=True) == [(4, "d"), (5, "e")]
+    outbox.answered(99)  # a step never handed out
+    assert outbox.last_answered == 2
+    assert outbox.release(paced=False) == [(6, "f"), (7, "g")]
+
+
+def test_outbox_backlog_is_bounded_and_counted() -> None:
+    outbox = StepOutbox(max_ahead=1, max_backlog=3)
+    for window in range(6):
+        outbox.push(window)
+    assert outbox.backlog == 3 and outbox.dropped == 3
+    assert outbox.release(paced=False) == [(1, 3), (2, 4), (3, 5)]
+    with pytest.raises(ValueError):
+        StepOutbox(0, 1)
+
+
+def test_recent_events_return_to_quiet_and_keep_their_count() -> None:
+    events = RecentEvents(hold_s=10.0)
+    assert not events.recent(0.0)
+    events.note(5.0, n=2)
+    events.note(6.0, n=0)
+    assert events.recent(14.9) and not events.recent(15.0) and events.count == 2
+
+
+# ---------------------------------------------------------------------- gaps, exactly
+
+
+def _brute_force_counts(
+    params: ModelParams, bits: list, decisions: list, z_start: set[int]
+) -> tuple[int, int, int, int]:
+    """Counts over the windows whose period every completion of the history agrees on.
+
+    ``None`` marks a missing bit or decision. Every assignment of the missing decisions
+    and every starting timer in ``z_start`` is enumerated; a window is counted when all
+    of them give it the same period (and its bit is known).
+    """
+    unknown = [i for i, u in enumerate(decisions) if u is None]
+    periods_per_window: list[set[int]] = [set() for _ in bits]
+    for z0 in z_start:
+        for filling in itertools.product((0, 1), repeat=len(unknown)):
+            us = list(decisions)
+            for index, value in zip(unknown, filling, strict=True):
+                us[index] = value
+            z = z0
+            for t, u in enumerate(us):
+                periods_per_window[t].add(period_of(params, z))
+                z = advance_timer(params, z, u)
+    counts = [0, 0, 0, 0]
+    for y, periods in zip(bits, periods_per_window, strict=True):
+        if y is None or len(periods) > 1:
+            continue
+        (period,) = periods
+        if period == AGENT:
+            counts[0 if y else 1] += 1
+        elif period == BACKGROUND:
+            counts[2 if y else 3] += 1
+    return tuple(counts)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_missing_bits_and_decisions_count_exactly_what_is_certain(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    params = ROBOT if seed % 2 else ModelParams.named("paper")
+    n = int(rng.integers(5, 30))
+    bits: list = [bool(b) for b in rng.random(n) < 0.5]
+    decisions: list = [bool(u) for u in rng.random(n) < 0.25]
+    for t in rng.choice(n, size=int(rng.integers(0, 4)), replace=False):
+        decisions[t] = None
+    for t in rng.choice(n, size=int(rng.integers(0, 4)), replace=False):
+        bits[t] = None
+    joined_midway = seed % 3 == 0
+    tracker = StatisticTracker(params)
+    if joined_midway:
+        tracker.forget_timer_completely()
+    for y, u in zip(bits, decisions, strict=True):
+        tracker.skip_observation() if y is None else tracker.observe(y)
+        tracker.act_unknown() if u is None else tracker.act(u)
+    z_start = set(range(params.n_timer_values)) if joined_midway else {params.timer_long_ago}
+    assert tracker.statistic.counts == _brute_force_counts(params, bits, decisions, z_start)
+
+
+def test_forget_timer_allows_any_number_of_silent_windows() -> None:
+    tracker = StatisticTracker(ROBOT)
+    tracker.observe(True)
+    tracker.act(True)  # vocalized: timer 0
+    tracker.forget_timer()  # then an unknown number of unseen, silent windows
+    expected = {min(k, ROBOT.timer_long_ago) for k in range(1, ROBOT.timer_long_ago + 1)}
+    assert tracker.possible_timers == expected and not tracker.timer_certain
+    for _ in range(ROBOT.timer_long_ago):
+        tracker.act(False)
+    assert tracker.timer_certain and tracker.statistic.z == ROBOT.timer_long_ago
+    tracker.forget_timer()
+    assert tracker.timer_certain  # long ago stays long ago
+    tracker.act_unknown()
+    tracker.act(True)
+    assert tracker.timer_certain and tracker.statistic.z == 0
 
 
 def test_pacer_releases_on_the_answer() -> None:

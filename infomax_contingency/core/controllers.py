@@ -67,6 +67,14 @@ class Controller:
         self.tracker.act(u)
         return u
 
+    def missed(self, steps: int) -> None:
+        """``steps`` windows passed unseen, without a decision (so without a vocalization).
+
+        Their bits are missing and not counted (exact); the timer advances over them.
+        """
+        for _ in range(min(max(steps, 0), self.params.timer_long_ago)):
+            self.tracker.act(0)
+
     def reset(self) -> None:
         """Forget the history."""
         self.tracker.reset()
@@ -91,6 +99,12 @@ class PolicyController(Controller):
                 self.tracker.statistic = Statistic(z)
                 self.episode_step = 1
         return super().step(y)
+
+    def missed(self, steps: int) -> None:
+        """As :meth:`Controller.missed`; the episode clock goes on over the missed steps."""
+        super().missed(steps)
+        if self.table.mode == EPISODIC and steps > 0:
+            self.episode_step = (self.episode_step + steps) % self.table.horizon
 
     def decide(self, statistic: Statistic) -> int:
         """Table lookup."""

@@ -405,7 +405,7 @@ def expected_next_entropy(params: ModelParams, statistic: Statistic, u: int) -> 
 
 
 class StatisticTracker:
-    """The statistic of a running history, with an optional sliding memory.
+    """The statistic of a running history, with an optional sliding memory and gaps.
 
     With ``memory > 0`` the counts are those of the last ``memory`` *counted*
     observations (agent or background period; self-feedback bits carry no information
@@ -414,6 +414,21 @@ class StatisticTracker:
 
     Per step, call :meth:`observe` with the bit ``y_t`` and then :meth:`act` with the
     decision ``u_t`` — the order of the step clock.
+
+    **Gaps, handled exactly.** A listener may miss messages (a node restarted, an
+    intruder, a lost sample); nothing is guessed:
+
+    * a missing bit (:meth:`skip_observation`) is not counted. Each window's likelihood
+      sums to one over its bit, so leaving it out gives exactly the posterior given the
+      bits that were seen;
+    * a missing decision (:meth:`act_unknown`), or a stretch of unknown length without
+      steps (:meth:`forget_timer`), leaves the timer uncertain: the tracker keeps every
+      timer value still possible, and a bit is counted only when all of them put its
+      window in the same period (so its likelihood is known). The timer is certain again
+      after the next known vocalization, or once ``ta2 + 1`` silent steps have passed.
+
+    Attributes:
+        uncounted: bits not counted because the period of their window was uncertain.
     """
 
     def __init__(self, params: ModelParams, memory: int = 0, z_initial: int | None = None):
@@ -426,16 +441,37 @@ class StatisticTracker:
             raise ValueError(
                 f"z_initial must lie in 0 .. {params.timer_long_ago}, got {self._z_initial}"
             )
+        self.uncounted = 0
         self.reset()
 
     def reset(self) -> None:
-        """Forget the history: zero counts, timer at its initial value."""
+        """Forget the history: zero counts, timer at its initial value (and certain)."""
         self.statistic = Statistic(self._z_initial)
         self._window: deque[tuple[int, bool]] = deque()
+        self._other_timers: frozenset[int] = frozenset()
+
+    @property
+    def timer_certain(self) -> bool:
+        """True when the timer value is known (no missing decision is still in effect)."""
+        return not self._other_timers
+
+    @property
+    def possible_timers(self) -> frozenset[int]:
+        """Every timer value the history allows (one value when it is certain)."""
+        return self._other_timers | {self.statistic.z}
 
     def observe(self, y: int | bool) -> Statistic:
-        """Count bit ``y`` at the current timer; returns the new statistic."""
+        """Count bit ``y`` at the current timer; returns the new statistic.
+
+        While the timer is uncertain the bit is counted only if every possible timer value
+        puts it in the same period (otherwise :attr:`uncounted` grows).
+        """
         before = self.statistic
+        if self._other_timers:
+            periods = {period_of(self.params, z) for z in self.possible_timers}
+            if len(periods) > 1:
+                self.uncounted += 1
+                return before
         after = before.observe(self.params, y)
         if after is not before and self.memory > 0:
             period = period_of(self.params, before.z)
@@ -446,10 +482,43 @@ class StatisticTracker:
         self.statistic = after
         return after
 
+    def skip_observation(self) -> Statistic:
+        """The bit of this step is missing: nothing is counted (exact, see the class)."""
+        return self.statistic
+
     def act(self, u: int | bool) -> Statistic:
         """Advance the timer with decision ``u``; returns the new statistic."""
         self.statistic = self.statistic.act(self.params, u)
+        if self._other_timers:
+            self._narrow({advance_timer(self.params, z, int(bool(u))) for z in self._other_timers})
         return self.statistic
+
+    def act_unknown(self) -> Statistic:
+        """The decision of this step is missing: the timer may have been reset or not."""
+        possible = self.possible_timers
+        self.statistic = self.statistic.act(self.params, 0)
+        self._narrow(
+            {advance_timer(self.params, z, u) for z in possible for u in (0, 1)}
+        )
+        return self.statistic
+
+    def forget_timer(self) -> Statistic:
+        """An unknown number (>= 1) of silent windows passed unseen (e.g. a restart)."""
+        long_ago = self.params.timer_long_ago
+        possible = {
+            min(z + k, long_ago) for z in self.possible_timers for k in range(1, long_ago + 1)
+        }
+        self.statistic = self.statistic._replace(z=min(self.statistic.z + 1, long_ago))
+        self._narrow(possible)
+        return self.statistic
+
+    def forget_timer_completely(self) -> Statistic:
+        """Joining a history in the middle: every timer value is possible."""
+        self._narrow(set(range(self.params.n_timer_values)))
+        return self.statistic
+
+    def _narrow(self, possible: set[int]) -> None:
+        self._other_timers = frozenset(possible - {self.statistic.z})
 
 
 def _uncount(statistic: Statistic, period: int, bit: bool) -> Statistic:

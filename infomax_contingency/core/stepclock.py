@@ -1,15 +1,27 @@
-"""The step clock of the node graph: pairing bits with decisions, and lockstep pacing.
+"""The step clock of the node graph: step identity, joining, following one source, pacing.
 
-One window of audio is one step t. The microphone publishes the bit ``y_t``; the
-controller answers it with the decision ``u_t``. They travel on two topics from two
-publishers, so a listener may receive them out of order; :class:`StepPairer` restores
-the order of MODEL.md's step clock (observe ``y_t``, then act ``u_t``) by pairing the
-k-th decision with the k-th bit.
+One window of audio is one step t (1, 2, ... within a *stream*: one run of one
+microphone node). Every bit travels with ``(stream, t)`` and every decision with the
+``(stream, t)`` of the bit it answers and the id of the controller that made it, so a
+listener joins ``y_t`` with ``u_t`` exactly, whatever order and rate they arrive in:
 
-When audio comes from a file or a simulated room the graph can run faster than real
-time, in *lockstep*: the next window is released only once the decision on the previous
-one came back. :class:`LockstepPacer` holds that rule, with a timeout so a missing
-controller slows the graph down instead of stopping it.
+* :class:`SourceLock` follows one source (a stream, or a controller) among those that
+  publish on a topic: an intruder is counted and ignored; a followed source that has
+  been silent for a while is replaced by the next one (a restarted node).
+* :class:`StepJoiner` applies the steps of one stream in order, each once both of its
+  messages are in, and resolves steps whose bit or decision can no longer arrive (a
+  later one from the same in-order source did) as *missing*: never guessed (see
+  :class:`~infomax_contingency.core.model.StatisticTracker` for the exact treatment).
+* :class:`StepOutbox` holds the windows a microphone node has made and releases them as
+  steps at most ``max_ahead`` steps ahead of the last one answered, so a burst of audio
+  (one 30 s message, a replay) cannot outrun the controller or overflow a queue.
+* :class:`LockstepPacer` releases the next window of a file or simulated room only once
+  the decision on the last one came back (or a timeout passed).
+* :class:`RecentEvents` remembers when a fault last happened, so a diagnostic returns to
+  OK once the fault is over while its count is kept.
+
+Times are seconds on any monotonic clock, passed in by the caller: nothing here sleeps
+or reads a clock.
 """
 
 from __future__ import annotations
@@ -17,81 +29,292 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
 
 
-class StepPairer:
-    """Apply bits and decisions in step-clock order: bit 1, decision 1, bit 2, ...
+class Arrival(Enum):
+    """What :meth:`SourceLock.accept` made of a message."""
 
-    The decision on window k is the first one published after that window's bit. With
-    publication stamps (DDS source timestamps, one clock on one machine) the pairing is
-    exact even for a listener that starts in the middle of a run, whose two
-    subscriptions may connect at different steps: decisions stamped before the oldest
-    waiting bit answer windows this listener never saw and are dropped; a bit whose
-    decision never came (a later decision overtook it) is skipped, not guessed. A step
-    is applied (``on_bit``, then ``on_decision``) once both of its messages are in.
+    FIRST = "first"
+    """The first source seen: now followed."""
+    FOLLOWED = "followed"
+    """From the source followed."""
+    SWITCHED = "switched"
+    """From a new source that replaces a followed one that went silent."""
+    FOREIGN = "foreign"
+    """From another source while the followed one is alive: ignored."""
 
-    Without stamps (all 0) messages pair by position (the k-th decision with the k-th
-    bit), and decisions that arrive before the first bit are dropped.
+
+class SourceLock:
+    """Follow one source among several that publish on one topic.
+
+    Messages of other sources are foreign. The caller may :meth:`hold` them (a bounded
+    number per source): when a followed source falls silent and another replaces it (a
+    restarted node), :meth:`take_held` hands back what the new source sent before the
+    switch, so nothing it said is lost.
 
     Args:
-        on_bit: called with each bit ``y_t``, in order.
-        on_decision: called with each decision ``u_t``, right after the call for its bit.
+        silence_s: a followed source silent for this long (seconds) is replaced by the
+            next source heard; until then every other source is foreign.
+        held_per_source: foreign messages kept per source (the newest).
     """
 
-    def __init__(self, on_bit: Callable[[bool], None], on_decision: Callable[[bool], None]):
-        self._on_bit = on_bit
-        self._on_decision = on_decision
-        self._bits: deque[tuple[int, bool]] = deque()
-        self._decisions: deque[tuple[int, bool]] = deque()
-        self.steps = 0
-        """Steps applied so far."""
-        self.dropped_decisions = 0
-        """Decisions dropped: they answered windows whose bit this listener never saw."""
-        self.skipped_bits = 0
-        """Bits dropped because their decision never arrived."""
+    MAX_SOURCES = 64
+    """Foreign sources remembered at once (the longest silent is forgotten first)."""
+
+    def __init__(self, silence_s: float, held_per_source: int = 256) -> None:
+        if not silence_s > 0:
+            raise ValueError(f"silence_s must be > 0 seconds, got {silence_s}")
+        self.silence_s = silence_s
+        self.held_per_source = held_per_source
+        self.source: int | None = None
+        """The source followed (None before the first message)."""
+        self.previous: int | None = None
+        """The source followed before the last switch."""
+        self.last_seen = -math.inf
+        self.switches = 0
+        """Times a silent source was replaced."""
+        self.foreign_messages = 0
+        """Messages ignored because they came from another source."""
+        self.foreign_sources: dict[int, float] = {}
+        """Foreign source -> when it was last heard."""
+        self._held: dict[int, deque[Any]] = {}
+
+    def accept(self, source: int, now: float) -> Arrival:
+        """Classify a message from ``source`` received at ``now``."""
+        if self.source is None:
+            self.source, self.last_seen = source, now
+            return Arrival.FIRST
+        if source == self.source:
+            self.last_seen = now
+            return Arrival.FOLLOWED
+        if now - self.last_seen >= self.silence_s:
+            self.previous, self.source, self.last_seen = self.source, source, now
+            self.foreign_sources.pop(source, None)
+            self.switches += 1
+            return Arrival.SWITCHED
+        self.foreign_messages += 1
+        self.foreign_sources[source] = now
+        if len(self.foreign_sources) > self.MAX_SOURCES:
+            oldest = min(self.foreign_sources, key=self.foreign_sources.get)
+            del self.foreign_sources[oldest]
+            self._held.pop(oldest, None)
+        return Arrival.FOREIGN
+
+    def hold(self, source: int, item: Any) -> None:
+        """Keep a foreign message of ``source`` in case it replaces the followed one."""
+        if source in self.foreign_sources:
+            queue = self._held.setdefault(source, deque(maxlen=self.held_per_source))
+            queue.append(item)
+
+    def take_held(self, source: int) -> list[Any]:
+        """The messages held for ``source``, oldest first (forgotten here)."""
+        return list(self._held.pop(source, ()))
+
+    def intruders(self, now: float) -> list[int]:
+        """Foreign sources heard within the last ``silence_s`` seconds."""
+        return sorted(s for s, t in self.foreign_sources.items() if now - t < self.silence_s)
+
+
+@dataclass
+class JoinCounts:
+    """What a :class:`StepJoiner` saw, cumulative (diagnostics)."""
+
+    steps: int = 0
+    """Steps applied (complete or with a missing message)."""
+    missing_bits: int = 0
+    """Steps applied without their bit (it can no longer arrive)."""
+    missing_decisions: int = 0
+    """Steps applied without their decision."""
+    stale_bits: int = 0
+    """Bits for a step already applied or received: repeated or going backwards."""
+    stale_decisions: int = 0
+    """Decisions for a step already applied or answered: repeated or going backwards."""
+    early_decisions: int = 0
+    """Decisions for steps this listener joined after (dropped at the join)."""
+    unknown_step_decisions: int = 0
+    """Decisions for a step far beyond every bit received (never seen)."""
+    forced: int = 0
+    """Steps resolved because too many later steps were waiting."""
+
+
+class StepJoiner:
+    """Apply the bits and decisions of one stream in step order, each step exactly once.
+
+    ``apply(step, y, u)`` is called for steps ``s, s + 1, ...`` from the first bit
+    received (``s``); ``y`` or ``u`` is None when that message can no longer arrive: the
+    bits come from one microphone and the decisions from one controller, each in order,
+    so a later message from the same source proves an earlier one lost. At most
+    ``max_pending`` steps wait; beyond that the oldest is applied without its decision.
+
+    Args:
+        apply: called with ``(step, y, u)`` in step order.
+        max_pending: steps that may wait for their decision (bounded memory).
+    """
+
+    def __init__(
+        self, apply: Callable[[int, bool | None, bool | None], None], max_pending: int = 600
+    ) -> None:
+        if max_pending < 1:
+            raise ValueError(f"max_pending must be >= 1 steps, got {max_pending}")
+        self._apply = apply
+        self.max_pending = max_pending
+        self.counts = JoinCounts()
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget the pending steps: a new stream begins (its steps count from 1 again)."""
+        self._bits: dict[int, bool] = {}
+        self._decisions: dict[int, bool] = {}
+        self.next_step: int | None = None
+        """The next step to apply (None before the first bit)."""
+        self.last_bit_step = 0
+        self.last_decision_step = 0
 
     @property
     def pending_bits(self) -> int:
-        """Bits received whose decision has not arrived yet."""
+        """Bits received whose step has not been applied yet."""
         return len(self._bits)
 
     @property
     def pending_decisions(self) -> int:
-        """Decisions received before their bit."""
+        """Decisions received whose step has not been applied yet."""
         return len(self._decisions)
 
-    def bit(self, y: bool, stamp: int = 0) -> None:
-        """A bit arrived, published at ``stamp`` (ns; 0 = unknown)."""
-        self._bits.append((stamp, bool(y)))
+    def bit(self, step: int, y: bool) -> bool:
+        """Bit ``y`` of ``step`` arrived; False if it was stale (repeated or backwards)."""
+        if step <= self.last_bit_step or (self.next_step is not None and step < self.next_step):
+            self.counts.stale_bits += 1
+            return False
+        if self.next_step is None:
+            self.next_step = step
+            early = [s for s in self._decisions if s < step]
+            for s in early:
+                del self._decisions[s]
+            self.counts.early_decisions += len(early)
+        self._bits[step] = bool(y)
+        self.last_bit_step = step
         self._drain()
+        return True
 
-    def decision(self, u: bool, stamp: int = 0) -> None:
-        """A decision arrived, published at ``stamp`` (ns; 0 = unknown)."""
-        if not stamp and self.steps == 0 and not self._bits:
-            self.dropped_decisions += 1
-            return
-        self._decisions.append((stamp, bool(u)))
+    def decision(self, step: int, u: bool) -> bool:
+        """Decision ``u`` on ``step`` arrived; False if it was stale or for no known step."""
+        if step <= self.last_decision_step or (
+            self.next_step is not None and step < self.next_step
+        ):
+            self.counts.stale_decisions += 1
+            return False
+        if self.next_step is not None and step > self.last_bit_step + self.max_pending:
+            self.counts.unknown_step_decisions += 1
+            return False
+        self._decisions[step] = bool(u)
+        if len(self._decisions) > self.max_pending:  # only before the first bit
+            del self._decisions[min(self._decisions)]
+            self.counts.early_decisions += 1
+        self.last_decision_step = step
         self._drain()
+        return True
 
     def _drain(self) -> None:
-        bits, decisions = self._bits, self._decisions
-        while bits:
-            bit_stamp, y = bits[0]
-            while decisions and decisions[0][0] < bit_stamp:
-                decisions.popleft()
-                self.dropped_decisions += 1
-            if not decisions:
-                return
-            decision_stamp, u = decisions[0]
-            if len(bits) > 1 and decision_stamp > bits[1][0] > 0:
-                bits.popleft()  # its decision was overtaken: it never reached us
-                self.skipped_bits += 1
-                continue
-            bits.popleft()
-            decisions.popleft()
-            self.steps += 1
-            self._on_bit(y)
-            self._on_decision(u)
+        while self.next_step is not None and self.next_step <= self.last_bit_step:
+            step = self.next_step
+            bit_known = step in self._bits or self.last_bit_step > step
+            decision_known = step in self._decisions or self.last_decision_step > step
+            if not (bit_known and decision_known):
+                if self.last_bit_step - step < self.max_pending:
+                    return
+                self.counts.forced += 1
+            y = self._bits.pop(step, None)
+            u = self._decisions.pop(step, None)
+            self.counts.steps += 1
+            self.counts.missing_bits += y is None
+            self.counts.missing_decisions += u is None
+            self.next_step = step + 1
+            self._apply(step, y, u)
+
+
+class StepOutbox:
+    """Windows made but not yet published, released as steps 1, 2, ... under flow control.
+
+    A microphone node pushes every window it makes; :meth:`release` hands out those that
+    may be published now: while a controller paces the stream (``paced``), no more than
+    ``max_ahead`` steps beyond the last one it answered; otherwise all. At most
+    ``max_backlog`` windows wait; more are dropped (oldest first) and counted.
+
+    Args:
+        max_ahead: steps that may be published and not yet answered (>= 1).
+        max_backlog: windows that may wait (>= 1).
+    """
+
+    def __init__(self, max_ahead: int, max_backlog: int) -> None:
+        if max_ahead < 1 or max_backlog < 1:
+            raise ValueError(
+                f"max_ahead and max_backlog must be >= 1, got {max_ahead} and {max_backlog}"
+            )
+        self.max_ahead = max_ahead
+        self.max_backlog = max_backlog
+        self._waiting: deque[Any] = deque()
+        self.last_step = 0
+        """The last step handed out."""
+        self.last_answered = 0
+        """The highest step a decision came back for."""
+        self.dropped = 0
+        """Windows dropped because the backlog was full."""
+
+    @property
+    def backlog(self) -> int:
+        """Windows waiting."""
+        return len(self._waiting)
+
+    @property
+    def in_flight(self) -> int:
+        """Steps handed out and not yet answered."""
+        return self.last_step - self.last_answered
+
+    def push(self, window: Any) -> None:
+        """A window was made."""
+        self._waiting.append(window)
+        if len(self._waiting) > self.max_backlog:
+            self._waiting.popleft()
+            self.dropped += 1
+
+    def answered(self, step: int) -> None:
+        """A decision on ``step`` came back (duplicates and old steps change nothing)."""
+        if self.last_answered < step <= self.last_step:
+            self.last_answered = step
+
+    def release(self, paced: bool) -> list[tuple[int, Any]]:
+        """``(step, window)`` pairs to publish now, in order."""
+        out = []
+        while self._waiting and (not paced or self.in_flight < self.max_ahead):
+            self.last_step += 1
+            out.append((self.last_step, self._waiting.popleft()))
+        return out
+
+
+@dataclass
+class RecentEvents:
+    """A count of events of one kind and whether one happened lately.
+
+    Args:
+        hold_s: an event is *recent* for this many seconds.
+    """
+
+    hold_s: float = 10.0
+    count: int = 0
+    last_at: float = field(default=-math.inf)
+
+    def note(self, now: float, n: int = 1) -> None:
+        """``n`` events happened at ``now``."""
+        if n > 0:
+            self.count += n
+            self.last_at = now
+
+    def recent(self, now: float) -> bool:
+        """True if an event happened within the last ``hold_s`` seconds."""
+        return now - self.last_at < self.hold_s
 
 
 class LockstepPacer:

@@ -4,29 +4,58 @@ The statistic is the same :class:`~infomax_contingency.core.model.StatisticTrack
 controller uses, with its own memory: ``memory_steps`` counted observations (0 = the
 whole history; a bounded memory lets the belief fall again after a partner leaves).
 
-Step clock: each ``vocalize`` is paired with the ``sound`` it answers, by their
-publication stamps (:class:`~infomax_contingency.core.stepclock.StepPairer`, whatever order
-they arrive in). Once both are in, the bit is counted, **then the belief is published**,
-then the decision advances the timer. A node started in the middle of a run starts from
-zero counts at the first step for which it received both messages.
+Step clock: bits (``sound_step``) and decisions (``vocalize_step``) are joined by their
+step number (:class:`~infomax_contingency.core.stepclock.StepJoiner`), whatever order and
+rate they arrive in. For each step, in order: the bit is counted, **the belief is
+published**, the decision advances the timer. The node follows one stream (one mic_node
+run) and one controller (:class:`~infomax_contingency.core.stepclock.SourceLock`);
+messages from others are counted and ignored, and a followed source silent for
+``source_timeout_s`` is replaced by the next one heard (a restarted node). The decisions
+of a controller are used only while it is followed (the fake room hears the same ones);
+the bits a new stream sent before it was followed are kept and used.
 
-Subscribes ``sound``, ``vocalize`` (Bool); publishes ``belief`` (Float64) and
+Nothing is guessed: a step whose bit can no longer arrive is applied without it (not
+counted), a step whose decision can no longer arrive leaves the timer uncertain until it
+is known again (bits meanwhile are counted only where the period is certain), and a new
+stream (a restarted mic_node) continues the counts after a gap of unknown length. A
+restarted belief_node starts from zero counts at the first step it receives, with the
+timer uncertain unless that step is the stream's first. Each case is counted in the
+diagnostics and logged.
+
+Subscribes ``sound_step``, ``vocalize_step`` (std_msgs/Int64MultiArray, see
+:mod:`~infomax_contingency.nodes.step_topics`); publishes ``belief`` (Float64) and
 ``/diagnostics``; service ``reset`` (std_srvs/Trigger) forgets the history.
 """
 
 from __future__ import annotations
 
 import sys
+from collections import deque
 from typing import Any
 
-from std_msgs.msg import Bool, Float64
+from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.core.model import StatisticTracker
-from infomax_contingency.core.stepclock import StepPairer
-from infomax_contingency.nodes.graph_node import OK, WARN, GraphNode
+from infomax_contingency.core.stepclock import Arrival, RecentEvents, SourceLock, StepJoiner
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.step_topics import (
+    SOUND_STEP,
+    VOCALIZE_STEP,
+    StepDecision,
+    parse_bit,
+    parse_decision,
+    window_us,
+)
+
+EARLY_DECISIONS = 1024
+"""Decisions kept for a stream not followed yet (they may overtake its first bits)."""
+
+WATCHED_TOPICS = ("sound", SOUND_STEP, "vocalize", VOCALIZE_STEP)
+"""Topics with one rightful publisher each (mic_node, controller_node)."""
 
 
 class BeliefNode(GraphNode):
@@ -36,55 +65,235 @@ class BeliefNode(GraphNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
-        self.params = self.parameters.model()
-        memory = self.parameters.integer(
+        read = self.parameters
+        self.params = read.model()
+        window_s = read.number(
+            "window_s", self.params.dt, "Window (step) length; must equal the model's dt",
+            0.01, 10.0, "s",
+        )
+        if abs(window_s - self.params.dt) > 1e-9:
+            raise ConfigError(
+                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
+                f" {self.params.dt:g} s (parameter 'params'): the steps would not be the"
+                " model's"
+            )
+        memory = read.integer(
             "memory_steps",
             0,
             "Counted observations the statistic keeps (a sliding memory); 0 = whole history",
             0,
             1_000_000,
         )
+        timeout_s = read.number(
+            "source_timeout_s", 3.0,
+            "A followed mic_node stream or controller silent this long is replaced by the"
+            " next one heard", 0.1, 3600.0, "s",
+        )
+        self.max_pending = read.integer(
+            "max_pending_steps", 600,
+            "Steps that may wait for their decision; older ones are applied without it",
+            1, 1_000_000,
+        )
+        self.window_us = window_us(self.params.dt)
         self.tracker = StatisticTracker(self.params, memory=memory)
-        self.pairer = StepPairer(self._on_bit, self._on_decision)
+        self.joiner = StepJoiner(self._apply, self.max_pending)
+        self.streams = SourceLock(timeout_s)
+        self.controllers = SourceLock(timeout_s)
         self.belief = self.tracker.statistic.belief(self.params)
         self.resets = 0
+        self.malformed = RecentEvents()
+        self.wrong_window = RecentEvents()
+        self.foreign = RecentEvents()
+        self.gaps = RecentEvents()
+        self.stream_changes = 0
+        self._stream_started = False
+        self._intruders: dict[str, list[str]] = {}
+        self._unfollowed: deque[StepDecision] = deque(maxlen=EARLY_DECISIONS)
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
-        self.subscribe(Bool, "sound", lambda msg, stamp: self.pairer.bit(msg.data, stamp))
-        self.subscribe(Bool, "vocalize", lambda msg, stamp: self.pairer.decision(msg.data, stamp))
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step)
+        self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step)
         self.create_service(Trigger, "reset", self._on_reset)
         self.start_diagnostics()
 
-    def _on_bit(self, y: bool) -> None:
-        self.belief = self.tracker.observe(y).belief(self.params)
-        self.belief_pub.publish(Float64(data=self.belief))
+    # ------------------------------------------------------------------ messages
 
-    def _on_decision(self, u: bool) -> None:
-        self.tracker.act(u)
+    def _on_sound_step(self, msg: Int64MultiArray, stamp: int) -> None:
+        bit = parse_bit(msg)
+        now = self.now_s()
+        if bit is None:
+            self.malformed.note(now)
+            self.warn_intrusion(f"malformed '{SOUND_STEP}' message ignored: {list(msg.data)}")
+            return
+        if bit.window_us != self.window_us:
+            self.wrong_window.note(now)
+            self.get_logger().error(
+                f"stream {bit.stream} has windows of {bit.window_us / 1e6:g} s but the model's"
+                f" dt is {self.params.dt:g} s: its bits are ignored",
+                throttle_duration_sec=5.0,
+            )
+            return
+        arrival = self.streams.accept(bit.stream, now)
+        if arrival is Arrival.FOREIGN:
+            self.foreign.note(now)
+            self.streams.hold(bit.stream, bit)
+            self.warn_intrusion(
+                f"ignoring bits of stream {bit.stream} (a second mic_node?): following stream"
+                f" {self.streams.source}"
+            )
+            return
+        held = []
+        if arrival is Arrival.SWITCHED:
+            held = self.streams.take_held(bit.stream)
+            self._new_stream(bit.stream, held[0].step if held else bit.step)
+        elif arrival is Arrival.FIRST:
+            self._join(bit.step)
+        if arrival is not Arrival.FOLLOWED:
+            for early in held:
+                self.joiner.bit(early.step, early.bit)
+            decisions = [d for d in self._unfollowed if d.stream == bit.stream]
+            self._unfollowed.clear()
+            for decision in decisions:
+                self._decision(decision, now)
+        if not self.joiner.bit(bit.step, bit.bit):
+            self.warn_intrusion(
+                f"bit for step {bit.step} of stream {bit.stream} repeats or goes backwards"
+                f" (last step {self.joiner.last_bit_step}): ignored"
+            )
+
+    def _on_vocalize_step(self, msg: Int64MultiArray, stamp: int) -> None:
+        decision = parse_decision(msg)
+        now = self.now_s()
+        if decision is None:
+            self.malformed.note(now)
+            self.warn_intrusion(
+                f"malformed '{VOCALIZE_STEP}' message ignored: {list(msg.data)}"
+            )
+            return
+        if decision.stream != self.streams.source:
+            self._unfollowed.append(decision)  # its stream may be followed soon
+            return
+        self._decision(decision, now)
+
+    def _decision(self, decision: StepDecision, now: float) -> None:
+        arrival = self.controllers.accept(decision.controller, now)
+        if arrival is Arrival.FOREIGN:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"ignoring decisions of controller {decision.controller} (a second"
+                f" controller_node?): following controller {self.controllers.source}"
+            )
+            return
+        if arrival is Arrival.SWITCHED:
+            self.get_logger().warning(
+                f"controller {self.controllers.previous} went silent; following controller"
+                f" {decision.controller} (a restarted controller_node?)"
+            )
+        if not self.joiner.decision(decision.step, decision.vocalize):
+            self.warn_intrusion(
+                f"decision for step {decision.step} repeats, goes backwards or answers no"
+                " bit received: ignored"
+            )
+
+    def _join(self, step: int) -> None:
+        """The first bit this node receives: the stream's start, or the middle of a run."""
+        if step > 1:
+            self.tracker.forget_timer_completely()
+            self.get_logger().info(
+                f"joined the stream at step {step}: zero counts, timer unknown until the"
+                " next vocalization"
+            )
+
+    def _new_stream(self, stream: int, step: int) -> None:
+        self.stream_changes += 1
+        self.gaps.note(self.now_s())
+        self.joiner.restart()
+        self.tracker.forget_timer()
+        self.get_logger().warning(
+            f"stream {self.streams.previous} went silent; following stream {stream} from"
+            f" step {step} (a restarted mic_node?): counts kept, the gap between is not"
+            " guessed"
+        )
+
+    # ------------------------------------------------------------------ steps
+
+    def _apply(self, step: int, y: bool | None, u: bool | None) -> None:
+        """Apply one step in order: count the bit, publish the belief, act."""
+        if y is None:
+            self.tracker.skip_observation()
+        else:
+            self.tracker.observe(y)
+        self.belief = self.tracker.statistic.belief(self.params)
+        self.belief_pub.publish(Float64(data=self.belief))
+        if u is None:
+            self.tracker.act_unknown()
+        else:
+            self.tracker.act(u)
+        if y is None or u is None:
+            self.gaps.note(self.now_s())
+            missing = "bit" if y is None else "decision"
+            missing = "bit and decision" if y is None and u is None else missing
+            self.get_logger().warning(
+                f"step {step}: the {missing} never arrived; not guessed",
+                throttle_duration_sec=5.0,
+            )
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.tracker.reset()
         self.belief = self.tracker.statistic.belief(self.params)
         self.resets += 1
         response.success = True
-        response.message = f"statistic reset after {self.pairer.steps} steps"
+        response.message = f"statistic reset after {self.joiner.counts.steps} steps"
         self.get_logger().info(response.message)
         return response
 
+    # ------------------------------------------------------------------ diagnostics
+
+    def publish_diagnostics(self) -> None:
+        """Check for intruders, then publish."""
+        self._intruders = self.extra_publishers(WATCHED_TOPICS)
+        for topic, names in self._intruders.items():
+            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
+        super().publish_diagnostics()
+
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
-        """Belief, statistic, steps and the pairing queues."""
+        """Belief, statistic, steps, gaps, intruders and the joining queues."""
+        counts = self.joiner.counts
+        now = self.now_s()
         values = {
             "belief": self.belief,
             "statistic": tuple(self.tracker.statistic),
+            "timer_certain": self.tracker.timer_certain,
+            "uncounted_bits": self.tracker.uncounted,
             "memory_steps": self.tracker.memory,
-            "steps": self.pairer.steps,
-            "pending_bits": self.pairer.pending_bits,
-            "pending_decisions": self.pairer.pending_decisions,
-            "dropped_decisions": self.pairer.dropped_decisions,
-            "skipped_bits": self.pairer.skipped_bits,
+            "stream": self.streams.source or "none yet",
+            "controller": self.controllers.source or "none yet",
+            "steps": counts.steps,
+            "last_step": (self.joiner.next_step or 1) - 1,
+            "pending_bits": self.joiner.pending_bits,
+            "pending_decisions": self.joiner.pending_decisions,
+            "missing_bits": counts.missing_bits,
+            "missing_decisions": counts.missing_decisions,
+            "stale_bits": counts.stale_bits,
+            "stale_decisions": counts.stale_decisions,
+            "foreign_messages": self.foreign.count,
+            "malformed_messages": self.malformed.count,
+            "wrong_window_messages": self.wrong_window.count,
+            "stream_changes": self.stream_changes,
             "resets": self.resets,
             "stale_messages": self.stale_messages,
         }
-        if self.pairer.pending_bits > 2:
+        for topic, names in self._intruders.items():
+            values[f"publishers_{topic}"] = ", ".join(names)
+        if self._intruders:
+            topics = ", ".join(f"'{topic}'" for topic in self._intruders)
+            return ERROR, f"more than one publisher on {topics}", values
+        if self.foreign.recent(now) or self.wrong_window.recent(now):
+            return ERROR, "messages from a second stream or controller (ignored)", values
+        if self.malformed.recent(now):
+            return WARN, "malformed step messages (ignored)", values
+        if self.gaps.recent(now):
+            return WARN, "steps missed lately (not guessed; see values)", values
+        if self.joiner.pending_bits > 2:
             return WARN, "bits are waiting for decisions (is the controller running?)", values
         return OK, f"P(S=1) = {self.belief:.4f}", values
 

@@ -8,8 +8,17 @@ parameters than ``params`` is refused at start-up with the differences named. Ep
 tables restart an episode at their horizon; receding tables keep a sliding memory of M
 counted observations.
 
-Subscribes ``sound`` (Bool); publishes ``vocalize`` (Bool, one per bit) and
-``/diagnostics``.
+Step clock: the node answers every bit on ``sound_step`` of the stream it follows
+(:class:`~infomax_contingency.core.stepclock.SourceLock`: a second mic_node is counted
+and ignored; a followed stream silent for ``source_timeout_s`` is replaced by the next
+one heard, a restarted mic_node) with one decision, published on ``vocalize`` (Bool, for
+the speaker) and on ``vocalize_step`` with the step it answers and this controller's id.
+Steps it never saw (it joined late, messages were lost) are counted, and their windows
+passed without a bit and without a vocalization; a bit that repeats or goes backwards is
+ignored. Bits whose window length is not the model's dt are refused.
+
+Subscribes ``sound_step`` (std_msgs/Int64MultiArray); publishes ``vocalize`` (Bool, one
+per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -18,14 +27,24 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, Int64MultiArray
 
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.nodes.graph_node import OK, GraphNode
+from infomax_contingency.core.stepclock import Arrival, RecentEvents, SourceLock
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.step_topics import (
+    SOUND_STEP,
+    VOCALIZE_STEP,
+    StepDecision,
+    decision_message,
+    new_source_id,
+    parse_bit,
+    window_us,
+)
 from infomax_contingency.resources import resource_path
 
 DEFAULT_TABLE = ("policies", "robot_receding_H24_M60.npz")
@@ -50,48 +69,131 @@ class ControllerNode(GraphNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
-        params = self.parameters.model()
-        path = self.parameters.text(
+        read = self.parameters
+        params = read.model()
+        window_s = read.number(
+            "window_s", params.dt, "Window (step) length; must equal the model's dt",
+            0.01, 10.0, "s",
+        )
+        if abs(window_s - params.dt) > 1e-9:
+            raise ConfigError(
+                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
+                f" {params.dt:g} s (parameter 'params' and the policy table)"
+            )
+        path = read.text(
             "policy_file",
             "",
             "Policy table (.npz) solved for 'params': a file, or the name of a table in the"
             f" package's policies/ directory; empty = {DEFAULT_TABLE[1]}",
         )
+        timeout_s = read.number(
+            "source_timeout_s", 3.0,
+            "A followed mic_node stream silent this long is replaced by the next one heard",
+            0.1, 3600.0, "s",
+        )
         self.table_path = _table_path(path)
         table = PolicyTable.load(self.table_path, expected_params=params)
         self.controller = PolicyController(table)
+        self.controller_id = new_source_id()
+        self.window_us = window_us(params.dt)
+        self.streams = SourceLock(timeout_s)
+        self.last_step = 0
         self.steps = 0
         self.vocalizations = 0
+        self.missed_steps = 0
+        self.stale_bits = RecentEvents()
+        self.foreign = RecentEvents()
+        self.bad = RecentEvents()
+        self._intruders: dict[str, list[str]] = {}
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
-        self.subscribe(Bool, "sound", self._on_sound)
+        self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step)
         self.start_diagnostics()
         self.get_logger().info(
             f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
             + (f", memory {table.memory}" if table.mode == "receding" else "")
+            + f"; controller id {self.controller_id}"
         )
 
-    def _on_sound(self, msg: Bool, stamp: int) -> None:
-        u = self.controller.step(int(msg.data))
+    def _on_sound_step(self, msg: Int64MultiArray, stamp: int) -> None:
+        bit = parse_bit(msg)
+        now = self.now_s()
+        if bit is None or bit.window_us != self.window_us:
+            self.bad.note(now)
+            self.get_logger().error(
+                f"'{SOUND_STEP}' message refused: {list(msg.data)} (expected [stream, step,"
+                f" bit, window_us] with window_us = {self.window_us}, the model's dt)",
+                throttle_duration_sec=5.0,
+            )
+            return
+        arrival = self.streams.accept(bit.stream, now)
+        if arrival is Arrival.FOREIGN:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"ignoring bits of stream {bit.stream} (a second mic_node?): answering stream"
+                f" {self.streams.source}"
+            )
+            return
+        if arrival is Arrival.SWITCHED:
+            self.get_logger().warning(
+                f"stream {self.streams.previous} went silent after step {self.last_step};"
+                f" answering stream {bit.stream} from step {bit.step} (a restarted mic_node?)"
+            )
+            self.last_step = 0
+            self.controller.missed(self.controller.params.timer_long_ago)
+        if bit.step <= self.last_step:
+            self.stale_bits.note(now)
+            self.warn_intrusion(
+                f"bit for step {bit.step} repeats or goes backwards (last step"
+                f" {self.last_step}): ignored"
+            )
+            return
+        missed = bit.step - self.last_step - 1 if self.last_step or bit.step > 1 else 0
+        if missed:
+            self.missed_steps += missed
+            self.controller.missed(missed)
+        self.last_step = bit.step
+        u = bool(self.controller.step(int(bit.bit)))
         self.steps += 1
         self.vocalizations += u
-        self.vocalize_pub.publish(Bool(data=bool(u)))
+        self.vocalize_pub.publish(Bool(data=u))
+        self.step_pub.publish(
+            decision_message(StepDecision(bit.stream, bit.step, u, self.controller_id))
+        )
+
+    def publish_diagnostics(self) -> None:
+        """Check for intruders, then publish."""
+        self._intruders = self.extra_publishers((SOUND_STEP,))
+        for topic, names in self._intruders.items():
+            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
+        super().publish_diagnostics()
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
-        """Steps, vocalizations, the table and the current statistic."""
+        """Steps, vocalizations, the table, the stream followed and what was refused."""
         table = self.controller.table
-        return (
-            OK,
-            f"{self.steps} steps, {self.vocalizations} vocalizations",
-            {
-                "steps": self.steps,
-                "vocalizations": self.vocalizations,
-                "policy_file": self.table_path,
-                "mode": table.mode,
-                "horizon": table.horizon,
-                "memory": table.memory,
-                "statistic": tuple(self.controller.tracker.statistic),
-            },
-        )
+        now = self.now_s()
+        values = {
+            "steps": self.steps,
+            "last_step": self.last_step,
+            "vocalizations": self.vocalizations,
+            "missed_steps": self.missed_steps,
+            "stream": self.streams.source or "none yet",
+            "controller_id": self.controller_id,
+            "foreign_messages": self.foreign.count,
+            "stale_bits": self.stale_bits.count,
+            "refused_messages": self.bad.count,
+            "stream_changes": self.streams.switches,
+            "policy_file": self.table_path,
+            "mode": table.mode,
+            "horizon": table.horizon,
+            "memory": table.memory,
+            "statistic": tuple(self.controller.tracker.statistic),
+        }
+        if self._intruders or self.foreign.recent(now) or self.bad.recent(now):
+            return ERROR, "a second stream on 'sound_step', or refused messages", values
+        if self.stale_bits.recent(now):
+            return WARN, "repeated or backward steps (ignored)", values
+        return OK, f"{self.steps} steps, {self.vocalizations} vocalizations", values
 
 
 def main(args: list[str] | None = None) -> int:

@@ -7,7 +7,8 @@ reply probability, delays and level; see :mod:`infomax_contingency.sim.fake_room
 Deterministic for a given ``seed``.
 
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
-``vocalize`` for window t arrived (or after ``lockstep_timeout_s``), so the robot's own
+decision on window t arrived on ``vocalize_step`` (or after ``lockstep_timeout_s``;
+the warning then names what is missing), so the robot's own
 sound and the partner's reply land in the right windows however fast the graph runs; in
 real time one window is published every ``window_s / speed`` seconds. One message per
 window. Publishing starts ``start_delay_s`` after ``audio`` has ``wait_for_listeners``
@@ -15,9 +16,13 @@ subscribers, ``partner_present`` ``wait_for_truth_listeners`` (and, in lockstep,
 ``vocalize`` a publisher) and every subscriber seen on its topics is connected; it
 stops after ``max_windows`` windows (0 = never).
 
-Subscribes ``vocalize`` (Bool); publishes ``audio`` (Float32MultiArray, mono samples in
-[-1, 1] at ``rate_hz``), ``partner_present`` (Bool, the ground truth of each window, right
-after its audio) and ``/diagnostics``.
+The room hears the robot through the decisions of one controller (the first heard on
+``vocalize_step``; a second one is counted and ignored, a silent one replaced after
+``source_timeout_s``), each step once: the same decisions the belief node follows.
+
+Subscribes ``vocalize_step`` (std_msgs/Int64MultiArray); publishes ``audio``
+(Float32MultiArray, mono samples in [-1, 1] at ``rate_hz``), ``partner_present`` (Bool,
+the ground truth of each window, right after its audio) and ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -27,13 +32,14 @@ import sys
 import time
 from typing import Any
 
-from std_msgs.msg import Bool, Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.core.stepclock import LockstepPacer
-from infomax_contingency.nodes.graph_node import OK, WARN, GraphNode
+from infomax_contingency.core.stepclock import Arrival, LockstepPacer, RecentEvents, SourceLock
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP, parse_decision
 from infomax_contingency.sim.fake_room import (
     PRESETS,
     FakeRoom,
@@ -123,6 +129,11 @@ class FakeAudioNode(GraphNode):
         self.start_delay_s = read.number(
             "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
         )
+        source_timeout_s = read.number(
+            "source_timeout_s", 3.0,
+            "A followed controller silent this long is replaced by the next one heard",
+            0.1, 3600.0, "s",
+        )
         try:
             config = FakeRoomConfig(**values)
         except ValueError as error:
@@ -135,7 +146,11 @@ class FakeAudioNode(GraphNode):
         self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", STREAM_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
-        self.vocalize_sub = self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.controllers = SourceLock(source_timeout_s)
+        self.timeouts = RecentEvents()
+        self.foreign = RecentEvents()
+        self._answered: tuple[int, int] = (0, 0)
+        self.vocalize_sub = self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision)
         self.start_when_ready(
             self._ready,
             self.start_delay_s,
@@ -165,13 +180,40 @@ class FakeAudioNode(GraphNode):
         self._publish_window()
 
     def _on_timeout(self) -> None:
+        self.timeouts.note(self.now_s())
         self.get_logger().warning(
-            f"no 'vocalize' within {self.pacer.timeout_s} s: publishing the next window anyway"
+            f"no decision within {self.pacer.timeout_s} s of window {self.room.windows_made}:"
+            f" {self._who_is_missing()}; publishing the next window anyway"
         )
         self._publish_window()
 
-    def _on_vocalize(self, msg: Bool, stamp: int) -> None:
-        if msg.data:
+    def _who_is_missing(self) -> str:
+        if self.count_publishers(SOUND_STEP) == 0:
+            return "mic_node is not running (nothing publishes 'sound_step')"
+        if self.count_publishers(VOCALIZE_STEP) == 0:
+            return "controller_node is not running (nothing publishes 'vocalize_step')"
+        return (
+            "mic_node and controller_node are there, but no decision came (a mic_node that"
+            " calibrates on this stream publishes no bits until calibrated)"
+        )
+
+    def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
+        decision = parse_decision(msg)
+        if decision is None:
+            return
+        now = self.now_s()
+        if self.controllers.accept(decision.controller, now) is Arrival.FOREIGN:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"ignoring decisions of controller {decision.controller} (a second"
+                f" controller_node?): the room hears controller {self.controllers.source}"
+            )
+            return
+        stream, step = self._answered
+        if decision.stream == stream and decision.step <= step:
+            return  # an answer repeated
+        self._answered = (decision.stream, decision.step)
+        if decision.vocalize:
             self.room.vocalize()
         if self.started and self.pacer is not None and self.pacer.answered():
             self._publish_window()
@@ -202,8 +244,11 @@ class FakeAudioNode(GraphNode):
             values["lockstep_timeouts"] = self.pacer.timeouts
         if not self.started:
             return WARN, "waiting for a listener on 'audio'", values
-        if values.get("lockstep_timeouts"):
-            return WARN, "lockstep timeouts (is the controller running?)", values
+        values["foreign_decisions"] = self.foreign.count
+        if self.foreign.recent(self.now_s()):
+            return ERROR, "decisions from a second controller (ignored)", values
+        if self.timeouts.recent(self.now_s()):
+            return WARN, f"lockstep timeouts lately: {self._who_is_missing()}", values
         return OK, f"{room.windows_made} windows", values
 
 

@@ -1,7 +1,13 @@
-"""The base class of the graph's nodes: stamped subscriptions, start gate, diagnostics.
+"""The base class of the graph's nodes: subscriptions, start gate, intruders, diagnostics.
 
 Diagnostics: each node publishes a ``diagnostic_msgs/DiagnosticArray`` on
-``/diagnostics`` about once a second, built directly (no diagnostic_updater).
+``/diagnostics`` about once a second, built directly (no diagnostic_updater). A fault
+that is over returns the status to OK; its count stays among the values.
+
+Intruders: a node that listens to a topic with one rightful publisher (``sound`` and
+``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
+the publishers on it (:meth:`GraphNode.extra_publishers`) and reports a second one by
+name, in a throttled WARN and an ERROR diagnostic while it lasts.
 """
 
 from __future__ import annotations
@@ -34,6 +40,9 @@ _CONNECT_WAIT_S = 5.0
 
 _STALLED_WARNING_S = 5.0
 """Seconds without a first decision before a lockstep node warns (and between warnings)."""
+
+_INTRUDER_WARNING_S = 5.0
+"""Seconds between warnings about the same kind of intrusion."""
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
@@ -134,6 +143,30 @@ class GraphNode(Node):
             start()
 
         gate = self.create_timer(_GATE_POLL_S, poll)
+
+    def now_s(self) -> float:
+        """Monotonic seconds (the clock of the step-clock bookkeeping)."""
+        return time.monotonic()
+
+    def extra_publishers(self, topics: tuple[str, ...]) -> dict[str, list[str]]:
+        """Topics of ``topics`` with more than one publisher -> the publishing nodes.
+
+        Each of these topics has one rightful publisher in the graph; a second one (a
+        second mic_node or controller_node, ``ros2 topic pub``) is named here.
+        """
+        found = {}
+        for topic in topics:
+            name = self.resolve_topic_name(topic)
+            infos = self.get_publishers_info_by_topic(name)
+            if len(infos) > 1:
+                found[topic] = sorted(
+                    f"{info.node_namespace.rstrip('/')}/{info.node_name}" for info in infos
+                )
+        return found
+
+    def warn_intrusion(self, message: str) -> None:
+        """A throttled WARN about an intruder (one call site: one throttle)."""
+        self.get_logger().warning(message, throttle_duration_sec=_INTRUDER_WARNING_S)
 
     def log_at(self, level: str, message: str) -> None:
         """Log at ``level`` (``error``, ``warning``, else info): the core's log callback.

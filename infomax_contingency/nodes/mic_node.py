@@ -32,7 +32,17 @@ are consumed (their ``sound_energy`` is published, but no ``sound``: the step cl
 starts after calibration). ``refresh_s > 0`` refits the threshold online on the last
 ``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db`` apart).
 
-Start: the first bit goes out once ``sound`` has ``wait_for_listeners`` subscribers
+Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
+published on ``sound`` (Bool) and, with its identity and the window length, on
+``sound_step`` (see :mod:`~infomax_contingency.nodes.step_topics`). Windows wait in a
+bounded outbox (:class:`~infomax_contingency.core.stepclock.StepOutbox`): while a
+controller answers on ``vocalize_step``, at most ``max_steps_ahead`` steps are out
+unanswered, so a burst of audio (a 30 s message, a fast replay) is published as fast as
+the controller decides and nothing overflows a queue; at most ``max_backlog_s`` of
+windows wait (more is dropped and counted). ``window_s`` must equal the model's dt
+(``params``): another value is refused at start-up.
+
+Start: the first bit goes out once ``sound_step`` has ``wait_for_listeners`` subscribers
 (and, in wav lockstep, ``vocalize`` a publisher) and every subscriber seen on its topics
 is connected, plus ``start_delay_s`` for the rest of the graph to connect; windows of the
 ``audio`` topic that arrive meanwhile wait, none is lost. ``max_windows > 0`` stops the
@@ -47,12 +57,12 @@ from __future__ import annotations
 
 import sys
 import time
-from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from rclpy.duration import Duration
-from std_msgs.msg import Bool, Float32, Float32MultiArray
+from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
 from infomax_contingency.audio.live import (
@@ -64,11 +74,21 @@ from infomax_contingency.audio.live import (
     resolve_device,
 )
 from infomax_contingency.audio.signal import AudioError, WindowAssembler, load_threshold
-from infomax_contingency.core.stepclock import LockstepPacer
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
-from infomax_contingency.nodes.parameters import ConfigError, device_parameter
+from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 from infomax_contingency.nodes.qos import STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.step_topics import (
+    SOUND_STEP,
+    VOCALIZE_STEP,
+    StepBit,
+    bit_message,
+    new_source_id,
+    parse_decision,
+    window_us,
+)
 
 SOURCES = ("wav", "topic", "sounddevice")
 THRESHOLD_MODES = ("calibrate", "fixed", "file")
@@ -80,6 +100,170 @@ ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
 
 
+@dataclass(frozen=True)
+class MicConfig:
+    """mic_node's parameters (see the module docstring and config/robot.yaml)."""
+
+    params: ModelParams
+    source: str
+    window_s: float
+    threshold_mode: str
+    threshold_db: float
+    threshold_file: str
+    calibration_s: float
+    refresh_s: float
+    min_separation_db: float
+    wait_for_listeners: int
+    start_delay_s: float
+    max_windows: int
+    max_steps_ahead: int
+    max_backlog_s: float
+    wav_file: str
+    channel: int
+    loop: bool
+    lockstep: bool
+    lockstep_timeout_s: float
+    exit_at_end: bool
+    audio_rate_hz: int
+    device: str
+    queue_s: float
+
+
+def _read_threshold(read: ParameterReader) -> dict[str, Any]:
+    return {
+        "threshold_mode": read.text(
+            "threshold_mode", "calibrate", "How the sound threshold is set", THRESHOLD_MODES
+        ),
+        "threshold_db": read.number(
+            "threshold_db", -40.0, "Fixed threshold (threshold_mode fixed)", -150.0, 0.0, "dB"
+        ),
+        "threshold_file": read.text(
+            "threshold_file", "", "Threshold file written by calibration (threshold_mode file)"
+        ),
+        "calibration_s": read.number(
+            "calibration_s", 10.0, "Calibration audio (threshold_mode calibrate)",
+            0.02, 3600.0, "s",
+        ),
+        "refresh_s": read.number(
+            "refresh_s", 0.0, "Online threshold refresh buffer; 0 = off", 0.0, 86400.0, "s"
+        ),
+        "min_separation_db": read.number(
+            "min_separation_db", 10.0,
+            "Least gap between cluster means to accept a calibration or a refit",
+            0.0, 100.0, "dB",
+        ),
+    }
+
+
+def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
+    return {
+        "wait_for_listeners": read.integer(
+            "wait_for_listeners", 2,
+            "Subscribers of 'sound_step' (controller, belief) to wait for before the first bit",
+            0, 1000,
+        ),
+        "start_delay_s": read.number(
+            "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
+        ),
+        "max_windows": read.integer(
+            "max_windows", 0, "Stop the node after this many bits; 0 = never", 0, 2**31 - 1
+        ),
+        "max_steps_ahead": read.integer(
+            "max_steps_ahead", 16,
+            "Steps that may be out unanswered while a controller answers on 'vocalize_step'",
+            1, 1000,
+        ),
+        "max_backlog_s": read.number(
+            "max_backlog_s", 3600.0,
+            "Audio whose windows may wait for the controller; more is dropped and counted",
+            1.0, 86400.0, "s",
+        ),
+    }
+
+
+def _read_sources(node: GraphNode, read: ParameterReader) -> dict[str, Any]:
+    return {
+        "wav_file": read.text("wav_file", "", "WAV file to replay (source wav)"),
+        "channel": read.integer(
+            "channel", -1,
+            "Channel of the file or microphone to use; -1 = mix all channels", -1, 1023,
+        ),
+        "loop": read.flag("loop", False, "Replay the file again and again (source wav)"),
+        "lockstep": read.flag(
+            "lockstep", True, "Release each window after the 'vocalize' on the previous one"
+        ),
+        "lockstep_timeout_s": read.number(
+            "lockstep_timeout_s", 2.0,
+            "Release the next window anyway after this long without a 'vocalize'",
+            0.01, 3600.0, "s",
+        ),
+        "exit_at_end": read.flag(
+            "exit_at_end", False, "Stop the node after the last window of the file"
+        ),
+        "audio_rate_hz": read.integer(
+            "audio_rate_hz", 16000, "Sample rate of the 'audio' topic (source topic)",
+            1000, 384000,
+        ),
+        "device": device_parameter(node, "Microphone (source sounddevice)"),
+        "queue_s": read.number(
+            "queue_s", 4.0,
+            "Live audio held for the node's reader (source sounddevice); blocks beyond it"
+            " are dropped and counted", 0.1, 600.0, "s",
+        ),
+    }
+
+
+def read_config(node: GraphNode) -> MicConfig:
+    """Declare and check mic_node's parameters."""
+    read: ParameterReader = node.parameters
+    params = read.model()
+    config = MicConfig(
+        params=params,
+        source=read.text(
+            "source", "topic",
+            "Where audio comes from: wav (a file), topic (the 'audio' topic),"
+            " sounddevice (a live microphone)", SOURCES,
+        ),
+        window_s=read.number(
+            "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
+        ),
+        **_read_threshold(read),
+        **_read_step_clock(read),
+        **_read_sources(node, read),
+    )
+    if abs(config.window_s - params.dt) > 1e-9:
+        raise ConfigError(
+            f"parameter 'window_s' = {config.window_s:g} s differs from the model's dt ="
+            f" {params.dt:g} s (parameter 'params'): one window must be one step of the"
+            " model"
+        )
+    if config.refresh_s > 0 and round(config.refresh_s / config.window_s) < 2:
+        raise ConfigError(
+            f"parameter 'refresh_s' = {config.refresh_s}: must be 0 (off) or at least two"
+            f" windows ({2 * config.window_s:g} s)"
+        )
+    if config.threshold_mode == "file" and not config.threshold_file:
+        raise ConfigError(
+            "parameter 'threshold_file' is empty: threshold_mode 'file' needs the path"
+            " of a threshold file written by calibration"
+        )
+    if config.source == "wav" and not config.wav_file:
+        raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")
+    return config
+
+
+def make_binarizer(config: MicConfig) -> Binarizer:
+    """The binarizer that ``threshold_mode`` asks for."""
+    refresh = round(config.refresh_s / config.window_s) if config.refresh_s > 0 else 0
+    separation = config.min_separation_db
+    if config.threshold_mode == "fixed":
+        return Binarizer(config.threshold_db, 0, refresh, separation)
+    if config.threshold_mode == "file":
+        return Binarizer(load_threshold(config.threshold_file), 0, refresh, separation)
+    windows = calibration_window_count(config.calibration_s, config.window_s)
+    return Binarizer(None, windows, refresh, separation)
+
+
 class MicNode(GraphNode):
     """Microphone: audio windows to sound bits."""
 
@@ -87,125 +271,29 @@ class MicNode(GraphNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
-        read = self.parameters
-        self.source = read.text(
-            "source",
-            "wav",
-            "Where audio comes from: wav (a file), topic (the 'audio' topic),"
-            " sounddevice (a live microphone)",
-            SOURCES,
+        self.config = config = read_config(self)
+        self.source = config.source
+        self.window_s = config.window_s
+        self.wait_for_listeners = config.wait_for_listeners
+        self.max_windows = config.max_windows
+        self.exit_at_end = config.exit_at_end
+        self.binarizer = make_binarizer(config)
+        self.stream_id = new_source_id()
+        self.window_us = window_us(config.window_s)
+        self.outbox = StepOutbox(
+            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s))
         )
-        self.window_s = read.number(
-            "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
-        )
-        mode = read.text(
-            "threshold_mode", "calibrate", "How the sound threshold is set", THRESHOLD_MODES
-        )
-        threshold_db = read.number(
-            "threshold_db", -40.0, "Fixed threshold (threshold_mode fixed)", -150.0, 0.0, "dB"
-        )
-        threshold_file = read.text(
-            "threshold_file", "", "Threshold file written by calibration (threshold_mode file)"
-        )
-        calibration_s = read.number(
-            "calibration_s", 10.0, "Calibration audio (threshold_mode calibrate)", 0.02, 3600.0, "s"
-        )
-        refresh_s = read.number(
-            "refresh_s", 0.0, "Online threshold refresh buffer; 0 = off", 0.0, 86400.0, "s"
-        )
-        min_separation_db = read.number(
-            "min_separation_db",
-            10.0,
-            "Least gap between cluster means to accept a refit",
-            0.0,
-            100.0,
-            "dB",
-        )
-        self.wait_for_listeners = read.integer(
-            "wait_for_listeners",
-            2,
-            "Subscribers of 'sound' to wait for before the first bit",
-            0,
-            1000,
-        )
-        self.start_delay_s = read.number(
-            "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
-        )
-        self.max_windows = read.integer(
-            "max_windows", 0, "Stop the node after this many bits; 0 = never", 0, 2**31 - 1
-        )
-
-        wav = {
-            "path": read.text("wav_file", "", "WAV file to replay (source wav)"),
-            "channel": read.integer(
-                "channel",
-                -1,
-                "Channel of the file or microphone to use; -1 = mix all channels",
-                -1,
-                1023,
-            ),
-            "loop": read.flag("loop", False, "Replay the file again and again (source wav)"),
-            "lockstep": read.flag(
-                "lockstep", True, "Release each window after the 'vocalize' on the previous one"
-            ),
-            "timeout_s": read.number(
-                "lockstep_timeout_s",
-                2.0,
-                "Release the next window anyway after this long without a 'vocalize'",
-                0.01,
-                3600.0,
-                "s",
-            ),
-        }
-        self.exit_at_end = read.flag(
-            "exit_at_end", False, "Stop the node after the last window of the file"
-        )
-        audio_rate_hz = read.integer(
-            "audio_rate_hz", 16000, "Sample rate of the 'audio' topic (source topic)", 1000, 384000
-        )
-        live = {
-            "device": device_parameter(self, "Microphone (source sounddevice)"),
-            "queue_s": read.number(
-                "queue_s",
-                4.0,
-                "Live audio held for the node's reader (source sounddevice); blocks beyond it"
-                " are dropped and counted",
-                0.1,
-                600.0,
-                "s",
-            ),
-        }
-        refresh_windows = round(refresh_s / self.window_s) if refresh_s > 0 else 0
-        if refresh_s > 0 and refresh_windows < 2:
-            raise ConfigError(
-                f"parameter 'refresh_s' = {refresh_s}: must be 0 (off) or at least two windows"
-                f" ({2 * self.window_s:g} s)"
-            )
-        if mode == "fixed":
-            self.binarizer = Binarizer(threshold_db, 0, refresh_windows, min_separation_db)
-        elif mode == "file":
-            if not threshold_file:
-                raise ConfigError(
-                    "parameter 'threshold_file' is empty: threshold_mode 'file' needs the path"
-                    " of a threshold file written by calibration"
-                )
-            loaded = load_threshold(threshold_file)
-            self.binarizer = Binarizer(loaded, 0, refresh_windows, min_separation_db)
-        else:
-            windows = calibration_window_count(calibration_s, self.window_s)
-            self.binarizer = Binarizer(None, windows, refresh_windows, min_separation_db)
-
         self.sound_pub = self.create_publisher(Bool, "sound", STREAM_QOS)
+        self.step_pub = self.create_publisher(Int64MultiArray, SOUND_STEP, STREAM_QOS)
         self.energy_pub = self.create_publisher(Float32, "sound_energy", STREAM_QOS)
+        self._decisions_sub = self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision)
         self.windows = 0
         self.last_energy_db = float("nan")
         self.dropped_chunks = 0
         self.bad_chunks = 0
         self.started = False
-        self._held: deque[float] = deque()
         self.replay: WavReplay | None = None
         self.pacer: LockstepPacer | None = None
-        self._vocalize_sub = None
         self._pace_timer = None
         self.ended = False
         self.microphone: MicrophoneStream | None = None
@@ -213,45 +301,46 @@ class MicNode(GraphNode):
         self.windows_with_loss = 0
         self.window_delay_s = float("nan")
         self.max_window_delay_s = float("nan")
-
+        self.losses = RecentEvents()
+        self.timeouts = RecentEvents()
+        self._intruders: dict[str, list[str]] = {}
         if self.source == "wav":
-            self._setup_wav(mode, calibration_s, wav)
+            self._setup_wav(config)
         elif self.source == "topic":
-            self._setup_topic(audio_rate_hz)
+            self._setup_topic(config.audio_rate_hz)
         else:
-            self._setup_microphone(live["device"], wav["channel"], live["queue_s"])
+            self._setup_microphone(config.device, config.channel, config.queue_s)
         self.start_when_ready(
             self._listeners_ready,
-            self.start_delay_s,
+            config.start_delay_s,
             self._start,
             self.pacer,
             self._on_timeout,
             "is controller_node running?",
         )
+        self.get_logger().info(f"stream id {self.stream_id}")
         self.start_diagnostics()
 
     # ------------------------------------------------------------------ sources
 
-    def _setup_wav(self, mode: str, calibration_s: float, wav: dict[str, Any]) -> None:
-        path, channel, loop, lockstep = wav["path"], wav["channel"], wav["loop"], wav["lockstep"]
-        if not path:
-            raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")
-        self.replay = WavReplay(path, self.window_s, None if channel < 0 else channel, loop)
-        if mode == "calibrate":
+    def _setup_wav(self, config: MicConfig) -> None:
+        channel = None if config.channel < 0 else config.channel
+        self.replay = WavReplay(config.wav_file, self.window_s, channel, config.loop)
+        if config.threshold_mode == "calibrate":
             fit = self.binarizer.calibrate(
-                self.replay.calibration_energies(calibration_s, self.window_s)
+                self.replay.calibration_energies(config.calibration_s, self.window_s)
             )
             self.get_logger().info(
                 f"threshold {fit.threshold_db:.2f} dB from the first {fit.n_low + fit.n_high}"
-                f" windows of {path} (quiet {fit.low_mean_db:.1f} dB, sound"
+                f" windows of {config.wav_file} (quiet {fit.low_mean_db:.1f} dB, sound"
                 f" {fit.high_mean_db:.1f} dB)"
             )
-        if lockstep:
-            self.pacer = LockstepPacer(wav["timeout_s"])
-            self._vocalize_sub = self.subscribe(Bool, "vocalize", self._on_vocalize)
+        if config.lockstep:
+            self.pacer = LockstepPacer(config.lockstep_timeout_s)
         self.get_logger().info(
-            f"replaying {path}: {self.replay.n_windows} windows of {self.window_s} s,"
-            f" {'lockstep' if lockstep else 'real time'}{', looping' if loop else ''}"
+            f"replaying {config.wav_file}: {self.replay.n_windows} windows of {self.window_s} s,"
+            f" {'lockstep' if config.lockstep else 'real time'}"
+            f"{', looping' if config.loop else ''}"
         )
 
     def _setup_topic(self, rate: int) -> None:
@@ -295,20 +384,25 @@ class MicNode(GraphNode):
         if self.microphone is not None:
             self.microphone.start()
             self.create_timer(MICROPHONE_POLL_S, self._read_microphone)
-        while self._held:
-            self._window(self._held.popleft())
+        self._release()
 
     def _on_timeout(self) -> None:
+        self.timeouts.note(self.now_s())
         self.get_logger().warning(
             f"no 'vocalize' within {self.pacer.timeout_s} s of window {self.windows}:"
-            " releasing the next window anyway"
+            f" {self._who_is_missing()}; releasing the next window anyway"
         )
         self._emit_from_file()
 
+    def _who_is_missing(self) -> str:
+        if self._decisions_sub.get_publisher_count() == 0:
+            return "no controller_node publishes 'vocalize_step'"
+        return "controller_node is there but did not answer"
+
     def _listeners_ready(self) -> bool:
-        if self.sound_pub.get_subscription_count() < self.wait_for_listeners:
+        if self.step_pub.get_subscription_count() < self.wait_for_listeners:
             return False
-        return self._vocalize_sub is None or self._vocalize_sub.get_publisher_count() > 0
+        return self.pacer is None or self._decisions_sub.get_publisher_count() > 0
 
     # ------------------------------------------------------------------ windows
 
@@ -327,9 +421,22 @@ class MicNode(GraphNode):
             self.pacer.sent(time.monotonic())
         self._window(energy)
 
-    def _on_vocalize(self, msg: Bool, stamp: int) -> None:
-        if self.started and self.pacer is not None and self.pacer.answered():
+    def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
+        decision = parse_decision(msg)
+        if decision is None or decision.stream != self.stream_id:
+            return
+        before = self.outbox.last_answered
+        self.outbox.answered(decision.step)
+        if self.outbox.last_answered == before:
+            return  # a repeated answer (a second controller): it releases nothing
+        if (
+            self.started
+            and self.pacer is not None
+            and decision.step == self.outbox.last_step
+            and self.pacer.answered()
+        ):
             self._emit_from_file()
+        self._release()
 
     def _on_audio(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
         if 0 < int(info.get("source_timestamp", 0)) < self.started_ns:
@@ -339,19 +446,18 @@ class MicNode(GraphNode):
         if isinstance(sequence, int) and 0 < sequence < 2**63:
             if self._last_sequence is not None and sequence > self._last_sequence + 1:
                 self.dropped_chunks += sequence - self._last_sequence - 1
+                self.losses.note(self.now_s())
                 self.assembler.reset()
             self._last_sequence = sequence
         try:
             energies = self.assembler.push(np.frombuffer(msg.data, dtype=np.float32))
         except AudioError as error:
             self.bad_chunks += 1
+            self.losses.note(self.now_s())
             self.get_logger().warning(f"audio chunk ignored: {error}", throttle_duration_sec=5.0)
             return
         for energy in energies:
-            if self.started:
-                self._window(energy)
-            else:
-                self._held.append(energy)
+            self._window(float(energy))
 
     def _read_microphone(self) -> None:
         for window in self.microphone.read_windows(0.0):
@@ -366,15 +472,17 @@ class MicNode(GraphNode):
         """Count a live window's losses; log the gap before it, if any."""
         if window.segment != self.segment:
             self.segment = window.segment
+            self.losses.note(self.now_s())
             self.get_logger().warning(
                 f"audio gap of {window.gap_s:.2f} s before window {window.index}: the step"
                 " clock goes on, without bits for the missing time"
             )
         if not window.intact:
             self.windows_with_loss += 1
+            self.losses.note(self.now_s())
 
     def _window(self, energy_db: float) -> None:
-        """Publish one window: its energy, then (after calibration) its bit."""
+        """A window was made: publish its energy; its bit (after calibration) waits to go out."""
         self.last_energy_db = energy_db
         self.energy_pub.publish(Float32(data=energy_db))
         was_calibrating = self.binarizer.calibrating
@@ -387,11 +495,32 @@ class MicNode(GraphNode):
                 f"calibrated: threshold {fit.threshold_db:.2f} dB (quiet {fit.low_mean_db:.1f}"
                 f" dB, sound {fit.high_mean_db:.1f} dB)"
             )
-        self.windows += 1
-        self.sound_pub.publish(Bool(data=bit))
-        if self.max_windows and self.windows >= self.max_windows:
-            self.get_logger().info(f"{self.windows} bits published (max_windows): stopping")
-            self._finish_publishing()
+        dropped = self.outbox.dropped
+        self.outbox.push(bit)
+        if self.outbox.dropped > dropped:
+            self.losses.note(self.now_s())
+            self.get_logger().warning(
+                f"{self.outbox.dropped} windows dropped: more than"
+                f" {self.config.max_backlog_s:g} s waited for the controller",
+                throttle_duration_sec=5.0,
+            )
+        self._release()
+
+    def _release(self) -> None:
+        """Publish the windows the outbox lets go now, as steps."""
+        if not self.started or self.finished.done():
+            return
+        paced = self._decisions_sub.get_publisher_count() > 0
+        for step, bit in self.outbox.release(paced):
+            self.windows += 1
+            self.sound_pub.publish(Bool(data=bit))
+            self.step_pub.publish(
+                bit_message(StepBit(self.stream_id, step, bit, self.window_us))
+            )
+            if self.max_windows and self.windows >= self.max_windows:
+                self.get_logger().info(f"{self.windows} bits published (max_windows): stopping")
+                self._finish_publishing()
+                return
 
     def _finish_publishing(self) -> None:
         """Publish the final diagnostics; finish (exit status 0) once all was acknowledged."""
@@ -408,12 +537,24 @@ class MicNode(GraphNode):
 
     # ------------------------------------------------------------------ diagnostics
 
+    def publish_diagnostics(self) -> None:
+        """Check for a second microphone on the bit topics, then publish."""
+        self._intruders = self.extra_publishers(("sound", SOUND_STEP))
+        for topic, names in self._intruders.items():
+            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
+        super().publish_diagnostics()
+
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
-        """Threshold, windows, last energy, losses, lockstep timeouts, the live device."""
+        """Threshold, windows, steps, losses, lockstep timeouts, the live device."""
         b = self.binarizer
+        now = self.now_s()
         values: dict[str, Any] = {
             "source": self.source,
+            "stream": self.stream_id,
             "windows": self.windows,
+            "steps_answered": self.outbox.last_answered,
+            "steps_waiting": self.outbox.backlog,
+            "windows_dropped": self.outbox.dropped,
             "threshold_db": b.threshold_db if b.threshold_db is not None else "calibrating",
             "last_energy_db": self.last_energy_db,
             "dropped_chunks": self.dropped_chunks,
@@ -422,6 +563,8 @@ class MicNode(GraphNode):
             "refits_rejected": b.refits_rejected,
             "calibration_failures": b.calibration_failures,
         }
+        for topic, names in self._intruders.items():
+            values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
         if self.microphone is not None:
@@ -431,15 +574,20 @@ class MicNode(GraphNode):
             values["windows_with_loss"] = self.windows_with_loss
             values["window_delay_s"] = self.window_delay_s
             values["max_window_delay_s"] = self.max_window_delay_s
+        if self._intruders:
+            return ERROR, "another publisher on 'sound' or 'sound_step'", values
         if not self.started:
-            return WARN, f"waiting for {self.wait_for_listeners} listeners on 'sound'", values
+            return (
+                WARN,
+                f"waiting for {self.wait_for_listeners} listeners on '{SOUND_STEP}'",
+                values,
+            )
         if values.get("state") == DISCONNECTED:
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
         if b.calibrating:
             return OK, "calibrating the threshold", values
-        losses = ("dropped_chunks", "bad_chunks", "overflows", "lost_samples", "gaps")
-        if any(values.get(key) for key in losses) or values.get("lockstep_timeouts"):
-            return WARN, "audio lost or lockstep timeouts (see values)", values
+        if self.losses.recent(now) or self.timeouts.recent(now):
+            return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
         return OK, f"{self.windows} windows", values
 
 

@@ -1,21 +1,43 @@
 """The body of every node's ``main()``: ROS argument parsing, spinning, clean shutdown.
 
 :func:`run_node` spins the node until it is done or interrupted (Ctrl-C, SIGTERM) and
-ends with ``rclpy.try_shutdown()``.
+ends with ``rclpy.try_shutdown()``; :func:`run_nodes` does the same for several nodes in
+one process (``bringup``). Neither leaks memory per callback (:func:`spin_until_done`).
 """
 
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable, Sequence
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.task import Future
 
 from infomax_contingency.errors import USER_ERRORS
+
+SPIN_TIMEOUT_S = 0.1
+"""Seconds one executor wait may block, so that a finished node is noticed."""
+
+
+def _ros_argument_error(message: str) -> str:
+    """The one-line explanation of an ``rclpy.init`` failure."""
+    reason = message.split(", at ")[0].removeprefix("failed to initialize rcl: ")
+    if "Couldn't parse params file" in reason:
+        path = reason.split("'--params-file ", 1)[-1].split("'", 1)[0]
+        detail = reason.split("Error: ", 1)[-1]
+        if "Error opening YAML file" in detail:
+            return f"cannot read the parameter file {path}: no such file, or not readable"
+        return f"the parameter file {path} is not a valid ROS parameter file: {detail}"
+    if "parameter override rule" in reason:
+        return (
+            f"{reason} (a parameter is given as `-p name:=value`, or `-p node_name:name:=value`"
+            " to override a value that a --params-file sets; the value must not be empty)"
+        )
+    return reason
 
 
 def init_ros(args: Sequence[str] | None, program: str) -> bool:
@@ -23,14 +45,80 @@ def init_ros(args: Sequence[str] | None, program: str) -> bool:
     try:
         rclpy.init(args=args)
     except rclpy_implementation.RCLError as error:
-        reason = str(error).split(", at ")[0]
-        print(
-            f"{program}: invalid ROS arguments: {reason} (a parameter is given as"
-            " `-p name:=value` with a non-empty value)",
-            file=sys.stderr,
-        )
+        print(f"{program}: invalid ROS arguments: {_ros_argument_error(str(error))}",
+              file=sys.stderr)
         return False
     return True
+
+
+def spin_until_done(executor: Executor, done: Future) -> None:
+    """Spin ``executor`` until ``done`` completes or ROS shuts down.
+
+    Not ``spin_until_future_complete``: rclpy 7.1's version of it adds a done-callback to
+    the future on every spin, so memory grows with every callback handled while the
+    future is pending (a node that runs for days). This loop adds nothing per spin.
+    """
+    while rclpy.ok() and not done.done():
+        executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+
+
+def _quiet_signals() -> None:
+    """Ignore further Ctrl-C / SIGTERM while the nodes are being torn down."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(signum, signal.SIG_IGN)
+        except (ValueError, OSError):  # not the main thread
+            pass
+
+
+def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
+              args: Sequence[str] | None = None) -> int:
+    """Create the nodes, spin them on one executor until one finishes; the exit status.
+
+    A node that fails to start on bad parameters or another user error is named in one
+    error line (status 2); Ctrl-C and SIGTERM end the process cleanly (status 0), also
+    when they arrive again during shutdown; no traceback either way.
+    """
+    if not init_ros(args, program):
+        return 2
+    executor = SingleThreadedExecutor()
+    nodes: list[Node] = []
+    current = program
+    try:
+        for name, factory in factories:
+            current = name  # named in the error line if it cannot start
+            nodes.append(factory())
+            executor.add_node(nodes[-1])
+        current = program
+        any_finished = Future()
+        for node in nodes:
+            finished = getattr(node, "finished", None)
+            if finished is not None:
+                finished.add_done_callback(
+                    lambda f: any_finished.done() or any_finished.set_result(f.result())
+                )
+        spin_until_done(executor, any_finished)
+        return int(any_finished.result()) if any_finished.done() else 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    except USER_ERRORS as error:
+        if not rclpy.ok():  # shutting down (a signal) while a node was busy
+            return 0
+        rclpy.logging.get_logger(current).error(str(error))
+        return 2
+    except Exception:
+        if not rclpy.ok():  # Ctrl-C or SIGTERM in the middle of a callback or set-up
+            return 0
+        raise
+    finally:
+        _quiet_signals()
+        for node in nodes:
+            try:
+                node.destroy_node()
+            except Exception:  # the context may already be gone
+                pass
+        executor.shutdown(timeout_sec=1.0)
+        rclpy.try_shutdown()
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
@@ -39,28 +127,5 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     Bad parameters and other user errors are logged as one error line (status 2);
     Ctrl-C and SIGTERM end the node cleanly (status 0).
     """
-    if not init_ros(args, getattr(factory, "NODE_NAME", "node")):
-        return 2
-    executor = SingleThreadedExecutor()
-    node = None
-    try:
-        node = factory()
-        executor.add_node(node)
-        finished = getattr(node, "finished", None) or Future()
-        executor.spin_until_future_complete(finished)
-        return int(finished.result()) if finished.done() else 0
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    except USER_ERRORS as error:
-        name = node.get_name() if node is not None else getattr(factory, "NODE_NAME", "node")
-        rclpy.logging.get_logger(name).error(str(error))
-        return 2
-    except Exception:
-        if not rclpy.ok():  # Ctrl-C or SIGTERM while the node was being set up
-            return 0
-        raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    name = getattr(factory, "NODE_NAME", "node")
+    return run_nodes([(name, factory)], name, args)

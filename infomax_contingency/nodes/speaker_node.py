@@ -39,6 +39,7 @@ from infomax_contingency.audio.live import (
     SpeakerOutput,
 )
 from infomax_contingency.audio.signal import read_wav
+from infomax_contingency.core.stepclock import RecentEvents
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STREAM_QOS
@@ -102,6 +103,8 @@ class SpeakerNode(GraphNode):
                 ) from None
             self.create_timer(EVENTS_POLL_S, self._publish_starts)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.output_errors = RecentEvents()
+        self._intruders: dict[str, list[str]] = {}
         self.start_diagnostics()
 
     def _on_vocalize(self, msg: Bool, stamp: int) -> None:
@@ -134,15 +137,30 @@ class SpeakerNode(GraphNode):
             self.speaker.close()
         super().destroy_node()
 
+    def publish_diagnostics(self) -> None:
+        """Check for a second publisher of commands, then publish."""
+        self._intruders = self.extra_publishers(("vocalize",))
+        for topic, names in self._intruders.items():
+            self.warn_intrusion(
+                f"{len(names)} publishers on '{topic}': {', '.join(names)}; the speaker obeys"
+                " every one of them"
+            )
+        super().publish_diagnostics()
+
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
-        """Device, vocalizations, sounds played, output errors, start delay."""
+        """Device, vocalizations, sounds played, output errors, start delay, intruders."""
         values: dict[str, Any] = {"dry_run": self.dry_run, "requests": self.requests}
+        for topic, names in self._intruders.items():
+            values[f"publishers_{topic}"] = ", ".join(names)
+        if self._intruders:
+            return ERROR, "more than one publisher on 'vocalize'", values
         if self.speaker is None:
             values["played"] = 0
             return OK, f"{self.requests} vocalizations (dry run)", values
         status = self.speaker.status()
         values.update(status.as_dict())
         values["start_delay_s"] = self.start_delay_s
+        self.output_errors.note(self.now_s(), status.errors - self._errors_reported)
         new_errors = status.errors > self._errors_reported
         self._errors_reported = status.errors
         if status.state != CONNECTED:
@@ -153,7 +171,7 @@ class SpeakerNode(GraphNode):
             )
         if new_errors:
             return ERROR, f"output errors: {status.last_error}", values
-        if status.errors or status.underflows:
+        if self.output_errors.recent(self.now_s()):
             return WARN, f"{status.errors} output errors, {status.underflows} underflows", values
         return OK, f"{status.played} sounds played for {self.requests} vocalizations", values
 

@@ -5,7 +5,8 @@
   parameters in one ROS parameter file, their output in log files, and stops them with
   SIGINT (then SIGTERM, then SIGKILL).
 * :class:`StepRecorder` is a node that records the step-clock topics (``sound``,
-  ``sound_energy``, ``vocalize``, ``belief``, ``posture``, ``partner_present``) with the
+  ``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
+  ``posture``, ``partner_present``) with the
   time each message arrived and the time it was published.
 
 This module imports rclpy; the callers set ``ROS_AUTOMATIC_DISCOVERY_RANGE`` and
@@ -27,7 +28,7 @@ from typing import Any
 import yaml
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, String
+from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
 
@@ -42,8 +43,8 @@ NODES = (
 """Node executables (module names under ``infomax_contingency.nodes``)."""
 
 PUBLISHES: dict[str, tuple[str, ...]] = {
-    "mic_node": ("sound", "sound_energy"),
-    "controller_node": ("vocalize",),
+    "mic_node": ("sound", "sound_step", "sound_energy"),
+    "controller_node": ("vocalize", "vocalize_step"),
     "belief_node": ("belief",),
     "posture_node": ("posture", "joint_targets"),
     "fake_audio_node": ("audio", "partner_present"),
@@ -87,29 +88,46 @@ class GraphProcesses:
         """Nodes stopped on purpose (not reported by :meth:`dead`)."""
         self._starts = 0
 
-    def command(self, node: str, parameters: Mapping[str, Any]) -> list[str]:
-        """The command line of ``node`` with ``parameters`` in a fresh parameter file."""
+    def command(
+        self, node: str, parameters: Mapping[str, Any], name: str | None = None
+    ) -> list[str]:
+        """The command line of ``node`` with ``parameters`` in a fresh parameter file.
+
+        ``name`` renames the node (``-r __node:=name``): a second instance of a node.
+        """
         if node not in NODES:
             raise ValueError(f"unknown node {node!r}; nodes: {', '.join(NODES)}")
         self._starts += 1
-        path = self.workdir / f"{node}.{self._starts}.params.yaml"
-        path.write_text(yaml.safe_dump({node: {"ros__parameters": dict(parameters)}}))
+        name = name or node
+        path = self.workdir / f"{name}.{self._starts}.params.yaml"
+        path.write_text(yaml.safe_dump({name: {"ros__parameters": dict(parameters)}}))
         files = [arg for file in (*self.parameter_files, path) for arg in ("--params-file", file)]
-        return [*self.executable(node), "--ros-args", *map(str, files)]
+        rename = ["-r", f"__node:={name}"] if name != node else []
+        return [*self.executable(node), "--ros-args", *map(str, files), *rename]
 
-    def start(self, node: str, parameters: Mapping[str, Any] | None = None) -> subprocess.Popen:
-        """Start ``node`` (replacing a stopped process of the same name)."""
-        if node in self.processes and self.processes[node].poll() is None:
-            raise RuntimeError(f"{node} is already running")
-        command = self.command(node, parameters or {})
-        log = (self.workdir / f"{node}.log").open("ab")
+    def start(
+        self, node: str, parameters: Mapping[str, Any] | None = None, name: str | None = None
+    ) -> subprocess.Popen:
+        """Start ``node`` (as ``name``, default its own; replacing a stopped process)."""
+        name = name or node
+        if name in self.processes and self.processes[name].poll() is None:
+            raise RuntimeError(f"{name} is already running")
+        command = self.command(node, parameters or {}, name)
+        log = (self.workdir / f"{name}.log").open("ab")
         process = subprocess.Popen(
             command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env
         )
         log.close()
-        self.processes[node] = process
-        self.stopped.discard(node)
+        self.processes[name] = process
+        self.stopped.discard(name)
         return process
+
+    def kill(self, name: str) -> None:
+        """Kill ``name`` with SIGKILL (no clean-up: a crash) and wait for it."""
+        process = self.processes[name]
+        self.stopped.add(name)
+        process.kill()
+        process.wait()
 
     def log(self, node: str) -> str:
         """What the node printed so far."""
@@ -167,9 +185,10 @@ class StepRecorder(Node):
     """Records the step-clock topics as they arrive.
 
     Attributes (lists, in arrival order): ``sound``, ``energy``, ``vocalize``, ``belief``,
-    ``partner_present``, ``posture`` (every posture message, with the number of beliefs
-    received before it); ``times[topic]``: ``(received, published)`` per message, both
-    system-clock nanoseconds (DDS reception and source timestamps).
+    ``partner_present``, ``sound_step`` and ``vocalize_step`` (tuples of their fields),
+    ``posture`` (every posture message, with the number of beliefs received before it);
+    ``times[topic]``: ``(received, published)`` per message, both system-clock
+    nanoseconds (DDS reception and source timestamps).
 
     Args:
         name: node name.
@@ -185,6 +204,8 @@ class StepRecorder(Node):
         self.belief: list[float] = []
         self.partner_present: list[bool] = []
         self.posture: list[tuple[int, str]] = []
+        self.sound_step: list[tuple[int, ...]] = []
+        self.vocalize_step: list[tuple[int, ...]] = []
         self.times: dict[str, list[tuple[float, int]]] = {}
         self.on_message: Callable[[str], None] | None = None
         for topic, kind, store, qos in (
@@ -194,6 +215,8 @@ class StepRecorder(Node):
             ("belief", Float64, self.belief, STREAM_QOS),
             ("partner_present", Bool, self.partner_present, STREAM_QOS),
             ("posture", String, None, LATCHED_READER_QOS),
+            ("sound_step", Int64MultiArray, self.sound_step, STREAM_QOS),
+            ("vocalize_step", Int64MultiArray, self.vocalize_step, STREAM_QOS),
         ):
             self.times[topic] = []
             self.create_subscription(kind, topic, self._recorder(topic, store), qos)
@@ -211,6 +234,8 @@ class StepRecorder(Node):
                 self.times[topic].append((received, int(info.get("source_timestamp", 0))))
                 if topic == "posture":
                     self.posture.append((len(self.belief), msg.data))
+                elif isinstance(msg, Int64MultiArray):
+                    store.append(tuple(int(v) for v in msg.data))
                 elif store is not None:
                     store.append(msg.data)
             if self.on_message is not None:

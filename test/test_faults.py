@@ -1,0 +1,338 @@
+"""Fault injection: the node graph as separate processes over DDS, attacked as in real use.
+
+Stray and intruding publishers, a second microphone or controller, a 1 kHz rogue,
+audio in any chunking, nodes killed with SIGKILL and restarted. After each fault the
+belief stream must equal an offline recomputation from the true bits and decisions (the
+followed microphone stream and controller, as recorded), step for step, and the
+diagnostics must name the fault while it lasts and return to OK once it is over.
+
+The test process records the topics on a hand-stepped executor: every wait is a
+condition on what was received (with a deadline as a guard), never a sleep.
+"""
+
+from __future__ import annotations
+
+import array
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.duration import Duration
+from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
+
+from infomax_contingency.audio.signal import window_energies_db
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.nodes.step_topics import (
+    StepBit,
+    StepDecision,
+    bit_message,
+    decision_message,
+)
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
+from infomax_contingency.testing.stepped import Probe, SteppedExecutor
+
+pytestmark = pytest.mark.slow
+
+ROBOT = ModelParams.named("robot")
+MEMORY = 60
+TIMEOUT_S = 1.0
+"""source_timeout_s of the nodes: a silent stream or controller is replaced after this."""
+
+MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
+       "wait_for_listeners": 3, "start_delay_s": 0.2}  # fmt: skip
+ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, "start_delay_s": 0.2,
+        "source_timeout_s": TIMEOUT_S, "lockstep_timeout_s": 2.0}  # fmt: skip
+BELIEF = {"memory_steps": MEMORY, "source_timeout_s": TIMEOUT_S}
+CONTROLLER = {"source_timeout_s": TIMEOUT_S}
+
+
+@dataclass
+class FaultGraph:
+    """Node processes, and a recorder and probe on the test's hand-stepped executor."""
+
+    processes: GraphProcesses
+    recorder: StepRecorder
+    probe: Probe
+    diagnostics: list[DiagnosticArray]
+    steps: SteppedExecutor
+
+    def start(self, nodes: dict[str, dict[str, Any]], clock: str) -> None:
+        """Start the nodes, the clock node last, once the others reach the recorder."""
+        others = [name for name in nodes if name != clock]
+        for name in others:
+            self.processes.start(name, nodes[name])
+        self.run_until(lambda: self.recorder.sees(others), f"{others} connected")
+        self.processes.start(clock, nodes[clock])
+
+    def run_until(self, condition: Any, what: str, deadline_s: float = 90.0) -> None:
+        """Step until ``condition``; fail with the nodes' logs if a node died or time ran out."""
+
+        def holds() -> bool:
+            dead = self.processes.dead()
+            if dead:
+                pytest.fail(f"while waiting for {what}: {self.processes.report()}")
+            return bool(condition())
+
+        try:
+            self.steps.run_until(holds, what, deadline_s)
+        except AssertionError as error:
+            statuses = {s.name: (s.level, s.message, {v.key: v.value for v in s.values})
+                        for a in self.diagnostics[-12:] for s in a.status}  # fmt: skip
+            pytest.fail(f"{error}; received {self.recorder.counts()}; last diagnostics {statuses}")
+
+    def status(self, node: str) -> DiagnosticStatus | None:
+        """The last diagnostics of ``node`` (its status name starts with it)."""
+        for array_message in reversed(self.diagnostics):
+            for status in array_message.status:
+                if status.name.startswith(f"{node}:"):
+                    return status
+        return None
+
+    def wait_status(self, node: str, level: bytes, text: str = "") -> DiagnosticStatus:
+        """Step until ``node`` reports ``level`` with ``text`` in its message or values."""
+        found: list[DiagnosticStatus] = []
+
+        def reported() -> bool:
+            status = self.status(node)
+            if status is None or status.level != level:
+                return False
+            words = status.message + " ".join(f"{v.key}={v.value}" for v in status.values)
+            if text not in words:
+                return False
+            found.append(status)
+            return True
+
+        self.run_until(reported, f"{node} to report level {level!r} with {text!r}")
+        return found[-1]
+
+    def beliefs_since(self, published_after_ns: int) -> list[float]:
+        """Beliefs published after a moment (system-clock ns): one incarnation's."""
+        times = self.recorder.times["belief"]
+        return [b for b, (_, sent) in zip(self.recorder.belief, times, strict=True)
+                if sent > published_after_ns]  # fmt: skip
+
+
+@pytest.fixture
+def graph(tmp_path: Path) -> Iterator[FaultGraph]:
+    rclpy.init()
+    recorder = StepRecorder()
+    probe = Probe()
+    diagnostics = probe.listen("/diagnostics", DiagnosticArray, 100)
+    steps = SteppedExecutor([recorder, probe])
+    processes = GraphProcesses(tmp_path)
+    try:
+        yield FaultGraph(processes, recorder, probe, diagnostics, steps)
+    finally:
+        processes.stop_all()
+        steps.close()
+        rclpy.try_shutdown()
+
+
+def _room_graph() -> dict[str, dict[str, Any]]:
+    return {"mic_node": MIC, "controller_node": CONTROLLER, "belief_node": BELIEF,
+            "fake_audio_node": ROOM}  # fmt: skip
+
+
+def _true_sources(recorder: StepRecorder) -> tuple[int, int]:
+    """The first stream and the first controller recorded: the true ones."""
+    return recorder.sound_step[0][0], recorder.vocalize_step[0][3]
+
+
+def _offline(segments: list[tuple[list, bool]]) -> list[float]:
+    """Beliefs from ``(steps, how)`` segments of ``(y, u)`` pairs (None: missing).
+
+    ``how`` is ``"start"`` (a fresh statistic at a stream's first step), ``"joined"``
+    (zero counts in the middle of a stream: timer unknown) or ``"new stream"`` (counts
+    kept across a gap of unknown length).
+    """
+    tracker = StatisticTracker(ROBOT, memory=MEMORY)
+    beliefs = []
+    for pairs, how in segments:
+        if how == "joined":
+            tracker.forget_timer_completely()
+        elif how == "new stream":
+            tracker.forget_timer()
+        for y, u in pairs:
+            tracker.skip_observation() if y is None else tracker.observe(y)
+            beliefs.append(tracker.statistic.belief(ROBOT))
+            tracker.act_unknown() if u is None else tracker.act(u)
+    return beliefs
+
+
+def _pairs(recorder: StepRecorder, stream: int, controllers: set[int], first: int,
+           last: int) -> list[tuple]:  # fmt: skip
+    bits = {s: bool(y) for st, s, y, _ in recorder.sound_step if st == stream}
+    decisions = {s: bool(u) for st, s, u, c in recorder.vocalize_step
+                 if st == stream and c in controllers}  # fmt: skip
+    return [(bits.get(s), decisions.get(s)) for s in range(first, last + 1)]
+
+
+def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGraph) -> None:
+    rec = graph.recorder
+    graph.start(_room_graph(), clock="fake_audio_node")
+    graph.run_until(lambda: len(rec.belief) >= 100, "100 steps")
+    graph.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # 1. one stray message on the plain command topic (`ros2 topic pub --once /vocalize`)
+    stray = graph.probe.talk("vocalize", Bool)
+    graph.run_until(lambda: rec.count_publishers("vocalize") == 2, "the stray publisher")
+    stray.publish(Bool(data=False))
+    graph.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
+    graph.probe.destroy_publisher(stray)
+    graph.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # 2. a second mic_node and 3. a second controller_node, each started and stopped
+    for node, name, parameters, topic in (
+        ("mic_node", "mic_node_2", {**MIC, "wait_for_listeners": 0}, "sound_step"),
+        ("controller_node", "controller_node_2", CONTROLLER, "vocalize_step"),
+    ):
+        graph.processes.start(node, parameters, name=name)
+        graph.wait_status("belief_node", DiagnosticStatus.ERROR, f"/{name}")
+        assert topic in graph.status("belief_node").message
+        steps_before = len(rec.belief)
+        graph.run_until(lambda n=steps_before: len(rec.belief) > n + 50, "50 steps meanwhile")
+        graph.processes.stop(name)
+        graph.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # 4. a rogue that floods both stamped topics (stream and controller of its own)
+    bits, decisions = graph.probe.talk("sound_step", Int64MultiArray), graph.probe.talk(
+        "vocalize_step", Int64MultiArray)  # fmt: skip
+    graph.run_until(lambda: bits.get_subscription_count() >= 3, "the rogue connected")
+    stream, controller = _true_sources(rec)
+    for i in range(1, 2001):
+        bits.publish(bit_message(StepBit(424242, i, bool(i % 2), 500_000)))
+        decisions.publish(decision_message(StepDecision(stream, i, True, 99)))
+        if i % 100 == 0:
+            graph.steps.run_for_callbacks(50)
+    status = graph.wait_status("belief_node", DiagnosticStatus.ERROR, "second stream")
+    values = {v.key: v.value for v in status.values}
+    assert int(values["pending_bits"]) < 50 and int(values["pending_decisions"]) < 50
+    graph.probe.destroy_publisher(bits)
+    graph.probe.destroy_publisher(decisions)
+    graph.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # the run ends: every step of the true stream is in the belief, exactly
+    graph.processes.stop("fake_audio_node")
+    last = max(s for st, s, *_ in rec.sound_step if st == stream)
+    graph.run_until(lambda: len(rec.belief) >= last, "the last belief")
+    expected = _offline([(_pairs(rec, stream, {controller}, 1, last), "start")])
+    assert len(rec.belief) == last
+    assert np.allclose(rec.belief, expected, rtol=0, atol=1e-12)
+    values = {v.key: v.value for v in graph.status("belief_node").values}
+    assert values["missing_bits"] == values["missing_decisions"] == "0"
+    assert int(values["foreign_messages"]) > 2000
+
+
+def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
+    graph: FaultGraph,
+) -> None:
+    rec = graph.recorder
+    graph.start(_room_graph(), clock="fake_audio_node")
+    graph.run_until(lambda: len(rec.belief) >= 80, "80 steps")
+
+    # the belief node dies and comes back: zero counts from the step it joins at
+    graph.processes.kill("belief_node")
+    restarted_ns = rclpy.clock.Clock().now().nanoseconds
+    graph.processes.start("belief_node", BELIEF)
+    graph.run_until(lambda: len(graph.beliefs_since(restarted_ns)) >= 60, "60 new beliefs")
+    joined = re.search(r"joined the stream at step (\d+)", graph.processes.log("belief_node"))
+    assert joined, graph.processes.log("belief_node")
+    join_step = int(joined.group(1))
+
+    # the controller dies; a new one starts once the room has timed out waiting for it
+    graph.processes.kill("controller_node")
+    graph.wait_status("fake_audio_node", DiagnosticStatus.WARN, "controller_node is not running")
+    graph.processes.start("controller_node", CONTROLLER)
+    answered = len(rec.vocalize_step)
+    graph.run_until(lambda: len(rec.vocalize_step) > answered + 60, "60 new decisions")
+
+    # the microphone dies; a new one (a new stream) starts once the room has timed out
+    graph.processes.kill("mic_node")
+    graph.wait_status("fake_audio_node", DiagnosticStatus.WARN, "mic_node is not running")
+    graph.processes.start("mic_node", MIC)
+    streams = lambda: {st for st, *_ in rec.sound_step}  # noqa: E731
+    graph.run_until(lambda: len(streams()) == 2, "the new stream")
+    graph.run_until(lambda: sum(st == rec.sound_step[-1][0] for st, *_ in rec.sound_step) > 60,
+                    "60 steps of the new stream")  # fmt: skip
+    graph.processes.stop("fake_audio_node")
+
+    first_stream = rec.sound_step[0][0]
+    second_stream = rec.sound_step[-1][0]
+    controllers = {c for *_, c in rec.vocalize_step}
+    assert len(controllers) == 2
+    last_a = max(s for st, s, *_ in rec.sound_step if st == first_stream)
+    last_b = max(s for st, s, *_ in rec.sound_step if st == second_stream)
+    first_b = min(s for st, s, *_ in rec.sound_step if st == second_stream)
+    pairs_a = _pairs(rec, first_stream, controllers, join_step, last_a)
+    while pairs_a and pairs_a[-1][1] is None:  # the last bits of a dead stream: never applied
+        pairs_a.pop()
+    pairs_b = _pairs(rec, second_stream, controllers, first_b, last_b)
+    expected = _offline([(pairs_a, "joined"), (pairs_b, "new stream")])
+    graph.run_until(lambda: len(graph.beliefs_since(restarted_ns)) >= len(expected) - 1,
+                    "the last beliefs")  # fmt: skip
+    got = graph.beliefs_since(restarted_ns)
+    assert np.allclose(got, expected[: len(got)], rtol=0, atol=1e-12)
+    assert len(got) >= len(expected) - 1  # the very last step may wait for its decision
+    missing = sum(u is None for _, u in pairs_a)
+    assert missing >= 1, "the controller's death leaves steps without a decision"
+    values = {v.key: v.value for v in graph.status("belief_node").values}
+    assert int(values["missing_decisions"]) >= missing and values["stream_changes"] == "1"
+    controller_values = {v.key: v.value for v in graph.status("controller_node").values}
+    assert int(controller_values["missed_steps"]) > 0
+
+
+CHUNKS_S = (0.01, 0.5, 1.0, 10.0, 30.0)
+"""Chunk lengths of the audio driver (seconds per message); then one of 10^7 samples."""
+
+
+def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs(
+    graph: FaultGraph,
+) -> None:
+    rec = graph.recorder
+    nodes = {"mic_node": {**MIC, "wait_for_listeners": 3}, "controller_node": CONTROLLER,
+             "belief_node": BELIEF}  # fmt: skip
+    for name, parameters in nodes.items():
+        graph.processes.start(name, parameters)
+    audio = graph.probe.talk("audio", Float32MultiArray)
+    graph.run_until(lambda: rec.sees(list(nodes)) and audio.get_subscription_count() >= 1,
+                    "the graph")  # fmt: skip
+    graph.wait_status("mic_node", DiagnosticStatus.OK)
+
+    room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=1.0), seed=8)
+    segments = [np.concatenate([as_transmitted(room.next_window().samples) for _ in range(60)])
+                for _ in CHUNKS_S]  # fmt: skip
+    segments.append(np.concatenate([as_transmitted(room.next_window().samples)
+                                    for _ in range(1250)]))  # one message of 10^7 samples
+    for chunk_s, samples in zip((*CHUNKS_S, None), segments, strict=True):
+        size = len(samples) if chunk_s is None else round(chunk_s * 16000)
+        for index, start in enumerate(range(0, len(samples), size)):
+            message = Float32MultiArray()
+            message.data = array.array("f", samples[start:start + size].tobytes())
+            audio.publish(message)
+            if index % 20 == 19:  # a driver keeps pace with its reader: none is overwritten
+                assert audio.wait_for_all_acked(Duration(seconds=60))
+    samples = np.concatenate(segments).astype(np.float64)
+    energies = window_energies_db(samples, 16000, 0.5)
+    graph.run_until(lambda: len(rec.belief) >= len(energies), f"{len(energies)} beliefs",
+                    deadline_s=300)  # fmt: skip
+
+    bits = [bool(e > -40.0) for e in energies]
+    assert [y for _, _, y, _ in rec.sound_step] == bits
+    controller = PolicyController(PolicyTable.load(resource_path(
+        "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
+    decisions = [bool(controller.step(int(y))) for y in bits]
+    assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
+    expected = _offline([(list(zip(bits, decisions, strict=True)), "start")])
+    assert np.allclose(rec.belief, expected, rtol=0, atol=1e-12)
+    values = {v.key: v.value for v in graph.status("mic_node").values}
+    assert values["windows_dropped"] == "0" and values["dropped_chunks"] == "0"
