@@ -482,12 +482,12 @@ class MicNode(GraphNode):
             self.losses.note(self.now_s())
 
     def _window(self, energy_db: float) -> None:
-        """A window was made: publish its energy; its bit (after calibration) waits to go out."""
+        """A window was made: its bit (after calibration) waits in the outbox to go out."""
         self.last_energy_db = energy_db
-        self.energy_pub.publish(Float32(data=energy_db))
         was_calibrating = self.binarizer.calibrating
         bit = self.binarizer.push(energy_db)
-        if bit is None:
+        if bit is None:  # a calibration window: its energy only
+            self.energy_pub.publish(Float32(data=energy_db))
             return
         if was_calibrating:
             fit = self.binarizer.fit
@@ -496,7 +496,7 @@ class MicNode(GraphNode):
                 f" dB, sound {fit.high_mean_db:.1f} dB)"
             )
         dropped = self.outbox.dropped
-        self.outbox.push(bit)
+        self.outbox.push((energy_db, bit))
         if self.outbox.dropped > dropped:
             self.losses.note(self.now_s())
             self.get_logger().warning(
@@ -507,12 +507,13 @@ class MicNode(GraphNode):
         self._release()
 
     def _release(self) -> None:
-        """Publish the windows the outbox lets go now, as steps."""
+        """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
         if not self.started or self.finished.done():
             return
         paced = self._decisions_sub.get_publisher_count() > 0
-        for step, bit in self.outbox.release(paced):
+        for step, (energy_db, bit) in self.outbox.release(paced):
             self.windows += 1
+            self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(
                 bit_message(StepBit(self.stream_id, step, bit, self.window_us))
