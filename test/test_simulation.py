@@ -27,8 +27,9 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.solver import solve_episodic, solve_receding
 from infomax_contingency.core.statespace import count_tuples
 from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.rooms import ROOM_NAMES, ROOMS
 from infomax_contingency.sim.simulation import RunSummary, iter_simulate, simulate
-from infomax_contingency.sim.world import make_room
+from infomax_contingency.sim.world import make_room, named_room
 
 PAPER = ModelParams.named("paper")
 ROBOT = ModelParams.named("robot")
@@ -136,6 +137,33 @@ def test_rooms() -> None:
         ("responsive:k9=0.1", "unknown option"),
         ("baby9:reply=7", "agent period"),
         ("silent:k3", "key=value"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            make_room(spec, ROBOT, rng)
+
+
+def test_every_registered_room_is_made_with_its_stated_rates() -> None:
+    rng = np.random.default_rng(0)
+    z_self, z_agent, z_background = 0, ROBOT.ta1, ROBOT.timer_long_ago
+    assert ROOM_NAMES[:5] == ("prior", "responsive", "silent", "noisy", "baby9")
+    for name, kind in ROOMS.items():
+        room = make_room(name, ROBOT, rng)
+        assert room.name == name
+        if kind.partner_present is not None:
+            assert room.partner_present == kind.partner_present, name
+        if kind.rates is not None:
+            k2 = kind.rates.k3 if kind.rates.k2 is None else kind.rates.k2
+            expected = (kind.rates.k1, k2, kind.rates.k3)
+            assert (room.rates[z_self], room.rates[z_agent], room.rates[z_background]) == expected
+    # the rooms of the efficiency experiment, by either name
+    for name in ("quiet", "office+partner", "poster-session"):
+        assert make_room(name, ROBOT, rng) == named_room(ROBOT, name)
+    assert make_room("office+partner", ROBOT, rng).rates[z_agent] == pytest.approx(0.68)
+    assert make_room("noisy:k3=0.3", ROBOT, rng).rates[z_agent] == 0.3  # no partner: k2 = k3
+    for spec, message in [
+        ("quiet:k2=0.5", "unknown option"),
+        ("responsive:k2=lots", "k2 must be a number"),
+        ("prior:k1=0.5", "unknown option"),
     ]:
         with pytest.raises(ValueError, match=message):
             make_room(spec, ROBOT, rng)

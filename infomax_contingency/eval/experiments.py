@@ -66,8 +66,9 @@ from infomax_contingency.core.solver import (
 )
 from infomax_contingency.core.statespace import count_tuples, n_count_tuples
 from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.rooms import NAMED_BACKGROUNDS, PARTNER_REPLY, SELF_HEARING
 from infomax_contingency.sim.simulation import simulate
-from infomax_contingency.sim.world import Room, make_room, room_from_rates
+from infomax_contingency.sim.world import Room, make_room, named_room
 
 # --------------------------------------------------------------------------------------
 # Policy tables: committed, cached, or solved now
@@ -466,33 +467,11 @@ def experiment_horizon(
 # --------------------------------------------------------------------------------------
 # Experiment 6: detection efficiency in simulated rooms
 
-NAMED_BACKGROUNDS = {"quiet": 0.05, "office": 0.2, "poster-session": 0.5}
-"""Background activity of the named rooms: P(window active) outside the agent period."""
-
-PARTNER_REPLY = 0.6
-"""P(a present partner makes an agent-period window active): the window is active if the
-partner replies or the background is active, ``k2 = 1 - (1 - k3)(1 - PARTNER_REPLY)``."""
-
-SELF_HEARING = 0.9
-"""P(the robot hears itself in a self-feedback window), ``k1``."""
-
 PRIOR_ROOM_SPEC = "prior:pi=0.5"
 """Rooms drawn from the model's priors, with a partner in half of them (in expectation)."""
 
 SWITCHES = {"leaves": ("office+partner", "office"), "arrives": ("office", "office+partner")}
 """Scenarios of a changing room: (room before, room after) the switch."""
-
-
-def named_room(params: ModelParams, name: str) -> Room:
-    """``quiet``, ``office``, ``poster-session``, each optionally ``+partner`` (see above)."""
-    base, _, suffix = name.partition("+")
-    if base not in NAMED_BACKGROUNDS or suffix not in ("", "partner"):
-        choices = ", ".join(f"{n}[+partner]" for n in NAMED_BACKGROUNDS)
-        raise ValueError(f"unknown named room {name!r}; rooms: {choices}")
-    k3 = NAMED_BACKGROUNDS[base]
-    partner = suffix == "partner"
-    k2 = 1.0 - (1.0 - k3) * (1.0 - PARTNER_REPLY) if partner else k3
-    return room_from_rates(params, name, partner, SELF_HEARING, k2, k3)
 
 
 @dataclasses.dataclass

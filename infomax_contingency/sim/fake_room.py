@@ -45,6 +45,7 @@ from infomax_contingency.audio.signal import (
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
@@ -125,12 +126,11 @@ class FakeRoomConfig:
 
 
 PRESETS: dict[str, dict[str, Any]] = {
-    "responsive": {"partner_arrive_s": 0.0, "partner_leave_s": -1.0, "event_rate_hz": 0.1},
-    "silent": {"partner_arrive_s": -1.0, "event_rate_hz": 0.02},
-    "noisy": {"partner_arrive_s": -1.0, "event_rate_hz": 1.0},
+    name: dict(ROOMS[name].audio or {}) for name in AUDIO_ROOM_NAMES
 }
-"""Named rooms: a responsive partner in a fairly quiet room; nobody in a quiet room;
-nobody in a busy room (about half the windows hold a sound)."""
+"""Named rooms (the registry's rooms with an audio-level preset): a responsive partner in a
+fairly quiet room; nobody in a quiet room; nobody in a busy room (about half the windows
+hold a sound). See :data:`infomax_contingency.sim.rooms.ROOMS`."""
 
 
 def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
