@@ -396,3 +396,28 @@ def test_command_defaults_are_the_experiment_configs() -> None:
         n.evaluate_growth,
         n.target,
     )
+
+
+LENGTH_CHECKED = ("sim", "eval", "cli/experiments.py")
+"""Where no function may grow past :data:`MAX_FUNCTION_LINES` (issue 8)."""
+
+MAX_FUNCTION_LINES = 80
+
+
+def test_simulation_and_evaluation_functions_stay_short() -> None:
+    import ast
+    from pathlib import Path
+
+    package = Path(evaluation.__file__).resolve().parent.parent
+    paths = []
+    for place in LENGTH_CHECKED:
+        target = package / place
+        paths += sorted(target.glob("*.py")) if target.is_dir() else [target]
+    long_ones = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    long_ones.append(f"{path.relative_to(package)}:{node.lineno} {node.name}")
+    assert len(paths) > 5 and long_ones == []

@@ -281,17 +281,8 @@ def _ci(pair: Any, digits: int = 3) -> str:
     return f"[{_number(pair[0], digits)}, {_number(pair[1], digits)}]"
 
 
-def print_efficiency(result: dict) -> None:
-    """The efficiency tables, readable."""
-    config, dt = result["config"], result["dt"]
-    print(
-        f"detection efficiency: {config['params_name']} parameters (dt = {dt} s), runs of"
-        f" {config['steps']} windows ({config['steps'] * dt:g} s), seed {config['seed']}"
-    )
-    print(
-        f"best fixed interval K = {result['best_fixed_interval']} (least restricted mean"
-        f" detection time on {config['tuning_rooms']} tuning rooms)"
-    )
+def _print_prior_rooms(result: dict) -> None:
+    """Table A: rooms drawn from the prior (entropy, accuracy, detection, false alarms)."""
     summaries = result["summaries"]
     print(
         f"\nA. rooms drawn from the prior (partner in half of them); 95 % intervals;"
@@ -321,11 +312,21 @@ def print_efficiency(result: dict) -> None:
             f" {_ci(partner['detection_s_restricted_mean_ci']):>13}"
             f" {empty['false_alarm_rate']:>9.1%}"
         )
+
+
+def _partner_rooms(result: dict) -> list[str]:
+    """The named rooms with a partner, in table order."""
+    return [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
+
+
+def _print_named_rooms(result: dict) -> None:
+    """Table B: named partner rooms, median seconds and vocalizations to a confident belief."""
+    summaries = result["summaries"]
     print(
         "\nB. named rooms with a partner: median seconds [95 % CI] and vocalizations to"
         " P(S=1) >= 0.95 (whole-history belief)"
     )
-    rooms = [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
+    rooms = _partner_rooms(result)
     print(f"{'controller':28}" + "".join(f" {room:>30}" for room in rooms))
     for label in result["controllers"]:
         cells = []
@@ -336,18 +337,23 @@ def print_efficiency(result: dict) -> None:
                 f" {_number(r['detection_vocalizations_median'])} voc"
             )
         print(f"{label:28}" + "".join(f" {cell:>30}" for cell in cells))
+
+
+def _print_own_belief(result: dict) -> None:
+    """Table C: the robot's own (sliding-memory) belief in named and switching rooms."""
+    summaries = result["summaries"]
     print(
         "\nC. the robot's own belief (sliding memory M, as deployed): median s to P(S=1) >="
         " 0.95 in named partner rooms (detected within the run); a partner who leaves or"
         " arrives at the middle of the run, in the runs where the robot was sure before"
     )
-    memories = result["receding_memories"]
+    rooms = _partner_rooms(result)
     print(
         f"{'controller':28}"
         + "".join(f" {room:>22}" for room in rooms)
         + f" {'leaves: s to <0.5':>24} {'arrives: s to >=0.95':>24}"
     )
-    for label in memories:
+    for label in result["receding_memories"]:
         s = summaries[label]
         cells = [
             f"{_number(s[room]['own_detection_s_median'])} s ({s[room]['own_detected']:.0%})"
@@ -362,13 +368,34 @@ def print_efficiency(result: dict) -> None:
             + "".join(f" {cell:>22}" for cell in cells)
             + "".join(f" {cell:>24}" for cell in switches)
         )
+
+
+def _print_exact_scores(result: dict) -> None:
+    """Table D: the exact episode score of each deterministic controller."""
     print(
-        f"\nD. exact episode score, T = {config['episodic_horizon']} (0 = never vocalize,"
-        " 1 = optimal; as episodic policies on the statistic, from the episode start)"
+        f"\nD. exact episode score, T = {result['config']['episodic_horizon']} (0 = never"
+        " vocalize, 1 = optimal; as episodic policies on the statistic, from the episode start)"
     )
     for label, score in result["exact_episode_scores"].items():
         text = "not a deterministic policy of (t, a)" if score is None else f"{score:.4f}"
         print(f"{label:28} {text}")
+
+
+def print_efficiency(result: dict) -> None:
+    """The efficiency tables, readable."""
+    config, dt = result["config"], result["dt"]
+    print(
+        f"detection efficiency: {config['params_name']} parameters (dt = {dt} s), runs of"
+        f" {config['steps']} windows ({config['steps'] * dt:g} s), seed {config['seed']}"
+    )
+    print(
+        f"best fixed interval K = {result['best_fixed_interval']} (least restricted mean"
+        f" detection time on {config['tuning_rooms']} tuning rooms)"
+    )
+    _print_prior_rooms(result)
+    _print_named_rooms(result)
+    _print_own_belief(result)
+    _print_exact_scores(result)
     print(f"\n({result.get('seconds', 0.0):.0f} s)")
 
 

@@ -1025,18 +1025,29 @@ class EfficiencyConfig:
     workers: int = 2
 
 
-def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = None) -> dict:
-    """Detection efficiency of every controller in prior, named and switching rooms.
+@dataclasses.dataclass(frozen=True)
+class _Contenders:
+    """The controllers of the efficiency experiment and the tables behind them.
 
-    The fixed interval K is the one with the least restricted mean detection time in the
-    partner rooms of a separate set of prior rooms; the random controller vocalizes with
-    probability 1/K (the same rate). Tables are the committed ones or solved now.
+    Attributes:
+        entries: every controller, in the order of the tables.
+        receding: the optimal receding candidates (also run in the switching rooms).
+        reference: label of the receding candidate the others' entropy is compared with.
+        episodic_table: the optimal episodic table.
+        receding_tables: label -> table of each receding candidate.
     """
-    params = ModelParams.load(config.params_name)
-    if config.switch_step >= config.steps:
-        raise ValueError("the switch step must fall inside the run (switch_step < steps)")
-    checkpoints = tuple(n for n in (10, 20, 40) if n <= config.steps)
-    common = {"checkpoints": checkpoints, "confident": config.confident, "workers": config.workers}
+
+    entries: list[Entry]
+    receding: list[Entry]
+    reference: str
+    episodic_table: PolicyTable
+    receding_tables: dict[str, PolicyTable]
+
+
+def _tune_fixed_interval(
+    params: ModelParams, config: EfficiencyConfig, common: dict
+) -> tuple[dict[int, float], int]:
+    """Restricted mean detection seconds of each fixed interval K on the tuning rooms; best K."""
     tuning = simulate_rooms(
         params,
         [Entry(f"fixed:{k}", f"fixed:{k}") for k in config.intervals],
@@ -1052,10 +1063,13 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
             raise ValueError("the tuning rooms hold no partner room: use more tuning rooms")
         seconds = _steps_to_seconds([r["detection_step"] for r in partner], params.dt)
         tuning_seconds[k] = float(np.minimum(seconds, config.steps * params.dt).mean())
-    best_k = min(tuning_seconds, key=tuning_seconds.get)
+    return tuning_seconds, min(tuning_seconds, key=tuning_seconds.get)
 
-    if config.reference not in config.receding:
-        raise ValueError(f"the reference {config.reference} must be one of the (H, M) candidates")
+
+def _contenders(
+    params: ModelParams, config: EfficiencyConfig, best_k: int, cache_dir: Path | None
+) -> _Contenders:
+    """The optimal tables (committed or solved now), rule, greedy, fixed K and random 1/K."""
     episodic_table, path = obtain_table(params, EPISODIC, config.episodic_horizon, 0, cache_dir)
     entries = [Entry(f"optimal episodic T={config.episodic_horizon}", f"policy:{path}")]
     receding, receding_tables = [], {}
@@ -1064,24 +1078,37 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
         label = f"optimal receding H={horizon} M={memory}"
         receding.append(Entry(label, f"policy:{path}", memory))
         receding_tables[label] = table
-    reference = f"optimal receding H={config.reference[0]} M={config.reference[1]}"
     entries += receding + [
         Entry("rule c=9", "rule:9"),
         Entry("greedy", "greedy"),
         Entry(f"fixed K={best_k}", f"fixed:{best_k}"),
         Entry(f"random P=1/{best_k}", f"random:{1.0 / best_k!r}"),
     ]
+    reference = f"optimal receding H={config.reference[0]} M={config.reference[1]}"
+    return _Contenders(entries, receding, reference, episodic_table, receding_tables)
+
+
+def _efficiency_rows(
+    params: ModelParams, config: EfficiencyConfig, contenders: _Contenders, common: dict
+) -> list[dict]:
+    """Every controller in the prior and named rooms; the receding ones in switching rooms."""
     rooms = [PRIOR_ROOM_SPEC] * config.prior_rooms
     for name in NAMED_BACKGROUNDS:
         rooms += [name] * config.named_runs + [f"{name}+partner"] * config.named_runs
-    rows = simulate_rooms(params, entries, rooms, config.steps, config.seed, **common)
+    rows = simulate_rooms(params, contenders.entries, rooms, config.steps, config.seed, **common)
     switch_specs = [
         f"{scenario}@{config.switch_step}"
         for scenario in SWITCHES
         for _ in range(config.switch_runs)
     ]
-    rows += simulate_rooms(params, receding, switch_specs, config.steps, config.seed + 2, **common)
+    rows += simulate_rooms(
+        params, contenders.receding, switch_specs, config.steps, config.seed + 2, **common
+    )
+    return rows
 
+
+def _room_groups() -> dict[str, Callable[[dict], bool]]:
+    """The groups of rooms a controller is summarised over: name -> which rows it holds."""
     groups: dict[str, Callable[[dict], bool]] = {
         "prior, partner": lambda row: row["spec"] == PRIOR_ROOM_SPEC and row["partner"],
         "prior, no partner": lambda row: row["spec"] == PRIOR_ROOM_SPEC and not row["partner"],
@@ -1091,11 +1118,25 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
             groups[room_name] = lambda row, room_name=room_name: row["spec"] == room_name
     for scenario in SWITCHES:
         groups[f"partner {scenario}"] = lambda row, s=scenario: row["spec"].startswith(f"{s}@")
-    summaries = {}
+    return groups
+
+
+def _efficiency_summaries(
+    params: ModelParams,
+    config: EfficiencyConfig,
+    contenders: _Contenders,
+    rows: Sequence[dict],
+    checkpoints: Sequence[int],
+) -> dict[str, dict]:
+    """Per controller: prior-weighted entropy (and minus the reference's), each group's figures."""
+    groups = _room_groups()
     reference_rows = [
-        row for row in rows if row["controller"] == reference and row["spec"] == PRIOR_ROOM_SPEC
+        row
+        for row in rows
+        if row["controller"] == contenders.reference and row["spec"] == PRIOR_ROOM_SPEC
     ]
-    for entry in entries:
+    summaries = {}
+    for entry in contenders.entries:
         mine = [row for row in rows if row["controller"] == entry.label]
         prior_rows = [row for row in mine if row["spec"] == PRIOR_ROOM_SPEC]
         weighted = prior_weighted_entropy(prior_rows, params.pi)
@@ -1112,15 +1153,25 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
                 summaries[entry.label][group] = summarise(
                     selected, params.dt, config.steps, checkpoints, config.seed
                 )
-    policies: dict[str, ActionsByStep | None] = {entries[0].label: table_actions(episodic_table)}
-    for label, table in receding_tables.items():
+    return summaries
+
+
+def _exact_episode_scores(
+    params: ModelParams, config: EfficiencyConfig, contenders: _Contenders, best_k: int
+) -> dict[str, float | None]:
+    """The exact episode score of each controller that is a deterministic policy of (t, a)."""
+    horizon = config.episodic_horizon
+    policies: dict[str, ActionsByStep | None] = {
+        contenders.entries[0].label: table_actions(contenders.episodic_table)
+    }
+    for label, table in contenders.receding_tables.items():
         layer = table.layer(0)
         policies[label] = (
             (lambda t, layer=layer: layer[:, : n_count_tuples(t)])
-            if table.memory >= config.episodic_horizon
+            if table.memory >= horizon
             else None  # its sliding memory forgets within an episode: not a policy on a_t
         )
-    greedy = greedy_actions(params, config.episodic_horizon)
+    greedy = greedy_actions(params, horizon)
     policies.update(
         {
             "rule c=9": rule_actions(params, 9.0),
@@ -1131,15 +1182,34 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
             f"random P=1/{best_k}": None,  # randomised: not a deterministic policy
         }
     )
-    scorer = Scorer(params, config.episodic_horizon)
-    exact_scores = {
+    scorer = Scorer(params, horizon)
+    return {
         label: None if actions is None else scorer.score(actions)
         for label, actions in policies.items()
     }
+
+
+def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = None) -> dict:
+    """Detection efficiency of every controller in prior, named and switching rooms.
+
+    The fixed interval K is the one with the least restricted mean detection time in the
+    partner rooms of a separate set of prior rooms; the random controller vocalizes with
+    probability 1/K (the same rate). Tables are the committed ones or solved now.
+    """
+    params = ModelParams.load(config.params_name)
+    if config.switch_step >= config.steps:
+        raise ValueError("the switch step must fall inside the run (switch_step < steps)")
+    if config.reference not in config.receding:
+        raise ValueError(f"the reference {config.reference} must be one of the (H, M) candidates")
+    checkpoints = tuple(n for n in (10, 20, 40) if n <= config.steps)
+    common = {"checkpoints": checkpoints, "confident": config.confident, "workers": config.workers}
+    tuning_seconds, best_k = _tune_fixed_interval(params, config, common)
+    contenders = _contenders(params, config, best_k, cache_dir)
+    rows = _efficiency_rows(params, config, contenders, common)
     return {
         "experiment": "efficiency",
-        "reference": reference,
-        "exact_episode_scores": exact_scores,
+        "reference": contenders.reference,
+        "exact_episode_scores": _exact_episode_scores(params, config, contenders, best_k),
         "config": dataclasses.asdict(config),
         "dt": params.dt,
         "checkpoints": list(checkpoints),
@@ -1152,7 +1222,7 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
         },
         "fixed_interval_tuning_restricted_mean_s": tuning_seconds,
         "best_fixed_interval": best_k,
-        "controllers": [entry.label for entry in entries],
-        "receding_memories": {entry.label: entry.memory for entry in receding},
-        "summaries": summaries,
+        "controllers": [entry.label for entry in contenders.entries],
+        "receding_memories": {entry.label: entry.memory for entry in contenders.receding},
+        "summaries": _efficiency_summaries(params, config, contenders, rows, checkpoints),
     }
