@@ -17,6 +17,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -511,7 +512,12 @@ def _add_efficiency_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument("--plot", help="write the comparison figure to this PNG")
 
 
-EXPERIMENTS: tuple[tuple[str, str, Any, Any], ...] = (
+ExperimentCommand = tuple[
+    str, str, Callable[[argparse.Namespace], int], Callable[[argparse.ArgumentParser], None]
+]
+"""An experiment sub-command: name, help, run function, function adding its own options."""
+
+EXPERIMENTS: tuple[ExperimentCommand, ...] = (
     ("baby9", "the baby-9 scenario (MODEL.md section 5)", _run_baby9, _add_baby9_arguments),
     (
         "rule",
@@ -533,7 +539,7 @@ EXPERIMENTS: tuple[tuple[str, str, Any, Any], ...] = (
         _add_efficiency_arguments,
     ),
 )
-"""Each experiment: name, help, run function, function adding its own options."""
+"""The experiment sub-commands, in the order of ``experiment --help``."""
 
 
 def register_experiment(subparsers: argparse._SubParsersAction) -> None:
