@@ -163,8 +163,9 @@ def test_committed_table_is_used() -> None:
 
 @pytest.mark.slow
 def test_baby9_is_deterministic_and_convinced(cache_dir) -> None:
-    result = evaluation.experiment_baby9(replies=("all", "1", "2"), cache_dir=cache_dir)
-    again = evaluation.experiment_baby9(replies=("all",), cache_dir=cache_dir)
+    three = evaluation.Baby9Config(replies=("all", "1", "2"))
+    result = evaluation.experiment_baby9(three, cache_dir)
+    again = evaluation.experiment_baby9(evaluation.Baby9Config(replies=("all",)), cache_dir)
     full, one, two = result["runs"]
     assert full["vocalization_times_s"] == again["runs"][0]["vocalization_times_s"]
     # Measured once and fixed here (docs/RESULTS.md): a regression check of the whole chain.
@@ -175,11 +176,11 @@ def test_baby9_is_deterministic_and_convinced(cache_dir) -> None:
     assert one["final_belief"] < full["final_belief"]
     assert one["vocalization_times_s"] == two["vocalization_times_s"]
     with pytest.raises(ValueError, match="memory"):
-        evaluation.experiment_baby9(memory=20, cache_dir=cache_dir)
+        evaluation.experiment_baby9(evaluation.Baby9Config(memory=20), cache_dir)
 
 
 def test_rule_experiment_small(cache_dir) -> None:
-    result = evaluation.experiment_rule("paper", 12, 5, 8, 9.0, cache_dir)
+    result = evaluation.experiment_rule(evaluation.RuleConfig("paper", 12, 5, 8, 9.0), cache_dir)
     for measure in result["measures"].values():
         assert 0.0 < measure["agreement"] <= 1.0
         # The best c is a maximum over c, so it agrees at least as often as c = 9.
@@ -207,13 +208,15 @@ def test_greedy_never_vocalizes(params: ModelParams) -> None:
 
 
 def test_greedy_and_horizon_experiments_small() -> None:
-    greedy = evaluation.experiment_greedy(("paper",), max_count=12, longest_horizon=3, steps=20)
+    greedy = evaluation.experiment_greedy(
+        evaluation.GreedyConfig(("paper",), max_count=12, longest_horizon=3, steps=20)
+    )
     entry = greedy["sets"][0]
     assert entry["greedy_vocalizing_statistics"] == 0
     assert entry["smallest_vocalizing_horizon"] == 2  # paper: one self step, then agent
     assert entry["example_next_entropy_silent_bits"] < entry["example_next_entropy_vocalize_bits"]
 
-    result = evaluation.experiment_horizon(("robot",), (2, 4, 8), 6, 20)
+    result = evaluation.experiment_horizon(evaluation.HorizonConfig(("robot",), (2, 4, 8), 6, 20))
     entry = result["sets"][0]
     assert 1 <= entry["stable_from"] <= 20
     for item in entry["horizons"]:
@@ -342,3 +345,79 @@ def test_experiment_bad_input_is_one_line(capsys: pytest.CaptureFixture) -> None
     assert error.count("\n") == 1 and "memory M = 10" in error
     assert cli.main(["experiment", "rule", "--steps", "30-20"]) == 2
     assert "first step" in capsys.readouterr().err
+
+
+def test_command_defaults_are_the_experiment_configs() -> None:
+    """Each experiment's options default to its config dataclass (stated once)."""
+    parser = cli.build_parser()
+
+    def defaults(*argv: str) -> dict:
+        return vars(parser.parse_args(list(argv)))
+
+    baby9, b = defaults("experiment", "baby9"), evaluation.Baby9Config()
+    assert (baby9["params"], baby9["horizon"], baby9["memory"], baby9["steps"]) == (
+        b.params_name,
+        b.horizon,
+        b.memory,
+        b.steps,
+    )
+    assert tuple(baby9["replies"]) == b.replies
+    rule, r = defaults("experiment", "rule"), evaluation.RuleConfig()
+    assert (rule["params"], rule["horizon"], rule["steps"], rule["c"]) == (
+        r.params_name,
+        r.horizon,
+        (r.first_step, r.last_step),
+        r.c,
+    )
+    greedy, g = defaults("experiment", "greedy"), evaluation.GreedyConfig()
+    assert (tuple(greedy["params"]), greedy["max_count"], greedy["steps"]) == (
+        g.param_names,
+        g.max_count,
+        g.steps,
+    )
+    horizon, h = defaults("experiment", "horizon"), evaluation.HorizonConfig()
+    assert (tuple(horizon["params"]), tuple(horizon["horizons"])) == (h.param_names, h.horizons)
+    assert (horizon["domain"], horizon["longest"]) == (h.domain_max_count, h.longest_horizon)
+    efficiency, e = defaults("experiment", "efficiency"), evaluation.EfficiencyConfig()
+    assert (efficiency["params"], efficiency["steps"], efficiency["workers"]) == (
+        e.params_name,
+        e.steps,
+        e.workers,
+    )
+    learn, n = defaults("learn"), evaluation.LearnConfig()
+    assert (learn["params"], learn["horizon"], learn["budget"], tuple(learn["seeds"])) == (
+        n.params_name,
+        n.horizon,
+        n.budget,
+        n.seeds,
+    )
+    assert (learn["evaluate_every"], learn["evaluate_growth"], learn["target"]) == (
+        n.evaluate_every,
+        n.evaluate_growth,
+        n.target,
+    )
+
+
+LENGTH_CHECKED = ("sim", "eval", "cli/experiments.py")
+"""Where no function may grow past :data:`MAX_FUNCTION_LINES` (issue 8)."""
+
+MAX_FUNCTION_LINES = 80
+
+
+def test_simulation_and_evaluation_functions_stay_short() -> None:
+    import ast
+    from pathlib import Path
+
+    package = Path(evaluation.__file__).resolve().parent.parent
+    paths = []
+    for place in LENGTH_CHECKED:
+        target = package / place
+        paths += sorted(target.glob("*.py")) if target.is_dir() else [target]
+    long_ones = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    long_ones.append(f"{path.relative_to(package)}:{node.lineno} {node.name}")
+    assert len(paths) > 5 and long_ones == []

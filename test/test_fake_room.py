@@ -10,11 +10,13 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import (
+    PRESETS,
     FakeRoom,
     FakeRoomConfig,
     simulate_audio_loop,
     timing_warnings,
 )
+from infomax_contingency.sim.rooms import ROOMS
 
 ROBOT = ModelParams.named("robot")
 QUIET = {"event_rate_hz": 0.0}
@@ -106,6 +108,15 @@ def test_default_timing_fits_the_robot_and_paper_models() -> None:
 def test_bad_room_parameters_are_refused(field: str, value: float, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         FakeRoomConfig(**{"partner_arrive_s": 2.0, field: value})
+
+
+def test_presets_are_the_registered_rooms_with_audio() -> None:
+    assert list(PRESETS) == ["responsive", "silent", "noisy"]
+    for name, fields in PRESETS.items():
+        kind = ROOMS[name]
+        assert fields == dict(kind.audio)
+        partner = FakeRoomConfig.preset(name).partner_present_at(1.0)
+        assert partner == kind.partner_present, name
 
 
 def test_unknown_preset() -> None:

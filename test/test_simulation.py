@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -23,8 +27,9 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.solver import solve_episodic, solve_receding
 from infomax_contingency.core.statespace import count_tuples
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.simulation import simulate
-from infomax_contingency.sim.world import make_room
+from infomax_contingency.sim.rooms import ROOM_NAMES, ROOMS
+from infomax_contingency.sim.simulation import RunSummary, iter_simulate, simulate
+from infomax_contingency.sim.world import make_room, named_room
 
 PAPER = ModelParams.named("paper")
 ROBOT = ModelParams.named("robot")
@@ -132,6 +137,33 @@ def test_rooms() -> None:
         ("responsive:k9=0.1", "unknown option"),
         ("baby9:reply=7", "agent period"),
         ("silent:k3", "key=value"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            make_room(spec, ROBOT, rng)
+
+
+def test_every_registered_room_is_made_with_its_stated_rates() -> None:
+    rng = np.random.default_rng(0)
+    z_self, z_agent, z_background = 0, ROBOT.ta1, ROBOT.timer_long_ago
+    assert ROOM_NAMES[:5] == ("prior", "responsive", "silent", "noisy", "baby9")
+    for name, kind in ROOMS.items():
+        room = make_room(name, ROBOT, rng)
+        assert room.name == name
+        if kind.partner_present is not None:
+            assert room.partner_present == kind.partner_present, name
+        if kind.rates is not None:
+            k2 = kind.rates.k3 if kind.rates.k2 is None else kind.rates.k2
+            expected = (kind.rates.k1, k2, kind.rates.k3)
+            assert (room.rates[z_self], room.rates[z_agent], room.rates[z_background]) == expected
+    # the rooms of the efficiency experiment, by either name
+    for name in ("quiet", "office+partner", "poster-session"):
+        assert make_room(name, ROBOT, rng) == named_room(ROBOT, name)
+    assert make_room("office+partner", ROBOT, rng).rates[z_agent] == pytest.approx(0.68)
+    assert make_room("noisy:k3=0.3", ROBOT, rng).rates[z_agent] == 0.3  # no partner: k2 = k3
+    for spec, message in [
+        ("quiet:k2=0.5", "unknown option"),
+        ("responsive:k2=lots", "k2 must be a number"),
+        ("prior:k1=0.5", "unknown option"),
     ]:
         with pytest.raises(ValueError, match=message):
             make_room(spec, ROBOT, rng)
@@ -245,3 +277,63 @@ def test_console_script_runs() -> None:
         check=True,
     )
     assert len(result.stdout.splitlines()) == 3
+
+
+HUGE_RUN = ["-m", "infomax_contingency.cli", "simulate", "--steps", "1000000000"]
+"""A run far too long to finish during the test: its first lines must come while it runs."""
+
+WATCHDOG_S = 120.0
+"""A run that does not stream is killed after this long, so its test fails, not hangs."""
+
+
+@contextlib.contextmanager
+def huge_run(*options: str) -> Iterator[subprocess.Popen]:
+    """``simulate`` of :data:`HUGE_RUN` steps with piped output; killed on leaving."""
+    argv = [sys.executable, *HUGE_RUN, *options]
+    with subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as run:
+        watchdog = threading.Timer(WATCHDOG_S, run.kill)
+        watchdog.start()
+        try:
+            yield run
+        finally:
+            watchdog.cancel()
+            run.kill()
+            run.communicate()
+
+
+def test_iter_simulate_is_lazy_and_the_summary_counts() -> None:
+    rng = np.random.default_rng(2)
+    room = make_room("responsive", ROBOT, rng)
+    records = iter_simulate(ROBOT, make_controller("rule", ROBOT, rng), room, 10**12, rng)
+    summary = RunSummary()
+    for record in itertools.islice(records, 50):
+        summary.add(record)
+    assert summary.steps == 50 and summary.final_belief == record.belief
+    rng = np.random.default_rng(2)
+    room = make_room("responsive", ROBOT, rng)
+    listed = simulate(ROBOT, make_controller("rule", ROBOT, rng), room, 50, rng)
+    assert summary.vocalizations == sum(r.u for r in listed) > 0
+    assert summary.verdict == ("partner present" if listed[-1].belief > 0.5 else "no partner")
+
+
+@pytest.mark.parametrize("json_lines", [True, False], ids=["json", "table"])
+def test_cli_simulate_streams_its_steps(json_lines: bool) -> None:
+    """The first steps of a huge run arrive while it runs; the run is then stopped."""
+    with huge_run(*(["--json"] if json_lines else [])) as run:
+        first, second = run.stdout.readline(), run.stdout.readline()
+        assert run.poll() is None, "the run ended (or was killed): it did not stream"
+    if json_lines:
+        assert json.loads(first)["t"] == 1 and json.loads(second)["t"] == 2
+    else:
+        assert first.split()[:2] == ["t", "time_s"] and second.split()[0] == "1"
+
+
+def test_cli_simulate_into_a_closed_pipe_ends_cleanly() -> None:
+    """``simulate ... | head -3``: three lines, then exit status 0 and no traceback."""
+    with huge_run("--json") as run:
+        lines = [run.stdout.readline() for _ in range(3)]
+        run.stdout.close()  # the reader goes away, as `head` does
+        error = run.stderr.read()
+        status = run.wait()
+    assert [json.loads(line)["t"] for line in lines] == [1, 2, 3]
+    assert status == 0 and error == "", error

@@ -12,20 +12,31 @@ produced every reported number and figure.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from infomax_contingency.core import learning, scoring
-from infomax_contingency.core.controllers import CONTROLLER_KINDS, PolicyController, make_controller
+from infomax_contingency.core import learning
+from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
 from infomax_contingency.eval import experiments as evaluation
 from infomax_contingency.eval import plots
+from infomax_contingency.eval.experiments import parse_method
+
+__all__ = [
+    "parse_method",
+    "print_efficiency",
+    "register_experiment",
+    "register_learn",
+    "register_plot",
+]
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.simulation import simulate
 from infomax_contingency.sim.world import ROOM_NAMES, make_room
@@ -86,17 +97,16 @@ def _cache_dir(args: argparse.Namespace) -> Path | None:
 
 
 def _run_baby9(args: argparse.Namespace) -> int:
-    result = evaluation.experiment_baby9(
-        args.params, args.horizon, args.memory, args.steps, args.replies, _cache_dir(args)
+    config = evaluation.Baby9Config(
+        args.params, args.horizon, args.memory, args.steps, tuple(args.replies)
     )
+    result = evaluation.experiment_baby9(config, _cache_dir(args))
     if args.plot:
         params = ModelParams.load(args.params)
         table, _ = evaluation.obtain_table(
             params, "receding", args.horizon, args.memory, _cache_dir(args)
         )
-        rng = np.random.default_rng(0)
-        room = make_room(f"baby9:reply={args.replies[0]}", params, rng)
-        records = simulate(params, PolicyController(table), room, args.steps, rng)
+        records = evaluation.baby9_session(params, table, args.replies[0], args.steps)
         plots.plot_session(
             params,
             [r.__dict__ for r in records],
@@ -135,9 +145,8 @@ def _run_baby9(args: argparse.Namespace) -> int:
 
 def _run_rule(args: argparse.Namespace) -> int:
     first, last = args.steps
-    result = evaluation.experiment_rule(
-        args.params, args.horizon, first, last, args.c, _cache_dir(args)
-    )
+    config = evaluation.RuleConfig(args.params, args.horizon, first, last, args.c)
+    result = evaluation.experiment_rule(config, _cache_dir(args))
     if args.json:
         _dump(result)
         return 0
@@ -172,7 +181,13 @@ def _run_rule(args: argparse.Namespace) -> int:
 
 
 def _run_greedy(args: argparse.Namespace) -> int:
-    result = evaluation.experiment_greedy(args.params, args.max_count, steps=args.steps)
+    config = dataclasses.replace(
+        evaluation.GreedyConfig(),
+        param_names=tuple(args.params),
+        max_count=args.max_count,
+        steps=args.steps,
+    )
+    result = evaluation.experiment_greedy(config)
     if args.json:
         _dump(result)
         return 0
@@ -203,7 +218,10 @@ def _run_greedy(args: argparse.Namespace) -> int:
 
 
 def _run_horizon(args: argparse.Namespace) -> int:
-    result = evaluation.experiment_horizon(args.params, args.horizons, args.domain, args.longest)
+    config = evaluation.HorizonConfig(
+        tuple(args.params), tuple(args.horizons), args.domain, args.longest
+    )
+    result = evaluation.experiment_horizon(config)
     if args.plot:
         for name in args.params:
             target = Path(args.plot)
@@ -264,17 +282,8 @@ def _ci(pair: Any, digits: int = 3) -> str:
     return f"[{_number(pair[0], digits)}, {_number(pair[1], digits)}]"
 
 
-def print_efficiency(result: dict) -> None:
-    """The efficiency tables, readable."""
-    config, dt = result["config"], result["dt"]
-    print(
-        f"detection efficiency: {config['params_name']} parameters (dt = {dt} s), runs of"
-        f" {config['steps']} windows ({config['steps'] * dt:g} s), seed {config['seed']}"
-    )
-    print(
-        f"best fixed interval K = {result['best_fixed_interval']} (least restricted mean"
-        f" detection time on {config['tuning_rooms']} tuning rooms)"
-    )
+def _print_prior_rooms(result: dict) -> None:
+    """Table A: rooms drawn from the prior (entropy, accuracy, detection, false alarms)."""
     summaries = result["summaries"]
     print(
         f"\nA. rooms drawn from the prior (partner in half of them); 95 % intervals;"
@@ -304,11 +313,21 @@ def print_efficiency(result: dict) -> None:
             f" {_ci(partner['detection_s_restricted_mean_ci']):>13}"
             f" {empty['false_alarm_rate']:>9.1%}"
         )
+
+
+def _partner_rooms(result: dict) -> list[str]:
+    """The named rooms with a partner, in table order."""
+    return [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
+
+
+def _print_named_rooms(result: dict) -> None:
+    """Table B: named partner rooms, median seconds and vocalizations to a confident belief."""
+    summaries = result["summaries"]
     print(
         "\nB. named rooms with a partner: median seconds [95 % CI] and vocalizations to"
         " P(S=1) >= 0.95 (whole-history belief)"
     )
-    rooms = [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
+    rooms = _partner_rooms(result)
     print(f"{'controller':28}" + "".join(f" {room:>30}" for room in rooms))
     for label in result["controllers"]:
         cells = []
@@ -319,18 +338,23 @@ def print_efficiency(result: dict) -> None:
                 f" {_number(r['detection_vocalizations_median'])} voc"
             )
         print(f"{label:28}" + "".join(f" {cell:>30}" for cell in cells))
+
+
+def _print_own_belief(result: dict) -> None:
+    """Table C: the robot's own (sliding-memory) belief in named and switching rooms."""
+    summaries = result["summaries"]
     print(
         "\nC. the robot's own belief (sliding memory M, as deployed): median s to P(S=1) >="
         " 0.95 in named partner rooms (detected within the run); a partner who leaves or"
         " arrives at the middle of the run, in the runs where the robot was sure before"
     )
-    memories = result["receding_memories"]
+    rooms = _partner_rooms(result)
     print(
         f"{'controller':28}"
         + "".join(f" {room:>22}" for room in rooms)
         + f" {'leaves: s to <0.5':>24} {'arrives: s to >=0.95':>24}"
     )
-    for label in memories:
+    for label in result["receding_memories"]:
         s = summaries[label]
         cells = [
             f"{_number(s[room]['own_detection_s_median'])} s ({s[room]['own_detected']:.0%})"
@@ -345,14 +369,177 @@ def print_efficiency(result: dict) -> None:
             + "".join(f" {cell:>22}" for cell in cells)
             + "".join(f" {cell:>24}" for cell in switches)
         )
+
+
+def _print_exact_scores(result: dict) -> None:
+    """Table D: the exact episode score of each deterministic controller."""
     print(
-        f"\nD. exact episode score, T = {config['episodic_horizon']} (0 = never vocalize,"
-        " 1 = optimal; as episodic policies on the statistic, from the episode start)"
+        f"\nD. exact episode score, T = {result['config']['episodic_horizon']} (0 = never"
+        " vocalize, 1 = optimal; as episodic policies on the statistic, from the episode start)"
     )
     for label, score in result["exact_episode_scores"].items():
         text = "not a deterministic policy of (t, a)" if score is None else f"{score:.4f}"
         print(f"{label:28} {text}")
+
+
+def print_efficiency(result: dict) -> None:
+    """The efficiency tables, readable."""
+    config, dt = result["config"], result["dt"]
+    print(
+        f"detection efficiency: {config['params_name']} parameters (dt = {dt} s), runs of"
+        f" {config['steps']} windows ({config['steps'] * dt:g} s), seed {config['seed']}"
+    )
+    print(
+        f"best fixed interval K = {result['best_fixed_interval']} (least restricted mean"
+        f" detection time on {config['tuning_rooms']} tuning rooms)"
+    )
+    _print_prior_rooms(result)
+    _print_named_rooms(result)
+    _print_own_belief(result)
+    _print_exact_scores(result)
     print(f"\n({result.get('seconds', 0.0):.0f} s)")
+
+
+def _commas(values: Any) -> str:
+    """A list default as it is typed on the command line: ``a,b,c``."""
+    return ",".join(str(value) for value in values)
+
+
+def _add_baby9_arguments(sub: argparse.ArgumentParser) -> None:
+    d = evaluation.Baby9Config()
+    seconds = round(d.steps * ModelParams.named(d.params_name).dt, 9)
+    sub.add_argument(
+        "--params", default=d.params_name, help=f"parameter set (default: {d.params_name})"
+    )
+    sub.add_argument(
+        "--horizon", type=int, default=d.horizon, help=f"receding horizon H (default {d.horizon})"
+    )
+    sub.add_argument(
+        "--memory", type=int, default=d.memory, help=f"table memory M >= steps (default {d.memory})"
+    )
+    sub.add_argument(
+        "--steps", type=int, default=d.steps, help=f"steps (default {d.steps} = {seconds:g} s)"
+    )
+    sub.add_argument(
+        "--replies",
+        type=_name_list,
+        default=list(d.replies),
+        help="reply conventions: all, or a timer value of the agent period"
+        f" (default {_commas(d.replies)})",
+    )
+    sub.add_argument("--plot", help="write the session figure of the first reply to this PNG")
+
+
+def _add_rule_arguments(sub: argparse.ArgumentParser) -> None:
+    d = evaluation.RuleConfig()
+    sub.add_argument(
+        "--params", default=d.params_name, help=f"parameter set (default: {d.params_name})"
+    )
+    sub.add_argument(
+        "--horizon", type=int, default=d.horizon, help=f"episodic horizon T (default {d.horizon})"
+    )
+    sub.add_argument(
+        "--steps",
+        type=_step_range,
+        default=(d.first_step, d.last_step),
+        help=f"steps FIRST-LAST (default {d.first_step}-{d.last_step})",
+    )
+    sub.add_argument("--c", type=float, default=d.c, help=f"the rule's constant (default {d.c:g})")
+
+
+def _add_greedy_arguments(sub: argparse.ArgumentParser) -> None:
+    d = evaluation.GreedyConfig()
+    sub.add_argument(
+        "--params",
+        type=_name_list,
+        default=list(d.param_names),
+        help=f"sets (default {_commas(d.param_names)})",
+    )
+    sub.add_argument(
+        "--max-count",
+        type=int,
+        default=d.max_count,
+        help=f"check statistics with n <= this (default {d.max_count})",
+    )
+    sub.add_argument(
+        "--steps", type=int, default=d.steps, help=f"steps of the example run (default {d.steps})"
+    )
+
+
+def _add_horizon_arguments(sub: argparse.ArgumentParser) -> None:
+    d = evaluation.HorizonConfig()
+    sub.add_argument(
+        "--params",
+        type=_name_list,
+        default=list(d.param_names),
+        help=f"sets (default {_commas(d.param_names)})",
+    )
+    sub.add_argument(
+        "--horizons",
+        type=_int_list,
+        default=list(d.horizons),
+        help=f"horizons to list (default {_commas(d.horizons)})",
+    )
+    sub.add_argument(
+        "--domain",
+        type=int,
+        default=d.domain_max_count,
+        help=f"compare on counts n2 + n3 <= this (default {d.domain_max_count})",
+    )
+    sub.add_argument(
+        "--longest",
+        type=int,
+        default=d.longest_horizon,
+        help=f"solve horizons up to this one (default {d.longest_horizon})",
+    )
+    sub.add_argument("--plot", help="write the action maps to this PNG (one per set)")
+
+
+def _add_efficiency_arguments(sub: argparse.ArgumentParser) -> None:
+    d = evaluation.EfficiencyConfig()
+    sub.add_argument("--params", default=d.params_name, help=f"parameter set ({d.params_name})")
+    for option, default, text in (
+        ("--prior-rooms", d.prior_rooms, "rooms drawn from the prior"),
+        ("--named-runs", d.named_runs, "runs per named room"),
+        ("--switch-runs", d.switch_runs, "runs per switching scenario"),
+        ("--switch-step", d.switch_step, "step at which the partner leaves/arrives"),
+        ("--tuning-rooms", d.tuning_rooms, "prior rooms for choosing the fixed K"),
+        ("--steps", d.steps, "steps per run"),
+        ("--seed", d.seed, "master seed"),
+        ("--workers", d.workers, "processes"),
+    ):
+        sub.add_argument(option, type=int, default=default, help=f"{text} (default {default})")
+    sub.add_argument("--plot", help="write the comparison figure to this PNG")
+
+
+ExperimentCommand = tuple[
+    str, str, Callable[[argparse.Namespace], int], Callable[[argparse.ArgumentParser], None]
+]
+"""An experiment sub-command: name, help, run function, function adding its own options."""
+
+EXPERIMENTS: tuple[ExperimentCommand, ...] = (
+    ("baby9", "the baby-9 scenario (MODEL.md section 5)", _run_baby9, _add_baby9_arguments),
+    (
+        "rule",
+        "the interpretable rule against the optimal controller",
+        _run_rule,
+        _add_rule_arguments,
+    ),
+    ("greedy", "what one-step (H = 1) infomax control does", _run_greedy, _add_greedy_arguments),
+    (
+        "horizon",
+        "how the optimal action map changes with the horizon",
+        _run_horizon,
+        _add_horizon_arguments,
+    ),
+    (
+        "efficiency",
+        "detection efficiency of all controllers",
+        _run_efficiency,
+        _add_efficiency_arguments,
+    ),
+)
+"""The experiment sub-commands, in the order of ``experiment --help``."""
 
 
 def register_experiment(subparsers: argparse._SubParsersAction) -> None:
@@ -361,8 +548,7 @@ def register_experiment(subparsers: argparse._SubParsersAction) -> None:
         "experiment", help="run an evaluation experiment (baby9, rule, greedy, horizon, efficiency)"
     )
     names = parser.add_subparsers(dest="experiment", required=True, metavar="NAME")
-
-    def add(name: str, help_text: str, run: Any) -> argparse.ArgumentParser:
+    for name, help_text, run, add_arguments in EXPERIMENTS:
         sub = names.add_parser(name, help=help_text)
         sub.add_argument("--json", action="store_true", help="print the result as JSON")
         sub.add_argument(
@@ -371,134 +557,30 @@ def register_experiment(subparsers: argparse._SubParsersAction) -> None:
             " a directory under the system temp dir)",
         )
         sub.set_defaults(run=run)
-        return sub
-
-    sub = add("baby9", "the baby-9 scenario (MODEL.md section 5)", _run_baby9)
-    sub.add_argument("--params", default="paper", help="parameter set (default: paper)")
-    sub.add_argument("--horizon", type=int, default=24, help="receding horizon H (default 24)")
-    sub.add_argument("--memory", type=int, default=60, help="table memory M >= steps (default 60)")
-    sub.add_argument("--steps", type=int, default=54, help="steps (default 54 = 43.2 s)")
-    sub.add_argument(
-        "--replies",
-        type=_name_list,
-        default=["all", "1", "2", "3"],
-        help="reply conventions: all, or a timer value of the agent period (default all,1,2,3)",
-    )
-    sub.add_argument("--plot", help="write the session figure of the first reply to this PNG")
-
-    sub = add("rule", "the interpretable rule against the optimal controller", _run_rule)
-    sub.add_argument("--params", default="paper", help="parameter set (default: paper)")
-    sub.add_argument("--horizon", type=int, default=40, help="episodic horizon T (default 40)")
-    sub.add_argument(
-        "--steps", type=_step_range, default=(18, 24), help="steps FIRST-LAST (default 18-24)"
-    )
-    sub.add_argument("--c", type=float, default=9.0, help="the rule's constant (default 9)")
-
-    sub = add("greedy", "what one-step (H = 1) infomax control does", _run_greedy)
-    sub.add_argument(
-        "--params", type=_name_list, default=["paper", "robot"], help="sets (default paper,robot)"
-    )
-    sub.add_argument(
-        "--max-count", type=int, default=60, help="check statistics with n <= this (default 60)"
-    )
-    sub.add_argument("--steps", type=int, default=80, help="steps of the example run (default 80)")
-
-    sub = add("horizon", "how the optimal action map changes with the horizon", _run_horizon)
-    sub.add_argument(
-        "--params", type=_name_list, default=["paper", "robot"], help="sets (default paper,robot)"
-    )
-    sub.add_argument(
-        "--horizons",
-        type=_int_list,
-        default=[4, 8, 12, 16, 24, 40],
-        help="horizons to list (default 4,8,12,16,24,40)",
-    )
-    sub.add_argument(
-        "--domain", type=int, default=12, help="compare on counts n2 + n3 <= this (default 12)"
-    )
-    sub.add_argument(
-        "--longest", type=int, default=60, help="solve horizons up to this one (default 60)"
-    )
-    sub.add_argument("--plot", help="write the action maps to this PNG (one per set)")
-
-    defaults = evaluation.EfficiencyConfig()
-    sub = add("efficiency", "detection efficiency of all controllers", _run_efficiency)
-    sub.add_argument("--params", default=defaults.params_name, help="parameter set (robot)")
-    for option, default, text in (
-        ("--prior-rooms", defaults.prior_rooms, "rooms drawn from the prior"),
-        ("--named-runs", defaults.named_runs, "runs per named room"),
-        ("--switch-runs", defaults.switch_runs, "runs per switching scenario"),
-        ("--switch-step", defaults.switch_step, "step at which the partner leaves/arrives"),
-        ("--tuning-rooms", defaults.tuning_rooms, "prior rooms for choosing the fixed K"),
-        ("--steps", defaults.steps, "steps per run"),
-        ("--seed", defaults.seed, "master seed"),
-        ("--workers", defaults.workers, "processes"),
-    ):
-        sub.add_argument(option, type=int, default=default, help=f"{text} (default {default})")
-    sub.add_argument("--plot", help="write the comparison figure to this PNG")
+        add_arguments(sub)
 
 
 # --------------------------------------------------------------------------------------
 # learn
 
 
-def parse_method(text: str, default_budget: int) -> tuple[str, learning.LearningSettings, int]:
-    """``NAME[@BUDGET]`` or ``epsilon=E,backup=B,initial=I[@BUDGET]``."""
-    spec, _, budget_text = text.partition("@")
-    try:
-        budget = int(budget_text) if budget_text else default_budget
-    except ValueError:
-        raise ValueError(f"method {text!r}: the budget after @ must be a whole number") from None
-    if "=" not in spec:
-        if spec not in learning.METHODS:
-            raise ValueError(
-                f"unknown learning method {spec!r}; use one of {sorted(learning.METHODS)} or"
-                " epsilon=E,backup=B,initial=I"
-            )
-        return spec, learning.METHODS[spec], budget
-    fields: dict[str, Any] = {}
-    for item in spec.split(","):
-        key, _, value = item.partition("=")
-        if key not in ("epsilon", "backup", "initial"):
-            raise ValueError(f"method {text!r}: unknown setting {key!r} (epsilon, backup, initial)")
-        if key == "epsilon":
-            try:
-                fields[key] = float(value)
-            except ValueError:
-                raise ValueError(
-                    f"method {text!r}: epsilon must be a number, got {value!r}"
-                ) from None
-        else:
-            fields[key] = value
-    settings = learning.LearningSettings(**fields)
-    name = f"eps={settings.epsilon:g}, {settings.backup} backup, {settings.initial} init"
-    return name, settings, budget
-
-
 def _run_learn(args: argparse.Namespace) -> int:
-    params = ModelParams.load(args.params)
-    scorer = scoring.Scorer(params, args.horizon)
-    methods = [parse_method(text, args.budget) for text in args.method or ["plain"]]
-    curves = []
-    for name, settings, budget in methods:
-        for seed in args.seeds:
-            curve, _ = learning.learn(
-                params,
-                args.horizon,
-                settings,
-                budget,
-                seed,
-                evaluate_every=args.evaluate_every,
-                evaluate_growth=args.evaluate_growth,
-                target=args.target,
-                scorer=scorer,
-            )
-            curve.method = name
-            curves.append(curve.to_dict())
+    config = evaluation.LearnConfig(
+        params_name=args.params,
+        horizon=args.horizon,
+        methods=tuple(args.method or evaluation.LearnConfig().methods),
+        budget=args.budget,
+        seeds=tuple(args.seeds),
+        evaluate_every=args.evaluate_every,
+        evaluate_growth=args.evaluate_growth,
+        target=args.target,
+    )
+    result = evaluation.experiment_learn(config)
+    curves = result["curves"]
     if args.plot:
         plots.plot_learning_curves(curves, args.plot, args.target)
     if args.json:
-        _dump({"params": args.params, "horizon": args.horizon, "curves": curves})
+        _dump(result)
         return 0
     print(
         f"infomax TD learning, {args.params} parameters, T = {args.horizon}; score of the"
@@ -523,35 +605,48 @@ def _run_learn(args: argparse.Namespace) -> int:
 
 def register_learn(subparsers: argparse._SubParsersAction) -> None:
     """``learn``: infomax TD learning curves, scored exactly."""
+    d = evaluation.LearnConfig()
     parser = subparsers.add_parser(
         "learn", help="learn the episodic policy by infomax TD learning; exact learning curves"
     )
-    parser.add_argument("--params", default="paper", help="parameter set (default: paper)")
-    parser.add_argument("--horizon", type=int, default=12, help="episode length T (default 12)")
+    parser.add_argument(
+        "--params", default=d.params_name, help=f"parameter set (default: {d.params_name})"
+    )
+    parser.add_argument(
+        "--horizon", type=int, default=d.horizon, help=f"episode length T (default {d.horizon})"
+    )
     parser.add_argument(
         "--method",
         action="append",
         help="NAME[@BUDGET] with NAME plain (MODEL.md) or improved, or"
         " epsilon=E,backup=taken|best,initial=zero|entropy|listening[@BUDGET];"
-        " repeat for several (default: plain)",
+        f" repeat for several (default: {_commas(d.methods)})",
     )
     parser.add_argument(
-        "--budget", type=int, default=60_000, help="vocalizations per run (default 60000)"
+        "--budget", type=int, default=d.budget, help=f"vocalizations per run (default {d.budget})"
     )
     parser.add_argument(
-        "--seeds", type=_int_list, default=[1], help="seeds, e.g. 1,2,3 (default 1)"
+        "--seeds",
+        type=_int_list,
+        default=list(d.seeds),
+        help=f"seeds, e.g. 1,2,3 (default {_commas(d.seeds)})",
     )
     parser.add_argument(
-        "--evaluate-every", type=int, default=1000, help="score every N vocalizations (1000)"
+        "--evaluate-every",
+        type=int,
+        default=d.evaluate_every,
+        help=f"score every N vocalizations ({d.evaluate_every})",
     )
     parser.add_argument(
         "--evaluate-growth",
         type=float,
-        default=0.0,
+        default=d.evaluate_growth,
         help="also wait until the vocalizations grew by this fraction (e.g. 0.05: log-spaced"
-        " points on long runs; default 0)",
+        f" points on long runs; default {d.evaluate_growth:g})",
     )
-    parser.add_argument("--target", type=float, default=0.995, help="score target (0.995)")
+    parser.add_argument(
+        "--target", type=float, default=d.target, help=f"score target ({d.target:g})"
+    )
     parser.add_argument("--plot", help="write the learning curves to this PNG")
     parser.add_argument("--json", action="store_true", help="print the curves as JSON")
     parser.set_defaults(run=_run_learn)

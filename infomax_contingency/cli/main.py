@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -28,7 +29,7 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
 from infomax_contingency.core.solver import solve
 from infomax_contingency.errors import USER_ERRORS
-from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
 from infomax_contingency.sim.world import ROOM_NAMES, make_room
 
 
@@ -75,31 +76,68 @@ def _format_ratio(ratio: float | None) -> str:
     return "-" if ratio is None else f"{ratio:.4g}"
 
 
-def _run_simulate(args: argparse.Namespace) -> int:
+def _write_line(text: str) -> None:
+    """One line on stdout, flushed at once (a streamed run shows each step as it happens)."""
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def _stop_writing_stdout() -> None:
+    """After a closed pipe (``... | head``): point stdout at /dev/null.
+
+    Python flushes stdout again at exit; on the closed pipe that would print an
+    "Exception ignored" message. Nothing more is written, so nothing is lost.
+    """
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    finally:
+        os.close(devnull)
+
+
+SIMULATE_HEADER = (
+    f"{'t':>5} {'time_s':>8} {'z':>2} {'y':>1} {'u':>1} {'belief':>10} {'entropy':>9} ratio"
+)
+
+
+def _simulate_row(r: StepRecord) -> str:
+    """One step of the ``simulate`` table (columns of :data:`SIMULATE_HEADER`)."""
+    return (
+        f"{r.t:>5} {r.time_s:>8.2f} {r.z:>2} {r.y:>1} {r.u:>1} {r.belief:>10.6f}"
+        f" {r.entropy:>9.5f} {_format_ratio(r.ratio)}"
+    )
+
+
+def _stream_simulation(args: argparse.Namespace) -> None:
+    """Run the simulation, writing each step as it is computed (constant memory)."""
     params = ModelParams.load(args.params)
     rng = np.random.default_rng(args.seed)
     room = make_room(args.world, params, rng)
     controller = make_controller(args.controller, params, rng, memory=args.memory)
-    records = simulate(params, controller, room, args.steps, rng, memory=args.memory)
+    records = iter_simulate(params, controller, room, args.steps, rng, memory=args.memory)
     if args.json:
         for record in records:
-            print(json.dumps(record.__dict__))
-        return 0
-    print(f"{'t':>5} {'time_s':>8} {'z':>2} {'y':>1} {'u':>1} {'belief':>10} {'entropy':>9} ratio")
-    for r in records:
-        print(
-            f"{r.t:>5} {r.time_s:>8.2f} {r.z:>2} {r.y:>1} {r.u:>1} {r.belief:>10.6f}"
-            f" {r.entropy:>9.5f} {_format_ratio(r.ratio)}"
-        )
-    final = records[-1].belief
-    verdict = "partner present" if final > 0.5 else "no partner"
+            _write_line(json.dumps(record.__dict__))
+        return
+    _write_line(SIMULATE_HEADER)
+    summary = RunSummary()
+    for record in records:
+        summary.add(record)
+        _write_line(_simulate_row(record))
     truth = "partner present" if room.partner_present else "no partner"
-    print(
+    _write_line(
         f"# room {room.name} ({truth}), controller {controller.name}:"
-        f" {sum(r.u for r in records)} vocalizations in {len(records)} steps;"
-        f" final P(S=1) = {final:.6f} -> {verdict}"
-        f" ({'correct' if verdict == truth else 'wrong'})"
+        f" {summary.vocalizations} vocalizations in {summary.steps} steps;"
+        f" final P(S=1) = {summary.final_belief:.6f} -> {summary.verdict}"
+        f" ({'correct' if summary.verdict == truth else 'wrong'})"
     )
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    try:
+        _stream_simulation(args)
+    except BrokenPipeError:  # the reader stopped early (`... | head`): a normal end
+        _stop_writing_stdout()
     return 0
 
 

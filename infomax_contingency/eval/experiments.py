@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from infomax_contingency.core import model
+from infomax_contingency.core import learning, model
 from infomax_contingency.core.controllers import (
     Controller,
     PolicyController,
@@ -66,8 +66,9 @@ from infomax_contingency.core.solver import (
 )
 from infomax_contingency.core.statespace import count_tuples, n_count_tuples
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.simulation import simulate
-from infomax_contingency.sim.world import Room, make_room, room_from_rates
+from infomax_contingency.sim.rooms import NAMED_BACKGROUNDS, PARTNER_REPLY, SELF_HEARING
+from infomax_contingency.sim.simulation import StepRecord, simulate
+from infomax_contingency.sim.world import Room, make_room, named_room
 
 # --------------------------------------------------------------------------------------
 # Policy tables: committed, cached, or solved now
@@ -137,14 +138,53 @@ def obtain_table(
 # Experiment 1: the baby-9 scenario
 
 
-def experiment_baby9(
-    params_name: str = "paper",
-    horizon: int = 24,
-    memory: int = 60,
-    steps: int = 54,
-    replies: Sequence[str] = ("all", "1", "2", "3"),
-    cache_dir: Path | None = None,
-) -> dict:
+@dataclasses.dataclass(frozen=True)
+class Baby9Config:
+    """Settings of the baby-9 experiment.
+
+    Attributes:
+        params_name: parameter set.
+        horizon: receding horizon H of the optimal table, steps.
+        memory: the table's memory M, counted observations (must be >= steps).
+        steps: steps of each run (windows of dt seconds).
+        replies: reply conventions of the room: ``all`` (every agent-period step) or a
+            timer value of the agent period.
+    """
+
+    params_name: str = "paper"
+    horizon: int = 24
+    memory: int = 60
+    steps: int = 54
+    replies: tuple[str, ...] = ("all", "1", "2", "3")
+
+
+def baby9_session(
+    params: ModelParams, table: PolicyTable, reply: str, steps: int
+) -> list[StepRecord]:
+    """One run of the optimal table in the baby-9 room with reply convention ``reply``."""
+    rng = np.random.default_rng(0)  # the room is deterministic (rates 0 or 1)
+    room = make_room(f"baby9:reply={reply}", params, rng)
+    return simulate(params, PolicyController(table), room, steps, rng, memory=0)
+
+
+def baby9_run_summary(params: ModelParams, reply: str, records: Sequence[StepRecord]) -> dict:
+    """The vocalizations of one baby-9 run: steps, times (``t * dt`` s), beliefs, ratios."""
+    vocalizations = [r for r in records if r.u]
+    times = [round(r.t * params.dt, 9) for r in vocalizations]
+    return {
+        "reply": reply,
+        "vocalization_steps": [r.t for r in vocalizations],
+        "vocalization_times_s": times,
+        "intervals_s": [round(b - a, 9) for a, b in zip(times, times[1:], strict=False)],
+        "ratio_at_vocalization": [r.ratio for r in vocalizations],
+        "belief_at_vocalization": [r.belief for r in vocalizations],
+        "final_belief": records[-1].belief,
+        "final_entropy_bits": records[-1].entropy,
+        "beliefs": [r.belief for r in records],
+    }
+
+
+def experiment_baby9(config: Baby9Config | None = None, cache_dir: Path | None = None) -> dict:
     """MODEL.md section 5: a partner who answers every vocalization, receding horizon H.
 
     The controller's memory M must hold every counted observation of the run (``M >=
@@ -152,41 +192,26 @@ def experiment_baby9(
     one. A vocalization decided at step t is played at the start of step t + 1, so its
     time is ``t * dt`` seconds from the start of the run.
     """
-    params = ModelParams.load(params_name)
-    if memory < steps:
+    config = config or Baby9Config()
+    params = ModelParams.load(config.params_name)
+    if config.memory < config.steps:
         raise ValueError(
-            f"memory M = {memory} < {steps} steps: the controller would forget observations;"
-            f" use M >= steps for the unbounded memory of the scenario"
+            f"memory M = {config.memory} < {config.steps} steps: the controller would forget"
+            " observations; use M >= steps for the unbounded memory of the scenario"
         )
-    table, path = obtain_table(params, RECEDING, horizon, memory, cache_dir)
-    runs = []
-    for reply in replies:
-        rng = np.random.default_rng(0)  # the room is deterministic (rates 0 or 1)
-        room = make_room(f"baby9:reply={reply}", params, rng)
-        records = simulate(params, PolicyController(table), room, steps, rng, memory=0)
-        vocalizations = [r for r in records if r.u]
-        times = [round(r.t * params.dt, 9) for r in vocalizations]
-        runs.append(
-            {
-                "reply": reply,
-                "vocalization_steps": [r.t for r in vocalizations],
-                "vocalization_times_s": times,
-                "intervals_s": [round(b - a, 9) for a, b in zip(times, times[1:], strict=False)],
-                "ratio_at_vocalization": [r.ratio for r in vocalizations],
-                "belief_at_vocalization": [r.belief for r in vocalizations],
-                "final_belief": records[-1].belief,
-                "final_entropy_bits": records[-1].entropy,
-                "beliefs": [r.belief for r in records],
-            }
-        )
+    table, path = obtain_table(params, RECEDING, config.horizon, config.memory, cache_dir)
+    runs = [
+        baby9_run_summary(params, reply, baby9_session(params, table, reply, config.steps))
+        for reply in config.replies
+    ]
     return {
         "experiment": "baby9",
-        "params": params_name,
+        "params": config.params_name,
         "dt": params.dt,
-        "horizon": horizon,
-        "memory": memory,
-        "steps": steps,
-        "duration_s": round(steps * params.dt, 9),
+        "horizon": config.horizon,
+        "memory": config.memory,
+        "steps": config.steps,
+        "duration_s": round(config.steps * params.dt, 9),
         "table": str(path),
         "runs": runs,
     }
@@ -221,14 +246,101 @@ def _best_threshold(ratio: np.ndarray, optimal: np.ndarray, weight: np.ndarray) 
     return {"low": low, "high": high, "c": inside, "agreement": float(agreement[best])}
 
 
-def experiment_rule(
-    params_name: str = "paper",
-    horizon: int = 40,
-    first_step: int = 18,
-    last_step: int = 24,
-    c: float = 9.0,
-    cache_dir: Path | None = None,
-) -> dict:
+@dataclasses.dataclass(frozen=True)
+class RuleConfig:
+    """Settings of the rule experiment.
+
+    Attributes:
+        params_name: parameter set.
+        horizon: episodic horizon T of the optimal table, steps.
+        first_step, last_step: the steps t (1-based, ``last_step < horizon``) compared.
+        c: the rule's constant.
+    """
+
+    params_name: str = "paper"
+    horizon: int = 40
+    first_step: int = 18
+    last_step: int = 24
+    c: float = 9.0
+
+
+RULE_STATISTIC_FIELDS = ("optimal", "rule", "ratio", "z", "p2", "q2", "p3", "q3")
+"""Per-statistic arrays of :func:`rule_statistics` besides the three measures' weights."""
+
+
+def rule_statistics(
+    params: ModelParams, config: RuleConfig, optimal_actions: ActionsByStep
+) -> dict[str, np.ndarray]:
+    """Every statistic ``(t, a)`` of steps first..last, flattened step after step.
+
+    Arrays: ``optimal`` and ``rule`` (their actions), ``ratio`` (the variance ratio, nan
+    or inf where a count is zero), the timer ``z`` and counts ``p2, q2, p3, q3``;
+    ``any`` (reachable under some policy), ``visited`` (reached by the optimal policy)
+    and ``weight`` (the optimal policy's visit probability, each step weighing
+    ``1 / (number of steps)``).
+    """
+    reachable = reachable_statistics(params, config.horizon)
+    visits = visit_distributions(params, config.horizon, optimal_actions)
+    n_steps = config.last_step - config.first_step + 1
+    fields = (*RULE_STATISTIC_FIELDS, "any", "visited", "weight")
+    parts: dict[str, list[np.ndarray]] = {field: [] for field in fields}
+    for t in range(config.first_step, config.last_step + 1):
+        counts = count_tuples(t).T
+        z = np.broadcast_to(
+            np.arange(params.n_timer_values)[:, None], (params.n_timer_values, counts.shape[1])
+        )
+        p2, q2, p3, q3 = (np.broadcast_to(column, z.shape) for column in counts)
+        var2, var3 = model.rate_variances(params, p2, q2, p3, q3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = (var2 / (p2 + q2)) / (var3 / (p3 + q3))
+        step = {
+            "optimal": optimal_actions(t),
+            "rule": rule_decisions(params, config.c, z, p2, q2, p3, q3),
+            "ratio": ratio,
+            **dict(zip(("z", "p2", "q2", "p3", "q3"), (z, p2, q2, p3, q3), strict=True)),
+            "any": reachable[t - 1],
+            "visited": visits[t - 1] > 0,
+            "weight": visits[t - 1] / n_steps,
+        }
+        for field in fields:
+            parts[field].append(np.ravel(step[field]))
+    return {field: np.concatenate(arrays) for field, arrays in parts.items()}
+
+
+def rule_agreement(params: ModelParams, data: dict[str, np.ndarray], weight: np.ndarray) -> dict:
+    """How the rule agrees with the optimal actions on ``data``, under one measure ``weight``.
+
+    Also the best c for this measure: the rule's decision depends on c only past the
+    agent period with n2 > 0 and n3 > 0, so the best threshold is scanned on those
+    statistics and the agreement elsewhere is fixed.
+    """
+    optimal, rule = data["optimal"], data["rule"]
+    agree = rule == optimal
+    past_agent = data["z"] > params.ta2
+    depends = past_agent & np.isfinite(data["ratio"]) & (data["ratio"] > 0)
+    total = weight.sum()
+    fixed_agreement = float(np.sum(weight[~depends] * agree[~depends]))
+    best = _best_threshold(data["ratio"][depends], optimal[depends], weight[depends])
+    counts = (data["p2"], data["q2"], data["p3"], data["q3"])
+    best_rule = rule_decisions(params, best["c"], data["z"], *counts)
+    return {
+        "statistics": int(np.count_nonzero(weight)),
+        "agreement": float(np.sum(weight * agree) / total),
+        "agreement_timer_past_agent_period": float(
+            np.sum(weight * agree * past_agent) / np.sum(weight * past_agent)
+        ),
+        "optimal_vocalizes": float(np.sum(weight * optimal) / total),
+        "rule_vocalizes": float(np.sum(weight * rule) / total),
+        "optimal_vocalizes_rule_silent": float(np.sum(weight * (optimal & ~rule)) / total),
+        "rule_vocalizes_optimal_silent": float(np.sum(weight * (~optimal & rule)) / total),
+        "best_c": best["c"],
+        "best_c_interval": [best["low"], best["high"]],
+        "best_c_agreement": (fixed_agreement + best["agreement"]) / total,
+        "best_c_agreement_checked": float(np.sum(weight * (best_rule == optimal)) / total),
+    }
+
+
+def experiment_rule(config: RuleConfig | None = None, cache_dir: Path | None = None) -> dict:
     """How often the rule picks the optimal episodic action at steps first..last.
 
     Three measures over the statistics ``(t, a)`` of those steps: uniform over those
@@ -238,96 +350,29 @@ def experiment_rule(
     Also the best c for each measure, and the exact episode score of the rule (c and the
     best weighted c) over the whole episode.
     """
-    params = ModelParams.load(params_name)
-    if not 1 <= first_step <= last_step < horizon:
-        raise ValueError(f"need 1 <= first step <= last step < T = {horizon}")
-    table, path = obtain_table(params, EPISODIC, horizon, 0, cache_dir)
-    optimal_actions = table_actions(table)
-    reachable = reachable_statistics(params, horizon)
-    visits = visit_distributions(params, horizon, optimal_actions)
-    n_steps = last_step - first_step + 1
-    parts: dict[str, list[np.ndarray]] = {
-        k: []
-        for k in (
-            "optimal",
-            "rule",
-            "ratio",
-            "z",
-            "p2",
-            "q2",
-            "p3",
-            "q3",
-            "any",
-            "visited",
-            "weight",
-        )
-    }
-    for t in range(first_step, last_step + 1):
-        counts = count_tuples(t).T
-        z = np.broadcast_to(
-            np.arange(params.n_timer_values)[:, None], (params.n_timer_values, counts.shape[1])
-        )
-        p2, q2, p3, q3 = (np.broadcast_to(column, z.shape) for column in counts)
-        var2, var3 = model.rate_variances(params, p2, q2, p3, q3)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = (var2 / (p2 + q2)) / (var3 / (p3 + q3))
-        parts["optimal"].append(optimal_actions(t).ravel())
-        parts["rule"].append(rule_decisions(params, c, z, p2, q2, p3, q3).ravel())
-        parts["ratio"].append(ratio.ravel())
-        for key, array in (("z", z), ("p2", p2), ("q2", q2), ("p3", p3), ("q3", q3)):
-            parts[key].append(array.ravel())
-        parts["any"].append(reachable[t - 1].ravel())
-        parts["visited"].append(visits[t - 1].ravel() > 0)
-        parts["weight"].append(visits[t - 1].ravel() / n_steps)
-    data = {k: np.concatenate(v) for k, v in parts.items()}
-    optimal, agree = data["optimal"], data["rule"] == data["optimal"]
-    n2_and_n3 = np.isfinite(data["ratio"]) & (data["ratio"] > 0)
-    # Statistics whose rule decision depends on c: past the agent period, n2 > 0 and n3 > 0.
-    depends = (data["z"] > params.ta2) & n2_and_n3
+    config = config or RuleConfig()
+    params = ModelParams.load(config.params_name)
+    if not 1 <= config.first_step <= config.last_step < config.horizon:
+        raise ValueError(f"need 1 <= first step <= last step < T = {config.horizon}")
+    table, path = obtain_table(params, EPISODIC, config.horizon, 0, cache_dir)
+    data = rule_statistics(params, config, table_actions(table))
     measures = {
         "uniform_reachable_any_policy": data["any"].astype(float),
         "uniform_reachable_optimal_policy": data["visited"].astype(float),
         "weighted_optimal_visits": data["weight"],
     }
-    results = {}
-    for label, weight in measures.items():
-        total = weight.sum()
-        fixed_agreement = float(np.sum(weight[~depends] * agree[~depends]))
-        best = _best_threshold(data["ratio"][depends], optimal[depends], weight[depends])
-        best_rule = rule_decisions(
-            params, best["c"], data["z"], data["p2"], data["q2"], data["p3"], data["q3"]
-        )
-        past_agent = data["z"] > params.ta2
-        results[label] = {
-            "statistics": int(np.count_nonzero(weight)),
-            "agreement": float(np.sum(weight * agree) / total),
-            "agreement_timer_past_agent_period": float(
-                np.sum(weight * agree * past_agent) / np.sum(weight * past_agent)
-            ),
-            "optimal_vocalizes": float(np.sum(weight * optimal) / total),
-            "rule_vocalizes": float(np.sum(weight * data["rule"]) / total),
-            "optimal_vocalizes_rule_silent": float(
-                np.sum(weight * (optimal & ~data["rule"])) / total
-            ),
-            "rule_vocalizes_optimal_silent": float(
-                np.sum(weight * (~optimal & data["rule"])) / total
-            ),
-            "best_c": best["c"],
-            "best_c_interval": [best["low"], best["high"]],
-            "best_c_agreement": (fixed_agreement + best["agreement"]) / total,
-            "best_c_agreement_checked": float(np.sum(weight * (best_rule == optimal)) / total),
-        }
-    scorer = Scorer(params, horizon)
+    results = {label: rule_agreement(params, data, weight) for label, weight in measures.items()}
+    scorer = Scorer(params, config.horizon)
     best_weighted_c = results["weighted_optimal_visits"]["best_c"]
     return {
         "experiment": "rule",
-        "params": params_name,
-        "horizon": horizon,
-        "steps": [first_step, last_step],
-        "c": c,
+        "params": config.params_name,
+        "horizon": config.horizon,
+        "steps": [config.first_step, config.last_step],
+        "c": config.c,
         "table": str(path),
         "measures": results,
-        "episode_score_rule_c": scorer.score(rule_actions(params, c)),
+        "episode_score_rule_c": scorer.score(rule_actions(params, config.c)),
         "episode_score_rule_best_weighted_c": scorer.score(rule_actions(params, best_weighted_c)),
     }
 
@@ -336,13 +381,53 @@ def experiment_rule(
 # Experiment 3: greedy (one-step) control
 
 
-def experiment_greedy(
-    param_names: Sequence[str] = ("paper", "robot"),
-    max_count: int = 60,
-    longest_horizon: int = 8,
-    steps: int = 80,
-    seed: int = 0,
-) -> dict:
+@dataclasses.dataclass(frozen=True)
+class GreedyConfig:
+    """Settings of the greedy experiment.
+
+    Attributes:
+        param_names: parameter sets.
+        max_count: statistics with counts summing to at most this are checked.
+        longest_horizon: horizons 1 .. this are searched for the first that vocalizes.
+        steps: steps of the example run in a responsive room.
+        seed: its random seed.
+    """
+
+    param_names: tuple[str, ...] = ("paper", "robot")
+    max_count: int = 60
+    longest_horizon: int = 8
+    steps: int = 80
+    seed: int = 0
+
+
+def greedy_set(config: GreedyConfig, name: str) -> dict:
+    """The greedy experiment for one parameter set (see :func:`experiment_greedy`)."""
+    params = ModelParams.load(name)
+    greedy = greedy_actions(params, config.max_count)
+    layers = receding_layers(params, range(1, config.longest_horizon + 1), config.max_count)
+    first_vocalizing = next((h for h in sorted(layers) if layers[h].any()), None)
+    example = model.Statistic(params.timer_long_ago, 1, 2, 0, 6)
+    rng = np.random.default_rng(config.seed)
+    room = make_room("responsive", params, rng)
+    records = simulate(params, make_controller("greedy", params, rng), room, config.steps, rng)
+    return {
+        "params": name,
+        "statistics": int(greedy.size),
+        "greedy_vocalizing_statistics": int(greedy.sum()),
+        "vocalizing_statistics_by_horizon": {h: int(a.sum()) for h, a in layers.items()},
+        "smallest_vocalizing_horizon": first_vocalizing,
+        "example_statistic": list(example),
+        "example_entropy_bits": example.entropy(params),
+        "example_next_entropy_silent_bits": model.expected_next_entropy(params, example, 0),
+        "example_next_entropy_vocalize_bits": model.expected_next_entropy(params, example, 1),
+        "run_steps": config.steps,
+        "run_vocalizations": sum(r.u for r in records),
+        "run_final_belief": records[-1].belief,
+        "prior": params.pi,
+    }
+
+
+def experiment_greedy(config: GreedyConfig | None = None) -> dict:
     """What one-step infomax control does: its actions over every statistic, and a run.
 
     For each parameter set: the number of statistics (counts summing to <= max_count,
@@ -351,48 +436,90 @@ def experiment_greedy(
     one-step look-ahead of both actions at a typical statistic; and a run of the greedy
     controller in a responsive room.
     """
-    results = []
-    for name in param_names:
-        params = ModelParams.load(name)
-        greedy = greedy_actions(params, max_count)
-        layers = receding_layers(params, range(1, longest_horizon + 1), max_count)
-        first_vocalizing = next((h for h in sorted(layers) if layers[h].any()), None)
-        example = model.Statistic(params.timer_long_ago, 1, 2, 0, 6)
-        rng = np.random.default_rng(seed)
-        room = make_room("responsive", params, rng)
-        records = simulate(params, make_controller("greedy", params, rng), room, steps, rng)
-        results.append(
-            {
-                "params": name,
-                "statistics": int(greedy.size),
-                "greedy_vocalizing_statistics": int(greedy.sum()),
-                "vocalizing_statistics_by_horizon": {h: int(a.sum()) for h, a in layers.items()},
-                "smallest_vocalizing_horizon": first_vocalizing,
-                "example_statistic": list(example),
-                "example_entropy_bits": example.entropy(params),
-                "example_next_entropy_silent_bits": model.expected_next_entropy(params, example, 0),
-                "example_next_entropy_vocalize_bits": model.expected_next_entropy(
-                    params, example, 1
-                ),
-                "run_steps": steps,
-                "run_vocalizations": sum(r.u for r in records),
-                "run_final_belief": records[-1].belief,
-                "prior": params.pi,
-            }
-        )
-    return {"experiment": "greedy", "max_count": max_count, "sets": results}
+    config = config or GreedyConfig()
+    results = [greedy_set(config, name) for name in config.param_names]
+    return {"experiment": "greedy", "max_count": config.max_count, "sets": results}
 
 
 # --------------------------------------------------------------------------------------
 # Experiment 4: how the optimal action map depends on the horizon
 
 
-def experiment_horizon(
-    param_names: Sequence[str] = ("paper", "robot"),
-    horizons: Sequence[int] = (4, 8, 12, 16, 24, 40),
-    domain_max_count: int = 12,
-    longest_horizon: int = 60,
-) -> dict:
+@dataclasses.dataclass(frozen=True)
+class HorizonConfig:
+    """Settings of the horizon experiment.
+
+    Attributes:
+        param_names: parameter sets.
+        horizons: the horizons H listed and compared.
+        domain_max_count: maps are compared on counts with n2 + n3 <= this.
+        longest_horizon: every horizon 1 .. this is solved (>= every listed one).
+    """
+
+    param_names: tuple[str, ...] = ("paper", "robot")
+    horizons: tuple[int, ...] = (4, 8, 12, 16, 24, 40)
+    domain_max_count: int = 12
+    longest_horizon: int = 60
+
+
+def _vocalizing_fraction_map(
+    actions: np.ndarray, z: int, domain_max_count: int
+) -> list[list[float | None]]:
+    """Fraction of count tuples with each ``(n2, n3)`` where ``actions[z]`` vocalizes.
+
+    Rows n2, columns n3, ``0 .. domain_max_count``; None where no tuple has those counts.
+    """
+    counts = count_tuples(domain_max_count)
+    n2 = counts[:, 0] + counts[:, 1]
+    n3 = counts[:, 2] + counts[:, 3]
+    size = domain_max_count + 1
+    cells, vocal = np.zeros((size, size)), np.zeros((size, size))
+    np.add.at(cells, (n2, n3), 1.0)
+    np.add.at(vocal, (n2, n3), actions[z].astype(float))
+    with np.errstate(invalid="ignore"):
+        fraction = np.where(cells > 0, vocal / np.maximum(cells, 1), np.nan)
+    return [[None if np.isnan(v) else float(v) for v in row] for row in fraction]
+
+
+def horizon_set(config: HorizonConfig, name: str) -> dict:
+    """The horizon experiment for one parameter set (see :func:`experiment_horizon`)."""
+    params = ModelParams.load(name)
+    longest = config.longest_horizon
+    layers = receding_layers(params, range(1, longest + 1), config.domain_max_count)
+    stable_from = longest
+    while stable_from > 1 and np.array_equal(layers[stable_from - 1], layers[longest]):
+        stable_from -= 1
+    listed = []
+    for position, horizon in enumerate(config.horizons):
+        actions = layers[horizon]
+        previous = config.horizons[position - 1] if position else None
+        listed.append(
+            {
+                "horizon": horizon,
+                "vocalizing_statistics": int(actions.sum()),
+                "differs_from_previous": None
+                if previous is None
+                else int(np.count_nonzero(actions != layers[previous])),
+                "differs_from_largest_listed": int(
+                    np.count_nonzero(actions != layers[max(config.horizons)])
+                ),
+                "differs_from_longest": int(np.count_nonzero(actions != layers[longest])),
+                "map_long_ago": _vocalizing_fraction_map(
+                    actions, params.timer_long_ago, config.domain_max_count
+                ),
+            }
+        )
+    changes = [h for h in range(2, longest + 1) if not np.array_equal(layers[h], layers[h - 1])]
+    return {
+        "params": name,
+        "statistics": int(layers[1].size),
+        "horizons": listed,
+        "stable_from": stable_from,
+        "last_change_at": changes[-1] if changes else None,
+    }
+
+
+def experiment_horizon(config: HorizonConfig | None = None) -> dict:
     """Receding ``policy_H`` maps on a common domain (counts summing to <= domain_max_count).
 
     Every horizon 1 .. ``longest_horizon`` is solved (one backward induction); for the
@@ -401,98 +528,121 @@ def experiment_horizon(
     ``longest_horizon`` is identical. ``maps`` gives, at the timer value "long ago", the
     fraction of count tuples with the given ``(n2, n3)`` where the policy vocalizes.
     """
-    if longest_horizon < max(horizons):
+    config = config or HorizonConfig()
+    if config.longest_horizon < max(config.horizons):
         raise ValueError("the longest horizon must be >= every listed horizon")
-    results = []
-    for name in param_names:
-        params = ModelParams.load(name)
-        layers = receding_layers(params, range(1, longest_horizon + 1), domain_max_count)
-        stable_from = longest_horizon
-        while stable_from > 1 and np.array_equal(layers[stable_from - 1], layers[longest_horizon]):
-            stable_from -= 1
-        counts = count_tuples(domain_max_count)
-        n2 = counts[:, 0] + counts[:, 1]
-        n3 = counts[:, 2] + counts[:, 3]
-        size = domain_max_count + 1
-        cells = np.zeros((size, size))
-        np.add.at(cells, (n2, n3), 1.0)
-        listed = []
-        previous = None
-        for horizon in horizons:
-            actions = layers[horizon]
-            vocal = np.zeros((size, size))
-            np.add.at(vocal, (n2, n3), actions[params.timer_long_ago].astype(float))
-            with np.errstate(invalid="ignore"):
-                fraction = np.where(cells > 0, vocal / np.maximum(cells, 1), np.nan)
-            listed.append(
-                {
-                    "horizon": horizon,
-                    "vocalizing_statistics": int(actions.sum()),
-                    "differs_from_previous": None
-                    if previous is None
-                    else int(np.count_nonzero(actions != layers[previous])),
-                    "differs_from_largest_listed": int(
-                        np.count_nonzero(actions != layers[max(horizons)])
-                    ),
-                    "differs_from_longest": int(
-                        np.count_nonzero(actions != layers[longest_horizon])
-                    ),
-                    "map_long_ago": [
-                        [None if np.isnan(v) else float(v) for v in row] for row in fraction
-                    ],
-                }
-            )
-            previous = horizon
-        changes = [
-            h for h in range(2, longest_horizon + 1) if not np.array_equal(layers[h], layers[h - 1])
-        ]
-        results.append(
-            {
-                "params": name,
-                "statistics": int(layers[1].size),
-                "horizons": listed,
-                "stable_from": stable_from,
-                "last_change_at": changes[-1] if changes else None,
-            }
-        )
     return {
         "experiment": "horizon",
-        "domain_max_count": domain_max_count,
-        "longest_horizon": longest_horizon,
-        "sets": results,
+        "domain_max_count": config.domain_max_count,
+        "longest_horizon": config.longest_horizon,
+        "sets": [horizon_set(config, name) for name in config.param_names],
     }
 
 
 # --------------------------------------------------------------------------------------
+# Experiment 5: infomax TD learning curves
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnConfig:
+    """Settings of the learning curves (``learn``).
+
+    Attributes:
+        params_name: parameter set.
+        horizon: episode length T, steps.
+        methods: ``NAME[@BUDGET]`` or ``epsilon=E,backup=B,initial=I[@BUDGET]`` each
+            (see :func:`parse_method`).
+        budget: vocalizations per run, where a method names none.
+        seeds: one run per method and seed.
+        evaluate_every: the learned policy is scored every this many vocalizations.
+        evaluate_growth: and only once the vocalizations grew by this fraction (0: off).
+        target: the score a run should reach (0 = never vocalize, 1 = optimal).
+    """
+
+    params_name: str = "paper"
+    horizon: int = 12
+    methods: tuple[str, ...] = ("plain",)
+    budget: int = 60_000
+    seeds: tuple[int, ...] = (1,)
+    evaluate_every: int = 1000
+    evaluate_growth: float = 0.0
+    target: float = 0.995
+
+
+def _learning_settings(text: str, spec: str) -> learning.LearningSettings:
+    """``epsilon=E,backup=B,initial=I`` (any of them) as settings; ``text`` names the method."""
+    fields: dict[str, Any] = {}
+    for item in spec.split(","):
+        key, _, value = item.partition("=")
+        if key not in ("epsilon", "backup", "initial"):
+            raise ValueError(f"method {text!r}: unknown setting {key!r} (epsilon, backup, initial)")
+        if key != "epsilon":
+            fields[key] = value
+            continue
+        try:
+            fields[key] = float(value)
+        except ValueError:
+            raise ValueError(f"method {text!r}: epsilon must be a number, got {value!r}") from None
+    return learning.LearningSettings(**fields)
+
+
+def parse_method(text: str, default_budget: int) -> tuple[str, learning.LearningSettings, int]:
+    """``NAME[@BUDGET]`` or ``epsilon=E,backup=B,initial=I[@BUDGET]``: label, settings, budget."""
+    spec, _, budget_text = text.partition("@")
+    try:
+        budget = int(budget_text) if budget_text else default_budget
+    except ValueError:
+        raise ValueError(f"method {text!r}: the budget after @ must be a whole number") from None
+    if "=" not in spec:
+        if spec not in learning.METHODS:
+            raise ValueError(
+                f"unknown learning method {spec!r}; use one of {sorted(learning.METHODS)} or"
+                " epsilon=E,backup=B,initial=I"
+            )
+        return spec, learning.METHODS[spec], budget
+    settings = _learning_settings(text, spec)
+    name = f"eps={settings.epsilon:g}, {settings.backup} backup, {settings.initial} init"
+    return name, settings, budget
+
+
+def experiment_learn(config: LearnConfig | None = None) -> dict:
+    """Learning curves: every method with every seed, the greedy policy scored exactly.
+
+    Returns the parameter set, the horizon and one
+    :meth:`~infomax_contingency.core.learning.LearningCurve.to_dict` record per run (its
+    ``method`` the method's label), methods first, then seeds.
+    """
+    config = config or LearnConfig()
+    params = ModelParams.load(config.params_name)
+    scorer = Scorer(params, config.horizon)
+    methods = [parse_method(text, config.budget) for text in config.methods]
+    curves = []
+    for name, settings, budget in methods:
+        for seed in config.seeds:
+            curve, _ = learning.learn(
+                params,
+                config.horizon,
+                settings,
+                budget,
+                seed,
+                evaluate_every=config.evaluate_every,
+                evaluate_growth=config.evaluate_growth,
+                target=config.target,
+                scorer=scorer,
+            )
+            curve.method = name
+            curves.append(curve.to_dict())
+    return {"params": config.params_name, "horizon": config.horizon, "curves": curves}
+
+
+# --------------------------------------------------------------------------------------
 # Experiment 6: detection efficiency in simulated rooms
-
-NAMED_BACKGROUNDS = {"quiet": 0.05, "office": 0.2, "poster-session": 0.5}
-"""Background activity of the named rooms: P(window active) outside the agent period."""
-
-PARTNER_REPLY = 0.6
-"""P(a present partner makes an agent-period window active): the window is active if the
-partner replies or the background is active, ``k2 = 1 - (1 - k3)(1 - PARTNER_REPLY)``."""
-
-SELF_HEARING = 0.9
-"""P(the robot hears itself in a self-feedback window), ``k1``."""
 
 PRIOR_ROOM_SPEC = "prior:pi=0.5"
 """Rooms drawn from the model's priors, with a partner in half of them (in expectation)."""
 
 SWITCHES = {"leaves": ("office+partner", "office"), "arrives": ("office", "office+partner")}
 """Scenarios of a changing room: (room before, room after) the switch."""
-
-
-def named_room(params: ModelParams, name: str) -> Room:
-    """``quiet``, ``office``, ``poster-session``, each optionally ``+partner`` (see above)."""
-    base, _, suffix = name.partition("+")
-    if base not in NAMED_BACKGROUNDS or suffix not in ("", "partner"):
-        choices = ", ".join(f"{n}[+partner]" for n in NAMED_BACKGROUNDS)
-        raise ValueError(f"unknown named room {name!r}; rooms: {choices}")
-    k3 = NAMED_BACKGROUNDS[base]
-    partner = suffix == "partner"
-    k2 = 1.0 - (1.0 - k3) * (1.0 - PARTNER_REPLY) if partner else k3
-    return room_from_rates(params, name, partner, SELF_HEARING, k2, k3)
 
 
 @dataclasses.dataclass
@@ -875,18 +1025,29 @@ class EfficiencyConfig:
     workers: int = 2
 
 
-def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = None) -> dict:
-    """Detection efficiency of every controller in prior, named and switching rooms.
+@dataclasses.dataclass(frozen=True)
+class _Contenders:
+    """The controllers of the efficiency experiment and the tables behind them.
 
-    The fixed interval K is the one with the least restricted mean detection time in the
-    partner rooms of a separate set of prior rooms; the random controller vocalizes with
-    probability 1/K (the same rate). Tables are the committed ones or solved now.
+    Attributes:
+        entries: every controller, in the order of the tables.
+        receding: the optimal receding candidates (also run in the switching rooms).
+        reference: label of the receding candidate the others' entropy is compared with.
+        episodic_table: the optimal episodic table.
+        receding_tables: label -> table of each receding candidate.
     """
-    params = ModelParams.load(config.params_name)
-    if config.switch_step >= config.steps:
-        raise ValueError("the switch step must fall inside the run (switch_step < steps)")
-    checkpoints = tuple(n for n in (10, 20, 40) if n <= config.steps)
-    common = {"checkpoints": checkpoints, "confident": config.confident, "workers": config.workers}
+
+    entries: list[Entry]
+    receding: list[Entry]
+    reference: str
+    episodic_table: PolicyTable
+    receding_tables: dict[str, PolicyTable]
+
+
+def _tune_fixed_interval(
+    params: ModelParams, config: EfficiencyConfig, common: dict
+) -> tuple[dict[int, float], int]:
+    """Restricted mean detection seconds of each fixed interval K on the tuning rooms; best K."""
     tuning = simulate_rooms(
         params,
         [Entry(f"fixed:{k}", f"fixed:{k}") for k in config.intervals],
@@ -902,10 +1063,13 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
             raise ValueError("the tuning rooms hold no partner room: use more tuning rooms")
         seconds = _steps_to_seconds([r["detection_step"] for r in partner], params.dt)
         tuning_seconds[k] = float(np.minimum(seconds, config.steps * params.dt).mean())
-    best_k = min(tuning_seconds, key=tuning_seconds.get)
+    return tuning_seconds, min(tuning_seconds, key=tuning_seconds.get)
 
-    if config.reference not in config.receding:
-        raise ValueError(f"the reference {config.reference} must be one of the (H, M) candidates")
+
+def _contenders(
+    params: ModelParams, config: EfficiencyConfig, best_k: int, cache_dir: Path | None
+) -> _Contenders:
+    """The optimal tables (committed or solved now), rule, greedy, fixed K and random 1/K."""
     episodic_table, path = obtain_table(params, EPISODIC, config.episodic_horizon, 0, cache_dir)
     entries = [Entry(f"optimal episodic T={config.episodic_horizon}", f"policy:{path}")]
     receding, receding_tables = [], {}
@@ -914,24 +1078,37 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
         label = f"optimal receding H={horizon} M={memory}"
         receding.append(Entry(label, f"policy:{path}", memory))
         receding_tables[label] = table
-    reference = f"optimal receding H={config.reference[0]} M={config.reference[1]}"
     entries += receding + [
         Entry("rule c=9", "rule:9"),
         Entry("greedy", "greedy"),
         Entry(f"fixed K={best_k}", f"fixed:{best_k}"),
         Entry(f"random P=1/{best_k}", f"random:{1.0 / best_k!r}"),
     ]
+    reference = f"optimal receding H={config.reference[0]} M={config.reference[1]}"
+    return _Contenders(entries, receding, reference, episodic_table, receding_tables)
+
+
+def _efficiency_rows(
+    params: ModelParams, config: EfficiencyConfig, contenders: _Contenders, common: dict
+) -> list[dict]:
+    """Every controller in the prior and named rooms; the receding ones in switching rooms."""
     rooms = [PRIOR_ROOM_SPEC] * config.prior_rooms
     for name in NAMED_BACKGROUNDS:
         rooms += [name] * config.named_runs + [f"{name}+partner"] * config.named_runs
-    rows = simulate_rooms(params, entries, rooms, config.steps, config.seed, **common)
+    rows = simulate_rooms(params, contenders.entries, rooms, config.steps, config.seed, **common)
     switch_specs = [
         f"{scenario}@{config.switch_step}"
         for scenario in SWITCHES
         for _ in range(config.switch_runs)
     ]
-    rows += simulate_rooms(params, receding, switch_specs, config.steps, config.seed + 2, **common)
+    rows += simulate_rooms(
+        params, contenders.receding, switch_specs, config.steps, config.seed + 2, **common
+    )
+    return rows
 
+
+def _room_groups() -> dict[str, Callable[[dict], bool]]:
+    """The groups of rooms a controller is summarised over: name -> which rows it holds."""
     groups: dict[str, Callable[[dict], bool]] = {
         "prior, partner": lambda row: row["spec"] == PRIOR_ROOM_SPEC and row["partner"],
         "prior, no partner": lambda row: row["spec"] == PRIOR_ROOM_SPEC and not row["partner"],
@@ -941,11 +1118,25 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
             groups[room_name] = lambda row, room_name=room_name: row["spec"] == room_name
     for scenario in SWITCHES:
         groups[f"partner {scenario}"] = lambda row, s=scenario: row["spec"].startswith(f"{s}@")
-    summaries = {}
+    return groups
+
+
+def _efficiency_summaries(
+    params: ModelParams,
+    config: EfficiencyConfig,
+    contenders: _Contenders,
+    rows: Sequence[dict],
+    checkpoints: Sequence[int],
+) -> dict[str, dict]:
+    """Per controller: prior-weighted entropy (and minus the reference's), each group's figures."""
+    groups = _room_groups()
     reference_rows = [
-        row for row in rows if row["controller"] == reference and row["spec"] == PRIOR_ROOM_SPEC
+        row
+        for row in rows
+        if row["controller"] == contenders.reference and row["spec"] == PRIOR_ROOM_SPEC
     ]
-    for entry in entries:
+    summaries = {}
+    for entry in contenders.entries:
         mine = [row for row in rows if row["controller"] == entry.label]
         prior_rows = [row for row in mine if row["spec"] == PRIOR_ROOM_SPEC]
         weighted = prior_weighted_entropy(prior_rows, params.pi)
@@ -962,15 +1153,25 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
                 summaries[entry.label][group] = summarise(
                     selected, params.dt, config.steps, checkpoints, config.seed
                 )
-    policies: dict[str, ActionsByStep | None] = {entries[0].label: table_actions(episodic_table)}
-    for label, table in receding_tables.items():
+    return summaries
+
+
+def _exact_episode_scores(
+    params: ModelParams, config: EfficiencyConfig, contenders: _Contenders, best_k: int
+) -> dict[str, float | None]:
+    """The exact episode score of each controller that is a deterministic policy of (t, a)."""
+    horizon = config.episodic_horizon
+    policies: dict[str, ActionsByStep | None] = {
+        contenders.entries[0].label: table_actions(contenders.episodic_table)
+    }
+    for label, table in contenders.receding_tables.items():
         layer = table.layer(0)
         policies[label] = (
             (lambda t, layer=layer: layer[:, : n_count_tuples(t)])
-            if table.memory >= config.episodic_horizon
+            if table.memory >= horizon
             else None  # its sliding memory forgets within an episode: not a policy on a_t
         )
-    greedy = greedy_actions(params, config.episodic_horizon)
+    greedy = greedy_actions(params, horizon)
     policies.update(
         {
             "rule c=9": rule_actions(params, 9.0),
@@ -981,15 +1182,34 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
             f"random P=1/{best_k}": None,  # randomised: not a deterministic policy
         }
     )
-    scorer = Scorer(params, config.episodic_horizon)
-    exact_scores = {
+    scorer = Scorer(params, horizon)
+    return {
         label: None if actions is None else scorer.score(actions)
         for label, actions in policies.items()
     }
+
+
+def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = None) -> dict:
+    """Detection efficiency of every controller in prior, named and switching rooms.
+
+    The fixed interval K is the one with the least restricted mean detection time in the
+    partner rooms of a separate set of prior rooms; the random controller vocalizes with
+    probability 1/K (the same rate). Tables are the committed ones or solved now.
+    """
+    params = ModelParams.load(config.params_name)
+    if config.switch_step >= config.steps:
+        raise ValueError("the switch step must fall inside the run (switch_step < steps)")
+    if config.reference not in config.receding:
+        raise ValueError(f"the reference {config.reference} must be one of the (H, M) candidates")
+    checkpoints = tuple(n for n in (10, 20, 40) if n <= config.steps)
+    common = {"checkpoints": checkpoints, "confident": config.confident, "workers": config.workers}
+    tuning_seconds, best_k = _tune_fixed_interval(params, config, common)
+    contenders = _contenders(params, config, best_k, cache_dir)
+    rows = _efficiency_rows(params, config, contenders, common)
     return {
         "experiment": "efficiency",
-        "reference": reference,
-        "exact_episode_scores": exact_scores,
+        "reference": contenders.reference,
+        "exact_episode_scores": _exact_episode_scores(params, config, contenders, best_k),
         "config": dataclasses.asdict(config),
         "dt": params.dt,
         "checkpoints": list(checkpoints),
@@ -1002,7 +1222,7 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
         },
         "fixed_interval_tuning_restricted_mean_s": tuning_seconds,
         "best_fixed_interval": best_k,
-        "controllers": [entry.label for entry in entries],
-        "receding_memories": {entry.label: entry.memory for entry in receding},
-        "summaries": summaries,
+        "controllers": [entry.label for entry in contenders.entries],
+        "receding_memories": {entry.label: entry.memory for entry in contenders.receding},
+        "summaries": _efficiency_summaries(params, config, contenders, rows, checkpoints),
     }

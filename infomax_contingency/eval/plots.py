@@ -119,50 +119,36 @@ def plot_session(
     return _save(session_figure(params, records, title, memory, rule_c), path)
 
 
-def session_figure(
-    params: ModelParams,
-    records: Sequence[dict],
-    title: str = "",
-    memory: int = 0,
-    rule_c: float = 9.0,
-) -> Any:
-    """Four panels over time, plus the end-of-session densities (a matplotlib Figure).
+def _session_arrays(params: ModelParams, records: Sequence[dict]) -> dict[str, np.ndarray]:
+    """The columns a session figure draws: window start/end (s), bits, vocalizations, ...
 
-    Panels sharing the time axis (seconds): (1) raster of the windows' bits and of the
-    vocalizations (drawn where the sound is played, at the start of the next window),
-    with the agent-period windows shaded; (2) the belief P(S=1); (3) posterior mean and
-    90 % band of K2 and K3 under S=1, with their densities at the end drawn sideways on
-    the right; (4) the variance ratio ``[Var(K2)/n2] / [Var(K3)/n3]`` (log scale) with the
-    rule's constant c.
+    ``end`` is where a step's belief and a vocalization are drawn (the end of the window,
+    where the sound is played); ``ratio`` is nan where undefined.
     """
-    from scipy import stats
-
-    counts = session_counts(params, records, memory)
-    dt = params.dt
     start = np.array([r["time_s"] for r in records], dtype=float)
-    end = start + dt
-    bits = np.array([r["y"] for r in records], dtype=bool)
-    vocal = np.array([r["u"] for r in records], dtype=bool)
-    periods = np.array([period_of(params, int(r["z"])) for r in records])
-    belief = np.array([r["belief"] for r in records], dtype=float)
-    ratio = np.array([np.nan if r["ratio"] is None else r["ratio"] for r in records], dtype=float)
+    return {
+        "start": start,
+        "end": start + params.dt,
+        "bits": np.array([r["y"] for r in records], dtype=bool),
+        "vocal": np.array([r["u"] for r in records], dtype=bool),
+        "periods": np.array([period_of(params, int(r["z"])) for r in records]),
+        "belief": np.array([r["belief"] for r in records], dtype=float),
+        "ratio": np.array(
+            [np.nan if r["ratio"] is None else r["ratio"] for r in records], dtype=float
+        ),
+    }
 
-    figure = _figure(9.0, 8.0)
-    grid = figure.add_gridspec(4, 2, width_ratios=(6, 1), height_ratios=(1.0, 1.3, 1.6, 1.3))
-    raster = figure.add_subplot(grid[0, 0])
-    belief_axis = figure.add_subplot(grid[1, 0], sharex=raster)
-    rates = figure.add_subplot(grid[2, 0], sharex=raster)
-    ratio_axis = figure.add_subplot(grid[3, 0], sharex=raster)
-    densities = figure.add_subplot(grid[2, 1], sharey=rates)
 
-    # (1) raster
+def _draw_raster(axis: Any, columns: dict[str, np.ndarray], dt: float, title: str) -> None:
+    """Panel 1: the windows' bits and the vocalizations, agent and self windows shaded."""
+    start, periods = columns["start"], columns["periods"]
     for mask, colour, label in (
         (periods == AGENT, "#cfe8cf", "agent period"),
         (periods == SELF, "#e4e4e4", "self-feedback"),
     ):
-        raster.bar(start[mask], 2.6, width=dt, bottom=-0.3, align="edge", color=colour, label=label)
-    raster.bar(
-        start[bits],
+        axis.bar(start[mask], 2.6, width=dt, bottom=-0.3, align="edge", color=colour, label=label)
+    axis.bar(
+        start[columns["bits"]],
         0.8,
         width=dt * 0.9,
         bottom=0.1,
@@ -170,20 +156,35 @@ def session_figure(
         color="black",
         label="sound bit = 1",
     )
-    raster.vlines(end[vocal], 1.2, 2.2, color="tab:red", linewidth=2, label="vocalization")
-    raster.set_yticks([0.5, 1.7], ["sound", "robot"])
-    raster.set_ylim(-0.3, 2.3)
-    raster.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    raster.set_title(title or f"session: {len(records)} windows of {dt:g} s", fontsize=10)
+    axis.vlines(
+        columns["end"][columns["vocal"]],
+        1.2,
+        2.2,
+        color="tab:red",
+        linewidth=2,
+        label="vocalization",
+    )
+    axis.set_yticks([0.5, 1.7], ["sound", "robot"])
+    axis.set_ylim(-0.3, 2.3)
+    axis.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    axis.set_title(title or f"session: {len(start)} windows of {dt:g} s", fontsize=10)
 
-    # (2) belief
-    belief_axis.step(end, belief, where="post", color="tab:blue")
-    belief_axis.axhline(0.5, color="grey", linestyle=":", linewidth=1)
-    belief_axis.axhline(0.95, color="grey", linestyle="--", linewidth=1)
-    belief_axis.set_ylim(-0.02, 1.02)
-    belief_axis.set_ylabel("P(S=1)")
 
-    # (3) rate posteriors under S=1
+def _draw_belief(axis: Any, columns: dict[str, np.ndarray]) -> None:
+    """Panel 2: P(S=1) after each window, with the 0.5 and 0.95 levels."""
+    axis.step(columns["end"], columns["belief"], where="post", color="tab:blue")
+    axis.axhline(0.5, color="grey", linestyle=":", linewidth=1)
+    axis.axhline(0.95, color="grey", linestyle="--", linewidth=1)
+    axis.set_ylim(-0.02, 1.02)
+    axis.set_ylabel("P(S=1)")
+
+
+def _draw_rate_posteriors(
+    rates: Any, densities: Any, params: ModelParams, counts: np.ndarray, end: np.ndarray
+) -> None:
+    """Panel 3: mean and 90 % band of K2 and K3 under S=1; their final densities sideways."""
+    from scipy import stats
+
     p2, q2, p3, q3 = counts.T
     grid_k = np.linspace(0.0, 1.0, 401)
     for ones, zeros, a, b, colour, name in (
@@ -204,16 +205,50 @@ def session_figure(
     densities.set_xlabel("density")
     densities.tick_params(labelleft=False)
 
-    # (4) variance ratio
-    ratio_axis.step(end, ratio, where="post", color="tab:orange")
-    ratio_axis.plot(end[vocal], ratio[vocal], "v", color="tab:red", markersize=5)
-    ratio_axis.axhline(rule_c, color="grey", linestyle="--", linewidth=1, label=f"c = {rule_c:g}")
+
+def _draw_variance_ratio(axis: Any, columns: dict[str, np.ndarray], rule_c: float) -> None:
+    """Panel 4: the variance ratio (log scale where defined), vocalizations and c."""
+    end, ratio, vocal = columns["end"], columns["ratio"], columns["vocal"]
+    axis.step(end, ratio, where="post", color="tab:orange")
+    axis.plot(end[vocal], ratio[vocal], "v", color="tab:red", markersize=5)
+    axis.axhline(rule_c, color="grey", linestyle="--", linewidth=1, label=f"c = {rule_c:g}")
     if np.isfinite(ratio).any():
-        ratio_axis.set_yscale("log")
-    ratio_axis.set_ylabel("var. ratio")
-    ratio_axis.legend(loc="upper left", fontsize=8)
-    ratio_axis.set_xlabel("time (s)")
-    ratio_axis.set_xlim(0.0, end[-1])
+        axis.set_yscale("log")
+    axis.set_ylabel("var. ratio")
+    axis.legend(loc="upper left", fontsize=8)
+    axis.set_xlabel("time (s)")
+    axis.set_xlim(0.0, end[-1])
+
+
+def session_figure(
+    params: ModelParams,
+    records: Sequence[dict],
+    title: str = "",
+    memory: int = 0,
+    rule_c: float = 9.0,
+) -> Any:
+    """Four panels over time, plus the end-of-session densities (a matplotlib Figure).
+
+    Panels sharing the time axis (seconds): (1) raster of the windows' bits and of the
+    vocalizations (drawn where the sound is played, at the start of the next window),
+    with the agent-period windows shaded; (2) the belief P(S=1); (3) posterior mean and
+    90 % band of K2 and K3 under S=1, with their densities at the end drawn sideways on
+    the right; (4) the variance ratio ``[Var(K2)/n2] / [Var(K3)/n3]`` (log scale) with the
+    rule's constant c.
+    """
+    counts = session_counts(params, records, memory)
+    columns = _session_arrays(params, records)
+    figure = _figure(9.0, 8.0)
+    grid = figure.add_gridspec(4, 2, width_ratios=(6, 1), height_ratios=(1.0, 1.3, 1.6, 1.3))
+    raster = figure.add_subplot(grid[0, 0])
+    belief_axis = figure.add_subplot(grid[1, 0], sharex=raster)
+    rates = figure.add_subplot(grid[2, 0], sharex=raster)
+    ratio_axis = figure.add_subplot(grid[3, 0], sharex=raster)
+    densities = figure.add_subplot(grid[2, 1], sharey=rates)
+    _draw_raster(raster, columns, params.dt, title)
+    _draw_belief(belief_axis, columns)
+    _draw_rate_posteriors(rates, densities, params, counts, columns["end"])
+    _draw_variance_ratio(ratio_axis, columns, rule_c)
     for axis in (raster, belief_axis, rates):
         axis.tick_params(labelbottom=False)
     return figure

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -42,7 +43,9 @@ from infomax_contingency.audio.signal import (
     window_samples,
 )
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
@@ -123,12 +126,11 @@ class FakeRoomConfig:
 
 
 PRESETS: dict[str, dict[str, Any]] = {
-    "responsive": {"partner_arrive_s": 0.0, "partner_leave_s": -1.0, "event_rate_hz": 0.1},
-    "silent": {"partner_arrive_s": -1.0, "event_rate_hz": 0.02},
-    "noisy": {"partner_arrive_s": -1.0, "event_rate_hz": 1.0},
+    name: dict(ROOMS[name].audio or {}) for name in AUDIO_ROOM_NAMES
 }
-"""Named rooms: a responsive partner in a fairly quiet room; nobody in a quiet room;
-nobody in a busy room (about half the windows hold a sound)."""
+"""Named rooms (the registry's rooms with an audio-level preset): a responsive partner in a
+fairly quiet room; nobody in a quiet room; nobody in a busy room (about half the windows
+hold a sound). See :data:`infomax_contingency.sim.rooms.ROOMS`."""
 
 
 def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
@@ -295,6 +297,52 @@ def as_transmitted(samples: np.ndarray) -> np.ndarray:
     return np.asarray(samples, dtype=np.float32)
 
 
+class AudioObservation(NamedTuple):
+    """One window of the fake room as the mic node sees it.
+
+    Attributes:
+        y: the window's bit.
+        energy_db: the window's energy (of the float32 samples), dB.
+        partner_present: the room's ground truth at the start of the window.
+    """
+
+    y: int
+    energy_db: float
+    partner_present: bool
+
+
+class AudioWorld:
+    """The fake room heard through energies and a binarizer, as a loop world.
+
+    Each window's audio is rounded to float32 as on the ``audio`` topic before its
+    energy is taken; a window the binarizer spends calibrating (no threshold yet) yields
+    no step, as in the mic node. A vocalization is played at the start of the next window.
+
+    Args:
+        room: the simulated room.
+        binarizer: window energy to bit.
+    """
+
+    def __init__(self, room: FakeRoom, binarizer: Binarizer) -> None:
+        self.room = room
+        self.binarizer = binarizer
+
+    def observe(self) -> AudioObservation | None:
+        """The next window's bit, energy and ground truth (None while calibrating)."""
+        window = self.room.next_window()
+        samples = as_transmitted(window.samples).astype(np.float64)
+        energy = float(window_energies_db(samples, self.room.rate, self.room.config.window_s)[0])
+        y = self.binarizer.push(energy)
+        if y is None:
+            return None
+        return AudioObservation(int(y), energy, window.partner_present)
+
+    def act(self, u: int) -> None:
+        """Vocalize at the start of the next window if ``u`` is 1."""
+        if u:
+            self.room.vocalize()
+
+
 @dataclasses.dataclass(frozen=True)
 class AudioStepRecord:
     """One step of :func:`simulate_audio_loop`.
@@ -316,6 +364,27 @@ class AudioStepRecord:
     partner_present: bool
 
 
+def iter_audio_loop(
+    controller: Controller,
+    room: FakeRoom,
+    binarizer: Binarizer,
+    steps: int | None,
+    memory: int = 0,
+) -> Iterator[AudioStepRecord]:
+    """The streaming form of :func:`simulate_audio_loop` (``steps = None``: without end)."""
+    params = controller.params
+    for step in run_loop(AudioWorld(room, binarizer), controller, steps, memory=memory):
+        seen = step.observation
+        yield AudioStepRecord(
+            step.t,
+            seen.energy_db,
+            seen.y,
+            step.u,
+            step.statistic.belief(params),
+            seen.partner_present,
+        )
+
+
 def simulate_audio_loop(
     controller: Controller,
     room: FakeRoom,
@@ -329,23 +398,6 @@ def simulate_audio_loop(
     decisions and beliefs equal those of the graph (mic, controller and belief nodes
     against the fake audio node in lockstep) for the same seed, threshold and memory.
     Calibration windows (a binarizer without a threshold) yield no step, as in the mic node.
+    The controller is used as it is (not reset).
     """
-    params = controller.params
-    tracker = StatisticTracker(params, memory=memory)
-    records: list[AudioStepRecord] = []
-    while len(records) < steps:
-        window = room.next_window()
-        samples = as_transmitted(window.samples).astype(np.float64)
-        energy = float(window_energies_db(samples, room.rate, room.config.window_s)[0])
-        y = binarizer.push(energy)
-        if y is None:
-            continue
-        belief = tracker.observe(y).belief(params)
-        u = controller.step(int(y))
-        tracker.act(u)
-        if u:
-            room.vocalize()
-        records.append(
-            AudioStepRecord(len(records) + 1, energy, int(y), u, belief, window.partner_present)
-        )
-    return records
+    return list(iter_audio_loop(controller, room, binarizer, steps, memory=memory))

@@ -1,14 +1,69 @@
-"""Offline closed loop: a controller against a simulated room, one window per step."""
+"""Offline closed loop: a controller against a bit-level room, one window per step.
+
+:func:`iter_simulate` is the streaming form (a generator of :class:`StepRecord`, constant
+memory in the number of steps); :func:`simulate` collects it into a list.
+:class:`RunSummary` keeps the running counters a verdict needs, so a streamed run never
+has to hold its records.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams, StatisticTracker
-from infomax_contingency.sim.world import Room
+from infomax_contingency.core.model import ModelParams, advance_timer
+from infomax_contingency.sim.loop import run_loop
+
+
+class BitRoom(Protocol):
+    """A room at the level of bits (:class:`~infomax_contingency.sim.world.Room` and kin)."""
+
+    @property
+    def partner_present(self) -> bool:
+        """The true S."""
+        ...
+
+    def draw_bit(self, z: int, rng: np.random.Generator) -> int:
+        """One window's bit at timer value z."""
+        ...
+
+
+class BitObservation(NamedTuple):
+    """A bit-level room's window: just its bit."""
+
+    y: int
+
+
+class BitWorld:
+    """A bit-level room as a :class:`~infomax_contingency.sim.loop.World`.
+
+    The room answers the robot's vocalizations at delays counted by a timer (steps since
+    the last vocalization, ``ta2 + 1`` meaning long ago), which this world advances with
+    each decision exactly as the model does.
+
+    Args:
+        params: model parameters (the timer's periods).
+        room: the room's rates per timer value.
+        rng: the random stream the bits are drawn from.
+    """
+
+    def __init__(self, params: ModelParams, room: BitRoom, rng: np.random.Generator) -> None:
+        self.params = params
+        self.room = room
+        self.rng = rng
+        self.z = params.timer_long_ago
+
+    def observe(self) -> BitObservation:
+        """Draw the next window's bit at the current timer value."""
+        return BitObservation(self.room.draw_bit(self.z, self.rng))
+
+    def act(self, u: int) -> None:
+        """Advance the timer: 0 after a vocalization, else one more step (up to long ago)."""
+        self.z = advance_timer(self.params, self.z, u)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,40 +91,76 @@ class StepRecord:
     ratio: float | None
 
 
+def iter_simulate(
+    params: ModelParams,
+    controller: Controller,
+    room: BitRoom,
+    steps: int,
+    rng: np.random.Generator,
+    memory: int = 0,
+) -> Iterator[StepRecord]:
+    """Yield ``steps`` steps, from zero counts and the timer at "long ago".
+
+    The reported belief is that of a statistic over the whole run (``memory = 0``) or over
+    the last ``memory`` counted observations; the controller keeps its own statistic (it
+    is reset first). The bits and any randomised decisions draw from ``rng``.
+
+    Raises:
+        ValueError: ``steps < 1`` (raised at once, not at the first step).
+    """
+    if steps < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
+    controller.reset()
+    loop = run_loop(BitWorld(params, room, rng), controller, steps, memory=memory)
+    return (
+        StepRecord(
+            t=step.t,
+            time_s=round((step.t - 1) * params.dt, 9),
+            z=step.z,
+            y=int(step.observation.y),
+            u=step.u,
+            belief=step.statistic.belief(params),
+            entropy=step.statistic.entropy(params),
+            ratio=step.statistic.variance_ratio(params),
+        )
+        for step in loop
+    )
+
+
 def simulate(
     params: ModelParams,
     controller: Controller,
-    room: Room,
+    room: BitRoom,
     steps: int,
     rng: np.random.Generator,
     memory: int = 0,
 ) -> list[StepRecord]:
-    """Run ``steps`` steps from zero counts and the timer at "long ago".
+    """The records of :func:`iter_simulate`, as a list."""
+    return list(iter_simulate(params, controller, room, steps, rng, memory=memory))
 
-    The reported belief is that of a statistic over the whole run (``memory = 0``) or over
-    the last ``memory`` counted observations; the controller keeps its own statistic.
+
+@dataclasses.dataclass
+class RunSummary:
+    """Running counters of a run, fed one :class:`StepRecord` at a time.
+
+    Attributes:
+        steps: records seen.
+        vocalizations: records with u = 1.
+        final_belief: P(S=1) of the last record (None before the first).
     """
-    if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
-    tracker = StatisticTracker(params, memory=memory)
-    controller.reset()
-    records = []
-    for t in range(1, steps + 1):
-        z = tracker.statistic.z
-        y = room.draw_bit(z, rng)
-        statistic = tracker.observe(y)
-        u = controller.step(y)
-        tracker.act(u)
-        records.append(
-            StepRecord(
-                t=t,
-                time_s=round((t - 1) * params.dt, 9),
-                z=z,
-                y=y,
-                u=u,
-                belief=statistic.belief(params),
-                entropy=statistic.entropy(params),
-                ratio=statistic.variance_ratio(params),
-            )
-        )
-    return records
+
+    steps: int = 0
+    vocalizations: int = 0
+    final_belief: float | None = None
+
+    def add(self, record: StepRecord) -> None:
+        """Count one step."""
+        self.steps += 1
+        self.vocalizations += record.u
+        self.final_belief = record.belief
+
+    @property
+    def verdict(self) -> str:
+        """``partner present`` if the last belief is above 1/2, else ``no partner``."""
+        present = self.final_belief is not None and self.final_belief > 0.5
+        return "partner present" if present else "no partner"

@@ -2,7 +2,8 @@
 
 A :class:`Room` gives, for every timer value z, the probability that the window's bit is
 1, plus the ground truth (is a responsive partner there). Rooms are specified on the
-command line as ``NAME`` or ``NAME:key=value,...``:
+command line as ``NAME`` or ``NAME:key=value,...`` with a name of the registry
+:data:`~infomax_contingency.sim.rooms.ROOMS`:
 
 * ``prior`` — S, K1, K2, K3 drawn from the model's priors (``pi=`` overrides P(S=1)).
 * ``responsive`` — a partner answers: ``k1`` (robot hears itself, default 0.9),
@@ -11,6 +12,9 @@ command line as ``NAME`` or ``NAME:key=value,...``:
 * ``noisy`` — nobody answers, a loud room: ``k1`` 0.9, ``k3`` 0.5 (``k2 = k3``).
 * ``baby9`` — MODEL.md section 5: active at every agent-period step (``reply=all``) or
   only at timer value ``reply=N``; silent otherwise; self-feedback bits 0.
+* ``quiet``, ``office``, ``poster-session`` (each also ``+partner``) — the named
+  backgrounds of the efficiency experiment (``k1``, ``k3`` and with a partner ``k2``
+  may be overridden).
 """
 
 from __future__ import annotations
@@ -20,8 +24,9 @@ import dataclasses
 import numpy as np
 
 from infomax_contingency.core.model import AGENT, BACKGROUND, SELF, ModelParams, period_of
+from infomax_contingency.sim.rooms import NAMED_BACKGROUNDS, ROOM_NAMES, RoomKind, room_kind
 
-ROOM_NAMES = ("prior", "responsive", "silent", "noisy", "baby9")
+__all__ = ["ROOM_NAMES", "Room", "make_room", "named_room", "room_from_rates"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,51 +72,70 @@ def _parse_options(spec: str) -> tuple[str, dict[str, str]]:
 
 
 def _float_option(options: dict[str, str], key: str, default: float, spec: str) -> float:
+    """The number option ``key`` of a specification, or ``default`` when it is not given."""
+    text = options.get(key)
+    if text is None:
+        return default
     try:
-        return float(options.pop(key, default))
+        return float(text)
     except ValueError:
-        raise ValueError(f"room {spec!r}: {key} must be a number, got {options[key]!r}") from None
+        raise ValueError(f"room {spec!r}: {key} must be a number, got {text!r}") from None
+
+
+def _prior_room(params: ModelParams, spec: str, pi: float, rng: np.random.Generator) -> Room:
+    """S with P(S=1) = pi, then K1, K3 and (with a partner) K2 from the model's priors."""
+    partner = bool(rng.random() < pi)
+    k1 = rng.beta(params.b11, params.b12)
+    k3 = rng.beta(params.b31, params.b32)
+    k2 = rng.beta(params.b21, params.b22) if partner else k3
+    return room_from_rates(params, spec, partner, k1, k2, k3)
+
+
+def _baby9_room(params: ModelParams, spec: str, reply: str) -> Room:
+    """Active at every agent-period timer value (``all``) or only at ``reply``; else silent."""
+    if reply == "all":
+        answered = range(params.ta1, params.ta2 + 1)
+    elif reply.isdigit() and params.ta1 <= int(reply) <= params.ta2:
+        answered = range(int(reply), int(reply) + 1)
+    else:
+        raise ValueError(
+            f"room {spec!r}: reply must be 'all' or a timer value in"
+            f" {params.ta1}..{params.ta2} (the agent period)"
+        )
+    rates = tuple(1.0 if z in answered else 0.0 for z in range(params.n_timer_values))
+    return Room(spec, True, rates)
+
+
+def _rates_room(params: ModelParams, kind: RoomKind, spec: str, options: dict[str, str]) -> Room:
+    """A room of fixed rates: the kind's defaults, overridden by the options k1, k2, k3."""
+    if kind.rates is None:
+        raise ValueError(f"room {kind.name!r} is not a room of fixed rates")
+    k1 = _float_option(options, "k1", kind.rates.k1, spec)
+    k3 = _float_option(options, "k3", kind.rates.k3, spec)
+    if kind.rates.k2 is None:  # nobody answers: the agent period is background
+        return room_from_rates(params, spec, bool(kind.partner_present), k1, k3, k3)
+    k2 = _float_option(options, "k2", kind.rates.k2, spec)
+    return room_from_rates(params, spec, bool(kind.partner_present), k1, k2, k3)
 
 
 def make_room(spec: str, params: ModelParams, rng: np.random.Generator) -> Room:
     """Parse a room specification (see the module docstring); draws from ``rng`` for prior."""
     name, options = _parse_options(spec)
-    if name == "prior":
-        pi = _float_option(options, "pi", params.pi, spec)
-        partner = bool(rng.random() < pi)
-        k1 = rng.beta(params.b11, params.b12)
-        k3 = rng.beta(params.b31, params.b32)
-        k2 = rng.beta(params.b21, params.b22) if partner else k3
-        room = room_from_rates(params, spec, partner, k1, k2, k3)
-    elif name == "responsive":
-        room = room_from_rates(
-            params,
-            spec,
-            True,
-            _float_option(options, "k1", 0.9, spec),
-            _float_option(options, "k2", 0.8, spec),
-            _float_option(options, "k3", 0.1, spec),
-        )
-    elif name in ("silent", "noisy"):
-        k3 = _float_option(options, "k3", 0.02 if name == "silent" else 0.5, spec)
-        k1 = _float_option(options, "k1", 0.9, spec)
-        room = room_from_rates(params, spec, False, k1, k3, k3)
-    elif name == "baby9":
-        reply = options.pop("reply", "all")
-        if reply == "all":
-            rates = [
-                1.0 if params.ta1 <= z <= params.ta2 else 0.0 for z in range(params.n_timer_values)
-            ]
-        else:
-            if not reply.isdigit() or not params.ta1 <= int(reply) <= params.ta2:
-                raise ValueError(
-                    f"room {spec!r}: reply must be 'all' or a timer value in"
-                    f" {params.ta1}..{params.ta2} (the agent period)"
-                )
-            rates = [1.0 if z == int(reply) else 0.0 for z in range(params.n_timer_values)]
-        room = Room(spec, True, tuple(rates))
-    else:
-        raise ValueError(f"unknown room {name!r}; rooms: {', '.join(ROOM_NAMES)}")
-    if options:
-        raise ValueError(f"room {spec!r}: unknown option(s) {sorted(options)}")
-    return room
+    kind = room_kind(name)
+    unknown = sorted(set(options) - set(kind.options))
+    if unknown:
+        raise ValueError(f"room {spec!r}: unknown option(s) {unknown}")
+    if kind.family == "prior":
+        return _prior_room(params, spec, _float_option(options, "pi", params.pi, spec), rng)
+    if kind.family == "baby9":
+        return _baby9_room(params, spec, options.get("reply", "all"))
+    return _rates_room(params, kind, spec, options)
+
+
+def named_room(params: ModelParams, name: str) -> Room:
+    """``quiet``, ``office``, ``poster-session``, each optionally ``+partner`` (no options)."""
+    base, _, suffix = name.partition("+")
+    if base not in NAMED_BACKGROUNDS or suffix not in ("", "partner"):
+        choices = ", ".join(f"{n}[+partner]" for n in NAMED_BACKGROUNDS)
+        raise ValueError(f"unknown named room {name!r}; rooms: {choices}")
+    return _rates_room(params, room_kind(name), name, {})
