@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from infomax_contingency.audio.live import INPUT, DeviceInfo
+from infomax_contingency.audio.devices import INPUT, DeviceInfo
 
 
 @dataclass

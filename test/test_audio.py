@@ -9,27 +9,27 @@ import pytest
 import yaml
 from scipy.io import wavfile
 
-from infomax_contingency.audio import signal as audio
-from infomax_contingency.audio.signal import (
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.energy import (
+    ENERGY_FLOOR,
     ENERGY_FLOOR_DB,
-    AudioError,
+    WindowAssembler,
+    window_energies_db,
+    window_samples,
+)
+from infomax_contingency.audio.resample import load_mono, resample
+from infomax_contingency.audio.synth import synthesize_chirp
+from infomax_contingency.audio.threshold import (
+    THRESHOLD_FORMAT_VERSION,
     OnlineThreshold,
     ThresholdFit,
-    WindowAssembler,
     bits_from_energies,
     kmeans_split,
     kmeans_threshold,
-    load_mono,
     load_threshold,
-    read_wav,
-    resample,
     save_threshold,
-    synthesize_chirp,
-    to_mono,
-    window_energies_db,
-    window_samples,
-    write_wav_int16,
 )
+from infomax_contingency.audio.wav import read_wav, to_mono, write_wav_int16
 
 # --------------------------------------------------------------------------- helpers
 
@@ -85,7 +85,7 @@ def test_full_scale_sine_is_minus_3_db() -> None:
 
 
 def test_silence_gives_the_floor_and_dc_gives_its_square() -> None:
-    assert ENERGY_FLOOR_DB == pytest.approx(10 * math.log10(audio.ENERGY_FLOOR))
+    assert ENERGY_FLOOR_DB == pytest.approx(10 * math.log10(ENERGY_FLOOR))
     np.testing.assert_allclose(window_energies_db(np.zeros(800), 8000, 0.05), ENERGY_FLOOR_DB)
     np.testing.assert_allclose(window_energies_db(np.full(800, -0.1), 8000, 0.05), -20.0)
 
@@ -354,7 +354,7 @@ def test_resampled_tone_keeps_its_energy(tmp_path, file_rate: int) -> None:
     path = tmp_path / f"tone{file_rate}.wav"
     write_wav_int16(path, tone(1000.0, file_rate, 1.0, amplitude=0.5), file_rate)
     x = load_mono(path)  # to PROCESSING_RATE_HZ
-    assert audio.PROCESSING_RATE_HZ == 16000
+    assert PROCESSING_RATE_HZ == 16000
     assert x.size == 16000
     energies = window_energies_db(x, 16000, 0.05)
     # Windows away from the edges: mean square 0.125, i.e. -9.03 dB.
@@ -472,7 +472,7 @@ def test_threshold_file_round_trip(tmp_path) -> None:
     save_threshold(path, fit, window_s=0.1, rate=16000, source="room.wav")
     assert load_threshold(path) == -37.25
     record = yaml.safe_load(path.read_text())
-    assert record["format_version"] == audio.THRESHOLD_FORMAT_VERSION
+    assert record["format_version"] == THRESHOLD_FORMAT_VERSION
     assert record["window_s"] == 0.1
     assert record["sample_rate_hz"] == 16000
     assert (record["low_mean_db"], record["high_mean_db"]) == (-55.5, -19.0)

@@ -15,8 +15,11 @@ import yaml
 
 from alsa_devices import VirtualAlsa
 from fake_portaudio import FakeBackend, Room, device
-from infomax_contingency.audio import live as live_audio
-from infomax_contingency.audio import signal as audio
+from infomax_contingency.audio import devices as audio_devices
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.threshold import kmeans_split, load_threshold
+from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.cli import main as cli
 from test_live_audio import write_recording
 
@@ -44,9 +47,9 @@ def test_calibrate_on_a_wav_prints_threshold_and_histogram(room_wav, tmp_path, c
     out = tmp_path / "cal" / "threshold.yaml"
     assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    energies = audio.window_energies_db(audio.load_mono(room_wav), 16000, 0.5)
-    fit = audio.kmeans_split(energies)
-    assert audio.load_threshold(out) == fit.threshold_db
+    energies = window_energies_db(load_mono(room_wav), 16000, 0.5)
+    fit = kmeans_split(energies)
+    assert load_threshold(out) == fit.threshold_db
     record = yaml.safe_load(out.read_text())
     assert record["window_s"] == 0.5 and record["source"] == f"wav:{room_wav}"
     assert f"calibrated on {energies.size} windows of 0.5 s from {room_wav}" in text
@@ -63,7 +66,7 @@ def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
     assert cli.main(["calibrate", "--wav", str(room_wav), "--device", "1", "--out", str(out)]) == 2
     assert "not both" in capsys.readouterr().err
     silent = tmp_path / "silent.wav"
-    audio.write_wav_int16(silent, np.zeros(16000), 16000)
+    write_wav_int16(silent, np.zeros(16000), 16000)
     assert cli.main(["calibrate", "--wav", str(silent), "--out", str(out)]) == 2
     assert "no boundary between quiet and sound" in capsys.readouterr().err
     assert cli.main(["calibrate", "--wav", str(tmp_path / "none.wav"), "--out", str(out)]) == 2
@@ -84,7 +87,7 @@ def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) ->
     assert rc == 0, stdout
     offline = tmp_path / "offline.yaml"
     assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(offline)]) == 0
-    assert audio.load_threshold(live) == audio.load_threshold(offline)
+    assert load_threshold(live) == load_threshold(offline)
     assert yaml.safe_load(live.read_text())["source"] == "device:fakemic"
     assert "calibrated on 14 windows of 0.5 s from fakemic (16000 Hz)" in stdout
     assert "threshold" in stdout and " dB | " in stdout
@@ -141,7 +144,7 @@ def test_measure_latency_reports_delay_and_self_period(monkeypatch, capsys) -> N
         sink=room.sink,
         output_latency_s=0.03,
     )
-    monkeypatch.setattr(live_audio, "SoundDeviceBackend", lambda: backend)
+    monkeypatch.setattr(audio_devices, "SoundDeviceBackend", lambda: backend)
     rc = cli.main(["measure-latency", "--repeats", "2", "--interval-s", "0.7"])
     text = capsys.readouterr().out
     assert rc == 0, text

@@ -6,13 +6,11 @@ import numpy as np
 import pytest
 
 from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
-from infomax_contingency.audio.signal import (
-    AudioError,
-    kmeans_split,
-    load_mono,
-    window_energies_db,
-    write_wav_int16,
-)
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.threshold import kmeans_split
+from infomax_contingency.audio.wav import write_wav_int16
 
 WAV = Path(__file__).parent / "data" / "interaction.wav"
 

@@ -11,22 +11,15 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from infomax_contingency.audio.live import (
-    INPUT,
-    OUTPUT,
+from infomax_contingency.audio.calibration import (
     energies_from_wav,
     energy_histogram,
-    format_devices,
-    measure_latency,
     record_energies,
-    self_period_windows,
 )
-from infomax_contingency.audio.signal import (
-    PROCESSING_RATE_HZ,
-    AudioError,
-    kmeans_split,
-    save_threshold,
-)
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.devices import INPUT, OUTPUT, format_devices
+from infomax_contingency.audio.latency import measure_latency, self_period_windows
+from infomax_contingency.audio.threshold import kmeans_split, save_threshold
 from infomax_contingency.core.model import ModelParams
 
 _MIN_SEPARATION_DB = 10.0

@@ -55,15 +55,11 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray
 
 from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
-from infomax_contingency.audio.live import (
-    DISCONNECTED,
-    INPUT,
-    AudioDeviceError,
-    MicrophoneStream,
-    Window,
-    resolve_device,
-)
-from infomax_contingency.audio.signal import AudioError, WindowAssembler, load_threshold
+from infomax_contingency.audio.capture import MicrophoneStream, Window
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
+from infomax_contingency.audio.energy import WindowAssembler
+from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.stepclock import LockstepPacer
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter

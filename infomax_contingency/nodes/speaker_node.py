@@ -32,13 +32,9 @@ from builtin_interfaces.msg import Time as TimeMsg
 from rclpy.time import Time
 from std_msgs.msg import Bool
 
-from infomax_contingency.audio.live import (
-    CONNECTED,
-    OVERLAP_POLICIES,
-    AudioDeviceError,
-    SpeakerOutput,
-)
-from infomax_contingency.audio.signal import read_wav
+from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
+from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
+from infomax_contingency.audio.wav import read_wav
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STREAM_QOS

@@ -35,12 +35,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from infomax_contingency.audio.binarizer import Binarizer
-from infomax_contingency.audio.signal import (
-    PROCESSING_RATE_HZ,
-    synthesize_chirp,
-    window_energies_db,
-    window_samples,
-)
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ
+from infomax_contingency.audio.energy import window_energies_db, window_samples
+from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 
