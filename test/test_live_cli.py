@@ -168,3 +168,28 @@ def test_cli_registers_the_live_commands() -> None:
     parser = cli.build_parser()
     choices = parser._subparsers._group_actions[0].choices
     assert {"devices", "calibrate", "measure-latency"} <= set(choices)
+
+
+def test_calibrate_refuses_clusters_too_close_to_separate_unless_forced(tmp_path, capsys) -> None:
+    # a steady hum whose loudness wobbles by 2 dB: two clusters, but no quiet and no sound
+    rng = np.random.default_rng(2)
+    gains = np.repeat(np.where(np.arange(12) % 2 == 1, 0.1 * 10 ** (2 / 20), 0.1), 8000)
+    hum = tmp_path / "hum.wav"
+    write_wav_int16(hum, gains * rng.standard_normal(gains.size), 16000)
+    out = tmp_path / "t.yaml"
+    assert cli.main(["calibrate", "--wav", str(hum), "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert not out.exists()
+    [line] = captured.err.splitlines()
+    assert line.startswith("infomax-contingency calibrate: error: calibration cannot separate")
+    assert "lie only 2.0 dB apart" in line and "--force" in line
+    assert "threshold:" in captured.out  # the fit and the histogram are still shown
+    assert cli.main(["calibrate", "--wav", str(hum), "--out", str(out), "--force"]) == 0
+    captured = capsys.readouterr()
+    assert "warning: calibration cannot separate" in captured.out and out.exists()
+    assert "lie only 2.0 dB apart" in captured.out
+    out.unlink()
+    args = ["calibrate", "--wav", str(hum), "--out", str(out), "--min-separation-db", "1.5"]
+    assert cli.main(args) == 0 and out.exists()
+    with pytest.raises(SystemExit):
+        cli.main(["calibrate", "--wav", str(hum), "--out", str(out), "--min-separation-db", "-1"])
