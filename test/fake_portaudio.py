@@ -1,10 +1,15 @@
 """A fake PortAudio for tests of live_audio.
 
-Devices that come and go, streams driven by hand or by a real-time thread, and a "room"
-that feeds the loudspeaker back into the microphone.
+Devices that come and go, streams driven by hand, by a :class:`FakeClock` or by a
+real-time thread, and a "room" that feeds the loudspeaker back into the microphone.
 
-It implements live_audio.AudioBackend. Callbacks get the same arguments as sounddevice's
-(``data, frames, time_info, status``), with times on the ``time.monotonic()`` clock.
+It implements ``infomax_contingency.audio.devices.AudioBackend``. Callbacks get the same
+arguments as sounddevice's (``data, frames, time_info, status``), with times on the
+backend's clock (``time.monotonic()``, or a :class:`FakeClock`).
+
+With a :class:`FakeClock`, nothing sleeps: give the same clock (and its ``sleep``) to the
+stream under test; whenever it sleeps, the clock moves on and every running stream
+delivers the blocks that fell due meanwhile, at their exact times.
 """
 
 from __future__ import annotations
@@ -17,6 +22,32 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from infomax_contingency.audio.devices import INPUT, DeviceInfo
+
+
+class FakeClock:
+    """Monotonic seconds that move only by :meth:`sleep` / :meth:`advance`.
+
+    Listeners (the fake streams) are told each new time and run the callbacks due by
+    then; while a callback runs, the clock reads the block's due time.
+    """
+
+    def __init__(self, start: float = 1000.0) -> None:
+        self.now = start
+        self.listeners: list[Callable[[float], None]] = []
+        self.slept = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.slept += max(0.0, seconds)
+        self.advance(seconds)
+
+    def advance(self, seconds: float) -> None:
+        target = self.now + max(0.0, seconds)
+        for listener in list(self.listeners):
+            listener(target)
+        self.now = target
 
 
 @dataclass
@@ -63,6 +94,8 @@ class FakeStream:
         self.dead = False
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._t0 = 0.0
+        self._blocks_due = 0
 
     @property
     def active(self) -> bool:
@@ -70,17 +103,32 @@ class FakeStream:
 
     @property
     def time(self) -> float:
-        return time.monotonic()
+        return self.backend.now()
 
     def start(self) -> None:
         self.started = True
-        if self.backend.realtime:
+        if self.backend.clock is not None:
+            self._t0 = self.backend.clock()
+            self.backend.clock.listeners.append(self._catch_up)
+        elif self.backend.realtime:
             self._thread = threading.Thread(target=self._run, daemon=True)
             self._thread.start()
+
+    def _catch_up(self, now: float) -> None:
+        """FakeClock listener: run every block due by ``now``, each at its due time."""
+        period = self.blocksize / self.rate
+        while self.active and self._t0 + self._blocks_due * period <= now:
+            due = self._t0 + self._blocks_due * period
+            self._blocks_due += 1
+            self.backend.clock.now = due
+            self._deliver(due)
 
     def close(self, ignore_errors: bool = True) -> None:
         self.closed = True
         self._stop.set()
+        clock = self.backend.clock
+        if clock is not None and self._catch_up in clock.listeners:
+            clock.listeners.remove(self._catch_up)
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
 
@@ -117,17 +165,20 @@ class FakeStream:
             delay = due - time.monotonic()
             if delay > 0 and self._stop.wait(delay):
                 return
-            if self.backend.stalled.get(self.index):
-                n += 1
-                continue
-            if self.kind == INPUT:
-                block = self.backend.source(self, due, self.blocksize)
-                self.pump(block, t=due)
-            else:
-                dac = due + self.backend.output_latency_s
-                out = self.pump(t=dac)
-                self.backend.sink(self, dac, out)
+            self._deliver(due)
             n += 1
+
+    def _deliver(self, due: float) -> None:
+        """One block at ``due``: from the source (input) or to the sink (output)."""
+        if self.backend.stalled.get(self.index):
+            return
+        if self.kind == INPUT:
+            self.pump(self.backend.source(self, due, self.blocksize), t=due)
+        else:
+            dac = due + self.backend.output_latency_s
+            out = self.pump(t=dac)
+            if self.backend.sink is not None:
+                self.backend.sink(self, dac, out)
 
 
 @dataclass
@@ -147,12 +198,17 @@ class FakeBackend:
     sink: Callable[[FakeStream, float, np.ndarray], None] | None = None
     output_latency_s: float = 0.0
     stalled: dict[int, bool] = field(default_factory=dict)
+    clock: FakeClock | None = None
 
     def __post_init__(self) -> None:
         self.listed = list(self.visible)
         self.streams: list[FakeStream] = []
         self.rescans = 0
         self.open_attempts = 0
+
+    def now(self) -> float:
+        """The backend's clock: the FakeClock if there is one, else time.monotonic()."""
+        return self.clock() if self.clock is not None else time.monotonic()
 
     # AudioBackend
     def devices(self) -> list[DeviceInfo]:

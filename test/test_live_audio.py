@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from alsa_devices import VirtualAlsa, fifo_prelude, read_raw
-from fake_portaudio import FakeBackend, Room, Rule, device
+from fake_portaudio import FakeBackend, FakeClock, Room, Rule, device
 from infomax_contingency.audio.calibration import energy_histogram
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import AudioError
@@ -39,6 +38,7 @@ from infomax_contingency.audio.playback import SpeakerOutput
 from infomax_contingency.audio.resample import StreamResampler, load_mono, resample
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.audio.threshold import bits_from_energies, kmeans_threshold
+from infomax_contingency.audio.timeline import WindowTimeline
 from infomax_contingency.audio.wav import to_mono, write_wav_int16
 
 # --------------------------------------------------------------------------- fixtures
@@ -328,54 +328,70 @@ def test_a_loss_of_a_whole_window_is_a_gap_without_made_up_windows() -> None:
 
 @pytest.mark.slow
 def test_stall_and_unplug_reconnect_with_backoff_and_report_the_gap() -> None:
+    # On a fake clock: the device delivers a 20 ms block whenever the clock passes its
+    # ADC time, and the stream's waits move the clock, so every time below is exact.
+    clock = FakeClock(1000.0)
+    t0 = clock()
     x = f32(recording(16000, 30.0))
     backend = FakeBackend(
         [device(0, "USB mic", 1, 0, 16000), device(1, "Built-in", 1, 0, 16000)],
         default_input=1,
-        realtime=True,
+        clock=clock,
         source=lambda stream, t, n: x[(i := round((t - t0) * 16000)) : i + n],
     )
-    t0 = time.monotonic()
     lines, log = logs()
     mic = MicrophoneStream(
-        "usb", window_s=0.1, stall_timeout_s=0.3, backoff_s=(0.1, 0.4), log=log, backend=backend
+        "usb",
+        window_s=0.1,
+        stall_timeout_s=0.3,
+        backoff_s=(0.1, 0.4),
+        log=log,
+        backend=backend,
+        clock=clock,
+        sleep=clock.sleep,
     ).start()
-    windows, states = [], []
+    windows, rescans_at = [], []
+    rescan = backend.rescan
+    backend.rescan = lambda: (rescans_at.append(clock()), rescan())  # before every reopening
 
     def run(seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        end = clock() + seconds
+        while clock() < end:
             windows.extend(mic.read_windows(0.02))
-            states.append((time.monotonic(), mic.state))
 
     try:
         run(0.5)
-        assert mic.state == "connected" and len(windows) >= 3
+        assert mic.state == "connected" and len(windows) == 5  # blocks come at their ADC time
         before = len(windows)
-        unplugged = time.monotonic()
+        unplugged = clock()
         backend.unplug(0)  # the stream dies; the device is gone from the next rescan
         run(1.3)
         status = mic.status()
         assert status.state == "disconnected" and status.disconnects == 1
-        assert status.reconnect_attempts >= 3  # 0.1 + 0.2 + 0.4 + 0.4 ... s apart
+        # back-off 0.1, 0.2, 0.4, 0.4 s after the disconnect (noticed 20 ms after unplugging)
+        # noticed at the first read after the unplug (20 ms later); then it retries after
+        # back-offs of 0.1, 0.2, 0.4 and 0.4 s (doubling up to backoff_s[1])
+        assert [round(t - unplugged, 9) for t in rescans_at] == [0.12, 0.32, 0.72, 1.12]
+        assert status.reconnect_attempts == 4
         assert "no input device name contains 'usb'" in status.last_error
         assert "[1] Built-in" in status.last_error
         assert len(windows) == before  # nothing is made up while the device is gone
         backend.plug(device(0, "USB mic", 1, 0, 16000))
+        replugged = clock()
         run(1.0)
-        replugged = time.monotonic()
         status = mic.status()
         assert status.state == "connected" and status.reconnects == 1
+        reopened = unplugged + 1.52  # the attempt 0.4 s after the last failed one
         resumed = windows[before:]
         assert resumed and all(w.segment == 1 for w in resumed)
-        assert resumed[0].gap_s > 1.0 and resumed[0].gap_s < replugged - unplugged
-        assert all(w.gap_s == 0 for w in resumed[1:])
-        # every window after the gap holds the audio at its ADC time
+        assert resumed[0].start_time == pytest.approx(reopened, abs=1e-9)
+        assert resumed[0].gap_s == pytest.approx(reopened - windows[before - 1].end_time)
+        assert status.gaps == 1 and status.gap_total_s == resumed[0].gap_s
+        assert replugged < reopened and all(w.gap_s == 0 for w in resumed[1:])
+        # every window after the gap holds exactly the audio at its ADC time
         for w in resumed:
             i = round((w.start_time - t0) * 16000)
-            assert w.energy_db == pytest.approx(
-                window_energies_db(x[i : i + 1600], 16000, 0.1)[0], abs=1e-9
-            )
+            assert w.energy_db == window_energies_db(x[i : i + 1600], 16000, 0.1)[0]
         # a stalled device (delivers nothing, does not fail) is noticed too
         count = len(windows)
         backend.stalled[0] = True  # a reopened stream stalls too: it flaps until data flows
@@ -392,8 +408,70 @@ def test_stall_and_unplug_reconnect_with_backoff_and_report_the_gap() -> None:
     finally:
         mic.close()
     assert mic.state == "closed"
+    assert clock.slept == pytest.approx(clock() - t0)  # all the time passed in the stream's waits
     with pytest.raises(AudioError, match="not started"):
         mic.read_windows()
+
+
+def timeline_blocks(timeline, x, block, t0=100.0, rate=16000, **losses):
+    """Convert ``x`` block by block at contiguous ADC times; return the windows."""
+    windows = []
+    for k in range(0, x.size, block):
+        chunk = timeline.convert(x[k : k + block, None], t0 + k / rate, 0, False, None, now=0.0)
+        windows.extend(timeline.assemble(chunk))
+    return windows
+
+
+def test_timeline_contiguous_blocks_give_offline_energies_at_exact_times() -> None:
+    x = recording(16000, 1.0)
+    timeline = WindowTimeline(16000, 0.25)
+    timeline.start_stream(16000)
+    windows = timeline_blocks(timeline, x, 333)
+    assert [w.index for w in windows] == [0, 1, 2, 3]
+    assert [w.start_time for w in windows] == [100.0, 100.25, 100.5, 100.75]
+    assert [w.end_time for w in windows] == [100.25, 100.5, 100.75, 101.0]
+    assert [w.energy_db for w in windows] == window_energies_db(x, 16000, 0.25).tolist()
+    assert all(w.intact and w.segment == 0 and w.gap_s == 0 for w in windows)
+    assert (timeline.windows, timeline.gaps, timeline.lost_samples) == (4, 0, 0)
+
+
+def test_timeline_short_loss_stays_in_its_window_and_long_loss_is_a_gap() -> None:
+    timeline = WindowTimeline(16000, 0.1)  # 1600 samples a window
+    timeline.start_stream(16000)
+    block = np.full((800, 1), 0.1)
+    first = timeline.assemble(timeline.convert(block, 10.0, 0, False, None, 0.0))
+    # 400 samples dropped before the next block: inside the window being filled
+    second = timeline.assemble(timeline.convert(block, 10.075, 400, False, None, 0.0))
+    assert first == [] and len(second) == 1
+    w = second[0]
+    assert (w.lost_samples, w.segment, w.gap_s) == (400, 0, 0.0) and not w.intact
+    assert w.start_time == 10.0 and w.end_time == pytest.approx(10.125)
+    # an overflow whose ADC time jumps 0.2 s (a window or more): a new segment and a gap
+    late = 10.125 + 0.2
+    chunk = timeline.convert(np.full((1600, 1), 0.1), late, 0, True, None, 0.0)
+    assert chunk.segment == 1 and chunk.start_time == pytest.approx(late)
+    [after] = timeline.assemble(chunk)
+    assert after.segment == 1 and after.overflows == 1 and after.lost_samples == 0
+    assert after.start_time == pytest.approx(late)
+    assert after.gap_s == pytest.approx(0.2) and timeline.gap_total_s == after.gap_s
+    assert (timeline.gaps, timeline.lost_samples) == (1, 400 + 3200)
+
+
+def test_timeline_reopened_stream_resamples_and_reports_the_gap() -> None:
+    timeline = WindowTimeline(16000, 0.5)
+    timeline.start_stream(16000)
+    timeline_blocks(timeline, recording(16000, 1.0), 320, t0=0.0)
+    timeline.start_stream(48000)  # reopened at another rate, 2 s later
+    x48 = recording(48000, 1.0, seed=2)
+    windows = timeline_blocks(timeline, x48, 960, t0=3.0, rate=48000)
+    assert [w.segment for w in windows] == [1]  # the resampler delays the second window
+    assert windows[0].start_time == 3.0 and windows[0].gap_s == pytest.approx(2.0)
+    expected = window_energies_db(resample(x48, 48000, 16000), 16000, 0.5)[0]
+    assert windows[0].energy_db == expected
+    # blocks without an ADC time are anchored at the caller's clock
+    timeline.start_stream(16000)
+    chunk = timeline.convert(np.zeros((8000, 1)), None, 0, False, None, now=7.5)
+    assert chunk.start_time == 7.5 and timeline.assemble(chunk)[0].start_time == 7.5
 
 
 def test_microphone_argument_errors() -> None:
@@ -477,28 +555,33 @@ def test_speaker_sound_from_wav_and_array_resampled_to_the_device(tmp_path) -> N
 
 
 def test_speaker_survives_a_vanished_device() -> None:
-    backend = speaker_backend()
+    clock = FakeClock(50.0)
+    backend = FakeBackend([device(0, "Speakers", 0, 2, 16000)], default_output=0, clock=clock)
     lines, log = logs()
-    speaker = SpeakerOutput(retry_s=0.2, log=log, backend=backend).start()
+    speaker = SpeakerOutput(retry_s=0.2, log=log, backend=backend, clock=clock, sleep=clock.sleep)
+    speaker.start()
     try:
         backend.unplug(0)
         assert speaker.play() is None
         status = speaker.status()
         assert status.state == "disconnected" and status.errors == 2
         assert "no output device" in status.last_error or "Speakers" in status.last_error
-        assert speaker.play() is None  # within retry_s: not even tried
+        opened = backend.open_attempts
         backend.plug(device(0, "Speakers", 0, 2, 16000))
-        time.sleep(0.25)
+        clock.advance(0.19)
+        assert speaker.play() is None  # within retry_s: not even tried
+        assert backend.open_attempts == opened and speaker.status().errors == 3
+        clock.advance(0.02)  # retry_s has passed
         assert speaker.play() == 1
         assert speaker.status().state == "connected"
         stream = backend.last("output")
-        assert stream.pump(t=5.0).any() and speaker.events()[0].start_time == pytest.approx(
-            5.0, abs=1e-4
-        )
+        assert stream.pump(t=5.0).any() and speaker.events()[0].start_time == 5.0
+        assert speaker.events(0.5) == [] and clock() == pytest.approx(50.71)  # waited on the clock
     finally:
         speaker.close()
     with pytest.raises(AudioError, match="not started"):
         speaker.play()
+    assert any("speaker" in line for line in lines)
 
 
 # --------------------------------------------------------------------------- helpers

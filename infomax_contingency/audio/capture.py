@@ -502,13 +502,13 @@ class MicrophoneStream:
             self._open()
         except Exception as exc:  # any failure: wait longer and try again
             self._last_error = f"reconnect failed: {exc}"
+            self._backoff = min(2.0 * self._backoff, self.backoff_s[1])
             self._next_attempt = self._clock() + self._backoff
             self._log(
                 "warning",
                 f"microphone still unavailable (attempt {self._attempts}, next in"
                 f" {self._backoff:g} s): {exc}",
             )
-            self._backoff = min(2.0 * self._backoff, self.backoff_s[1])
             return
         self._reconnects += 1
         self._log("info", f"microphone reconnected after {self._attempts} attempt(s)")
