@@ -32,10 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 from alsa_devices import VirtualAlsa  # noqa: E402
 from fake_portaudio import FakeBackend, device  # noqa: E402
 from infomax_contingency.audio.capture import MicrophoneStream  # noqa: E402
-from infomax_contingency.audio.resample import (
-    StreamResampler,  # noqa: E402
-    resample,  # noqa: E402
-)
+from infomax_contingency.audio.resample import StreamResampler, resample  # noqa: E402
 
 ALSA_CHILD = """
 import json, time
