@@ -27,13 +27,14 @@ from infomax_contingency.audio.devices import INPUT, DeviceInfo
 class FakeClock:
     """Monotonic seconds that move only by :meth:`sleep` / :meth:`advance`.
 
-    Listeners (the fake streams) are told each new time and run the callbacks due by
-    then; while a callback runs, the clock reads the block's due time.
+    Timers (the running fake streams: ``next_due`` seconds and ``fire()``) fire in time
+    order as the clock passes their due times; while one fires, the clock reads its due
+    time.
     """
 
     def __init__(self, start: float = 1000.0) -> None:
         self.now = start
-        self.listeners: list[Callable[[float], None]] = []
+        self.timers: list = []
         self.slept = 0.0
 
     def __call__(self) -> float:
@@ -45,8 +46,12 @@ class FakeClock:
 
     def advance(self, seconds: float) -> None:
         target = self.now + max(0.0, seconds)
-        for listener in list(self.listeners):
-            listener(target)
+        while self.timers:
+            timer = min(self.timers, key=lambda t: t.next_due)
+            if timer.next_due > target:
+                break
+            self.now = timer.next_due
+            timer.fire()
         self.now = target
 
 
@@ -109,26 +114,28 @@ class FakeStream:
         self.started = True
         if self.backend.clock is not None:
             self._t0 = self.backend.clock()
-            self.backend.clock.listeners.append(self._catch_up)
+            self.backend.clock.timers.append(self)
         elif self.backend.realtime:
             self._thread = threading.Thread(target=self._run, daemon=True)
             self._thread.start()
 
-    def _catch_up(self, now: float) -> None:
-        """FakeClock listener: run every block due by ``now``, each at its due time."""
-        period = self.blocksize / self.rate
-        while self.active and self._t0 + self._blocks_due * period <= now:
-            due = self._t0 + self._blocks_due * period
-            self._blocks_due += 1
-            self.backend.clock.now = due
-            self._deliver(due)
+    @property
+    def next_due(self) -> float:
+        """FakeClock timer: the time of the next block."""
+        return self._t0 + self._blocks_due * self.blocksize / self.rate
+
+    def fire(self) -> None:
+        """FakeClock timer: deliver the block due now."""
+        due = self.next_due
+        self._blocks_due += 1
+        self._deliver(due)
 
     def close(self, ignore_errors: bool = True) -> None:
         self.closed = True
         self._stop.set()
         clock = self.backend.clock
-        if clock is not None and self._catch_up in clock.listeners:
-            clock.listeners.remove(self._catch_up)
+        if clock is not None and self in clock.timers:
+            clock.timers.remove(self)
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
 
@@ -136,6 +143,9 @@ class FakeStream:
         """The device vanished: PortAudio stops the stream and calls finished_callback."""
         self.dead = True
         self._stop.set()
+        clock = self.backend.clock
+        if clock is not None and self in clock.timers:
+            clock.timers.remove(self)
         self.finished()
 
     def pump(
@@ -261,10 +271,17 @@ class Room:
     DAC time, input blocks read at their ADC time minus the delay (plus quiet noise).
     """
 
-    def __init__(self, rate: int, delay_s: float, seconds: float = 60.0, noise: float = 1e-3):
+    def __init__(
+        self,
+        rate: int,
+        delay_s: float,
+        seconds: float = 60.0,
+        noise: float = 1e-3,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         self.rate = rate
         self.delay_s = delay_s
-        self.t0 = time.monotonic()
+        self.t0 = clock()
         self.signal = np.zeros(int(seconds * rate))
         self.rng = np.random.default_rng(0)
         self.noise = noise

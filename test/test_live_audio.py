@@ -624,23 +624,25 @@ def test_find_onset_locates_the_chirp() -> None:
     assert find_onset(x[:100], chirp) is None
 
 
-@pytest.mark.slow
 def test_measure_latency_through_a_simulated_room() -> None:
-    room = Room(16000, delay_s=0.137)
+    clock = FakeClock(500.0)
+    room = Room(16000, delay_s=0.137, clock=clock)
     backend = FakeBackend(
         [device(0, "mic", 1, 0, 16000), device(1, "speaker", 0, 1, 16000)],
         default_input=0,
         default_output=1,
-        realtime=True,
+        clock=clock,
         source=room.source,
         sink=room.sink,
         output_latency_s=0.03,
     )
-    report = measure_latency(repeats=3, interval_s=0.6, volume=0.5, backend=backend)
+    report = measure_latency(
+        repeats=3, interval_s=0.6, volume=0.5, backend=backend, clock=clock, sleep=clock.sleep
+    )
     assert not report.failures and len(report.trials) == 3
     for trial in report.trials:
-        assert trial.delay_s - trial.output_s == pytest.approx(0.137, abs=2 / 16000)
-        assert 0.03 <= trial.output_s < 0.03 + 0.05  # latency + up to a block + scheduling
+        assert trial.delay_s - trial.output_s == pytest.approx(0.137, abs=1 / 16000)
+        assert 0.03 <= trial.output_s <= 0.03 + 0.01  # output latency + up to one 10 ms block
         assert trial.score > 0.9
     assert report.sound_s == pytest.approx(0.2)
     assert (report.input_device, report.output_device) == ("mic", "speaker")

@@ -4,7 +4,7 @@
 :class:`~infomax_contingency.audio.playback.SpeakerOutput` and finds its onset in a
 :class:`~infomax_contingency.audio.capture.MicrophoneStream` recording
 (:func:`find_onset`); :func:`self_period_windows` turns measured delays into the model's
-self-feedback period. Times are ``time.monotonic()`` seconds.
+self-feedback period. Times are seconds on the caller's clock (``time.monotonic()``).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +135,8 @@ def measure_latency(
     min_score: float = 0.2,
     log: LogFunction | None = None,
     backend: AudioBackend | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] | None = None,
 ) -> LatencyReport:
     """Play the robot's sound and find it on the microphone, ``repeats`` times.
 
@@ -142,8 +144,9 @@ def measure_latency(
     command (make it longer than the delay plus the sound, or the sound is cut off). The
     onset is where the sound (resampled to the processing rate) correlates best with the
     recording (:func:`find_onset`). The delay runs from the play command to the onset,
-    both on the ``time.monotonic()`` clock (ADC time of the recording, request time of
-    the command).
+    both on ``clock`` (ADC time of the recording, request time of the command);
+    ``clock`` and ``sleep`` go to the speaker and the microphone (see
+    :class:`~infomax_contingency.audio.capture.MicrophoneStream`).
 
     Raises:
         AudioDeviceError: a device is missing or unusable.
@@ -154,12 +157,11 @@ def measure_latency(
     interval_s = check_positive(interval_s, "interval_s")
     backend = backend_or_default(backend)
     rate = PROCESSING_RATE_HZ
+    timing = {"log": log, "backend": backend, "clock": clock, "sleep": sleep}
     speaker = SpeakerOutput(
-        output_device, sound=sound, duration_s=duration_s, volume=volume, log=log, backend=backend
+        output_device, sound=sound, duration_s=duration_s, volume=volume, **timing
     )
-    mic = MicrophoneStream(
-        input_device, window_s=0.1, queue_s=interval_s + 4.0, log=log, backend=backend
-    )
+    mic = MicrophoneStream(input_device, window_s=0.1, queue_s=interval_s + 4.0, **timing)
     trials: list[LatencyTrial] = []
     failures: list[str] = []
     with speaker, mic:
@@ -171,27 +173,8 @@ def measure_latency(
             )
         mic.read_audio(0.2)  # let the stream settle; drop what came so far
         for repeat in range(1, repeats + 1):
-            mic.read_audio(0.0)
-            speaker.events(0.0)
-            sequence = speaker.play()
-            if sequence is None:
-                failures.append(f"repeat {repeat}: the speaker is unavailable")
-                continue
-            chunks: list[AudioChunk] = []
-            started: list[PlayEvent] = []
-            deadline = time.monotonic() + interval_s + 2.0
-            event = None
-            while time.monotonic() < deadline:
-                chunks.extend(mic.read_audio(0.05))
-                started.extend(speaker.events(0.0))
-                event = next((e for e in started if e.sequence == sequence), None)
-                if event is not None and chunks and _covered(chunks, event, interval_s, rate):
-                    break
-            trial = _analyse(chunks, event, template, rate, min_score, repeat)
-            if isinstance(trial, str):
-                failures.append(trial)
-            else:
-                trials.append(trial)
+            trial = _one_repeat(speaker, mic, template, interval_s, min_score, repeat, clock)
+            (failures if isinstance(trial, str) else trials).append(trial)
     return LatencyReport(
         tuple(trials),
         tuple(failures),
@@ -199,6 +182,35 @@ def measure_latency(
         mic.status().device,
         speaker.status().device,
     )
+
+
+def _one_repeat(
+    speaker: SpeakerOutput,
+    mic: MicrophoneStream,
+    template: NDArray[np.float64],
+    interval_s: float,
+    min_score: float,
+    repeat: int,
+    clock: Callable[[], float],
+) -> LatencyTrial | str:
+    """Play once and record ``interval_s`` s: the trial, or the reason it failed."""
+    rate = PROCESSING_RATE_HZ
+    mic.read_audio(0.0)
+    speaker.events(0.0)
+    sequence = speaker.play()
+    if sequence is None:
+        return f"repeat {repeat}: the speaker is unavailable"
+    chunks: list[AudioChunk] = []
+    started: list[PlayEvent] = []
+    deadline = clock() + interval_s + 2.0
+    event = None
+    while clock() < deadline:
+        chunks.extend(mic.read_audio(0.05))
+        started.extend(speaker.events(0.0))
+        event = next((e for e in started if e.sequence == sequence), None)
+        if event is not None and chunks and _covered(chunks, event, interval_s, rate):
+            break
+    return _analyse(chunks, event, template, rate, min_score, repeat)
 
 
 def _covered(chunks: Sequence[AudioChunk], event: PlayEvent, interval_s: float, rate: int) -> bool:
