@@ -143,7 +143,10 @@ def test_replay_of_a_block_read_file_equals_the_offline_energies_through_loops(
 
 
 def test_calibration_too_close_to_separate_is_refused_and_retried() -> None:
-    binarizer = Binarizer(None, calibration_windows=4, min_separation_db=10.0)
+    warnings: list[str] = []
+    binarizer = Binarizer(
+        None, calibration_windows=4, min_separation_db=10.0, on_calibration_refused=warnings.append
+    )
     # two clusters only 4 dB apart: a steady hum with a little variation
     out = [binarizer.push(e) for e in (-50.0, -46.0, -50.0, -46.0)]
     assert out == [None] * 4
@@ -151,6 +154,8 @@ def test_calibration_too_close_to_separate_is_refused_and_retried() -> None:
     assert binarizer.calibration_failures == 1
     assert "lie only 4.0 dB apart" in binarizer.calibration_problem
     assert "at least 10 dB" in binarizer.calibration_problem
+    assert "calibrating again on the next 4 windows" in binarizer.calibration_problem
+    assert warnings == [binarizer.calibration_problem]
     assert binarizer.rejected_fit.separation_db == pytest.approx(4.0)
     assert binarizer.threshold_db is None and binarizer.fit is None
     # the next windows are a new calibration: sound and quiet this time
@@ -158,7 +163,7 @@ def test_calibration_too_close_to_separate_is_refused_and_retried() -> None:
     assert out == [None] * 4 + [False, True]
     assert binarizer.state == "ready" and binarizer.calibration_problem == ""
     assert binarizer.threshold_db == pytest.approx(-40.5)
-    assert binarizer.calibration_failures == 1
+    assert binarizer.calibration_failures == 1 and len(warnings) == 1
 
 
 def test_read_ahead_calibration_too_close_raises_with_the_gap() -> None:
@@ -167,6 +172,7 @@ def test_read_ahead_calibration_too_close_raises_with_the_gap() -> None:
         binarizer.calibrate([-50.0, -47.0, -50.0, -47.0])
     assert caught.value.separation_db == pytest.approx(3.0)
     assert binarizer.state == "unseparated" and binarizer.calibration_failures == 1
+    assert "calibrating again" not in binarizer.calibration_problem  # read ahead: no retry
     assert Binarizer(min_separation_db=0.0).calibrate([-50.0, -47.0]).threshold_db == -48.5
 
 

@@ -14,8 +14,9 @@ Energies are in dB (see :mod:`infomax_contingency.audio.energy`); durations in s
 
 from __future__ import annotations
 
+import contextlib
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -145,10 +146,12 @@ class Binarizer:
     energies equal (e.g. digital silence), or the two cluster means lie closer than
     ``min_separation_db``. Then :attr:`state` is ``"unseparated"``,
     :attr:`calibration_problem` says why (naming the gap in dB), :attr:`rejected_fit`
-    holds the refused fit, :attr:`calibration_failures` counts up, no bit comes from
-    it, and calibration starts again on the next ``calibration_windows`` windows. A
-    node shows this as an ERROR diagnostic (with :attr:`calibration_problem`) and logs
-    a warning whenever :attr:`calibration_failures` grows.
+    holds the refused fit, :attr:`calibration_failures` counts up,
+    ``on_calibration_refused(message)`` is called, no bit comes from it, and
+    calibration starts again on the next ``calibration_windows`` windows. A node shows
+    this as an ERROR diagnostic while :attr:`state` is ``"unseparated"`` (message
+    :attr:`calibration_problem`) and logs ``on_calibration_refused``'s message as a
+    warning.
 
     With ``refresh_windows > 0`` every energy also goes into a rolling buffer of that
     many windows; once the buffer is full the threshold is refitted after every window
@@ -164,6 +167,8 @@ class Binarizer:
         refresh_windows: rolling-buffer length for the online refresh (0 = off, else >= 2).
         min_separation_db: least distance between cluster means to accept a calibration
             or a refit, dB.
+        on_calibration_refused: called with :attr:`calibration_problem` (one line naming
+            the gap in dB) whenever a calibration is refused; None: not called.
     """
 
     def __init__(
@@ -172,6 +177,7 @@ class Binarizer:
         calibration_windows: int = 20,
         refresh_windows: int = 0,
         min_separation_db: float = DEFAULT_MIN_SEPARATION_DB,
+        on_calibration_refused: Callable[[str], None] | None = None,
     ) -> None:
         if threshold_db is not None and not math.isfinite(threshold_db):
             raise AudioError(f"threshold_db must be finite, got {threshold_db!r}")
@@ -197,6 +203,7 @@ class Binarizer:
         """Why the last calibration was refused ("" once one succeeds, or before any)."""
         self.rejected_fit: ThresholdFit | None = None
         """The last refused fit (None if it had no boundary at all, or none was refused)."""
+        self._on_refused = on_calibration_refused
 
     @property
     def calibrating(self) -> bool:
@@ -219,14 +226,15 @@ class Binarizer:
             AudioError: the energies have no boundary (see
                 :func:`~infomax_contingency.audio.threshold.kmeans_split`).
         """
-        energies = np.asarray(energies_db, dtype=np.float64).copy()
+        return self._fit_calibration(np.array(energies_db, dtype=np.float64), retry=False)
+
+    def _fit_calibration(self, energies: np.ndarray, retry: bool) -> ThresholdFit:
+        """Set the threshold from ``energies``, or record the refusal and raise it."""
         self._calibration.clear()
         try:
             fit = require_separation(kmeans_split(energies), self.min_separation_db)
         except AudioError as exc:
-            self.calibration_failures += 1
-            self.calibration_problem = str(exc)
-            self.rejected_fit = exc.fit if isinstance(exc, UnseparatedError) else None
+            self._refuse(exc, retry)
             raise
         self.fit, self.threshold_db = fit, fit.threshold_db
         self.calibration_problem = ""
@@ -239,10 +247,9 @@ class Binarizer:
         if self.threshold_db is None:
             self._calibration.append(float(energy_db))
             if len(self._calibration) >= self.calibration_windows:
-                try:
-                    self.calibrate(self._calibration)
-                except AudioError:
-                    pass  # counted and described by calibrate(); retry on the next windows
+                energies = np.array(self._calibration)
+                with contextlib.suppress(AudioError):  # recorded; retried on the next windows
+                    self._fit_calibration(energies, retry=True)
             if self._online is not None:
                 self._online.add(energy_db)
             return None
@@ -252,6 +259,18 @@ class Binarizer:
             if len(self._online) == self.refresh_windows:
                 self._refit()
         return bit
+
+    def _refuse(self, exc: AudioError, retry: bool) -> None:
+        """Record a refused calibration, say why, and report it."""
+        self.calibration_failures += 1
+        self.rejected_fit = exc.fit if isinstance(exc, UnseparatedError) else None
+        self.calibration_problem = str(exc)
+        if retry:
+            self.calibration_problem += (
+                f"; calibrating again on the next {self.calibration_windows} windows"
+            )
+        if self._on_refused is not None:
+            self._on_refused(self.calibration_problem)
 
     def _refit(self) -> None:
         """Refit on the rolling buffer; keep the new threshold only if it separates."""
