@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.io import wavfile
 
 from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
 from infomax_contingency.audio.common import AudioError
@@ -181,3 +182,34 @@ def test_the_binarizer_bit_is_the_one_bit_rule() -> None:
     binarizer = Binarizer(-40.0)
     bits = [binarizer.push(e) for e in energies]
     assert bits == bits_from_energies(energies, -40.0).tolist() == [False, False, True, True, False]
+
+
+def test_read_ahead_reads_only_the_start_of_the_file(tmp_path: Path) -> None:
+    # a float file whose 9th second holds a NaN: only a whole-file read reaches it
+    rate = 8000
+    x = np.random.default_rng(1).normal(0, 0.1, 10 * rate).astype(np.float32)
+    x[: 2 * rate] *= 0.01
+    x[9 * rate] = np.nan
+    path = tmp_path / "late_nan.wav"
+    wavfile.write(path, rate, x)
+    replay = WavReplay(path, 0.5)
+    ahead = replay.calibration_energies(4.0, 0.5)
+    assert ahead.size == 8 and np.isfinite(ahead).all()
+    served = [replay.next_energy() for _ in range(8)]
+    np.testing.assert_array_equal(served, ahead)  # blocks up to 4 s are fine
+    with pytest.raises(AudioError, match="NaN"):
+        for _ in range(replay.n_windows):
+            replay.next_energy()
+    with pytest.raises(AudioError, match="NaN"):
+        load_mono(path)
+
+
+def test_replay_of_a_file_that_shrank_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "shrinks.wav"
+    write_wav_int16(path, np.random.default_rng(0).normal(0, 0.1, 16000), 16000)
+    replay = WavReplay(path, 0.25, loop=True)
+    assert [replay.next_energy() is not None for _ in range(4)] == [True] * 4  # one pass
+    write_wav_int16(path, np.zeros(8000), 16000)  # rewritten shorter while replaying
+    assert replay.next_energy() == replay.next_energy() == -120.0  # the loop reopens it
+    with pytest.raises(AudioError, match="ended after 2 of its 4 windows: the file changed"):
+        replay.next_energy()

@@ -119,7 +119,13 @@ class WavReplay:
             self._blocks = iter_wav_energies(self.path, self.window_s, self.channel, self.rate)
             self._block, self._in_block = np.empty(0), 0
         while self._in_block >= self._block.size:
-            self._block, self._in_block = next(self._blocks), 0
+            block = next(self._blocks, None)
+            if block is None:
+                raise AudioError(
+                    f"{self.path} ended after {self.position % self.n_windows} of its"
+                    f" {self.n_windows} windows: the file changed while it was replayed"
+                )
+            self._block, self._in_block = block, 0
         energy = float(self._block[self._in_block])
         self._in_block += 1
         self.position += 1
