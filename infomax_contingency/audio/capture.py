@@ -148,15 +148,16 @@ class MicrophoneStream:
     The PortAudio callback copies each block into a bounded queue (a full queue drops the
     block and counts it). The reader thread (:meth:`read_windows` or :meth:`read_audio`)
     mixes the blocks to mono (mean, or one ``channel``), resamples them exactly to
-    ``rate`` (:class:`StreamResampler`) when the device runs at another rate, and cuts
-    windows with :class:`~infomax_contingency.audio.timeline.WindowTimeline`. Uninterrupted
+    ``rate`` (:class:`~infomax_contingency.audio.resample.StreamResampler`) when the device
+    runs at another rate, and cuts windows
+    (:class:`~infomax_contingency.audio.timeline.WindowTimeline`). Uninterrupted
     audio therefore gives exactly the energies of the offline computation on a recording
     of the same samples.
 
     Window times come from PortAudio's ADC time of the first block of a segment,
     advanced by the samples counted since (plus lost samples), so a late reader does not
     shift them. They follow the device's sample clock: a converter 100 ppm off drifts
-    0.36 s per hour from ``time.monotonic()`` (until the next gap re-anchors them).
+    0.36 s per hour from the clock (until the next gap re-anchors them).
 
     Loss: blocks the reader was too slow for are counted exactly; input overflows are
     estimated from the ADC times. A loss shorter than one window is kept inside the
@@ -169,7 +170,7 @@ class MicrophoneStream:
     with exponential back-off from ``backoff_s[0]`` to ``backoff_s[1]`` seconds and
     resumes; the missing time is a gap (``gap_s`` on the next window), never filled with
     made-up windows. Before reopening, PortAudio rescans the devices when no other stream
-    of this module is open in the process (a rescan would close those streams too);
+    of the audio modules is open in the process (a rescan would close those streams too);
     otherwise the old device list is used.
 
     Args:

@@ -115,7 +115,7 @@ class DeviceInfo:
 
 
 class AudioBackend(Protocol):
-    """What this module needs from PortAudio; :class:`SoundDeviceBackend` is the real one.
+    """What capture and playback need from PortAudio; :class:`SoundDeviceBackend` is the real one.
 
     Streams returned by :meth:`open` have ``start()``, ``close(ignore_errors=True)``, the
     properties ``active`` and ``time`` (the stream clock, seconds), and call
@@ -355,7 +355,6 @@ def negotiate_format(
     )
 
 
-
 # --------------------------------------------------------------------------- stream registry
 
 _registry_lock = threading.Lock()
@@ -375,7 +374,7 @@ def unregister_stream(owner: object) -> None:
 
 
 def other_streams_open(owner: object) -> bool:
-    """True if another object of this module holds an open stream in this process."""
+    """True if another capture or playback object holds an open stream in this process."""
     with _registry_lock:
         return bool(_open_owners - {id(owner)})
 
