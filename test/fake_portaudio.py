@@ -1,7 +1,7 @@
-"""A fake PortAudio for tests of live_audio.
+"""A fake PortAudio for tests of the live audio modules (capture, playback, latency).
 
-Devices that come and go, streams driven by hand, by a :class:`FakeClock` or by a
-real-time thread, and a "room" that feeds the loudspeaker back into the microphone.
+Devices that come and go, streams driven by hand or by a :class:`FakeClock`, and a
+"room" that feeds the loudspeaker back into the microphone. Nothing runs in a thread.
 
 It implements ``infomax_contingency.audio.devices.AudioBackend``. Callbacks get the same
 arguments as sounddevice's (``data, frames, time_info, status``), with times on the
@@ -14,7 +14,6 @@ delivers the blocks that fell due meanwhile, at their exact times.
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -83,7 +82,7 @@ class Rule:
 
 
 class FakeStream:
-    """A callback stream; ``pump`` runs the callback once (or a thread runs it in real time)."""
+    """A callback stream; ``pump`` runs the callback once (a FakeClock runs it when due)."""
 
     def __init__(self, backend, kind, index, rate, channels, blocksize, callback, finished):
         self.backend = backend
@@ -97,8 +96,6 @@ class FakeStream:
         self.started = False
         self.closed = False
         self.dead = False
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
         self._t0 = 0.0
         self._blocks_due = 0
 
@@ -115,9 +112,6 @@ class FakeStream:
         if self.backend.clock is not None:
             self._t0 = self.backend.clock()
             self.backend.clock.timers.append(self)
-        elif self.backend.realtime:
-            self._thread = threading.Thread(target=self._run, daemon=True)
-            self._thread.start()
 
     @property
     def next_due(self) -> float:
@@ -130,22 +124,19 @@ class FakeStream:
         self._blocks_due += 1
         self._deliver(due)
 
-    def close(self, ignore_errors: bool = True) -> None:
-        self.closed = True
-        self._stop.set()
+    def _stop_timer(self) -> None:
         clock = self.backend.clock
         if clock is not None and self in clock.timers:
             clock.timers.remove(self)
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(2.0)
+
+    def close(self, ignore_errors: bool = True) -> None:
+        self.closed = True
+        self._stop_timer()
 
     def die(self) -> None:
         """The device vanished: PortAudio stops the stream and calls finished_callback."""
         self.dead = True
-        self._stop.set()
-        clock = self.backend.clock
-        if clock is not None and self in clock.timers:
-            clock.timers.remove(self)
+        self._stop_timer()
         self.finished()
 
     def pump(
@@ -165,18 +156,6 @@ class FakeStream:
         out = np.full((frames or self.blocksize, self.channels), np.nan, dtype=np.float32)
         self.callback(out, out.shape[0], FakeTime(outputBufferDacTime=t), FakeStatus())
         return out
-
-    def _run(self) -> None:
-        period = self.blocksize / self.rate
-        t0 = time.monotonic()
-        n = 0
-        while not self._stop.is_set():
-            due = t0 + n * period
-            delay = due - time.monotonic()
-            if delay > 0 and self._stop.wait(delay):
-                return
-            self._deliver(due)
-            n += 1
 
     def _deliver(self, due: float) -> None:
         """One block at ``due``: from the source (input) or to the sink (output)."""
@@ -203,7 +182,6 @@ class FakeBackend:
     default_input: int | None = None
     default_output: int | None = None
     rules: dict[int, Rule] = field(default_factory=dict)
-    realtime: bool = False
     source: Callable[[FakeStream, float, int], np.ndarray] | None = None
     sink: Callable[[FakeStream, float, np.ndarray], None] | None = None
     output_latency_s: float = 0.0
@@ -279,13 +257,12 @@ class Room:
         noise: float = 1e-3,
         clock: Callable[[], float] = time.monotonic,
     ):
-        self.rate = rate
+        self.rate = rate  # the room's time 0 is clock() now
         self.delay_s = delay_s
         self.t0 = clock()
         self.signal = np.zeros(int(seconds * rate))
         self.rng = np.random.default_rng(0)
         self.noise = noise
-        self.lock = threading.Lock()
 
     def _index(self, t: float) -> int:
         return round((t - self.t0) * self.rate)
@@ -293,16 +270,14 @@ class Room:
     def sink(self, stream: FakeStream, dac: float, out: np.ndarray) -> None:
         assert stream.rate == self.rate
         i = self._index(dac)
-        with self.lock:
-            seg = self.signal[i : i + out.shape[0]]
-            seg += out[: seg.size, 0]
+        seg = self.signal[i : i + out.shape[0]]
+        seg += out[: seg.size, 0]
 
     def source(self, stream: FakeStream, adc: float, frames: int) -> np.ndarray:
         assert stream.rate == self.rate
         i = self._index(adc - self.delay_s)
-        with self.lock:
-            x = np.zeros(frames)
-            if i >= 0:
-                part = self.signal[i : i + frames]
-                x[: part.size] = part
+        x = np.zeros(frames)
+        if i >= 0:
+            part = self.signal[i : i + frames]
+            x[: part.size] = part
         return x + self.noise * self.rng.standard_normal(frames)

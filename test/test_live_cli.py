@@ -9,17 +9,21 @@ opening and the "not heard" error are checked.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import yaml
 
 from alsa_devices import VirtualAlsa
-from fake_portaudio import FakeBackend, Room, device
+from fake_portaudio import FakeBackend, FakeClock, Room, device
 from infomax_contingency.audio import devices as audio_devices
 from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.latency import measure_latency
 from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.threshold import kmeans_split, load_threshold
 from infomax_contingency.audio.wav import write_wav_int16
+from infomax_contingency.cli import live as live_commands
 from infomax_contingency.cli import main as cli
 from test_live_audio import write_recording
 
@@ -132,19 +136,21 @@ def test_measure_latency_on_virtual_devices_reports_not_heard(tmp_path) -> None:
     assert np.fromfile(out, dtype="<f4").any()  # the chirps were played
 
 
-@pytest.mark.slow
 def test_measure_latency_reports_delay_and_self_period(monkeypatch, capsys) -> None:
-    room = Room(16000, delay_s=0.25)
+    clock = FakeClock()
+    room = Room(16000, delay_s=0.25, clock=clock)
     backend = FakeBackend(
         [device(0, "robot mic", 1, 0, 16000), device(1, "robot speaker", 0, 1, 16000)],
         default_input=0,
         default_output=1,
-        realtime=True,
+        clock=clock,
         source=room.source,
         sink=room.sink,
         output_latency_s=0.03,
     )
     monkeypatch.setattr(audio_devices, "SoundDeviceBackend", lambda: backend)
+    on_the_clock = functools.partial(measure_latency, clock=clock, sleep=clock.sleep)
+    monkeypatch.setattr(live_commands, "measure_latency", on_the_clock)
     rc = cli.main(["measure-latency", "--repeats", "2", "--interval-s", "0.7"])
     text = capsys.readouterr().out
     assert rc == 0, text
