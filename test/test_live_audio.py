@@ -22,7 +22,7 @@ import pytest
 
 from alsa_devices import VirtualAlsa, fifo_prelude, read_raw
 from fake_portaudio import FakeBackend, FakeClock, Room, Rule, device
-from infomax_contingency.audio.calibration import energy_histogram
+from infomax_contingency.audio.calibration import energy_histogram, record_energies
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.devices import (
@@ -919,3 +919,22 @@ def test_live_audio_imports_neither_rclpy_nor_sounddevice() -> None:
         [sys.executable, "-c", "import json\n" + code], capture_output=True, text=True, check=True
     )
     assert json.loads(out.stdout) == {"bad": []}
+
+
+def test_record_energies_on_the_fake_clock_and_its_deadline() -> None:
+    clock = FakeClock(10.0)
+    x = f32(recording(16000, 10.0, seed=4))
+    backend = FakeBackend(
+        [device(0, "mic", 1, 0, 16000)],
+        default_input=0,
+        clock=clock,
+        source=lambda stream, t, n: x[(i := round((t - 10.0) * 16000)) : i + n],
+    )
+    result = record_energies(None, 2.0, 0.25, backend=backend, clock=clock, sleep=clock.sleep)
+    assert (result.device, result.device_rate, result.gaps) == ("mic", 16000, 0)
+    np.testing.assert_array_equal(result.energies_db, window_energies_db(x[:32000], 16000, 0.25))
+    backend.stalled[0] = True  # delivers nothing: given up after seconds + 5 s on the clock
+    start = clock()
+    with pytest.raises(AudioDeviceError, match=r"recorded only 0 of 8 windows from mic in 7 s"):
+        record_energies(None, 2.0, 0.25, backend=backend, clock=clock, sleep=clock.sleep)
+    assert 7.0 < clock() - start < 7.2
