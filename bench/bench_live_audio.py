@@ -31,12 +31,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 
 from alsa_devices import VirtualAlsa  # noqa: E402
 from fake_portaudio import FakeBackend, device  # noqa: E402
-from infomax_contingency.audio.live import MicrophoneStream, StreamResampler  # noqa: E402
-from infomax_contingency.audio.signal import resample  # noqa: E402
+from infomax_contingency.audio.capture import MicrophoneStream  # noqa: E402
+from infomax_contingency.audio.resample import StreamResampler, resample  # noqa: E402
 
 ALSA_CHILD = """
 import json, time
-from infomax_contingency.audio.live import MicrophoneStream
+from infomax_contingency.audio.capture import MicrophoneStream
 mic = MicrophoneStream('usb48', window_s=0.5, queue_s={seconds} + 5).start()
 start, windows = time.perf_counter(), []
 while len(windows) < {n}:

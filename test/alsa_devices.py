@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.audio.signal import read_wav
+from infomax_contingency.audio.wav import read_wav
 
 ROOT = Path(__file__).resolve().parent.parent
 

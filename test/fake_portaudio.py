@@ -1,22 +1,57 @@
-"""A fake PortAudio for tests of live_audio.
+"""A fake PortAudio for tests of the live audio modules (capture, playback, latency).
 
-Devices that come and go, streams driven by hand or by a real-time thread, and a "room"
-that feeds the loudspeaker back into the microphone.
+Devices that come and go, streams driven by hand or by a :class:`FakeClock`, and a
+"room" that feeds the loudspeaker back into the microphone. Nothing runs in a thread.
 
-It implements live_audio.AudioBackend. Callbacks get the same arguments as sounddevice's
-(``data, frames, time_info, status``), with times on the ``time.monotonic()`` clock.
+It implements ``infomax_contingency.audio.devices.AudioBackend``. Callbacks get the same
+arguments as sounddevice's (``data, frames, time_info, status``), with times on the
+backend's clock (``time.monotonic()``, or a :class:`FakeClock`).
+
+With a :class:`FakeClock`, nothing sleeps: give the same clock (and its ``sleep``) to the
+stream under test; whenever it sleeps, the clock moves on and every running stream
+delivers the blocks that fell due meanwhile, at their exact times.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from infomax_contingency.audio.live import INPUT, DeviceInfo
+from infomax_contingency.audio.devices import INPUT, DeviceInfo
+
+
+class FakeClock:
+    """Monotonic seconds that move only by :meth:`sleep` / :meth:`advance`.
+
+    Timers (the running fake streams: ``next_due`` seconds and ``fire()``) fire in time
+    order as the clock passes their due times; while one fires, the clock reads its due
+    time.
+    """
+
+    def __init__(self, start: float = 1000.0) -> None:
+        self.now = start
+        self.timers: list = []
+        self.slept = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.slept += max(0.0, seconds)
+        self.advance(seconds)
+
+    def advance(self, seconds: float) -> None:
+        target = self.now + max(0.0, seconds)
+        while self.timers:
+            timer = min(self.timers, key=lambda t: t.next_due)
+            if timer.next_due > target:
+                break
+            self.now = timer.next_due
+            timer.fire()
+        self.now = target
 
 
 @dataclass
@@ -47,7 +82,7 @@ class Rule:
 
 
 class FakeStream:
-    """A callback stream; ``pump`` runs the callback once (or a thread runs it in real time)."""
+    """A callback stream; ``pump`` runs the callback once (a FakeClock runs it when due)."""
 
     def __init__(self, backend, kind, index, rate, channels, blocksize, callback, finished):
         self.backend = backend
@@ -61,8 +96,8 @@ class FakeStream:
         self.started = False
         self.closed = False
         self.dead = False
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._t0 = 0.0
+        self._blocks_due = 0
 
     @property
     def active(self) -> bool:
@@ -70,24 +105,38 @@ class FakeStream:
 
     @property
     def time(self) -> float:
-        return time.monotonic()
+        return self.backend.now()
 
     def start(self) -> None:
         self.started = True
-        if self.backend.realtime:
-            self._thread = threading.Thread(target=self._run, daemon=True)
-            self._thread.start()
+        if self.backend.clock is not None:
+            self._t0 = self.backend.clock()
+            self.backend.clock.timers.append(self)
+
+    @property
+    def next_due(self) -> float:
+        """FakeClock timer: the time of the next block."""
+        return self._t0 + self._blocks_due * self.blocksize / self.rate
+
+    def fire(self) -> None:
+        """FakeClock timer: deliver the block due now."""
+        due = self.next_due
+        self._blocks_due += 1
+        self._deliver(due)
+
+    def _stop_timer(self) -> None:
+        clock = self.backend.clock
+        if clock is not None and self in clock.timers:
+            clock.timers.remove(self)
 
     def close(self, ignore_errors: bool = True) -> None:
         self.closed = True
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(2.0)
+        self._stop_timer()
 
     def die(self) -> None:
         """The device vanished: PortAudio stops the stream and calls finished_callback."""
         self.dead = True
-        self._stop.set()
+        self._stop_timer()
         self.finished()
 
     def pump(
@@ -108,26 +157,17 @@ class FakeStream:
         self.callback(out, out.shape[0], FakeTime(outputBufferDacTime=t), FakeStatus())
         return out
 
-    def _run(self) -> None:
-        period = self.blocksize / self.rate
-        t0 = time.monotonic()
-        n = 0
-        while not self._stop.is_set():
-            due = t0 + n * period
-            delay = due - time.monotonic()
-            if delay > 0 and self._stop.wait(delay):
-                return
-            if self.backend.stalled.get(self.index):
-                n += 1
-                continue
-            if self.kind == INPUT:
-                block = self.backend.source(self, due, self.blocksize)
-                self.pump(block, t=due)
-            else:
-                dac = due + self.backend.output_latency_s
-                out = self.pump(t=dac)
+    def _deliver(self, due: float) -> None:
+        """One block at ``due``: from the source (input) or to the sink (output)."""
+        if self.backend.stalled.get(self.index):
+            return
+        if self.kind == INPUT:
+            self.pump(self.backend.source(self, due, self.blocksize), t=due)
+        else:
+            dac = due + self.backend.output_latency_s
+            out = self.pump(t=dac)
+            if self.backend.sink is not None:
                 self.backend.sink(self, dac, out)
-            n += 1
 
 
 @dataclass
@@ -142,17 +182,21 @@ class FakeBackend:
     default_input: int | None = None
     default_output: int | None = None
     rules: dict[int, Rule] = field(default_factory=dict)
-    realtime: bool = False
     source: Callable[[FakeStream, float, int], np.ndarray] | None = None
     sink: Callable[[FakeStream, float, np.ndarray], None] | None = None
     output_latency_s: float = 0.0
     stalled: dict[int, bool] = field(default_factory=dict)
+    clock: FakeClock | None = None
 
     def __post_init__(self) -> None:
         self.listed = list(self.visible)
         self.streams: list[FakeStream] = []
         self.rescans = 0
         self.open_attempts = 0
+
+    def now(self) -> float:
+        """The backend's clock: the FakeClock if there is one, else time.monotonic()."""
+        return self.clock() if self.clock is not None else time.monotonic()
 
     # AudioBackend
     def devices(self) -> list[DeviceInfo]:
@@ -205,14 +249,20 @@ class Room:
     DAC time, input blocks read at their ADC time minus the delay (plus quiet noise).
     """
 
-    def __init__(self, rate: int, delay_s: float, seconds: float = 60.0, noise: float = 1e-3):
-        self.rate = rate
+    def __init__(
+        self,
+        rate: int,
+        delay_s: float,
+        seconds: float = 60.0,
+        noise: float = 1e-3,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.rate = rate  # the room's time 0 is clock() now
         self.delay_s = delay_s
-        self.t0 = time.monotonic()
+        self.t0 = clock()
         self.signal = np.zeros(int(seconds * rate))
         self.rng = np.random.default_rng(0)
         self.noise = noise
-        self.lock = threading.Lock()
 
     def _index(self, t: float) -> int:
         return round((t - self.t0) * self.rate)
@@ -220,16 +270,14 @@ class Room:
     def sink(self, stream: FakeStream, dac: float, out: np.ndarray) -> None:
         assert stream.rate == self.rate
         i = self._index(dac)
-        with self.lock:
-            seg = self.signal[i : i + out.shape[0]]
-            seg += out[: seg.size, 0]
+        seg = self.signal[i : i + out.shape[0]]
+        seg += out[: seg.size, 0]
 
     def source(self, stream: FakeStream, adc: float, frames: int) -> np.ndarray:
         assert stream.rate == self.rate
         i = self._index(adc - self.delay_s)
-        with self.lock:
-            x = np.zeros(frames)
-            if i >= 0:
-                part = self.signal[i : i + frames]
-                x[: part.size] = part
+        x = np.zeros(frames)
+        if i >= 0:
+            part = self.signal[i : i + frames]
+            x[: part.size] = part
         return x + self.noise * self.rng.standard_normal(frames)

@@ -9,25 +9,34 @@ import pytest
 import yaml
 from scipy.io import wavfile
 
-from infomax_contingency.audio import signal as audio
-from infomax_contingency.audio.signal import (
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.energy import (
+    ENERGY_FLOOR,
     ENERGY_FLOOR_DB,
-    AudioError,
+    WindowAssembler,
+    iter_wav_energies,
+    wav_energies,
+    wav_window_count,
+    window_energies_db,
+    window_samples,
+)
+from infomax_contingency.audio.resample import StreamResampler, load_mono, resample
+from infomax_contingency.audio.synth import synthesize_chirp
+from infomax_contingency.audio.threshold import (
+    THRESHOLD_FORMAT_VERSION,
     OnlineThreshold,
     ThresholdFit,
-    WindowAssembler,
     bits_from_energies,
     kmeans_split,
     kmeans_threshold,
-    load_mono,
     load_threshold,
-    read_wav,
-    resample,
     save_threshold,
-    synthesize_chirp,
+)
+from infomax_contingency.audio.wav import (
+    WavReader,
+    open_wav_info,
+    read_wav,
     to_mono,
-    window_energies_db,
-    window_samples,
     write_wav_int16,
 )
 
@@ -85,7 +94,7 @@ def test_full_scale_sine_is_minus_3_db() -> None:
 
 
 def test_silence_gives_the_floor_and_dc_gives_its_square() -> None:
-    assert ENERGY_FLOOR_DB == pytest.approx(10 * math.log10(audio.ENERGY_FLOOR))
+    assert ENERGY_FLOOR_DB == pytest.approx(10 * math.log10(ENERGY_FLOOR))
     np.testing.assert_allclose(window_energies_db(np.zeros(800), 8000, 0.05), ENERGY_FLOOR_DB)
     np.testing.assert_allclose(window_energies_db(np.full(800, -0.1), 8000, 0.05), -20.0)
 
@@ -354,7 +363,7 @@ def test_resampled_tone_keeps_its_energy(tmp_path, file_rate: int) -> None:
     path = tmp_path / f"tone{file_rate}.wav"
     write_wav_int16(path, tone(1000.0, file_rate, 1.0, amplitude=0.5), file_rate)
     x = load_mono(path)  # to PROCESSING_RATE_HZ
-    assert audio.PROCESSING_RATE_HZ == 16000
+    assert PROCESSING_RATE_HZ == 16000
     assert x.size == 16000
     energies = window_energies_db(x, 16000, 0.05)
     # Windows away from the edges: mean square 0.125, i.e. -9.03 dB.
@@ -472,7 +481,7 @@ def test_threshold_file_round_trip(tmp_path) -> None:
     save_threshold(path, fit, window_s=0.1, rate=16000, source="room.wav")
     assert load_threshold(path) == -37.25
     record = yaml.safe_load(path.read_text())
-    assert record["format_version"] == audio.THRESHOLD_FORMAT_VERSION
+    assert record["format_version"] == THRESHOLD_FORMAT_VERSION
     assert record["window_s"] == 0.1
     assert record["sample_rate_hz"] == 16000
     assert (record["low_mean_db"], record["high_mean_db"]) == (-55.5, -19.0)
@@ -576,3 +585,141 @@ def test_write_wav_int16_clips(tmp_path) -> None:
         write_wav_int16(path, [np.nan], 8000)
     with pytest.raises(AudioError, match="cannot write"):
         write_wav_int16(tmp_path / "no" / "dir.wav", [0.0], 8000)
+
+
+# --------------------------------------------------------------------------- block reading
+
+
+def pcm_bytes(values: np.ndarray, sample_bytes: int, big_endian: bool = False) -> bytes:
+    """Signed integers as little- (or big-) endian PCM of ``sample_bytes`` bytes each."""
+    order = "big" if big_endian else "little"
+    return b"".join(int(v).to_bytes(sample_bytes, order, signed=True) for v in values.ravel())
+
+
+def wav_of_format(tmp_path, kind: str, rate: int, channels: int, seconds: float):
+    """A noisy tone with quiet stretches in the ``kind`` encoding; returns the path."""
+    rng = np.random.default_rng(7)
+    n = round(rate * seconds)
+    x = 0.4 * np.sin(2 * np.pi * 440 * np.arange(n) / rate)
+    x[n // 3 : n // 2] *= 0.01
+    x = np.column_stack([x * (c + 1) / channels for c in range(channels)])
+    x += 0.01 * rng.standard_normal(x.shape)
+    path = tmp_path / f"{kind}_{rate}_{channels}.wav"
+    if kind == "u8":
+        wavfile.write(path, rate, np.round(x * 127 + 128).astype(np.uint8))
+    elif kind == "s24":
+        ints = np.round(x * (2**23 - 1)).astype(np.int64)
+        path.write_bytes(riff(pcm_bytes(ints, 3), channels=channels, rate=rate, bits=24))
+    elif kind in ("s16", "s32"):
+        dtype, scale = (np.int16, 2**15 - 1) if kind == "s16" else (np.int32, 2**31 - 1)
+        wavfile.write(path, rate, np.round(x * scale).astype(dtype))
+    else:
+        wavfile.write(path, rate, x.astype(np.float32 if kind == "f32" else np.float64))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("kind", "rate", "channels"),
+    [
+        ("s16", 16000, 1),
+        ("s16", 44100, 2),
+        ("u8", 8000, 1),
+        ("s24", 48000, 3),
+        ("s32", 22050, 2),
+        ("f32", 44100, 1),
+        ("f64", 16000, 2),
+    ],
+)
+@pytest.mark.parametrize("block_frames", [1, 7, 1000, 4097, 1 << 16])
+def test_block_read_energies_equal_the_whole_file_computation(
+    tmp_path, kind: str, rate: int, channels: int, block_frames: int
+) -> None:
+    seconds = {1: 0.13, 7: 0.4}.get(block_frames, 1.37)  # tiny blocks: a short file
+    path = wav_of_format(tmp_path, kind, rate, channels, seconds)
+    for channel in (None, channels - 1):
+        whole = window_energies_db(load_mono(path, channel=channel), 16000, 0.02)
+        parts = list(iter_wav_energies(path, 0.02, channel, block_frames=block_frames))
+        assert all(p.size for p in parts)
+        streamed = np.concatenate(parts)
+        assert streamed.shape == whole.shape and whole.size >= 6
+        np.testing.assert_array_equal(streamed, whole)  # exactly, not approximately
+        assert wav_window_count(open_wav_info(path), 0.02) == whole.size
+
+
+def test_block_reader_blocks_concatenate_to_the_file(tmp_path) -> None:
+    path = wav_of_format(tmp_path, "s24", 44100, 2, 0.5)
+    with WavReader(path) as reader:
+        info = reader.info
+        blocks = list(reader.blocks(999))
+        again = list(reader.blocks(5000))  # every call starts from the first frame
+    assert (info.rate, info.channels, info.sample_bytes, info.encoding) == (44100, 2, 3, "int")
+    assert [b.shape[0] for b in blocks[:-1]] == [999] * (len(blocks) - 1)
+    np.testing.assert_array_equal(np.concatenate(blocks), np.concatenate(again))
+    np.testing.assert_array_equal(np.concatenate(blocks), read_wav(path)[0])
+    assert np.concatenate(blocks).shape == (info.frames, 2) and info.frames == 22050
+    with WavReader(path) as reader, pytest.raises(AudioError, match="block_frames"):
+        next(reader.blocks(0))
+
+
+def test_read_wav_matches_scipy_on_the_formats_it_reads(tmp_path) -> None:
+    for kind in ("u8", "s16", "s32", "f32", "f64"):
+        path = wav_of_format(tmp_path, kind, 16000, 2, 0.2)
+        rate, data = wavfile.read(path)
+        if data.dtype == np.uint8:
+            expected = (data.astype(np.float64) - 128) / 128
+        elif data.dtype.kind == "i":
+            expected = data / float(-np.iinfo(data.dtype).min)
+        else:
+            expected = data.astype(np.float64)
+        samples, got_rate = read_wav(path)
+        assert got_rate == rate
+        np.testing.assert_array_equal(samples, expected)
+
+
+def test_read_big_endian_rifx_and_extensible(tmp_path) -> None:
+    values = np.array([0, 1000, -32768, 32767, -1])
+    fmt = struct.pack(">HHIIHH", 1, 1, 8000, 16000, 2, 16)
+    data = pcm_bytes(values, 2, big_endian=True)
+    body = b"WAVE" + b"fmt " + struct.pack(">I", 16) + fmt + b"data"
+    body += struct.pack(">I", len(data)) + data
+    path = tmp_path / "rifx.wav"
+    path.write_bytes(b"RIFX" + struct.pack(">I", len(body)) + body)
+    samples, rate = read_wav(path)
+    assert rate == 8000
+    np.testing.assert_array_equal(samples[:, 0], values / 32768)
+    # WAVE_FORMAT_EXTENSIBLE with the PCM sub-format GUID
+    ext = struct.pack("<HHIIHHHHI", 0xFFFE, 1, 8000, 24000, 3, 24, 22, 24, 4)
+    ext += struct.pack("<H", 1) + b"\x00\x00\x00\x00\x10\x00\x80\x00\x00\xaa\x00\x38\x9b\x71"
+    data = pcm_bytes(values * 256, 3)
+    body = b"WAVE" + b"fmt " + struct.pack("<I", len(ext)) + ext
+    body += b"data" + struct.pack("<I", len(data)) + data + b"\x00" * (len(data) % 2)
+    path.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
+    samples, _ = read_wav(path)
+    np.testing.assert_array_equal(samples[:, 0], values / 32768)
+
+
+def test_stream_resampler_finish_completes_the_whole_signal_resampling() -> None:
+    rng = np.random.default_rng(3)
+    for from_rate, to_rate in [(44100, 16000), (48000, 16000), (8000, 16000), (16000, 44100)]:
+        for n in (1, 3, 441, 4410, 10007):
+            x = rng.standard_normal(n)
+            resampler = StreamResampler(from_rate, to_rate)
+            parts, i = [], 0
+            while i < n:
+                k = int(rng.integers(1, 700))
+                parts.append(resampler.push(x[i : i + k]))
+                i += k
+            parts.append(resampler.finish())
+            np.testing.assert_array_equal(np.concatenate(parts), resample(x, from_rate, to_rate))
+    passthrough = StreamResampler(16000, 16000)
+    np.testing.assert_array_equal(passthrough.push([0.5, 0.25]), [0.5, 0.25])
+    assert passthrough.finish().size == 0
+
+
+def test_wav_energies_stops_after_max_windows(tmp_path) -> None:
+    path = wav_of_format(tmp_path, "s16", 44100, 1, 1.37)
+    whole = window_energies_db(load_mono(path), 16000, 0.05)
+    np.testing.assert_array_equal(wav_energies(path, 0.05, max_windows=4), whole[:4])
+    np.testing.assert_array_equal(wav_energies(path, 0.05, max_windows=10_000), whole)
+    with pytest.raises(AudioError, match="channel 1 does not exist"):
+        wav_energies(path, 0.05, channel=1)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from infomax_contingency.audio.binarizer import Binarizer
-from infomax_contingency.audio.signal import window_energies_db
+from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable

@@ -25,7 +25,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.audio.signal import window_energies_db
+from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable

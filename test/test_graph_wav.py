@@ -17,7 +17,9 @@ import pytest
 
 from graph_harness import Graph, graph_fixture
 from infomax_contingency.audio.binarizer import calibration_window_count
-from infomax_contingency.audio.signal import kmeans_threshold, load_mono, window_energies_db
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.threshold import kmeans_threshold
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 
 make_graph = graph_fixture()

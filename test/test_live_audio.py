@@ -15,28 +15,31 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from alsa_devices import VirtualAlsa, fifo_prelude, read_raw
-from fake_portaudio import FakeBackend, Room, Rule, device
-from infomax_contingency.audio import live as live_audio
-from infomax_contingency.audio import signal as audio
-from infomax_contingency.audio.live import (
+from fake_portaudio import FakeBackend, FakeClock, Room, Rule, device
+from infomax_contingency.audio.calibration import energy_histogram, record_energies
+from infomax_contingency.audio.capture import MicrophoneStream
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.devices import (
     AudioDeviceError,
-    MicrophoneStream,
-    SpeakerOutput,
-    StreamResampler,
-    energy_histogram,
-    find_onset,
-    measure_latency,
+    LogFunction,
+    import_sounddevice,
     negotiate_format,
     resolve_device,
-    self_period_windows,
 )
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.latency import find_onset, measure_latency, self_period_windows
+from infomax_contingency.audio.playback import SpeakerOutput
+from infomax_contingency.audio.resample import StreamResampler, load_mono, resample
+from infomax_contingency.audio.synth import synthesize_chirp
+from infomax_contingency.audio.threshold import bits_from_energies, kmeans_threshold
+from infomax_contingency.audio.timeline import WindowTimeline
+from infomax_contingency.audio.wav import to_mono, write_wav_int16
 
 # --------------------------------------------------------------------------- fixtures
 
@@ -63,7 +66,7 @@ def write_recording(path: Path, rate: int, seconds: float = 7.0, channels: int =
     x = recording(rate, seconds)
     if channels > 1:
         x = np.stack([x * (0.5 + 0.5 * c) for c in range(channels)], axis=1)
-    audio.write_wav_int16(path, x, rate)
+    write_wav_int16(path, x, rate)
     return path
 
 
@@ -75,7 +78,7 @@ def mic_backend(rate: int = 16000, rules: Rule | None = None, inputs: int = 1) -
     )
 
 
-def logs() -> tuple[list[str], live_audio.LogFunction]:
+def logs() -> tuple[list[str], LogFunction]:
     lines: list[str] = []
     return lines, lambda level, message: lines.append(f"{level}: {message}")
 
@@ -88,7 +91,7 @@ def test_missing_portaudio_library_says_install_libportaudio2(monkeypatch, tmp_p
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.delitem(sys.modules, "sounddevice", raising=False)
     with pytest.raises(AudioDeviceError, match="libportaudio2"):
-        live_audio.import_sounddevice()
+        import_sounddevice()
     with pytest.raises(AudioDeviceError, match="apt-get install libportaudio2"):
         MicrophoneStream().start()
 
@@ -96,7 +99,7 @@ def test_missing_portaudio_library_says_install_libportaudio2(monkeypatch, tmp_p
 def test_missing_sounddevice_package_says_pip_install(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "sounddevice", None)
     with pytest.raises(AudioDeviceError, match="pip install sounddevice"):
-        live_audio.import_sounddevice()
+        import_sounddevice()
 
 
 # --------------------------------------------------------------------------- devices
@@ -174,7 +177,7 @@ def test_negotiate_prefers_requested_rate_then_native_rates() -> None:
 def test_stream_resampler_is_bit_identical_to_whole_signal_resampling(from_rate, to_rate) -> None:
     rng = np.random.default_rng(from_rate)
     x = 0.3 * rng.standard_normal(2 * from_rate)
-    reference = audio.resample(x, from_rate, to_rate)
+    reference = resample(x, from_rate, to_rate)
     resampler = StreamResampler(from_rate, to_rate)
     pieces, i = [], 0
     while i < x.size:
@@ -210,7 +213,7 @@ def test_microphone_windows_equal_offline_energies_and_use_adc_time() -> None:
         assert (stream.rate, stream.channels, stream.blocksize) == (16000, 1, 320)
         pump_all(stream, x, 320, t0=1000.0)
         windows = mic.read_windows(0.0)
-    expected = audio.window_energies_db(x, 16000, 0.5)
+    expected = window_energies_db(x, 16000, 0.5)
     assert [w.energy_db for w in windows] == expected.tolist()
     assert [w.index for w in windows] == list(range(6))
     # the fake stream clock is time.monotonic(): window times are the ADC times
@@ -228,7 +231,7 @@ def test_microphone_at_native_rate_resamples_exactly() -> None:
         assert mic.device_rate == 48000
         pump_all(backend.last(), x48, 960, rate=48000)
         energies = [w.energy_db for w in mic.read_windows(0.0)]
-    expected = audio.window_energies_db(audio.resample(x48, 48000, 16000), 16000, 0.5)
+    expected = window_energies_db(resample(x48, 48000, 16000), 16000, 0.5)
     assert energies == expected[: len(energies)].tolist() and len(energies) == 5
     assert any("does not open at 16000 Hz" in line and "48000 Hz" in line for line in lines)
 
@@ -243,9 +246,9 @@ def test_microphone_channel_choice_and_mixdown() -> None:
         ) as mic:
             pump_all(backend.last(), stereo, 400)
             energies = [w.energy_db for w in mic.read_windows(0.0)]
-        reference = audio.window_energies_db(audio.to_mono(f32(stereo), channel), 16000, 0.25)
+        reference = window_energies_db(to_mono(f32(stereo), channel), 16000, 0.25)
         assert energies == reference.tolist()
-        assert np.allclose(energies, audio.window_energies_db(expected, 16000, 0.25), atol=1e-4)
+        assert np.allclose(energies, window_energies_db(expected, 16000, 0.25), atol=1e-4)
     backend = mic_backend(16000, Rule(channels={1}))
     with pytest.raises(AudioDeviceError, match="channel 1 does not exist"):
         MicrophoneStream(None, channel=1, backend=backend).start()
@@ -269,7 +272,7 @@ def test_dropped_blocks_stay_visible_in_the_window_that_lost_them() -> None:
     first = windows[0]
     assert first.lost_samples == 960 and not first.intact  # still emitted, loss visible
     kept = np.concatenate([*blocks[:5], *blocks[8:]])
-    assert first.energy_db == audio.window_energies_db(kept[:8000], 16000, 0.5)[0]
+    assert first.energy_db == window_energies_db(kept[:8000], 16000, 0.5)[0]
     assert first.end_time - first.start_time == pytest.approx(0.5 + 0.06)
     # the step clock keeps to ADC time: the next window starts where the first ended
     assert windows[1].start_time == pytest.approx(first.end_time)
@@ -318,61 +321,77 @@ def test_a_loss_of_a_whole_window_is_a_gap_without_made_up_windows() -> None:
     assert first.start_time == pytest.approx(1000.0 + 70 * 0.02, abs=1e-4)
     assert first.gap_s == pytest.approx(0.9, abs=1e-4)  # 0.1 s partial window + 0.8 s lost
     assert first.intact and status.gap_total_s == pytest.approx(0.9, abs=1e-4)
-    expected = audio.window_energies_db(np.concatenate(blocks[70:]), 16000, 0.5)
+    expected = window_energies_db(np.concatenate(blocks[70:]), 16000, 0.5)
     assert [w.energy_db for w in windows[1:]] == expected.tolist()
-    assert windows[0].energy_db == audio.window_energies_db(x[:8000], 16000, 0.5)[0]
+    assert windows[0].energy_db == window_energies_db(x[:8000], 16000, 0.5)[0]
 
 
 @pytest.mark.slow
 def test_stall_and_unplug_reconnect_with_backoff_and_report_the_gap() -> None:
+    # On a fake clock: the device delivers a 20 ms block whenever the clock passes its
+    # ADC time, and the stream's waits move the clock, so every time below is exact.
+    clock = FakeClock(1000.0)
+    t0 = clock()
     x = f32(recording(16000, 30.0))
     backend = FakeBackend(
         [device(0, "USB mic", 1, 0, 16000), device(1, "Built-in", 1, 0, 16000)],
         default_input=1,
-        realtime=True,
+        clock=clock,
         source=lambda stream, t, n: x[(i := round((t - t0) * 16000)) : i + n],
     )
-    t0 = time.monotonic()
     lines, log = logs()
     mic = MicrophoneStream(
-        "usb", window_s=0.1, stall_timeout_s=0.3, backoff_s=(0.1, 0.4), log=log, backend=backend
+        "usb",
+        window_s=0.1,
+        stall_timeout_s=0.3,
+        backoff_s=(0.1, 0.4),
+        log=log,
+        backend=backend,
+        clock=clock,
+        sleep=clock.sleep,
     ).start()
-    windows, states = [], []
+    windows, rescans_at = [], []
+    rescan = backend.rescan
+    backend.rescan = lambda: (rescans_at.append(clock()), rescan())  # before every reopening
 
     def run(seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        end = clock() + seconds
+        while clock() < end:
             windows.extend(mic.read_windows(0.02))
-            states.append((time.monotonic(), mic.state))
 
     try:
         run(0.5)
-        assert mic.state == "connected" and len(windows) >= 3
+        assert mic.state == "connected" and len(windows) == 5  # blocks come at their ADC time
         before = len(windows)
-        unplugged = time.monotonic()
+        unplugged = clock()
         backend.unplug(0)  # the stream dies; the device is gone from the next rescan
         run(1.3)
         status = mic.status()
         assert status.state == "disconnected" and status.disconnects == 1
-        assert status.reconnect_attempts >= 3  # 0.1 + 0.2 + 0.4 + 0.4 ... s apart
+        # back-off 0.1, 0.2, 0.4, 0.4 s after the disconnect (noticed 20 ms after unplugging)
+        # noticed at the first read after the unplug (20 ms later); then it retries after
+        # back-offs of 0.1, 0.2, 0.4 and 0.4 s (doubling up to backoff_s[1])
+        assert [round(t - unplugged, 9) for t in rescans_at] == [0.12, 0.32, 0.72, 1.12]
+        assert status.reconnect_attempts == 4
         assert "no input device name contains 'usb'" in status.last_error
         assert "[1] Built-in" in status.last_error
         assert len(windows) == before  # nothing is made up while the device is gone
         backend.plug(device(0, "USB mic", 1, 0, 16000))
+        replugged = clock()
         run(1.0)
-        replugged = time.monotonic()
         status = mic.status()
         assert status.state == "connected" and status.reconnects == 1
+        reopened = unplugged + 1.52  # the attempt 0.4 s after the last failed one
         resumed = windows[before:]
         assert resumed and all(w.segment == 1 for w in resumed)
-        assert resumed[0].gap_s > 1.0 and resumed[0].gap_s < replugged - unplugged
-        assert all(w.gap_s == 0 for w in resumed[1:])
-        # every window after the gap holds the audio at its ADC time
+        assert resumed[0].start_time == pytest.approx(reopened, abs=1e-9)
+        assert resumed[0].gap_s == pytest.approx(reopened - windows[before - 1].end_time)
+        assert status.gaps == 1 and status.gap_total_s == resumed[0].gap_s
+        assert replugged < reopened and all(w.gap_s == 0 for w in resumed[1:])
+        # every window after the gap holds exactly the audio at its ADC time
         for w in resumed:
             i = round((w.start_time - t0) * 16000)
-            assert w.energy_db == pytest.approx(
-                audio.window_energies_db(x[i : i + 1600], 16000, 0.1)[0], abs=1e-9
-            )
+            assert w.energy_db == window_energies_db(x[i : i + 1600], 16000, 0.1)[0]
         # a stalled device (delivers nothing, does not fail) is noticed too
         count = len(windows)
         backend.stalled[0] = True  # a reopened stream stalls too: it flaps until data flows
@@ -389,18 +408,80 @@ def test_stall_and_unplug_reconnect_with_backoff_and_report_the_gap() -> None:
     finally:
         mic.close()
     assert mic.state == "closed"
-    with pytest.raises(audio.AudioError, match="not started"):
+    assert clock.slept == pytest.approx(clock() - t0)  # all the time passed in the stream's waits
+    with pytest.raises(AudioError, match="not started"):
         mic.read_windows()
 
 
+def timeline_blocks(timeline, x, block, t0=100.0, rate=16000, **losses):
+    """Convert ``x`` block by block at contiguous ADC times; return the windows."""
+    windows = []
+    for k in range(0, x.size, block):
+        chunk = timeline.convert(x[k : k + block, None], t0 + k / rate, 0, False, None, now=0.0)
+        windows.extend(timeline.assemble(chunk))
+    return windows
+
+
+def test_timeline_contiguous_blocks_give_offline_energies_at_exact_times() -> None:
+    x = recording(16000, 1.0)
+    timeline = WindowTimeline(16000, 0.25)
+    timeline.start_stream(16000)
+    windows = timeline_blocks(timeline, x, 333)
+    assert [w.index for w in windows] == [0, 1, 2, 3]
+    assert [w.start_time for w in windows] == [100.0, 100.25, 100.5, 100.75]
+    assert [w.end_time for w in windows] == [100.25, 100.5, 100.75, 101.0]
+    assert [w.energy_db for w in windows] == window_energies_db(x, 16000, 0.25).tolist()
+    assert all(w.intact and w.segment == 0 and w.gap_s == 0 for w in windows)
+    assert (timeline.windows, timeline.gaps, timeline.lost_samples) == (4, 0, 0)
+
+
+def test_timeline_short_loss_stays_in_its_window_and_long_loss_is_a_gap() -> None:
+    timeline = WindowTimeline(16000, 0.1)  # 1600 samples a window
+    timeline.start_stream(16000)
+    block = np.full((800, 1), 0.1)
+    first = timeline.assemble(timeline.convert(block, 10.0, 0, False, None, 0.0))
+    # 400 samples dropped before the next block: inside the window being filled
+    second = timeline.assemble(timeline.convert(block, 10.075, 400, False, None, 0.0))
+    assert first == [] and len(second) == 1
+    w = second[0]
+    assert (w.lost_samples, w.segment, w.gap_s) == (400, 0, 0.0) and not w.intact
+    assert w.start_time == 10.0 and w.end_time == pytest.approx(10.125)
+    # an overflow whose ADC time jumps 0.2 s (a window or more): a new segment and a gap
+    late = 10.125 + 0.2
+    chunk = timeline.convert(np.full((1600, 1), 0.1), late, 0, True, None, 0.0)
+    assert chunk.segment == 1 and chunk.start_time == pytest.approx(late)
+    [after] = timeline.assemble(chunk)
+    assert after.segment == 1 and after.overflows == 1 and after.lost_samples == 0
+    assert after.start_time == pytest.approx(late)
+    assert after.gap_s == pytest.approx(0.2) and timeline.gap_total_s == after.gap_s
+    assert (timeline.gaps, timeline.lost_samples) == (1, 400 + 3200)
+
+
+def test_timeline_reopened_stream_resamples_and_reports_the_gap() -> None:
+    timeline = WindowTimeline(16000, 0.5)
+    timeline.start_stream(16000)
+    timeline_blocks(timeline, recording(16000, 1.0), 320, t0=0.0)
+    timeline.start_stream(48000)  # reopened at another rate, 2 s later
+    x48 = recording(48000, 1.0, seed=2)
+    windows = timeline_blocks(timeline, x48, 960, t0=3.0, rate=48000)
+    assert [w.segment for w in windows] == [1]  # the resampler delays the second window
+    assert windows[0].start_time == 3.0 and windows[0].gap_s == pytest.approx(2.0)
+    expected = window_energies_db(resample(x48, 48000, 16000), 16000, 0.5)[0]
+    assert windows[0].energy_db == expected
+    # blocks without an ADC time are anchored at the caller's clock
+    timeline.start_stream(16000)
+    chunk = timeline.convert(np.zeros((8000, 1)), None, 0, False, None, now=7.5)
+    assert chunk.start_time == 7.5 and timeline.assemble(chunk)[0].start_time == 7.5
+
+
 def test_microphone_argument_errors() -> None:
-    with pytest.raises(audio.AudioError, match="window_s"):
+    with pytest.raises(AudioError, match="window_s"):
         MicrophoneStream(window_s=0)
-    with pytest.raises(audio.AudioError, match="channel"):
+    with pytest.raises(AudioError, match="channel"):
         MicrophoneStream(channel=-1)
-    with pytest.raises(audio.AudioError, match="channel 2 does not exist among 2"):
+    with pytest.raises(AudioError, match="channel 2 does not exist among 2"):
         MicrophoneStream(channel=2, channels=2)
-    with pytest.raises(audio.AudioError, match="backoff_s"):
+    with pytest.raises(AudioError, match="backoff_s"):
         MicrophoneStream(backoff_s=(2.0, 1.0))
 
 
@@ -421,7 +502,7 @@ def test_speaker_plays_on_command_only_and_reports_dac_start() -> None:
         sequence = speaker.play()
         out = np.concatenate([stream.pump(t=20.0 + 0.01 * k) for k in range(30)])
         events = speaker.events()
-    chirp = (0.5 * audio.synthesize_chirp(16000, 0.2, amplitude=1.0)).astype(np.float32)
+    chirp = (0.5 * synthesize_chirp(16000, 0.2, amplitude=1.0)).astype(np.float32)
     assert np.array_equal(out[: chirp.size, 0], chirp)
     assert not out[chirp.size :].any()
     assert len(events) == 1 and events[0].sequence == sequence
@@ -444,7 +525,7 @@ def test_speaker_restart_policy_and_skip_policy() -> None:
             rest = np.concatenate([stream.pump(t=float(k)) for k in range(40)])
             status = speaker.status()
             events = speaker.events()
-        chirp = audio.synthesize_chirp(16000, 0.2, amplitude=1.0).astype(np.float32)
+        chirp = synthesize_chirp(16000, 0.2, amplitude=1.0).astype(np.float32)
         assert np.array_equal(first[:, 0], chirp[:1600])
         assert (status.requests, status.interrupted, status.skipped) == (3, interrupted, skipped)
         if overlap == "restart":  # the sound starts again from the beginning: no queue
@@ -458,44 +539,49 @@ def test_speaker_restart_policy_and_skip_policy() -> None:
 def test_speaker_sound_from_wav_and_array_resampled_to_the_device(tmp_path) -> None:
     tone = 0.3 * np.sin(2 * np.pi * 440 * np.arange(8000) / 16000)
     wav = tmp_path / "beep.wav"
-    audio.write_wav_int16(wav, tone, 16000)
+    write_wav_int16(wav, tone, 16000)
     backend = speaker_backend(48000)
     with SpeakerOutput(sound=wav, backend=backend) as speaker:
         assert speaker.device_rate == 48000 and speaker.sound.size == 24000
-        assert np.allclose(speaker.sound, audio.resample(audio.load_mono(wav), 16000, 48000))
+        assert np.allclose(speaker.sound, resample(load_mono(wav), 16000, 48000))
     with SpeakerOutput(sound=tone, sound_rate=16000, backend=speaker_backend(16000)) as speaker:
         assert np.array_equal(speaker.sound, tone)
-    with pytest.raises(audio.AudioError, match="sound_rate"):
+    with pytest.raises(AudioError, match="sound_rate"):
         SpeakerOutput(sound=tone)
-    with pytest.raises(audio.AudioError, match="volume"):
+    with pytest.raises(AudioError, match="volume"):
         SpeakerOutput(volume=1.5)
-    with pytest.raises(audio.AudioError, match="overlap"):
+    with pytest.raises(AudioError, match="overlap"):
         SpeakerOutput(overlap="queue")
 
 
 def test_speaker_survives_a_vanished_device() -> None:
-    backend = speaker_backend()
+    clock = FakeClock(50.0)
+    backend = FakeBackend([device(0, "Speakers", 0, 2, 16000)], default_output=0, clock=clock)
     lines, log = logs()
-    speaker = SpeakerOutput(retry_s=0.2, log=log, backend=backend).start()
+    speaker = SpeakerOutput(retry_s=0.2, log=log, backend=backend, clock=clock, sleep=clock.sleep)
+    speaker.start()
     try:
         backend.unplug(0)
         assert speaker.play() is None
         status = speaker.status()
         assert status.state == "disconnected" and status.errors == 2
         assert "no output device" in status.last_error or "Speakers" in status.last_error
-        assert speaker.play() is None  # within retry_s: not even tried
+        opened = backend.open_attempts
         backend.plug(device(0, "Speakers", 0, 2, 16000))
-        time.sleep(0.25)
+        clock.advance(0.19)
+        assert speaker.play() is None  # within retry_s: not even tried
+        assert backend.open_attempts == opened and speaker.status().errors == 3
+        clock.advance(0.02)  # retry_s has passed
         assert speaker.play() == 1
         assert speaker.status().state == "connected"
         stream = backend.last("output")
-        assert stream.pump(t=5.0).any() and speaker.events()[0].start_time == pytest.approx(
-            5.0, abs=1e-4
-        )
+        assert stream.pump(t=5.0).any() and speaker.events()[0].start_time == 5.0
+        assert speaker.events(0.5) == [] and clock() == pytest.approx(50.71)  # waited on the clock
     finally:
         speaker.close()
-    with pytest.raises(audio.AudioError, match="not started"):
+    with pytest.raises(AudioError, match="not started"):
         speaker.play()
+    assert any("speaker" in line for line in lines)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -523,13 +609,13 @@ def test_self_period_windows_definition() -> None:
     # a sound ending exactly at a window boundary does not reach the next window
     assert self_period_windows(0.3, 0.3, 0.2, 0.5) == (0, 0)
     assert self_period_windows(0.6, 0.7, 0.2, 0.5) == (1, 1)
-    with pytest.raises(audio.AudioError):
+    with pytest.raises(AudioError):
         self_period_windows(0.5, 0.1, 0.2, 0.5)
 
 
 def test_find_onset_locates_the_chirp() -> None:
     rng = np.random.default_rng(3)
-    chirp = audio.synthesize_chirp(16000)
+    chirp = synthesize_chirp(16000)
     x = 0.01 * rng.standard_normal(16000)
     x[5000 : 5000 + chirp.size] += 0.3 * chirp
     index, score = find_onset(x, chirp)
@@ -538,23 +624,25 @@ def test_find_onset_locates_the_chirp() -> None:
     assert find_onset(x[:100], chirp) is None
 
 
-@pytest.mark.slow
 def test_measure_latency_through_a_simulated_room() -> None:
-    room = Room(16000, delay_s=0.137)
+    clock = FakeClock(500.0)
+    room = Room(16000, delay_s=0.137, clock=clock)
     backend = FakeBackend(
         [device(0, "mic", 1, 0, 16000), device(1, "speaker", 0, 1, 16000)],
         default_input=0,
         default_output=1,
-        realtime=True,
+        clock=clock,
         source=room.source,
         sink=room.sink,
         output_latency_s=0.03,
     )
-    report = measure_latency(repeats=3, interval_s=0.6, volume=0.5, backend=backend)
+    report = measure_latency(
+        repeats=3, interval_s=0.6, volume=0.5, backend=backend, clock=clock, sleep=clock.sleep
+    )
     assert not report.failures and len(report.trials) == 3
     for trial in report.trials:
-        assert trial.delay_s - trial.output_s == pytest.approx(0.137, abs=2 / 16000)
-        assert 0.03 <= trial.output_s < 0.03 + 0.05  # latency + up to a block + scheduling
+        assert trial.delay_s - trial.output_s == pytest.approx(0.137, abs=1 / 16000)
+        assert 0.03 <= trial.output_s <= 0.03 + 0.01  # output latency + up to one 10 ms block
         assert trial.score > 0.9
     assert report.sound_s == pytest.approx(0.2)
     assert (report.input_device, report.output_device) == ("mic", "speaker")
@@ -564,7 +652,7 @@ def test_measure_latency_through_a_simulated_room() -> None:
 
 CAPTURE = """
 import json, time
-from infomax_contingency.audio.live import MicrophoneStream
+from infomax_contingency.audio.capture import MicrophoneStream
 logs = []
 mic = MicrophoneStream({spec!r}, window_s={window_s}, channel={channel!r},
                        channels={channels!r}, queue_s=60,
@@ -591,16 +679,16 @@ def test_alsa_capture_gives_the_bits_of_the_wav_source(tmp_path) -> None:
     alsa = VirtualAlsa(tmp_path / "alsa")
     alsa.wav_microphone("fakemic", wav)
     alsa.write(default_capture="fakemic")
-    reference = audio.window_energies_db(audio.load_mono(wav), 16000, 0.5)
-    threshold = audio.kmeans_threshold(reference)
+    reference = window_energies_db(load_mono(wav), 16000, 0.5)
+    threshold = kmeans_threshold(reference)
     for spec in (None, "FAKEmic"):
         result = capture(alsa, spec, reference.size)
         assert result["intact"] and result["status"]["device_rate"] == 16000
         energies = np.array(result["energies"])
         assert np.array_equal(energies, reference)  # bit for bit
         assert np.array_equal(
-            audio.bits_from_energies(energies, threshold),
-            audio.bits_from_energies(reference, threshold),
+            bits_from_energies(energies, threshold),
+            bits_from_energies(reference, threshold),
         )
     assert result["status"]["device"] == "fakemic"
     assert any("microphone: [0] fakemic" in line for line in result["logs"])
@@ -612,7 +700,7 @@ def test_alsa_stereo_capture_mixes_down_or_picks_a_channel(tmp_path) -> None:
     alsa.wav_microphone("array", wav)
     alsa.write(default_capture="array")
     for channel in (None, 1):
-        reference = audio.window_energies_db(audio.load_mono(wav, channel=channel), 16000, 0.5)
+        reference = window_energies_db(load_mono(wav, channel=channel), 16000, 0.5)
         result = capture(alsa, "array", reference.size, channel=channel, channels=2)
         assert result["intact"] and np.array_equal(result["energies"], reference)
 
@@ -635,7 +723,7 @@ def test_alsa_48khz_only_device_is_resampled_to_the_same_bits(tmp_path) -> None:
         " default=sd.query_devices('usb48')['default_samplerate'])))"
     )
     assert probe == {**probe, "r16": False, "r48": True, "default": 48000.0}
-    reference = audio.window_energies_db(audio.load_mono(wav, 16000), 16000, 0.5)
+    reference = window_energies_db(load_mono(wav, 16000), 16000, 0.5)
     result = capture(alsa, "usb48", reference.size)
     assert result["status"]["device_rate"] == 48000 and result["intact"]
     assert np.array_equal(result["energies"], reference)  # bit for bit, after resampling
@@ -644,7 +732,9 @@ def test_alsa_48khz_only_device_is_resampled_to_the_same_bits(tmp_path) -> None:
 
 MISSING = """
 import json
-from infomax_contingency.audio.live import AudioDeviceError, MicrophoneStream, SpeakerOutput
+from infomax_contingency.audio.capture import MicrophoneStream
+from infomax_contingency.audio.devices import AudioDeviceError
+from infomax_contingency.audio.playback import SpeakerOutput
 messages = []
 for make in (lambda: MicrophoneStream('ReSpeaker'), lambda: MicrophoneStream(5),
              lambda: SpeakerOutput('HDMI')):
@@ -682,7 +772,7 @@ def test_alsa_missing_device_lists_the_devices(tmp_path) -> None:
 
 SPEAKER = """
 import json, dataclasses, time
-from infomax_contingency.audio.live import SpeakerOutput
+from infomax_contingency.audio.playback import SpeakerOutput
 speaker = SpeakerOutput('fakespeaker', volume=0.5).start()
 events = []
 if {play}:
@@ -706,7 +796,7 @@ def test_alsa_playback_holds_the_chirp_only_when_commanded(tmp_path) -> None:
     assert status["played"] == 1 and status["errors"] == 0
     played = read_raw(out, channels)[:, 0]
     loud = np.flatnonzero(played)
-    chirp = (0.5 * audio.synthesize_chirp(rate, amplitude=1.0)).astype(np.float32)
+    chirp = (0.5 * synthesize_chirp(rate, amplitude=1.0)).astype(np.float32)
     start = loud[0] - 1  # the chirp's first sample is sin(0) = 0
     assert np.array_equal(played[start : start + chirp.size], chirp)  # exactly once
     assert loud[-1] < start + chirp.size and not played[:start].any()
@@ -727,7 +817,7 @@ VANISH = """
 {prelude}
 import fcntl, json, shutil, threading, time
 import numpy as np
-from infomax_contingency.audio.live import MicrophoneStream
+from infomax_contingency.audio.capture import MicrophoneStream
 fd = FIFO_FDS[{fifo!r}]
 fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, 1 << 20)  # room for a whole part: no short reads
 a, b = np.load({a!r}), np.load({b!r})
@@ -805,8 +895,8 @@ def test_alsa_device_that_stalls_and_vanishes_is_reopened_when_back(tmp_path) ->
     assert status["disconnects"] == 1 and status["reconnects"] == 1
     assert status["reconnect_attempts"] >= 2 and status["state"] == "connected"
     assert segments == [0] * 8 + [1] * (len(segments) - 8)
-    assert np.array_equal(energies[:8], audio.window_energies_db(a.astype(float), 16000, 0.25))
-    expected_b = audio.window_energies_db(b.astype(float), 16000, 0.25)
+    assert np.array_equal(energies[:8], window_energies_db(a.astype(float), 16000, 0.25))
+    expected_b = window_energies_db(b.astype(float), 16000, 0.25)
     assert np.array_equal(energies[8:14], expected_b[:6])
     # the gap is counted and no window is made up for it; its length (gap_s) means nothing
     # here, since the clock-less null device runs ahead of real time (see the fake test)
@@ -819,7 +909,8 @@ def test_alsa_device_that_stalls_and_vanishes_is_reopened_when_back(tmp_path) ->
 
 def test_live_audio_imports_neither_rclpy_nor_sounddevice() -> None:
     code = (
-        "import sys, infomax_contingency.audio.live, infomax_contingency.cli.live\n"
+        "import sys, infomax_contingency.cli.live\n"
+        "from infomax_contingency.audio import calibration, capture, latency, playback\n"
         "print(json.dumps(dict(bad=[m for m in ('rclpy', 'sounddevice') if m in sys.modules])))"
     )
     import subprocess
@@ -828,3 +919,22 @@ def test_live_audio_imports_neither_rclpy_nor_sounddevice() -> None:
         [sys.executable, "-c", "import json\n" + code], capture_output=True, text=True, check=True
     )
     assert json.loads(out.stdout) == {"bad": []}
+
+
+def test_record_energies_on_the_fake_clock_and_its_deadline() -> None:
+    clock = FakeClock(10.0)
+    x = f32(recording(16000, 10.0, seed=4))
+    backend = FakeBackend(
+        [device(0, "mic", 1, 0, 16000)],
+        default_input=0,
+        clock=clock,
+        source=lambda stream, t, n: x[(i := round((t - 10.0) * 16000)) : i + n],
+    )
+    result = record_energies(None, 2.0, 0.25, backend=backend, clock=clock, sleep=clock.sleep)
+    assert (result.device, result.device_rate, result.gaps) == ("mic", 16000, 0)
+    np.testing.assert_array_equal(result.energies_db, window_energies_db(x[:32000], 16000, 0.25))
+    backend.stalled[0] = True  # delivers nothing: given up after seconds + 5 s on the clock
+    start = clock()
+    with pytest.raises(AudioDeviceError, match=r"recorded only 0 of 8 windows from mic in 7 s"):
+        record_energies(None, 2.0, 0.25, backend=backend, clock=clock, sleep=clock.sleep)
+    assert 7.0 < clock() - start < 7.2

@@ -9,14 +9,21 @@ opening and the "not heard" error are checked.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import yaml
 
 from alsa_devices import VirtualAlsa
-from fake_portaudio import FakeBackend, Room, device
-from infomax_contingency.audio import live as live_audio
-from infomax_contingency.audio import signal as audio
+from fake_portaudio import FakeBackend, FakeClock, Room, device
+from infomax_contingency.audio import devices as audio_devices
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.latency import measure_latency
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.threshold import kmeans_split, load_threshold
+from infomax_contingency.audio.wav import write_wav_int16
+from infomax_contingency.cli import live as live_commands
 from infomax_contingency.cli import main as cli
 from test_live_audio import write_recording
 
@@ -44,9 +51,9 @@ def test_calibrate_on_a_wav_prints_threshold_and_histogram(room_wav, tmp_path, c
     out = tmp_path / "cal" / "threshold.yaml"
     assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    energies = audio.window_energies_db(audio.load_mono(room_wav), 16000, 0.5)
-    fit = audio.kmeans_split(energies)
-    assert audio.load_threshold(out) == fit.threshold_db
+    energies = window_energies_db(load_mono(room_wav), 16000, 0.5)
+    fit = kmeans_split(energies)
+    assert load_threshold(out) == fit.threshold_db
     record = yaml.safe_load(out.read_text())
     assert record["window_s"] == 0.5 and record["source"] == f"wav:{room_wav}"
     assert f"calibrated on {energies.size} windows of 0.5 s from {room_wav}" in text
@@ -63,7 +70,7 @@ def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
     assert cli.main(["calibrate", "--wav", str(room_wav), "--device", "1", "--out", str(out)]) == 2
     assert "not both" in capsys.readouterr().err
     silent = tmp_path / "silent.wav"
-    audio.write_wav_int16(silent, np.zeros(16000), 16000)
+    write_wav_int16(silent, np.zeros(16000), 16000)
     assert cli.main(["calibrate", "--wav", str(silent), "--out", str(out)]) == 2
     assert "no boundary between quiet and sound" in capsys.readouterr().err
     assert cli.main(["calibrate", "--wav", str(tmp_path / "none.wav"), "--out", str(out)]) == 2
@@ -84,7 +91,7 @@ def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) ->
     assert rc == 0, stdout
     offline = tmp_path / "offline.yaml"
     assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(offline)]) == 0
-    assert audio.load_threshold(live) == audio.load_threshold(offline)
+    assert load_threshold(live) == load_threshold(offline)
     assert yaml.safe_load(live.read_text())["source"] == "device:fakemic"
     assert "calibrated on 14 windows of 0.5 s from fakemic (16000 Hz)" in stdout
     assert "threshold" in stdout and " dB | " in stdout
@@ -129,19 +136,21 @@ def test_measure_latency_on_virtual_devices_reports_not_heard(tmp_path) -> None:
     assert np.fromfile(out, dtype="<f4").any()  # the chirps were played
 
 
-@pytest.mark.slow
 def test_measure_latency_reports_delay_and_self_period(monkeypatch, capsys) -> None:
-    room = Room(16000, delay_s=0.25)
+    clock = FakeClock()
+    room = Room(16000, delay_s=0.25, clock=clock)
     backend = FakeBackend(
         [device(0, "robot mic", 1, 0, 16000), device(1, "robot speaker", 0, 1, 16000)],
         default_input=0,
         default_output=1,
-        realtime=True,
+        clock=clock,
         source=room.source,
         sink=room.sink,
         output_latency_s=0.03,
     )
-    monkeypatch.setattr(live_audio, "SoundDeviceBackend", lambda: backend)
+    monkeypatch.setattr(audio_devices, "SoundDeviceBackend", lambda: backend)
+    on_the_clock = functools.partial(measure_latency, clock=clock, sleep=clock.sleep)
+    monkeypatch.setattr(live_commands, "measure_latency", on_the_clock)
     rc = cli.main(["measure-latency", "--repeats", "2", "--interval-s", "0.7"])
     text = capsys.readouterr().out
     assert rc == 0, text
@@ -165,3 +174,28 @@ def test_cli_registers_the_live_commands() -> None:
     parser = cli.build_parser()
     choices = parser._subparsers._group_actions[0].choices
     assert {"devices", "calibrate", "measure-latency"} <= set(choices)
+
+
+def test_calibrate_refuses_clusters_too_close_to_separate_unless_forced(tmp_path, capsys) -> None:
+    # a steady hum whose loudness wobbles by 2 dB: two clusters, but no quiet and no sound
+    rng = np.random.default_rng(2)
+    gains = np.repeat(np.where(np.arange(12) % 2 == 1, 0.1 * 10 ** (2 / 20), 0.1), 8000)
+    hum = tmp_path / "hum.wav"
+    write_wav_int16(hum, gains * rng.standard_normal(gains.size), 16000)
+    out = tmp_path / "t.yaml"
+    assert cli.main(["calibrate", "--wav", str(hum), "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert not out.exists()
+    [line] = captured.err.splitlines()
+    assert line.startswith("infomax-contingency calibrate: error: calibration cannot separate")
+    assert "lie only 2.0 dB apart" in line and "--force" in line
+    assert "threshold:" in captured.out  # the fit and the histogram are still shown
+    assert cli.main(["calibrate", "--wav", str(hum), "--out", str(out), "--force"]) == 0
+    captured = capsys.readouterr()
+    assert "warning: calibration cannot separate" in captured.out and out.exists()
+    assert "lie only 2.0 dB apart" in captured.out
+    out.unlink()
+    args = ["calibrate", "--wav", str(hum), "--out", str(out), "--min-separation-db", "1.5"]
+    assert cli.main(args) == 0 and out.exists()
+    with pytest.raises(SystemExit):
+        cli.main(["calibrate", "--wav", str(hum), "--out", str(out), "--min-separation-db", "-1"])

@@ -36,13 +36,11 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, Float32, Int64MultiArray
 
 from alsa_devices import VirtualAlsa
-from infomax_contingency.audio.signal import (
-    kmeans_threshold,
-    load_mono,
-    synthesize_chirp,
-    window_energies_db,
-    write_wav_int16,
-)
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.synth import synthesize_chirp
+from infomax_contingency.audio.threshold import kmeans_threshold
+from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.nodes.qos import STREAM_QOS
 from infomax_contingency.nodes.step_topics import StepDecision, decision_message, parse_bit
 from infomax_contingency.testing.graph import SpinThread, wait_until

@@ -19,7 +19,8 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiAr
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from infomax_contingency.audio.signal import kmeans_split, window_energies_db
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.audio.threshold import kmeans_split
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable

@@ -1,36 +1,37 @@
 """Command-line tools for live audio: ``devices``, ``calibrate`` and ``measure-latency``.
 
 Registered in :mod:`infomax_contingency.cli.main`; errors follow its rules (one line on stderr,
-exit status 2).
+exit status 2). ``calibrate`` exits with status 1, writing nothing, when the calibration
+audio cannot separate sound from quiet (cluster means closer than
+``--min-separation-db``), unless ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from infomax_contingency.audio.live import (
-    INPUT,
-    OUTPUT,
+import numpy as np
+
+from infomax_contingency.audio.calibration import (
     energies_from_wav,
     energy_histogram,
-    format_devices,
-    measure_latency,
     record_energies,
-    self_period_windows,
 )
-from infomax_contingency.audio.signal import (
-    PROCESSING_RATE_HZ,
-    AudioError,
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.devices import INPUT, OUTPUT, format_devices
+from infomax_contingency.audio.latency import measure_latency, self_period_windows
+from infomax_contingency.audio.threshold import (
+    DEFAULT_MIN_SEPARATION_DB,
+    UnseparatedError,
     kmeans_split,
+    require_separation,
     save_threshold,
 )
 from infomax_contingency.core.model import ModelParams
-
-_MIN_SEPARATION_DB = 10.0
-"""Cluster means closer than this (dB) get a warning: the audio may lack quiet or sound."""
 
 
 def _print_log(level: str, message: str) -> None:
@@ -59,30 +60,39 @@ def register_devices(subparsers: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- calibrate
 
 
+def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, str]:
+    """The calibration window energies (dB), from ``--wav`` or the live microphone.
+
+    Returns:
+        ``(energies, source, what)``: the energies, the source written to the threshold
+        file, and how to name it to the user.
+    """
+    if args.wav is not None:
+        # read block by block: a 10-hour file costs the memory of a 10-second one
+        energies = energies_from_wav(args.wav, args.window_s, args.channel)
+        return energies, f"wav:{args.wav}", str(args.wav)
+    seconds = 10.0 if args.seconds is None else args.seconds
+    print(
+        f"recording {seconds:g} s from the microphone: let it hear the room quiet and with"
+        " sound (speech, claps) ..."
+    )
+    recording = record_energies(
+        args.device, seconds, args.window_s, channel=args.channel, log=_print_log
+    )
+    if recording.lost_samples or recording.gaps:
+        print(
+            f"warning: {recording.lost_samples} samples lost and {recording.gaps} gap(s)"
+            " during the recording"
+        )
+    what = f"{recording.device} ({recording.device_rate} Hz)"
+    return recording.energies_db, f"device:{recording.device}", what
+
+
 def _run_calibrate(args: argparse.Namespace) -> int:
+    """Fit, show and save the threshold; exit status 1 if the clusters do not separate."""
     if args.wav is not None and (args.device is not None or args.seconds is not None):
         raise ValueError("calibrate from --wav FILE or from --device/--seconds, not both")
-    if args.wav is not None:
-        energies = energies_from_wav(args.wav, args.window_s, args.channel)
-        source = f"wav:{args.wav}"
-        what = str(args.wav)
-    else:
-        seconds = 10.0 if args.seconds is None else args.seconds
-        print(
-            f"recording {seconds:g} s from the microphone: let it hear the room quiet and with"
-            " sound (speech, claps) ..."
-        )
-        recording = record_energies(
-            args.device, seconds, args.window_s, channel=args.channel, log=_print_log
-        )
-        energies = recording.energies_db
-        source = f"device:{recording.device}"
-        what = f"{recording.device} ({recording.device_rate} Hz)"
-        if recording.lost_samples or recording.gaps:
-            print(
-                f"warning: {recording.lost_samples} samples lost and {recording.gaps} gap(s)"
-                " during the recording"
-            )
+    energies, source, what = _calibration_energies(args)
     if energies.size < 2:
         raise AudioError(
             f"{what} holds {energies.size} window(s) of {args.window_s} s; calibration needs"
@@ -95,14 +105,31 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         f" {fit.low_mean_db:.1f} dB; sound: {fit.n_high} windows, mean {fit.high_mean_db:.1f} dB)"
     )
     print(energy_histogram(energies, fit.threshold_db, bin_db=args.bin_db))
-    if fit.high_mean_db - fit.low_mean_db < _MIN_SEPARATION_DB:
-        print(
-            f"warning: the two clusters lie only {fit.high_mean_db - fit.low_mean_db:.1f} dB"
-            " apart; the audio may lack quiet or sound. Calibrate again with both."
-        )
+    try:
+        require_separation(fit, args.min_separation_db)
+    except UnseparatedError as exc:
+        if not args.force:
+            print(
+                f"infomax-contingency calibrate: error: {exc}; {args.out} not written"
+                " (calibrate again on audio with both quiet and sound, or use --force)",
+                file=sys.stderr,
+            )
+            return 1
+        print(f"warning: {exc}; writing it anyway (--force)")
     save_threshold(args.out, fit, window_s=args.window_s, rate=PROCESSING_RATE_HZ, source=source)
     print(f"wrote {args.out}")
     return 0
+
+
+def _non_negative(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (value >= 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
 
 
 def _positive(kind: type) -> Callable[[str], float]:
@@ -144,6 +171,19 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--bin-db", type=_positive(float), default=3.0, help="histogram bin width, dB"
+    )
+    parser.add_argument(
+        "--min-separation-db",
+        type=_non_negative,
+        default=DEFAULT_MIN_SEPARATION_DB,
+        help="least distance between the quiet and sound cluster means, dB (default:"
+        f" {DEFAULT_MIN_SEPARATION_DB:g}); closer clusters cannot separate sound from quiet",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="write the threshold even if the clusters lie closer than --min-separation-db"
+        " (otherwise the command exits with status 1 and writes nothing)",
     )
     parser.add_argument("--out", type=Path, required=True, help="threshold file to write (YAML)")
     parser.set_defaults(run=_run_calibrate)

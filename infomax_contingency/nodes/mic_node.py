@@ -11,7 +11,7 @@ Sources (parameter ``source``):
   [-1, 1], at ``audio_rate_hz``), windowed as they come. A gap in the stream (a missing
   publication sequence number) drops the incomplete window and is counted.
 * ``sounddevice`` — a live microphone through PortAudio
-  (:class:`~infomax_contingency.audio.live.MicrophoneStream`): ``device`` is empty (the
+  (:class:`~infomax_contingency.audio.capture.MicrophoneStream`): ``device`` is empty (the
   system default), an index, or a part of the device's name (first match; the match is
   logged); one ``channel`` or the mix of all. The device is opened at 16 kHz, or at its
   own rate and resampled exactly. Capture starts with the step clock (after the start
@@ -65,15 +65,11 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
-from infomax_contingency.audio.live import (
-    DISCONNECTED,
-    INPUT,
-    AudioDeviceError,
-    MicrophoneStream,
-    Window,
-    resolve_device,
-)
-from infomax_contingency.audio.signal import AudioError, WindowAssembler, load_threshold
+from infomax_contingency.audio.capture import MicrophoneStream, Window
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
+from infomax_contingency.audio.energy import WindowAssembler
+from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode

@@ -184,7 +184,7 @@ def device_parameter(node: Node, what: str) -> str:
 
     ``-p device:=3`` arrives as an integer, ``-p device:=USB`` as a string; both are
     accepted (the parameter is dynamically typed) and returned as text, which
-    :func:`~infomax_contingency.audio.live.resolve_device` understands.
+    :func:`~infomax_contingency.audio.devices.resolve_device` understands.
     """
     allowed = "empty (the system default), a device index, or a part of a device name"
     descriptor = ParameterDescriptor(

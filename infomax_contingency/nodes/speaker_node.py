@@ -1,8 +1,8 @@
 """speaker_node: plays the robot's sound on ``vocalize: true``.
 
-The sound is the robot's chirp (:func:`~infomax_contingency.audio.signal.synthesize_chirp`,
+The sound is the robot's chirp (:func:`~infomax_contingency.audio.synth.synthesize_chirp`,
 ``duration_s`` long) or the WAV file ``sound_file``, scaled by ``volume``, played through
-:class:`~infomax_contingency.audio.live.SpeakerOutput` on ``device`` (empty: the system
+:class:`~infomax_contingency.audio.playback.SpeakerOutput` on ``device`` (empty: the system
 default output; an index; or a part of the device's name, first match). The output
 stream runs all the time (playing silence), so a command starts the sound at the next
 10 ms block without blocking the node. Commands never queue up: one that comes while
@@ -32,13 +32,9 @@ from builtin_interfaces.msg import Time as TimeMsg
 from rclpy.time import Time
 from std_msgs.msg import Bool
 
-from infomax_contingency.audio.live import (
-    CONNECTED,
-    OVERLAP_POLICIES,
-    AudioDeviceError,
-    SpeakerOutput,
-)
-from infomax_contingency.audio.signal import read_wav
+from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
+from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
+from infomax_contingency.audio.wav import read_wav
 from infomax_contingency.core.stepclock import RecentEvents
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter

@@ -8,7 +8,7 @@ would on a robot. The room holds:
 * background sound events (knocks, clatter): a Poisson process of ``event_rate_hz``,
   each a decaying noise burst of ``event_min_s`` .. ``event_max_s`` at ``event_level_db``;
 * the robot hearing itself: after each vocalization, its 200 ms chirp
-  (:func:`~infomax_contingency.audio.signal.synthesize_chirp`) starts ``self_delay_s`` after the
+  (:func:`~infomax_contingency.audio.synth.synthesize_chirp`) starts ``self_delay_s`` after the
   start of the next window, at ``self_level_db``;
 * a partner, present from ``partner_arrive_s`` until ``partner_leave_s`` (room time),
   who answers a vocalization with probability ``reply_probability``: a speech-like
@@ -36,12 +36,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from infomax_contingency.audio.binarizer import Binarizer
-from infomax_contingency.audio.signal import (
-    PROCESSING_RATE_HZ,
-    synthesize_chirp,
-    window_energies_db,
-    window_samples,
-)
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ
+from infomax_contingency.audio.energy import window_energies_db, window_samples
+from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.sim.loop import run_loop

@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.audio.signal import load_mono, synthesize_chirp, write_wav_int16
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.synth import synthesize_chirp
+from infomax_contingency.audio.wav import write_wav_int16
 
 RATE_HZ = 8000
 DURATION_S = 18.0

@@ -1,0 +1,282 @@
+"""The sound threshold: exact two-cluster k-means, the bit rule, online refits, threshold files.
+
+The threshold theta is the boundary (halfway between the means) of an exact two-cluster
+k-means of calibration window energies (dB); the bit of a window is ``energy > theta``
+(:func:`bits_from_energies`, the one bit rule). A calibration whose cluster means lie
+closer than a least separation cannot tell sound from quiet (:func:`require_separation`).
+Threshold files are small YAML files (:func:`save_threshold`, :func:`load_threshold`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import math
+import os
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+
+from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
+
+THRESHOLD_FORMAT_VERSION = 1
+"""Version of the threshold file layout written by :func:`save_threshold`."""
+
+DEFAULT_MIN_SEPARATION_DB = 10.0
+"""Least distance between the two cluster means (dB) for a calibration to be used."""
+
+_TIE_RTOL = 1e-9
+"""k-means splits whose squared error differs by less than this fraction of the total
+sum of squares count as tied (the lowest one wins)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ThresholdFit:
+    """Result of the two-cluster k-means of window energies.
+
+    Attributes:
+        threshold_db: theta, halfway between the two cluster means, dB.
+        low_mean_db: mean energy of the quiet cluster, dB.
+        high_mean_db: mean energy of the loud cluster, dB.
+        n_low: number of windows in the quiet cluster.
+        n_high: number of windows in the loud cluster.
+    """
+
+    threshold_db: float
+    low_mean_db: float
+    high_mean_db: float
+    n_low: int
+    n_high: int
+
+    @property
+    def separation_db(self) -> float:
+        """Distance between the two cluster means, dB (``high_mean_db - low_mean_db``)."""
+        return self.high_mean_db - self.low_mean_db
+
+
+def kmeans_split(energies_db: ArrayLike) -> ThresholdFit:
+    """Exact two-cluster k-means of 1-D energies.
+
+    The values are sorted and every split into "lowest k" / "the rest" is scored at once
+    with cumulative sums; the split with the least within-cluster squared error wins.
+    Ties go to the lowest split, i.e. the lowest threshold; errors within 1e-9 times the
+    total sum of squares of each other count as tied, so rounding cannot break a tie. (A
+    split inside a run of equal values is never optimal, so equal energies get the same bit.)
+
+    Args:
+        energies_db: window energies, dB (any shape; flattened).
+
+    Returns:
+        The fit; its threshold is halfway between the two cluster means.
+
+    Raises:
+        AudioError: fewer than 2 values, non-finite values, or all values equal.
+    """
+    x = np.sort(np.asarray(energies_db, dtype=np.float64).ravel())
+    n = x.size
+    if n < 2:
+        raise AudioError(f"need at least 2 window energies to fit a threshold, got {n}")
+    if not np.isfinite(x).all():
+        raise AudioError("window energies contain NaN or infinite values")
+    if x[0] == x[-1]:
+        raise AudioError(
+            f"all {n} window energies equal {x[0]:.2f} dB, so there is no boundary between "
+            "quiet and sound; calibrate on audio that contains both quiet and sound"
+        )
+    c = x - x.mean()
+    low_sums = np.cumsum(c)[:-1]  # sum of the k lowest centred values, k = 1 .. n-1
+    k = np.arange(1, n)
+    # Between-cluster sum of squares; within-cluster error = total - between.
+    between = low_sums * low_sums * n / (k * (n - k))
+    best = np.flatnonzero(between >= between.max() - _TIE_RTOL * float(c @ c))[0]
+    n_low = int(best) + 1
+    low_mean = float(x[:n_low].mean())
+    high_mean = float(x[n_low:].mean())
+    return ThresholdFit(
+        threshold_db=0.5 * (low_mean + high_mean),
+        low_mean_db=low_mean,
+        high_mean_db=high_mean,
+        n_low=n_low,
+        n_high=n - n_low,
+    )
+
+
+def kmeans_threshold(energies_db: ArrayLike) -> float:
+    """Threshold theta (dB) of the exact two-cluster k-means; see :func:`kmeans_split`."""
+    return kmeans_split(energies_db).threshold_db
+
+
+def bits_from_energies(energies_db: ArrayLike, threshold_db: float) -> NDArray[np.bool_]:
+    """The bit rule, elementwise: ``y = energy > threshold`` (strict).
+
+    This is the one place the rule lives (:class:`~infomax_contingency.audio.binarizer.Binarizer`
+    calls it for every window). Tie convention: an energy exactly equal to the threshold
+    is quiet (``y = 0``).
+
+    Args:
+        energies_db: window energies, dB (scalar or any shape).
+        threshold_db: theta, dB (finite).
+
+    Returns:
+        Booleans shaped like ``energies_db`` (a 0-d array for a scalar).
+    """
+    if not math.isfinite(threshold_db):
+        raise AudioError(f"threshold_db must be finite, got {threshold_db!r}")
+    return np.asarray(energies_db, dtype=np.float64) > threshold_db
+
+
+class UnseparatedError(AudioError):
+    """A calibration whose two cluster means lie closer than the least separation.
+
+    Attributes:
+        fit: the refused fit.
+        separation_db: distance between its cluster means, dB.
+        min_separation_db: the least distance required, dB.
+    """
+
+    def __init__(self, fit: ThresholdFit, min_separation_db: float) -> None:
+        self.fit = fit
+        self.separation_db = fit.separation_db
+        self.min_separation_db = min_separation_db
+        super().__init__(
+            f"calibration cannot separate sound from quiet: the two clusters lie only"
+            f" {fit.separation_db:.1f} dB apart (quiet {fit.low_mean_db:.1f} dB, sound"
+            f" {fit.high_mean_db:.1f} dB; at least {min_separation_db:g} dB needed);"
+            " the audio may lack quiet or sound"
+        )
+
+
+def require_separation(fit: ThresholdFit, min_separation_db: float) -> ThresholdFit:
+    """Return ``fit`` if its cluster means lie at least ``min_separation_db`` apart.
+
+    Raises:
+        UnseparatedError: they lie closer (the message names the gap in dB).
+    """
+    if not fit.separation_db >= min_separation_db:
+        raise UnseparatedError(fit, min_separation_db)
+    return fit
+
+
+class OnlineThreshold:
+    """Rolling buffer of the last ``capacity`` window energies for refreshing theta online.
+
+    The caller decides when to :meth:`refit` and whether to accept the new fit (a buffer
+    of pure silence or pure sound still splits, into two noise clusters).
+
+    Args:
+        capacity: number of most recent windows kept (at least 2).
+    """
+
+    def __init__(self, capacity: int) -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 2:
+            raise AudioError(f"capacity must be an integer >= 2 windows, got {capacity!r}")
+        self._energies: deque[float] = deque(maxlen=capacity)
+
+    def __len__(self) -> int:
+        return len(self._energies)
+
+    def add(self, energy_db: float) -> None:
+        """Append one window energy (dB), dropping the oldest when full."""
+        if not math.isfinite(energy_db):
+            raise AudioError(f"window energy must be finite, got {energy_db!r}")
+        self._energies.append(float(energy_db))
+
+    def refit(self) -> ThresholdFit:
+        """Two-cluster k-means of the buffered energies; AudioError if they have no boundary."""
+        return kmeans_split(np.fromiter(self._energies, dtype=np.float64))
+
+
+# --------------------------------------------------------------------------- threshold file
+
+_REQUIRED_FIELDS = ("format_version", "threshold_db")
+
+
+def save_threshold(
+    path: str | os.PathLike[str],
+    fit: ThresholdFit,
+    *,
+    window_s: float,
+    rate: int,
+    source: str,
+) -> None:
+    """Write a calibrated threshold to a small YAML file (replaced atomically).
+
+    Args:
+        path: file to write; missing parent directories are created.
+        fit: the k-means fit.
+        window_s: window length used for the energies, seconds.
+        rate: processing sample rate, Hz.
+        source: where the calibration audio came from (file name, device, ...).
+    """
+    window_s = check_positive_seconds(window_s, "window_s")
+    rate = check_rate(rate)
+    values = (fit.threshold_db, fit.low_mean_db, fit.high_mean_db)
+    if not all(math.isfinite(v) for v in values):
+        raise AudioError(f"cannot save a threshold fit with non-finite values: {fit}")
+    record = {
+        "format_version": THRESHOLD_FORMAT_VERSION,
+        "threshold_db": float(fit.threshold_db),
+        "window_s": window_s,
+        "sample_rate_hz": rate,
+        "low_mean_db": float(fit.low_mean_db),
+        "high_mean_db": float(fit.high_mean_db),
+        "n_low": int(fit.n_low),
+        "n_high": int(fit.n_high),
+        "source": str(source),
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(
+        "# Sound threshold: a window is 'sound' (y = 1) iff its energy > threshold_db.\n"
+        + yaml.safe_dump(record, sort_keys=False),
+        encoding="utf-8",
+    )
+    tmp.replace(path)
+
+
+def load_threshold(path: str | os.PathLike[str]) -> float:
+    """Read the threshold (dB) from a file written by :func:`save_threshold`.
+
+    Raises:
+        AudioError: the file is missing, is not a YAML mapping, has another format
+            version, lacks ``format_version`` or ``threshold_db``, or the threshold is
+            not a finite number.
+    """
+    path = Path(path)
+    if not path.is_file():
+        what = "is a directory" if path.is_dir() else "does not exist"
+        raise AudioError(
+            f"threshold file {path} {what}; create it by calibrating on audio that "
+            "contains both quiet and sound"
+        )
+    try:
+        record = yaml.safe_load(path.read_bytes())
+    except OSError as exc:
+        raise AudioError(f"cannot read threshold file {path}: {exc.strerror or exc}") from exc
+    except yaml.YAMLError as exc:
+        raise AudioError(f"threshold file {path} is not valid YAML: {exc}") from exc
+    if not isinstance(record, dict):
+        raise AudioError(
+            f"threshold file {path} must hold a YAML mapping with {', '.join(_REQUIRED_FIELDS)}; "
+            f"got {type(record).__name__}"
+        )
+    for field in _REQUIRED_FIELDS:
+        if field not in record:
+            raise AudioError(f"threshold file {path} is missing the field '{field}'")
+    version = record["format_version"]
+    if isinstance(version, bool) or version != THRESHOLD_FORMAT_VERSION:
+        raise AudioError(
+            f"threshold file {path} has format_version {version!r}; this package reads "
+            f"format_version {THRESHOLD_FORMAT_VERSION}. Recalibrate to rewrite it."
+        )
+    value = record["threshold_db"]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
+    return float(value)
