@@ -60,10 +60,10 @@ Progress = Callable[[int, int, float], None]
 0 layers done when the set-up is over, then after each layer."""
 
 # The cost model of a solve, fitted to bench/bench_solver.py on a 2-core x86-64 machine
-# (the "cost model vs measured" section prints both; times vary with the load). Memory: the working arrays of
-# tuple_quantities and two value layers per count tuple of the k = 0 layer, the packed
-# actions kept, and the interpreter with numpy. Time: one Bellman update per statistic
-# of every layer swept, plus the per-tuple set-up.
+# (its "cost model vs measured" section prints both; times vary with the machine's load).
+# Memory: the working arrays of tuple_quantities and two value layers per count tuple of
+# the k = 0 layer, the packed actions kept, and the interpreter with numpy. Time: one
+# Bellman update per statistic of every layer swept, plus the per-tuple set-up.
 BASE_BYTES = 54 * 2**20
 """Resident memory of the interpreter with numpy and the package, before a solve (bytes)."""
 TUPLE_BYTES, TUPLE_BYTES_PER_TIMER_VALUE, MIN_TUPLE_BYTES = 64, 17, 124
