@@ -356,3 +356,27 @@ def test_table_for_other_parameters(tmp_path, tables) -> None:
     tables["episodic"].save(path)
     message = refusal(path, expected_params=ModelParams.named("robot"))
     assert "was built for other model parameters" in message and "dt: 0.8 != 0.5" in message
+
+
+def test_a_zip_of_many_entries_is_refused_before_its_directory_is_parsed(
+    tmp_path, monkeypatch
+) -> None:
+    path = tmp_path / "table.npz"
+    with zipfile.ZipFile(path, "w") as archive:
+        for index in range(1000):
+            archive.writestr(f"entry{index}.npy", b"")
+    monkeypatch.setattr(
+        zipfile.ZipFile, "__init__", lambda *a, **k: pytest.fail("zip directory parsed")
+    )
+    assert "its zip directory lists 1,000 entries" in refusal(path)
+
+
+def test_an_unreadable_file_says_so(tmp_path, tables, monkeypatch) -> None:
+    path = tmp_path / "table.npz"
+    tables["receding"].save(path)
+
+    def denied(self, *args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(Path, "open", denied)
+    assert refusal(path).endswith("cannot be read (Permission denied)")

@@ -30,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import struct
 import tempfile
 import zipfile
 import zlib
@@ -61,6 +62,8 @@ MAX_JSON_DEPTH = 8
 """Deepest nesting of arrays and objects in the metadata JSON (real tables: 2)."""
 MAX_NPY_HEADER_BYTES = 4096
 """Largest ``.npy`` header read (numpy writes 128 bytes)."""
+MAX_ZIP_ENTRIES, MAX_ZIP_DIRECTORY_BYTES = 16, 64 * 2**10
+"""Largest zip directory parsed (a table: 2 entries, about 200 bytes)."""
 
 READ_ERRORS = (
     zipfile.BadZipFile,
@@ -373,7 +376,11 @@ class _ArchiveReader:
         """Metadata, its fields and the packed actions, every check passed."""
         self._check_path()
         try:
-            with self.path.open("rb") as stream:
+            stream = self.path.open("rb")
+        except OSError as error:
+            raise self.fail(f"cannot be read ({error.strerror})") from None
+        try:
+            with stream:
                 magic = stream.read(4)
                 if not zipfile.is_zipfile(stream):
                     if magic == b"PK\x03\x04":
@@ -381,6 +388,7 @@ class _ArchiveReader:
                             f"is truncated (its zip directory is missing); {self.how_to_fix}"
                         )
                     raise self.fail("is not a policy table (not a zip archive)")
+                self._check_directory_size(stream)
                 with zipfile.ZipFile(stream) as archive:
                     return self._read_entries(archive)
         except PolicyTableError:
@@ -400,6 +408,25 @@ class _ArchiveReader:
         size = self.path.stat().st_size
         if size > MAX_TABLE_BYTES + SIZE_MARGIN_BYTES:
             raise self.fail(f"is too large ({size:,} bytes; at most {MAX_TABLE_BYTES:,})")
+
+    def _check_directory_size(self, stream: IO[bytes]) -> None:
+        """Refuse a zip directory of many entries before zipfile parses it into memory.
+
+        Reads the end-of-central-directory record (the last 22 bytes before an archive
+        comment of at most 64 KiB): a table lists 2 entries in a few hundred bytes.
+        """
+        size = stream.seek(0, os.SEEK_END)
+        stream.seek(max(0, size - (22 + 0xFFFF)))
+        tail = stream.read()
+        start = tail.rfind(b"PK\x05\x06")
+        if start < 0 or len(tail) - start < 22:
+            return  # zipfile itself reports what is wrong
+        entries, directory_bytes = struct.unpack("<HL", tail[start + 10 : start + 16])
+        if entries > MAX_ZIP_ENTRIES or directory_bytes > MAX_ZIP_DIRECTORY_BYTES:
+            raise self.fail(
+                f"is not a policy table: its zip directory lists {entries:,} entries in"
+                f" {directory_bytes:,} bytes (a table has 2 entries)"
+            )
 
     def _read_entries(self, archive: zipfile.ZipFile) -> tuple[dict, _Fields, np.ndarray]:
         entries = self._check_directory(archive)
