@@ -201,3 +201,30 @@ def test_the_watchdog_waits_as_long_as_messages_come() -> None:
     )
     stalled = CountingRecorder(growing=False)
     assert not demo_module._wait_with_watchdog(lambda: False, stalled, stall_s=0.05, poll_s=0.01)
+
+
+class StalledRun:
+    """Stand-ins for the recorder and the node processes of a run that stopped early."""
+
+    def __init__(self, lost: dict[str, int]) -> None:
+        self.belief, self.partner_present, self.lost = [0.5] * 3, [True] * 4, lost
+
+    def counts(self) -> dict[str, int]:
+        return {"belief": len(self.belief), "partner_present": len(self.partner_present)}
+
+    def dead(self) -> dict[str, int]:
+        return {}
+
+    def report(self) -> str:
+        return "all nodes are running"
+
+
+def test_a_lost_message_is_the_monitors_fault(monkeypatch) -> None:
+    monkeypatch.setattr(demo_module, "STALL_TIMEOUT_S", 0.05)
+    args = demo_module.argparse.Namespace(wav=None, steps=10)
+    run = StalledRun(lost={"belief": 1, "sound": 0})
+    _, failure = demo_module._wait_for_run(args, run, run)
+    assert failure.startswith("the demo's monitor lost messages {'belief': 1} (its own fault")
+    run = StalledRun(lost={"belief": 0})
+    _, failure = demo_module._wait_for_run(args, run, run)
+    assert failure.startswith("the graph made no progress for 0.05 s after")
