@@ -10,6 +10,11 @@ graph runs in lockstep, so 120 s of room time take a few seconds.
 ``--wav FILE`` replays a recording through mic_node instead of the simulated room (the
 threshold is the k-means calibration on the first ``--calibration-s`` seconds).
 
+A run may be as long as ``--steps`` asks: the demo gives up only when no message has
+arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
+(each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C)
+and end the demo with status 130 or 143 and "interrupted".
+
 DDS stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a random
 ``ROS_DOMAIN_ID`` unless the environment sets them. This module imports rclpy only when
 the demo runs, so the command line stays light.
@@ -262,7 +267,9 @@ def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any) -> tu
     """Wait until every step is recorded: (steps, "") or (steps so far, why not)."""
     if args.wav:
         mic = processes.processes["mic_node"]
-        ok = _wait_with_watchdog(lambda: mic.poll() is not None, recorder, STALL_TIMEOUT_S)
+        ok = _wait_with_watchdog(
+            lambda: mic.poll() is not None, recorder, STALL_TIMEOUT_S, processes
+        )
         steps = len(recorder.sound)
         if ok and mic.returncode == 0:
             ok = _wait_with_watchdog(
