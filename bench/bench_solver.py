@@ -4,6 +4,7 @@ Usage (from the repository root, after ``make setup``)::
 
     .venv/bin/python bench/bench_solver.py                 # T = 12 .. 100, lookups, T = 24 ratio
     .venv/bin/python bench/bench_solver.py --largest       # also solve the largest T for 16 GiB
+    .venv/bin/python bench/bench_solver.py --only-estimates  # cost model vs measured only
 
 Each solve runs in a fresh child process so that its peak resident memory (ru_maxrss)
 is its own. The largest horizon that fits in 16 GiB is extrapolated from the measured
@@ -28,14 +29,14 @@ import numpy as np
 
 from infomax_contingency.core.model import ModelParams, Statistic
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.solver import solve_episodic
+from infomax_contingency.core.solver import solve_cost, solve_episodic
 from infomax_contingency.core.statespace import count_index, n_count_tuples
 
 CHILD = """
 import json, resource, sys, time
 from pathlib import Path
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.solver import solve_episodic
+from infomax_contingency.core.solver import solve_cost, solve_episodic
 horizon, out = int(sys.argv[1]), Path(sys.argv[2])
 start = time.perf_counter()
 table = solve_episodic(ModelParams.named("paper"), horizon)
@@ -139,13 +140,43 @@ def lookup_microseconds(table: PolicyTable, count: int = 200_000) -> float:
     return (time.perf_counter() - start) / count * 1e6
 
 
+def print_estimates(params: ModelParams, horizons: list[int]) -> None:
+    """The cost model of ``solve`` (core.solver.solve_cost) against measured solves."""
+    print("cost model (solve_cost) vs measured, paper set, episodic:")
+    print(
+        f"{'T':>4} {'est. s':>8} {'solve s':>8} {'ratio':>6}"
+        f" {'est. MiB':>9} {'peak MiB':>9} {'ratio':>6}"
+    )
+    worst = 1.0
+    with tempfile.TemporaryDirectory() as folder:
+        for horizon in horizons:
+            cost = solve_cost(params, "episodic", horizon)
+            f = solve_in_child(horizon, Path(folder))
+            time_ratio = cost.seconds / f["seconds"]
+            memory_ratio = cost.peak_bytes / f["peak_bytes"]
+            worst = max(worst, time_ratio, 1 / time_ratio, memory_ratio, 1 / memory_ratio)
+            print(
+                f"{horizon:>4} {cost.seconds:>8.3f} {f['seconds']:>8.3f} {time_ratio:>6.2f}"
+                f" {cost.peak_bytes / 2**20:>9.0f} {f['peak_bytes'] / 2**20:>9.0f}"
+                f" {memory_ratio:>6.2f}"
+            )
+    print(f"worst estimate off by a factor {worst:.2f} (the model aims at 2 or better)")
+
+
 def main() -> None:
     """Print the figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--horizons", type=int, nargs="+", default=[12, 24, 40, 60, 80, 100])
     parser.add_argument("--largest", action="store_true", help="also solve the 16 GiB horizon")
+    parser.add_argument("--estimate-horizons", type=int, nargs="+", default=[40, 60, 80, 100, 120])
+    parser.add_argument(
+        "--only-estimates", action="store_true", help="only the cost model vs measured section"
+    )
     args = parser.parse_args()
     params = ModelParams.named("paper")
+    if args.only_estimates:
+        print_estimates(params, args.estimate_horizons)
+        return
     print(f"machine: {os.cpu_count()} cores; paper parameter set, episodic tables")
     print(f"{'T':>4} {'solve s':>9} {'peak MiB':>9} {'statistics':>13} {'file KiB':>9}")
     bytes_per_tuple = []
@@ -198,6 +229,7 @@ def main() -> None:
         f" ({states:,} states) -> ratio {pure / vectorised:.0f}x;"
         f" start values agree to {abs(fast_value - slow_value):.1e}"
     )
+    print_estimates(params, args.estimate_horizons)
 
 
 if __name__ == "__main__":

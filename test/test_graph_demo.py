@@ -5,6 +5,7 @@ Both read the shipped parameter files (config/robot.yaml, config/fake_room.yaml)
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from graph_harness import Graph, graph_fixture
+from infomax_contingency.cli import demo as demo_module
 from infomax_contingency.testing.graph import wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -104,3 +106,125 @@ def test_bringup_runs_the_graph_in_one_process(
         beliefs, present = np.array(rec.belief[:n]), np.array(rec.partner_present[:n])
     assert beliefs[present].max() > 0.95 and beliefs[-20:].max() < 0.2
     assert [posture for _, posture in rec.posture][:3] == ["bored", "attentive", "bored"]
+
+
+def children_of(pid: int) -> set[int]:
+    """Process ids whose parent is ``pid``, from /proc."""
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:  # exited meanwhile
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            found.add(int(entry.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    """True while ``pid`` exists and is not a zombie."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@pytest.mark.parametrize(
+    ("how", "status", "name"),
+    [
+        ("SIGINT", 130, "SIGINT"),
+        ("SIGTERM", 143, "SIGTERM"),
+        ("Ctrl-C", 130, "SIGINT"),  # SIGINT to the whole process group, as a terminal does
+    ],
+)
+def test_a_signal_stops_the_demo_and_every_node(how: str, status: int, name: str) -> None:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "infomax_contingency.cli", "demo", "--steps", "10000000"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, for the Ctrl-C case
+    )
+    try:
+        lines = []
+        while not lines or not lines[-1].startswith("# demo: the graph is up"):
+            line = process.stdout.readline()
+            assert line, f"the demo ended before its graph was up: {lines} {process.stderr.read()}"
+            lines.append(line)
+        nodes = children_of(process.pid)
+        assert len(nodes) == 6, nodes
+        if how == "Ctrl-C":
+            os.killpg(process.pid, signal.SIGINT)
+        else:
+            process.send_signal(getattr(signal, how))
+        out, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+    assert process.returncode == status, err
+    assert err.strip() == f"infomax-contingency demo: interrupted ({name}); nodes stopped"
+    assert "Traceback" not in out + err
+    assert not [pid for pid in nodes if alive(pid)], "node processes left behind"
+
+
+def test_a_node_that_refuses_its_parameters_is_named_at_once() -> None:
+    result = demo("--memory", "2000000", "--steps", "10")
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert result.stderr.strip() == (
+        "infomax-contingency demo: error: belief_node exited with status 2: parameter"
+        " 'memory_steps' = 2000000 is not allowed: a whole number in [0, 1000000]"
+    )
+
+
+class CountingRecorder:
+    """A stand-in for StepRecorder whose message count grows while ``growing``."""
+
+    def __init__(self, growing: bool) -> None:
+        self.growing, self.total = growing, 0
+
+    def counts(self) -> dict[str, int]:
+        self.total += self.growing
+        return {"belief": self.total}
+
+
+def test_the_watchdog_waits_as_long_as_messages_come() -> None:
+    """No cap on the run's length: only a stall (no message for stall_s) ends the wait."""
+    recorder = CountingRecorder(growing=True)
+    # Holds only after far longer than stall_s, but messages keep coming meanwhile.
+    assert demo_module._wait_with_watchdog(
+        lambda: recorder.total >= 40, recorder, stall_s=0.05, poll_s=0.01
+    )
+    stalled = CountingRecorder(growing=False)
+    assert not demo_module._wait_with_watchdog(lambda: False, stalled, stall_s=0.05, poll_s=0.01)
+
+
+class StalledRun:
+    """Stand-ins for the recorder and the node processes of a run that stopped early."""
+
+    def __init__(self, lost: dict[str, int]) -> None:
+        self.belief, self.partner_present, self.lost = [0.5] * 3, [True] * 4, lost
+
+    def counts(self) -> dict[str, int]:
+        return {"belief": len(self.belief), "partner_present": len(self.partner_present)}
+
+    def dead(self) -> dict[str, int]:
+        return {}
+
+    def report(self) -> str:
+        return "all nodes are running"
+
+
+def test_a_lost_message_is_the_monitors_fault(monkeypatch) -> None:
+    monkeypatch.setattr(demo_module, "STALL_TIMEOUT_S", 0.05)
+    args = demo_module.argparse.Namespace(wav=None, steps=10)
+    run = StalledRun(lost={"belief": 1, "sound": 0})
+    _, failure = demo_module._wait_for_run(args, run, run)
+    assert failure.startswith("the demo's monitor lost messages {'belief': 1} (its own fault")
+    run = StalledRun(lost={"belief": 0})
+    _, failure = demo_module._wait_for_run(args, run, run)
+    assert failure.startswith("the graph made no progress for 0.05 s after")

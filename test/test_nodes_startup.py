@@ -6,13 +6,19 @@ code of the console scripts) with ROS arguments on the command line.
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.nodes.controller_node import DEFAULT_TABLE
+from infomax_contingency.resources import resource_path
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -51,6 +57,11 @@ CASES = {
         "controller_node",
         ["params:=paper"],
         "was built for other model parameters (table vs expected: dt: 0.5 != 0.8",
+    ),
+    "damaged_table": (
+        "controller_node",
+        ["policy_file:={damaged_table}"],
+        "is damaged: content digest mismatch",
     ),
     "unknown_table": (
         "controller_node",
@@ -98,12 +109,26 @@ def node_command(node: str, parameters: list[str]) -> list[str]:
     return command
 
 
+def damaged_table(folder: Path) -> Path:
+    """The default table with one action bit flipped (its metadata and digest unchanged)."""
+    table = PolicyTable.load(resource_path(*DEFAULT_TABLE))
+    actions = table.packed_actions.copy()
+    actions[len(actions) // 3] ^= 0x01
+    path = folder / "damaged.npz"
+    with path.open("wb") as stream:
+        np.savez_compressed(
+            stream, actions=actions, metadata=np.array(json.dumps(table.metadata()))
+        )
+    return path
+
+
 @pytest.fixture(scope="module")
-def refusals() -> Iterator[dict[str, subprocess.CompletedProcess]]:
+def refusals(tmp_path_factory) -> Iterator[dict[str, subprocess.CompletedProcess]]:
     """Start every bad configuration at once (in parallel) and collect the results."""
+    files = {"damaged_table": damaged_table(tmp_path_factory.mktemp("tables"))}
     processes = {
         name: subprocess.Popen(
-            node_command(node, parameters),
+            node_command(node, [parameter.format(**files) for parameter in parameters]),
             cwd=ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,

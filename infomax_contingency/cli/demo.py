@@ -10,6 +10,11 @@ graph runs in lockstep, so 120 s of room time take a few seconds.
 ``--wav FILE`` replays a recording through mic_node instead of the simulated room (the
 threshold is the k-means calibration on the first ``--calibration-s`` seconds).
 
+A run may be as long as ``--steps`` asks: the demo gives up only when no message has
+arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
+(each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C)
+and end the demo with status 130 or 143 and "interrupted".
+
 DDS stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a random
 ``ROS_DOMAIN_ID`` unless the environment sets them. This module imports rclpy only when
 the demo runs, so the command line stays light.
@@ -18,11 +23,14 @@ the demo runs, so the command line stays light.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import random
+import signal
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +38,11 @@ from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
 
-RUN_TIMEOUT_S = 180.0
-"""Seconds the graph may take to come up and finish before the demo gives up."""
+CONNECT_TIMEOUT_S = 180.0
+"""Seconds the nodes may take to come up and connect before the demo gives up."""
+STALL_TIMEOUT_S = 30.0
+"""Seconds the running graph may go without a single message before the demo gives up
+(a no-progress watchdog: a run of any length is fine while steps keep coming)."""
 
 ATTENTIVE_ABOVE, BORED_BELOW = 0.9, 0.2
 """The posture node's thresholds in the demo (as in config/robot.yaml)."""
@@ -123,27 +134,45 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
 
 
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM reached the demo: stop the nodes, exit 128 + the signal number."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def interrupted_by_signals() -> Iterator[None]:
+    """Turn the first SIGINT or SIGTERM into :class:`Interrupted`; ignore later ones.
+
+    Later signals are ignored so that stopping the nodes is not itself interrupted.
+    The previous handlers come back on leaving.
+    """
+    received: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        if not received:
+            received.append(signum)
+            raise Interrupted(signum)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
 def run_demo(args: argparse.Namespace) -> int:
-    """Run the graph, print one line per step and the verdict; returns the exit status."""
+    """Run the graph, print one line per step and the verdict; returns the exit status.
+
+    Exit status 0 after a run, 1 if the graph failed, 2 for bad arguments, 130 / 143
+    after SIGINT / SIGTERM (every node process is stopped first).
+    """
     _check(args)
     domain = isolate_dds()
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
-    from infomax_contingency.testing.graph import (
-        GraphError,
-        GraphProcesses,
-        SpinThread,
-        StepRecorder,
-        start_graph,
-        wait_until,
-    )
-
-    window_s = 0.5
     nodes, clock = _nodes(args)
-    files = [resource_path("config", "robot.yaml")]
-    if not args.wav:
-        files.append(resource_path("config", "fake_room.yaml"))
     source = (
         f"replaying {args.wav}" if args.wav else f"simulated {args.room} room, seed {args.seed}"
     )
@@ -152,50 +181,166 @@ def run_demo(args: argparse.Namespace) -> int:
         f" (ROS_DOMAIN_ID={domain})",
         flush=True,
     )
+    try:
+        with interrupted_by_signals():
+            outcome = _run_graph(args, nodes, clock)
+    except (Interrupted, KeyboardInterrupt) as stop:
+        signum = stop.signum if isinstance(stop, Interrupted) else signal.SIGINT
+        name = signal.Signals(signum).name
+        print(f"infomax-contingency demo: interrupted ({name}); nodes stopped", file=sys.stderr)
+        return 128 + signum
+    if isinstance(outcome, str):
+        print(f"infomax-contingency demo: error: {outcome}", file=sys.stderr)
+        return 1
+    recorder, steps, elapsed = outcome
+    _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
+    _print_verdict(recorder, steps, WINDOW_S, args, elapsed)
+    return 0
+
+
+WINDOW_S = 0.5
+"""Window length of config/robot.yaml, seconds."""
+
+
+def _run_graph(
+    args: argparse.Namespace, nodes: dict[str, dict[str, Any]], clock: str
+) -> tuple[Any, int, float] | str:
+    """Start the graph, wait for the run, stop every node: (recorder, steps, seconds) or why not.
+
+    The nodes are stopped whatever happens (an error, :class:`Interrupted`).
+    """
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+
+    from infomax_contingency.testing.graph import (
+        GraphError,
+        GraphProcesses,
+        SpinThread,
+        StepRecorder,
+        start_graph,
+    )
+
+    files = [resource_path("config", "robot.yaml")]
+    if not args.wav:
+        files.append(resource_path("config", "fake_room.yaml"))
+    # Keep-all: the monitor's queues cannot drop a message however it is scheduled.
+    keep_all = QoSProfile(
+        history=HistoryPolicy.KEEP_ALL,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
     with tempfile.TemporaryDirectory(prefix="infomax-demo-") as workdir:
-        processes = GraphProcesses(workdir, parameter_files=files)
-        # Ctrl-C raises KeyboardInterrupt here; the nodes are stopped in `finally`.
+        processes = GraphProcesses(workdir, parameter_files=files, own_process_group=True)
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-        recorder = StepRecorder("demo_monitor")
+        recorder = None
         try:
+            recorder = StepRecorder("demo_monitor", stream_qos=keep_all)
             with SpinThread(recorder):
                 start = time.monotonic()
-                start_graph(processes, recorder, nodes, clock, timeout_s=RUN_TIMEOUT_S)
-                if args.wav:
-                    mic = processes.processes["mic_node"]
-                    done = wait_until(lambda: mic.poll() is not None, RUN_TIMEOUT_S, processes)
-                    done = done and mic.returncode == 0
-                    steps = len(recorder.sound)
-                    done = done and wait_until(
-                        lambda: min(len(recorder.vocalize), len(recorder.belief)) >= steps, 10.0
-                    )
-                else:
-                    steps = args.steps
-                    done = wait_until(
-                        lambda: min(len(recorder.belief), len(recorder.partner_present)) >= steps,
-                        RUN_TIMEOUT_S,
-                        processes,
-                    )
+                try:
+                    start_graph(processes, recorder, nodes, clock, CONNECT_TIMEOUT_S)
+                except GraphError as error:
+                    return _node_failure(processes) or str(error).splitlines()[0]
+                print(f"# demo: the graph is up; running ({clock} sets the pace)", flush=True)
+                steps, failure = _wait_for_run(args, processes, recorder)
+                if failure:
+                    return failure
                 elapsed = time.monotonic() - start
-                if not done:
-                    raise GraphError(
-                        f"the graph stopped after {recorder.counts()} messages\n"
-                        f"{processes.report()}"
-                    )
-                wait_until(lambda: len(recorder.posture) >= 1, 5.0)
-        except GraphError as error:
-            print(f"infomax-contingency demo: error: {error}", file=sys.stderr)
-            return 1
-        except KeyboardInterrupt:
-            print("infomax-contingency demo: interrupted; nodes stopped", file=sys.stderr)
-            return 130
+                _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
+            return recorder, steps, elapsed
         finally:
-            processes.stop_all()
-            recorder.destroy_node()
-            rclpy.try_shutdown()
-    _print_run(recorder, steps, window_s, truth=not args.wav)
-    _print_verdict(recorder, steps, window_s, args, elapsed)
-    return 0
+            # A signal now must not cut the stopping short: it waits until every node is
+            # stopped, then interrupts (and the demo still exits 130 / 143).
+            stop_signals = {signal.SIGINT, signal.SIGTERM}
+            signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+            try:
+                processes.stop_all()
+                if recorder is not None:
+                    recorder.destroy_node()
+                rclpy.try_shutdown()
+            finally:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
+
+
+def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any) -> tuple[int, str]:
+    """Wait until every step is recorded: (steps, "") or (steps so far, why not)."""
+    if args.wav:
+        mic = processes.processes["mic_node"]
+        ok = _wait_with_watchdog(
+            lambda: mic.poll() is not None, recorder, STALL_TIMEOUT_S, processes
+        )
+        steps = len(recorder.sound)
+        if ok and mic.returncode == 0:
+            ok = _wait_with_watchdog(
+                lambda: min(len(recorder.vocalize), len(recorder.belief)) >= steps,
+                recorder,
+                STALL_TIMEOUT_S,
+                processes,
+            )
+        else:
+            ok = False
+    else:
+        steps = args.steps
+        ok = _wait_with_watchdog(
+            lambda: min(len(recorder.belief), len(recorder.partner_present)) >= steps,
+            recorder,
+            STALL_TIMEOUT_S,
+            processes,
+        )
+    if ok:
+        return steps, ""
+    lost = {topic: n for topic, n in recorder.lost.items() if n}
+    if lost:
+        return steps, (
+            f"the demo's monitor lost messages {lost} (its own fault: it read too slowly;"
+            " the graph itself may be fine)"
+        )
+    failure = _node_failure(processes)
+    if failure:
+        return steps, failure
+    return steps, (
+        f"the graph made no progress for {STALL_TIMEOUT_S:g} s after"
+        f" {recorder.counts()} messages ({processes.report()})"
+    )
+
+
+def _wait_with_watchdog(
+    condition: Callable[[], bool],
+    recorder: Any,
+    stall_s: float,
+    processes: Any = None,
+    poll_s: float = 0.02,
+) -> bool:
+    """Poll ``condition`` while messages keep arriving: False after ``stall_s`` without one.
+
+    With ``processes``, also False as soon as a node exited (unless ``condition`` holds).
+    """
+    seen, last_progress = -1, time.monotonic()
+    while not condition():
+        if processes is not None and processes.dead():
+            return condition()
+        total = sum(recorder.counts().values())
+        now = time.monotonic()
+        if total != seen:
+            seen, last_progress = total, now
+        elif now - last_progress > stall_s:
+            return condition()
+        time.sleep(poll_s)
+    return True
+
+
+def _node_failure(processes: Any) -> str | None:
+    """One line for the first node that exited on its own: its status and error line."""
+    for name, status in processes.dead().items():
+        lines = [line.strip() for line in processes.log(name).splitlines() if line.strip()]
+        errors = [line for line in lines if "[ERROR]" in line] or [
+            line for line in lines if "Error" in line or "error:" in line
+        ]
+        last = (errors or lines or ["(no output)"])[-1]
+        message = last.split("]: ", 1)[-1] if "]: " in last else last
+        return f"{name} exited with status {status}: {message}"
+    return None
 
 
 def _postures(beliefs: list[float], received: list[str]) -> list[str]:

@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -27,7 +29,7 @@ from infomax_contingency.cli.live import (
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
-from infomax_contingency.core.solver import solve
+from infomax_contingency.core.solver import SolveCost, solve, solve_cost
 from infomax_contingency.errors import USER_ERRORS
 from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
 from infomax_contingency.sim.world import ROOM_NAMES, make_room
@@ -42,15 +44,155 @@ def _params_argument(parser: argparse.ArgumentParser, default: str = "robot") ->
     )
 
 
+SIZE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+"""Suffixes of ``--max-memory`` (binary: 4G = 4 GiB)."""
+PROGRESS_EVERY_S = 1.0
+"""Least interval between two progress lines of a solve, seconds."""
+UNWRITABLE_ROOTS = ("/proc", "/sys", "/dev")
+"""Places a table file is never written to."""
+
+
+def parse_size(text: str) -> int:
+    """Bytes from ``4G``, ``500M``, ``64k``, ``1.5GiB`` or a plain number of bytes."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d*)?)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", text)
+    if not match:
+        raise ValueError(f"--max-memory {text!r}: give bytes or a size such as 500M or 4G")
+    return int(float(match[1]) * SIZE_UNITS[match[2].upper()])
+
+
+def available_memory() -> int:
+    """Memory a solve may use (bytes): MemAvailable, or a smaller cgroup limit."""
+    available = None
+    with open("/proc/meminfo") as meminfo:
+        for line in meminfo:
+            if line.startswith("MemAvailable:"):
+                available = int(line.split()[1]) * 1024
+    if available is None:
+        raise OSError("cannot read MemAvailable from /proc/meminfo; give --max-memory")
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+        if limit != "max":
+            available = min(available, int(limit) - used)
+    except (OSError, ValueError):
+        pass
+    return available
+
+
+def format_bytes(size: float) -> str:
+    """``70 MiB``, ``13.7 GiB``: binary units, 3 significant digits."""
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if size < 1024 or unit == "PiB":
+            break
+        size /= 1024
+    return f"{size:.3g} {unit}"
+
+
+def format_count(count: int) -> str:
+    """``5.43M``, ``460M``, ``4.17e+18``: 3 significant digits."""
+    for power, suffix in ((9, "G"), (6, "M"), (3, "k")):
+        if 10**power <= count < 10**12:
+            return f"{count / 10**power:.3g}{suffix}"
+    return str(count) if count < 1000 else f"{count:.3g}"
+
+
+def format_seconds(seconds: float) -> str:
+    """``0.06 s``, ``5.5 s``, ``3.2 min``, ``4.1 h``, ``2.3 days``, ``1.26e+03 years``."""
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.2g} s" if seconds < 10 else f"{seconds:.0f} s"
+
+
+def describe_cost(cost: SolveCost) -> str:
+    """``5.43M statistics, about 70 MiB of memory and 0.06 s``."""
+    return (
+        f"{format_count(cost.statistics)} statistics, about {format_bytes(cost.peak_bytes)}"
+        f" of memory and {format_seconds(cost.seconds)}"
+    )
+
+
+def memory_limit(args: argparse.Namespace) -> tuple[int, str]:
+    """The memory a solve may use (bytes) and where that figure comes from."""
+    if args.max_memory is not None:
+        return parse_size(args.max_memory), "--max-memory"
+    return available_memory(), "available memory; --max-memory sets another limit"
+
+
+def refuse_if_too_big(cost: SolveCost, args: argparse.Namespace, what: str) -> None:
+    """ValueError (one line, with the estimate) when the solve would not fit in memory."""
+    limit, source = memory_limit(args)
+    if cost.peak_bytes > limit:
+        raise ValueError(
+            f"refusing to {what}: it needs {describe_cost(cost)}, more memory than"
+            f" {format_bytes(limit)} ({source})"
+        )
+
+
+def check_writable(out: Path) -> None:
+    """Refuse an ``--out`` that cannot take a table, before any solving (OSError, one line)."""
+    resolved = out.resolve()
+    if any(resolved.is_relative_to(root) for root in UNWRITABLE_ROOTS):
+        raise OSError(f"--out {out}: /{resolved.parts[1]} is no place for a table file")
+    if out.is_dir():
+        raise OSError(f"--out {out} is a directory; give a file name such as {out}/table.npz")
+    if out.exists() and not out.is_file():
+        raise OSError(f"--out {out} is not a regular file")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out.parent):
+            pass
+    except OSError as error:
+        raise OSError(f"--out {out}: cannot write in {out.parent} ({error.strerror})") from None
+    if out.exists() and not os.access(out, os.W_OK):
+        raise OSError(f"--out {out}: the file is not writable")
+
+
+class ProgressPrinter:
+    """Solve progress on stderr, at most once per :data:`PROGRESS_EVERY_S`.
+
+    The expected total is the set-up time plus the sweep time so far divided by the
+    fraction of the sweep done (before the first layer: the cost model's estimate).
+    """
+
+    def __init__(self, estimate_s: float) -> None:
+        self.start = self.last = time.monotonic()
+        self.sweep_start: float | None = None
+        self.estimate_s = estimate_s
+
+    def __call__(self, done: int, layers: int, fraction: float) -> None:
+        now = time.monotonic()
+        if self.sweep_start is None:
+            self.sweep_start = now
+        if now - self.last < PROGRESS_EVERY_S or done == layers:
+            return
+        self.last = now
+        elapsed = now - self.start
+        expected = self.estimate_s
+        if fraction > 0:
+            setup = self.sweep_start - self.start
+            expected = setup + (now - self.sweep_start) / fraction
+        print(
+            f"solve: layer {done} of {layers}, {format_seconds(elapsed)} elapsed,"
+            f" about {format_seconds(expected)} in all",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
 def _run_solve(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
     if args.mode == RECEDING and args.memory is None:
         raise ValueError("--mode receding needs --memory M (counted observations)")
-    start = time.perf_counter()
-    table = solve(params, args.mode, args.horizon, args.memory or 0)
-    elapsed = time.perf_counter() - start
+    memory = args.memory or 0
+    cost = solve_cost(params, args.mode, args.horizon, memory)
+    refuse_if_too_big(cost, args, f"solve horizon {args.horizon}")
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    check_writable(out)
+    print(f"solve: {describe_cost(cost)} (estimate)", flush=True)
+    start = time.perf_counter()
+    table = solve(params, args.mode, args.horizon, memory, ProgressPrinter(cost.seconds))
+    elapsed = time.perf_counter() - start
     table.save(out)
     print(
         f"solved {args.mode} table (horizon {args.horizon}"
@@ -61,6 +203,15 @@ def _run_solve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _max_memory_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--max-memory",
+        metavar="SIZE",
+        help="refuse a solve expected to need more memory than this, e.g. 500M or 4G"
+        " (default: the memory available now)",
+    )
+
+
 def register_solve(subparsers: argparse._SubParsersAction) -> None:
     """``solve``: build a policy table by exact dynamic programming."""
     parser = subparsers.add_parser("solve", help="solve an optimal policy table (exact DP)")
@@ -69,6 +220,7 @@ def register_solve(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--horizon", type=int, required=True, help="T (episodic) or H (receding)")
     parser.add_argument("--memory", type=int, help="M: counted observations kept (receding)")
     parser.add_argument("--out", required=True, help="table file to write (.npz)")
+    _max_memory_argument(parser)
     parser.set_defaults(run=_run_solve)
 
 
@@ -171,14 +323,45 @@ def register_simulate(subparsers: argparse._SubParsersAction) -> None:
 
 def _run_info(args: argparse.Namespace) -> int:
     table = PolicyTable.load(args.table)
-    print(json.dumps(table.metadata(), indent=2))
-    return 0
+    print(json.dumps(table.metadata(), indent=2), flush=True)
+    return _verify(table, args) if args.verify else 0
+
+
+def _verify(table: PolicyTable, args: argparse.Namespace) -> int:
+    """Solve the table again and compare every action bit; 0 if equal, 1 if not."""
+    cost = solve_cost(table.params, table.mode, table.horizon, table.memory)
+    refuse_if_too_big(cost, args, f"verify {args.table}")
+    print(f"verify: solving again, {describe_cost(cost)} (estimate)", flush=True)
+    start = time.perf_counter()
+    fresh = solve(
+        table.params, table.mode, table.horizon, table.memory, ProgressPrinter(cost.seconds)
+    )
+    elapsed = time.perf_counter() - start
+    differing = int(np.unpackbits(table.packed_actions ^ fresh.packed_actions).sum())
+    if differing == 0 and table.same_policy_as(fresh):
+        print(
+            f"verified: all {table.n_statistics:,} action bits equal a fresh solve"
+            f" ({elapsed:.2f} s)"
+        )
+        return 0
+    fields = sorted(k for k, v in fresh.metadata().items() if table.metadata().get(k) != v)
+    print(
+        f"MISMATCH: {differing:,} of {table.n_statistics:,} action bits differ from a fresh"
+        f" solve; metadata fields that differ: {', '.join(fields) or 'none'}"
+    )
+    return 1
 
 
 def register_info(subparsers: argparse._SubParsersAction) -> None:
     """``info``: validate a policy table and print its metadata."""
     parser = subparsers.add_parser("info", help="validate a policy table and print its metadata")
     parser.add_argument("table", help="table file (.npz)")
+    parser.add_argument(
+        "--verify",
+        action="store_true",
+        help="also solve the table again and compare every action bit (exit 1 if any differs)",
+    )
+    _max_memory_argument(parser)
     parser.set_defaults(run=_run_info)
 
 

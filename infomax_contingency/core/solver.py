@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from math import comb
 
 import numpy as np
 
@@ -53,6 +54,88 @@ SOLVER_VERSION = 1
 
 CHUNK = 1 << 15
 """Count tuples processed together: keeps every temporary of a chunk in the CPU cache."""
+
+Progress = Callable[[int, int, float], None]
+"""Called with (layers done, layers in all, fraction of the sweep's work done): once with
+0 layers done when the set-up is over, then after each layer."""
+
+# The cost model of a solve, fitted to bench/bench_solver.py on a 2-core x86-64 machine
+# (its "cost model vs measured" section prints both; times vary with the machine's load).
+# Memory: the working arrays of tuple_quantities and two value layers per count tuple of
+# the k = 0 layer, the packed actions kept, and the interpreter with numpy. Time: one
+# Bellman update per statistic of every layer swept, plus the per-tuple set-up.
+BASE_BYTES = 54 * 2**20
+"""Resident memory of the interpreter with numpy and the package, before a solve (bytes)."""
+TUPLE_BYTES, TUPLE_BYTES_PER_TIMER_VALUE, MIN_TUPLE_BYTES = 64, 17, 124
+"""Peak working memory per count tuple: max(MIN, 64 + 17 * n_timer_values) bytes
+(neighbour indices, predictive probabilities, two float64 value rows and one action row
+per timer value; the set-up's temporaries need about 120 bytes)."""
+SECONDS_PER_UPDATE = 1.1e-8
+"""Time of one Bellman update (one statistic of one layer), seconds."""
+SECONDS_PER_TUPLE = 1.2e-7
+"""Set-up time per count tuple of the k = 0 layer (tuple_quantities), seconds."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveCost:
+    """What a solve will take, known before it starts (:func:`solve_cost`).
+
+    Attributes:
+        statistics: statistics the table will hold (one action bit each).
+        updates: Bellman updates of the sweep (statistics of every layer swept).
+        layers: layers swept backwards.
+        peak_bytes: expected peak resident memory of the solving process, bytes.
+        seconds: expected solve time, seconds (the machine the model was fitted on).
+    """
+
+    statistics: int
+    updates: int
+    layers: int
+    peak_bytes: int
+    seconds: float
+
+
+def _sweep(mode: str, horizon: int, memory: int) -> tuple[int, int, list[int]]:
+    """``(N_0, layers swept, max counts of the kept layers)`` of a solve (validated)."""
+    if mode == EPISODIC:
+        if horizon < 2:
+            raise ValueError(f"episodic horizon must be >= 2 steps, got {horizon}")
+        if memory:
+            raise ValueError("episodic tables take no memory (the episode is the memory)")
+        return horizon, horizon - 1, list(range(1, horizon))
+    if mode == RECEDING:
+        if horizon < 1:
+            raise ValueError(f"receding horizon must be >= 1 step, got {horizon}")
+        if memory < 1:
+            raise ValueError(f"memory must be >= 1 observation, got {memory}")
+        return memory + horizon, horizon, [memory]
+    raise ValueError(f"unknown table mode {mode!r}; use {EPISODIC!r} or {RECEDING!r}")
+
+
+def solve_cost(params: ModelParams, mode: str, horizon: int, memory: int = 0) -> SolveCost:
+    """Statistics, peak memory and time of :func:`solve`, in closed form (any size, at once).
+
+    Raises ``ValueError`` for arguments :func:`solve` refuses.
+    """
+    base, steps, kept = _sweep(mode, horizon, memory)
+    n_timer = params.n_timer_values
+    # Layers k = 1 .. K hold the tuples with sums <= base - k: sum_k C(base - k + 4, 4).
+    swept_tuples = comb(base + 4, 5) - comb(base - steps + 4, 5)
+    if mode == EPISODIC:
+        statistics = n_timer * (comb(horizon + 4, 5) - 1)
+        kept_bytes = statistics // 8 + len(kept)
+    else:
+        statistics = n_timer * n_count_tuples(memory)
+        kept_bytes = (statistics + 7) // 8
+    per_tuple = max(MIN_TUPLE_BYTES, TUPLE_BYTES + TUPLE_BYTES_PER_TIMER_VALUE * n_timer)
+    tuples = n_count_tuples(base)
+    return SolveCost(
+        statistics=statistics,
+        updates=n_timer * swept_tuples,
+        layers=steps,
+        peak_bytes=BASE_BYTES + per_tuple * tuples + kept_bytes,
+        seconds=SECONDS_PER_UPDATE * n_timer * swept_tuples + SECONDS_PER_TUPLE * tuples,
+    )
 
 
 @dataclasses.dataclass
@@ -179,6 +262,7 @@ def backward_induction(
     keep: set[int],
     keep_values: bool = False,
     fixed_actions: Callable[[int], np.ndarray] | None = None,
+    progress: Progress | None = None,
 ) -> Solution:
     """Solve ``V_k`` for ``k = 0 .. steps`` over layers with counts summing to ``base - k``.
 
@@ -191,6 +275,7 @@ def backward_induction(
         fixed_actions: None for the optimal policy; else a function of ``k`` giving the
             boolean actions of layer ``k`` (see :func:`bellman_layer`), whose values are
             then computed exactly instead (policy evaluation).
+        progress: called after each layer (see :data:`Progress`).
     """
     if steps < 1 or steps > base_max_count:
         raise ValueError(f"need 1 <= steps <= base_max_count, got {steps}, {base_max_count}")
@@ -198,6 +283,10 @@ def backward_induction(
     tuples = tuple_quantities(params, base_max_count)
     values = np.broadcast_to(tuples["neg_entropy"], (n_timer, n_count_tuples(base_max_count)))
     solution = Solution(max_counts={}, actions={}, values={})
+    work = [n_count_tuples(base_max_count - k) for k in range(1, steps + 1)]
+    total_work, work_done = sum(work), 0
+    if progress is not None:
+        progress(0, steps, 0.0)
 
     for k in range(1, steps + 1):
         max_count = base_max_count - k
@@ -208,18 +297,27 @@ def backward_induction(
             solution.actions[k] = np.packbits(actions)
             if keep_values:
                 solution.values[k] = values
+        work_done += work[k - 1]
+        if progress is not None:
+            progress(k, steps, work_done / total_work)
     return solution
 
 
-def solve_episodic(params: ModelParams, horizon: int, keep_values: bool = False) -> PolicyTable:
+def solve_episodic(
+    params: ModelParams,
+    horizon: int,
+    keep_values: bool = False,
+    progress: Progress | None = None,
+) -> PolicyTable:
     """Episodic table for horizon T: actions for steps ``t = 1 .. T-1``.
 
     Step ``t`` (counts summing to at most t) uses ``policy_{T-t}``.
     """
-    if horizon < 2:
-        raise ValueError(f"episodic horizon must be >= 2 steps, got {horizon}")
+    _sweep(EPISODIC, horizon, 0)
     steps = horizon - 1
-    solution = backward_induction(params, horizon, steps, set(range(1, steps + 1)), keep_values)
+    solution = backward_induction(
+        params, horizon, steps, set(range(1, steps + 1)), keep_values, progress=progress
+    )
     layers = [solution.actions[horizon - t] for t in range(1, horizon)]
     max_counts = list(range(1, horizon))
     table = PolicyTable.from_packed_layers(
@@ -231,14 +329,17 @@ def solve_episodic(params: ModelParams, horizon: int, keep_values: bool = False)
 
 
 def solve_receding(
-    params: ModelParams, horizon: int, memory: int, keep_values: bool = False
+    params: ModelParams,
+    horizon: int,
+    memory: int,
+    keep_values: bool = False,
+    progress: Progress | None = None,
 ) -> PolicyTable:
     """Receding-horizon table ``policy_H`` over statistics with ``n2 + n3 <= M``."""
-    if horizon < 1:
-        raise ValueError(f"receding horizon must be >= 1 step, got {horizon}")
-    if memory < 1:
-        raise ValueError(f"memory must be >= 1 observation, got {memory}")
-    solution = backward_induction(params, memory + horizon, horizon, {horizon}, keep_values)
+    _sweep(RECEDING, horizon, memory)
+    solution = backward_induction(
+        params, memory + horizon, horizon, {horizon}, keep_values, progress=progress
+    )
     table = PolicyTable.from_packed_layers(
         params, RECEDING, horizon, memory, [memory], [solution.actions[horizon]], SOLVER_VERSION
     )
@@ -247,12 +348,18 @@ def solve_receding(
     return table
 
 
-def solve(params: ModelParams, mode: str, horizon: int, memory: int = 0) -> PolicyTable:
-    """Solve a table of ``mode`` ``episodic`` (horizon T) or ``receding`` (horizon H, memory M)."""
+def solve(
+    params: ModelParams,
+    mode: str,
+    horizon: int,
+    memory: int = 0,
+    progress: Progress | None = None,
+) -> PolicyTable:
+    """Solve a table of ``mode`` ``episodic`` (horizon T) or ``receding`` (horizon H, memory M).
+
+    :func:`solve_cost` tells what it will take; ``progress`` is called after each layer.
+    """
+    _sweep(mode, horizon, memory)
     if mode == EPISODIC:
-        if memory:
-            raise ValueError("episodic tables take no memory (the episode is the memory)")
-        return solve_episodic(params, horizon)
-    if mode == RECEDING:
-        return solve_receding(params, horizon, memory)
-    raise ValueError(f"unknown table mode {mode!r}; use {EPISODIC!r} or {RECEDING!r}")
+        return solve_episodic(params, horizon, progress=progress)
+    return solve_receding(params, horizon, memory, progress=progress)

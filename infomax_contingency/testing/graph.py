@@ -26,8 +26,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
@@ -67,6 +69,9 @@ class GraphProcesses:
             ``python -m infomax_contingency.nodes.<node>`` with this interpreter).
         parameter_files: ROS parameter files every node reads first (e.g.
             ``config/robot.yaml``); the parameters given to :meth:`start` override them.
+        own_process_group: start every node in a process group of its own, so a Ctrl-C
+            in the terminal reaches only this process, which then stops the nodes itself
+            (the demo); default: the nodes share this process's group.
     """
 
     def __init__(
@@ -75,7 +80,9 @@ class GraphProcesses:
         env: Mapping[str, str] | None = None,
         executable: Callable[[str], list[str]] | None = None,
         parameter_files: list[str | Path] | None = None,
+        own_process_group: bool = False,
     ) -> None:
+        self.own_process_group = own_process_group
         self.parameter_files = [str(path) for path in parameter_files or []]
         self.executable = executable or (
             lambda node: [sys.executable, "-m", f"infomax_contingency.nodes.{node}"]
@@ -115,7 +122,12 @@ class GraphProcesses:
         command = self.command(node, parameters or {}, name)
         log = (self.workdir / f"{name}.log").open("ab")
         process = subprocess.Popen(
-            command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env
+            command,
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=self.env,
+            start_new_session=self.own_process_group,
         )
         log.close()
         self.processes[name] = process
@@ -166,19 +178,30 @@ class GraphProcesses:
                 continue
         return process.returncode
 
-    def stop_all(self, timeout_s: float = 10.0) -> dict[str, int | None]:
-        """Stop every node (all get SIGINT at once); returns their exit statuses."""
+    def stop_all(self, timeout_s: float = 4.0) -> dict[str, int | None]:
+        """Stop every node within about ``timeout_s``; returns their exit statuses.
+
+        All running nodes get SIGINT at once; those still running after half of
+        ``timeout_s`` get SIGTERM, and after three quarters SIGKILL. Every process is
+        waited for (reaped), so none is left behind.
+        """
         self.stopped.update(self.processes)
-        for process in self.processes.values():
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + timeout_s / 2
-        for process in self.processes.values():
-            try:
-                process.wait(timeout=max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                pass
-        return {name: self.stop(name, timeout_s) for name in self.processes}
+        start = time.monotonic()
+        for sig, until in ((signal.SIGINT, 0.5), (signal.SIGTERM, 0.75), (signal.SIGKILL, None)):
+            running = [p for p in self.processes.values() if p.poll() is None]
+            for process in running:
+                try:
+                    process.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+            deadline = None if until is None else start + until * timeout_s
+            for process in running:
+                try:
+                    wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+                    process.wait(timeout=wait)
+                except subprocess.TimeoutExpired:
+                    pass
+        return {name: process.returncode for name, process in self.processes.items()}
 
 
 class StepRecorder(Node):
@@ -190,13 +213,27 @@ class StepRecorder(Node):
     ``times[topic]``: ``(received, published)`` per message, both system-clock
     nanoseconds (DDS reception and source timestamps).
 
+    ``lost[topic]`` counts the messages DDS reports this recorder lost (its own fault,
+    not the graph's: it did not read fast enough for its queue).
+
     Args:
         name: node name.
         audio: also record the arrival times of the ``audio`` chunks (not their samples).
+        stream_qos: QoS of the step-clock subscriptions (default
+            :data:`~infomax_contingency.nodes.qos.STREAM_QOS`); e.g. keep-all so that a
+            slow reader cannot drop messages.
     """
 
-    def __init__(self, name: str = "step_recorder", audio: bool = False, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        name: str = "step_recorder",
+        audio: bool = False,
+        stream_qos: QoSProfile | None = None,
+        **kwargs: Any,
+    ) -> None:
         super().__init__(name, **kwargs)
+        stream_qos = stream_qos or STREAM_QOS
+        self.lost: dict[str, int] = {}
         self.lock = threading.Lock()
         self.sound: list[bool] = []
         self.energy: list[float] = []
@@ -209,22 +246,36 @@ class StepRecorder(Node):
         self.times: dict[str, list[tuple[float, int]]] = {}
         self.on_message: Callable[[str], None] | None = None
         for topic, kind, store, qos in (
-            ("sound", Bool, self.sound, STREAM_QOS),
-            ("sound_energy", Float32, self.energy, STREAM_QOS),
-            ("vocalize", Bool, self.vocalize, STREAM_QOS),
-            ("belief", Float64, self.belief, STREAM_QOS),
-            ("partner_present", Bool, self.partner_present, STREAM_QOS),
+            ("sound", Bool, self.sound, stream_qos),
+            ("sound_energy", Float32, self.energy, stream_qos),
+            ("vocalize", Bool, self.vocalize, stream_qos),
+            ("belief", Float64, self.belief, stream_qos),
+            ("partner_present", Bool, self.partner_present, stream_qos),
             ("posture", String, None, LATCHED_READER_QOS),
-            ("sound_step", Int64MultiArray, self.sound_step, STREAM_QOS),
-            ("vocalize_step", Int64MultiArray, self.vocalize_step, STREAM_QOS),
+            ("sound_step", Int64MultiArray, self.sound_step, stream_qos),
+            ("vocalize_step", Int64MultiArray, self.vocalize_step, stream_qos),
         ):
             self.times[topic] = []
-            self.create_subscription(kind, topic, self._recorder(topic, store), qos)
+            self._subscribe(kind, topic, self._recorder(topic, store), qos)
         if audio:
             self.times["audio"] = []
             self.create_subscription(
                 Float32MultiArray, "audio", self._recorder("audio", None), STREAM_QOS
             )
+
+    def _subscribe(self, kind: Any, topic: str, callback: Callable, qos: QoSProfile) -> None:
+        """Subscribe, counting the messages DDS reports lost in ``lost[topic]``."""
+        self.lost[topic] = 0
+
+        def on_lost(status: Any) -> None:
+            with self.lock:
+                self.lost[topic] += int(status.total_count_change)
+
+        try:
+            events = SubscriptionEventCallbacks(message_lost=on_lost)
+            self.create_subscription(kind, topic, callback, qos, event_callbacks=events)
+        except UnsupportedEventTypeError:  # a middleware that cannot tell
+            self.create_subscription(kind, topic, callback, qos)
 
     def _recorder(self, topic: str, store: list | None) -> Callable[[Any, dict], None]:
         def record(msg: Any, info: dict) -> None:
