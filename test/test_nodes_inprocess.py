@@ -450,3 +450,21 @@ def test_every_parameter_has_a_description_and_numbers_a_range(
             assert len(descriptor.floating_point_range) == 1, name
         if descriptor.type == ParameterType.PARAMETER_INTEGER:
             assert len(descriptor.integer_range) == 1, name
+
+
+def test_mic_refuses_a_calibration_that_cannot_separate_sound_from_quiet(run: Callable) -> None:
+    node, probe, graph = run(MicNode, source="topic", calibration_s=2.0, wait_for_listeners=1,
+                             start_delay_s=0.0)  # fmt: skip
+    steps = probe.listen("sound_step", Int64MultiArray)
+    energies = probe.listen("sound_energy", Float32)
+    audio = probe.talk("audio", Float32MultiArray)
+    graph.connected(audio)
+    graph.run_until(lambda: node.started, "the mic's start gate")
+    hiss = np.random.default_rng(0).normal(0.0, 0.05, 16 * 8000)  # steady noise, no contrast
+    audio.publish(_audio_message(hiss))
+    graph.run_until(lambda: len(energies) == 16, "16 windows")
+    graph.run_for_callbacks(20)
+    assert steps == [], "no bit from a calibration that does not separate"
+    level, message, values = node.diagnostic_status()
+    assert level == ERROR and "cannot separate" in message and " dB" in message
+    assert int(values["calibration_failures"]) >= 1

@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,7 +65,12 @@ import numpy as np
 from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
+from infomax_contingency.audio.binarizer import (
+    UNSEPARATED,
+    Binarizer,
+    WavReplay,
+    calibration_window_count,
+)
 from infomax_contingency.audio.capture import MicrophoneStream, Window
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
@@ -248,16 +254,23 @@ def read_config(node: GraphNode) -> MicConfig:
     return config
 
 
-def make_binarizer(config: MicConfig) -> Binarizer:
-    """The binarizer that ``threshold_mode`` asks for."""
+def make_binarizer(
+    config: MicConfig, on_refused: Callable[[str], None] | None = None
+) -> Binarizer:
+    """The binarizer that ``threshold_mode`` asks for.
+
+    ``on_refused`` is told (one line naming the gap in dB) when a calibration cannot
+    separate sound from quiet; no bit comes from such a calibration.
+    """
     refresh = round(config.refresh_s / config.window_s) if config.refresh_s > 0 else 0
     separation = config.min_separation_db
     if config.threshold_mode == "fixed":
-        return Binarizer(config.threshold_db, 0, refresh, separation)
+        return Binarizer(config.threshold_db, 0, refresh, separation, on_refused)
     if config.threshold_mode == "file":
-        return Binarizer(load_threshold(config.threshold_file), 0, refresh, separation)
+        threshold = load_threshold(config.threshold_file)
+        return Binarizer(threshold, 0, refresh, separation, on_refused)
     windows = calibration_window_count(config.calibration_s, config.window_s)
-    return Binarizer(None, windows, refresh, separation)
+    return Binarizer(None, windows, refresh, separation, on_refused)
 
 
 class MicNode(GraphNode):
@@ -273,7 +286,7 @@ class MicNode(GraphNode):
         self.wait_for_listeners = config.wait_for_listeners
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
-        self.binarizer = make_binarizer(config)
+        self.binarizer = make_binarizer(config, self._calibration_refused)
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
@@ -316,6 +329,9 @@ class MicNode(GraphNode):
         )
         self.get_logger().info(f"stream id {self.stream_id}")
         self.start_diagnostics()
+
+    def _calibration_refused(self, message: str) -> None:
+        self.get_logger().warning(message)
 
     # ------------------------------------------------------------------ sources
 
@@ -559,6 +575,7 @@ class MicNode(GraphNode):
             "refits_accepted": b.refits_accepted,
             "refits_rejected": b.refits_rejected,
             "calibration_failures": b.calibration_failures,
+            "calibration_state": b.state,
         }
         for topic, names in self._intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
@@ -581,6 +598,8 @@ class MicNode(GraphNode):
             )
         if values.get("state") == DISCONNECTED:
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
+        if b.state == UNSEPARATED:
+            return ERROR, b.calibration_problem, values
         if b.calibrating:
             return OK, "calibrating the threshold", values
         if self.losses.recent(now) or self.timeouts.recent(now):
