@@ -10,11 +10,13 @@ from __future__ import annotations
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import rclpy
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from infomax_contingency.errors import USER_ERRORS
@@ -41,9 +43,14 @@ def _ros_argument_error(message: str) -> str:
 
 
 def init_ros(args: Sequence[str] | None, program: str) -> bool:
-    """``rclpy.init``; malformed ``--ros-args`` give one line on stderr and False."""
+    """``rclpy.init``; malformed ``--ros-args`` give one line on stderr and False.
+
+    rclpy's own signal handlers are not installed: :class:`StopSignals` handles Ctrl-C and
+    SIGTERM, so that no KeyboardInterrupt can surface in the middle of a callback or of
+    the shutdown.
+    """
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except rclpy_implementation.RCLError as error:
         print(f"{program}: invalid ROS arguments: {_ros_argument_error(str(error))}",
               file=sys.stderr)
@@ -51,24 +58,47 @@ def init_ros(args: Sequence[str] | None, program: str) -> bool:
     return True
 
 
-def spin_until_done(executor: Executor, done: Future) -> None:
-    """Spin ``executor`` until ``done`` completes or ROS shuts down.
+class StopSignals:
+    """Ctrl-C (SIGINT) and SIGTERM ask the spin loop to stop; nothing is raised.
+
+    The Python-level handler only sets :attr:`requested`; the spin loop looks at it after
+    every executor wait (at most :data:`SPIN_TIMEOUT_S`), so a signal never interrupts a
+    callback, a second one during the shutdown changes nothing, and the process ends with
+    status 0 after destroying its nodes.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous: dict[int, Any] = {}
+
+    def install(self) -> StopSignals:
+        """Take over SIGINT and SIGTERM (main thread only; elsewhere a no-op)."""
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._previous[signum] = signal.signal(signum, self._handle)
+            except ValueError:  # not the main thread
+                pass
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.requested = True
+
+    def restore(self) -> None:
+        """Give the signals back to their previous handlers."""
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+
+def spin_until_done(executor: Executor, done: Future, stop: StopSignals | None = None) -> None:
+    """Spin ``executor`` until ``done`` completes, ``stop`` is requested or ROS shuts down.
 
     Not ``spin_until_future_complete``: rclpy 7.1's version of it adds a done-callback to
     the future on every spin, so memory grows with every callback handled while the
     future is pending (a node that runs for days). This loop adds nothing per spin.
     """
-    while rclpy.ok() and not done.done():
+    while rclpy.ok() and not done.done() and not (stop is not None and stop.requested):
         executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
-
-
-def _quiet_signals() -> None:
-    """Ignore further Ctrl-C / SIGTERM while the nodes are being torn down."""
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        try:
-            signal.signal(signum, signal.SIG_IGN)
-        except (ValueError, OSError):  # not the main thread
-            pass
 
 
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
@@ -79,7 +109,9 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
     error line (status 2); Ctrl-C and SIGTERM end the process cleanly (status 0), also
     when they arrive again during shutdown; no traceback either way.
     """
+    stop = StopSignals().install()
     if not init_ros(args, program):
+        stop.restore()
         return 2
     executor = SingleThreadedExecutor()
     nodes: list[Node] = []
@@ -97,21 +129,20 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                 finished.add_done_callback(
                     lambda f: any_finished.done() or any_finished.set_result(f.result())
                 )
-        spin_until_done(executor, any_finished)
+        spin_until_done(executor, any_finished, stop)
         return int(any_finished.result()) if any_finished.done() else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     except USER_ERRORS as error:
-        if not rclpy.ok():  # shutting down (a signal) while a node was busy
+        if stop.requested or not rclpy.ok():  # a signal while a node was being set up
             return 0
         rclpy.logging.get_logger(current).error(str(error))
         return 2
     except Exception:
-        if not rclpy.ok():  # Ctrl-C or SIGTERM in the middle of a callback or set-up
+        if stop.requested or not rclpy.ok():  # a signal in the middle of the set-up
             return 0
         raise
     finally:
-        _quiet_signals()
         for node in nodes:
             try:
                 node.destroy_node()
@@ -119,6 +150,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                 pass
         executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
+        stop.restore()
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
