@@ -29,6 +29,7 @@ from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
 from infomax_contingency.nodes.step_topics import (
     StepBit,
     StepDecision,
@@ -44,15 +45,16 @@ pytestmark = pytest.mark.slow
 
 ROBOT = ModelParams.named("robot")
 MEMORY = 60
-TIMEOUT_S = 1.0
-"""source_timeout_s of the nodes: a silent stream or controller is replaced after this."""
+RESTART_TIMEOUT_S = 1.0
+"""source_timeout_s in the restart test: a silent stream or controller is replaced after
+this (the other tests keep the default, 3 s)."""
 
 MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, "start_delay_s": 0.2}  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, "start_delay_s": 0.2,
-        "source_timeout_s": TIMEOUT_S, "lockstep_timeout_s": 2.0}  # fmt: skip
-BELIEF = {"memory_steps": MEMORY, "source_timeout_s": TIMEOUT_S}
-CONTROLLER = {"source_timeout_s": TIMEOUT_S}
+        "lockstep_timeout_s": 2.0}  # fmt: skip
+BELIEF = {"memory_steps": MEMORY}
+CONTROLLER: dict[str, Any] = {}
 
 
 @dataclass
@@ -124,7 +126,7 @@ class FaultGraph:
 @pytest.fixture
 def graph(tmp_path: Path) -> Iterator[FaultGraph]:
     rclpy.init()
-    recorder = StepRecorder()
+    recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
     probe = Probe()
     diagnostics = probe.listen("/diagnostics", DiagnosticArray, 100)
     steps = SteppedExecutor([recorder, probe])
@@ -137,9 +139,10 @@ def graph(tmp_path: Path) -> Iterator[FaultGraph]:
         rclpy.try_shutdown()
 
 
-def _room_graph() -> dict[str, dict[str, Any]]:
-    return {"mic_node": MIC, "controller_node": CONTROLLER, "belief_node": BELIEF,
-            "fake_audio_node": ROOM}  # fmt: skip
+def _room_graph(**extra: Any) -> dict[str, dict[str, Any]]:
+    """The lockstep graph; ``extra`` parameters go to controller, belief and room."""
+    return {"mic_node": MIC, "controller_node": {**CONTROLLER, **extra},
+            "belief_node": {**BELIEF, **extra}, "fake_audio_node": {**ROOM, **extra}}  # fmt: skip
 
 
 def _true_sources(recorder: StepRecorder) -> tuple[int, int]:
@@ -168,12 +171,42 @@ def _offline(segments: list[tuple[list, bool]]) -> list[float]:
     return beliefs
 
 
+def _assert_same_beliefs(got: list[float], expected: list[float], log: str = "") -> None:
+    """Equal to 1e-12, step for step; otherwise name the first step that differs."""
+    assert len(got) == len(expected), f"{len(got)} beliefs, expected {len(expected)}\n{log}"
+    differ = np.flatnonzero(np.abs(np.array(got) - np.array(expected)) > 1e-12)
+    assert differ.size == 0, (
+        f"{differ.size} beliefs differ, the first at index {differ[0]}:"
+        f" {got[max(0, differ[0] - 2):differ[0] + 3]} vs"
+        f" {expected[max(0, differ[0] - 2):differ[0] + 3]}"
+    )
+
+
 def _pairs(recorder: StepRecorder, stream: int, controllers: set[int], first: int,
            last: int) -> list[tuple]:  # fmt: skip
     bits = {s: bool(y) for st, s, y, _ in recorder.sound_step if st == stream}
     decisions = {s: bool(u) for st, s, u, c in recorder.vocalize_step
                  if st == stream and c in controllers}  # fmt: skip
     return [(bits.get(s), decisions.get(s)) for s in range(first, last + 1)]
+
+
+def _settled(graph: FaultGraph, stream: int) -> int:
+    """Once the room is stopped: step until the beliefs stop coming; the last step.
+
+    The last window may still be on its way when the room stops: wait until the belief
+    node has answered every bit of ``stream``, let the last messages arrive, look again.
+    """
+    rec = graph.recorder
+
+    def last_step() -> int:
+        return max(s for st, s, *_ in rec.sound_step if st == stream)
+
+    for _ in range(3):
+        graph.run_until(lambda: rec.vocalize_step and rec.vocalize_step[-1][1] >= last_step()
+                        and rec.times["belief"][-1][1] >= rec.times["vocalize_step"][-1][1],
+                        "the last belief")  # fmt: skip
+        graph.steps.run_for_callbacks(50)
+    return last_step()
 
 
 def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGraph) -> None:
@@ -203,17 +236,23 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGrap
         graph.processes.stop(name)
         graph.wait_status("belief_node", DiagnosticStatus.OK)
 
-    # 4. a rogue that floods both stamped topics (stream and controller of its own)
+    # 4. a rogue at 1 kHz on both stamped topics (a stream and a controller of its own)
     bits, decisions = graph.probe.talk("sound_step", Int64MultiArray), graph.probe.talk(
         "vocalize_step", Int64MultiArray)  # fmt: skip
     graph.run_until(lambda: bits.get_subscription_count() >= 3, "the rogue connected")
     stream, controller = _true_sources(rec)
-    for i in range(1, 2001):
-        bits.publish(bit_message(StepBit(424242, i, bool(i % 2), 500_000)))
-        decisions.publish(decision_message(StepDecision(stream, i, True, 99)))
-        if i % 100 == 0:
-            graph.steps.run_for_callbacks(50)
-    status = graph.wait_status("belief_node", DiagnosticStatus.ERROR, "second stream")
+    sent = [0]
+
+    def rogue() -> None:
+        sent[0] += 1
+        bits.publish(bit_message(StepBit(424242, sent[0], bool(sent[0] % 2), 500_000)))
+        decisions.publish(decision_message(StepDecision(stream, sent[0], True, 99)))
+
+    timer = graph.probe.create_timer(0.001, rogue)
+    graph.run_until(lambda: sent[0] >= 3000, "3000 rogue messages of each kind")
+    graph.probe.destroy_timer(timer)
+    status = graph.wait_status("belief_node", DiagnosticStatus.ERROR, "publishers_sound_step")
+    assert "/probe" in status.message + str([v.value for v in status.values])
     values = {v.key: v.value for v in status.values}
     assert int(values["pending_bits"]) < 50 and int(values["pending_decisions"]) < 50
     graph.probe.destroy_publisher(bits)
@@ -222,13 +261,12 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGrap
 
     # the run ends: every step of the true stream is in the belief, exactly
     graph.processes.stop("fake_audio_node")
-    last = max(s for st, s, *_ in rec.sound_step if st == stream)
-    graph.run_until(lambda: len(rec.belief) >= last, "the last belief")
+    last = _settled(graph, stream)
     expected = _offline([(_pairs(rec, stream, {controller}, 1, last), "start")])
-    assert len(rec.belief) == last
-    assert np.allclose(rec.belief, expected, rtol=0, atol=1e-12)
+    _assert_same_beliefs(rec.belief, expected)
     values = {v.key: v.value for v in graph.status("belief_node").values}
-    assert values["missing_bits"] == values["missing_decisions"] == "0"
+    log = graph.processes.log("belief_node")
+    assert values["missing_bits"] == values["missing_decisions"] == "0", (values, log[-3000:])
     assert int(values["foreign_messages"]) > 2000
 
 
@@ -236,22 +274,24 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     graph: FaultGraph,
 ) -> None:
     rec = graph.recorder
-    graph.start(_room_graph(), clock="fake_audio_node")
+    nodes = _room_graph(source_timeout_s=RESTART_TIMEOUT_S)
+    graph.start(nodes, clock="fake_audio_node")
     graph.run_until(lambda: len(rec.belief) >= 80, "80 steps")
 
     # the belief node dies and comes back: zero counts from the step it joins at
     graph.processes.kill("belief_node")
     restarted_ns = rclpy.clock.Clock().now().nanoseconds
-    graph.processes.start("belief_node", BELIEF)
+    graph.processes.start("belief_node", nodes["belief_node"])
     graph.run_until(lambda: len(graph.beliefs_since(restarted_ns)) >= 60, "60 new beliefs")
-    joined = re.search(r"joined the stream at step (\d+)", graph.processes.log("belief_node"))
-    assert joined, graph.processes.log("belief_node")
-    join_step = int(joined.group(1))
+    joins = re.findall(r"joined stream \d+ at step (\d+)", graph.processes.log("belief_node"))
+    assert len(joins) == 2, graph.processes.log("belief_node")  # its first life, then this
+    join_step = int(joins[-1])
+    assert join_step > 80
 
     # the controller dies; a new one starts once the room has timed out waiting for it
     graph.processes.kill("controller_node")
     graph.wait_status("fake_audio_node", DiagnosticStatus.WARN, "controller_node is not running")
-    graph.processes.start("controller_node", CONTROLLER)
+    graph.processes.start("controller_node", nodes["controller_node"])
     answered = len(rec.vocalize_step)
     graph.run_until(lambda: len(rec.vocalize_step) > answered + 60, "60 new decisions")
 
@@ -259,33 +299,34 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     graph.processes.kill("mic_node")
     graph.wait_status("fake_audio_node", DiagnosticStatus.WARN, "mic_node is not running")
     graph.processes.start("mic_node", MIC)
-    streams = lambda: {st for st, *_ in rec.sound_step}  # noqa: E731
-    graph.run_until(lambda: len(streams()) == 2, "the new stream")
-    graph.run_until(lambda: sum(st == rec.sound_step[-1][0] for st, *_ in rec.sound_step) > 60,
-                    "60 steps of the new stream")  # fmt: skip
-    graph.processes.stop("fake_audio_node")
-
     first_stream = rec.sound_step[0][0]
-    second_stream = rec.sound_step[-1][0]
+
+    def new_stream_decisions() -> int:
+        return sum(st != first_stream for st, *_ in rec.vocalize_step)
+
+    graph.run_until(lambda: new_stream_decisions() > 60, "60 decisions on the new stream")
+    graph.processes.stop("fake_audio_node")
+    second_stream = next(st for st, *_ in rec.vocalize_step if st != first_stream)
+    last_b = _settled(graph, second_stream)
+
     controllers = {c for *_, c in rec.vocalize_step}
     assert len(controllers) == 2
-    last_a = max(s for st, s, *_ in rec.sound_step if st == first_stream)
-    last_b = max(s for st, s, *_ in rec.sound_step if st == second_stream)
-    first_b = min(s for st, s, *_ in rec.sound_step if st == second_stream)
-    pairs_a = _pairs(rec, first_stream, controllers, join_step, last_a)
-    while pairs_a and pairs_a[-1][1] is None:  # the last bits of a dead stream: never applied
-        pairs_a.pop()
+    decided_a = [s for st, s, *_ in rec.vocalize_step if st == first_stream]
+    first_b = min(s for st, s, *_ in rec.vocalize_step if st == second_stream)
+    pairs_a = _pairs(rec, first_stream, controllers, join_step, max(decided_a))
     pairs_b = _pairs(rec, second_stream, controllers, first_b, last_b)
-    expected = _offline([(pairs_a, "joined"), (pairs_b, "new stream")])
-    graph.run_until(lambda: len(graph.beliefs_since(restarted_ns)) >= len(expected) - 1,
-                    "the last beliefs")  # fmt: skip
     got = graph.beliefs_since(restarted_ns)
-    assert np.allclose(got, expected[: len(got)], rtol=0, atol=1e-12)
-    assert len(got) >= len(expected) - 1  # the very last step may wait for its decision
+    # The last bits a killed mic_node published may reach some listeners and not others
+    # (it cannot resend them): the belief node may lack the last step or two of stream A.
+    lost_at_kill = len(pairs_a) + len(pairs_b) - len(got)
+    assert 0 <= lost_at_kill <= 2, f"A {join_step}..{max(decided_a)}, B {first_b}..{last_b}"
+    pairs_a = pairs_a[: len(pairs_a) - lost_at_kill]
+    expected = _offline([(pairs_a, "joined"), (pairs_b, "new stream")])
+    _assert_same_beliefs(got, expected, graph.processes.log("belief_node")[-3000:])
     missing = sum(u is None for _, u in pairs_a)
     assert missing >= 1, "the controller's death leaves steps without a decision"
     values = {v.key: v.value for v in graph.status("belief_node").values}
-    assert int(values["missing_decisions"]) >= missing and values["stream_changes"] == "1"
+    assert int(values["missing_decisions"]) >= missing and values["stream_changes"] == "1", values
     controller_values = {v.key: v.value for v in graph.status("controller_node").values}
     assert int(controller_values["missed_steps"]) > 0
 
@@ -326,8 +367,8 @@ def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs(
                 graph.run_until(lambda n=sent // 8000: len(rec.belief) >= n, "the mic to keep up")
     samples = np.concatenate(segments).astype(np.float64)
     energies = window_energies_db(samples, 16000, 0.5)
-    graph.run_until(lambda: len(rec.belief) >= len(energies), f"{len(energies)} beliefs",
-                    deadline_s=300)  # fmt: skip
+    graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))
+                    >= len(energies), f"{len(energies)} steps", deadline_s=300)  # fmt: skip
 
     bits = [bool(e > -40.0) for e in energies]
     assert [y for _, _, y, _ in rec.sound_step] == bits
@@ -336,6 +377,6 @@ def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs(
     decisions = [bool(controller.step(int(y))) for y in bits]
     assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
     expected = _offline([(list(zip(bits, decisions, strict=True)), "start")])
-    assert np.allclose(rec.belief, expected, rtol=0, atol=1e-12)
+    _assert_same_beliefs(rec.belief, expected)
     values = {v.key: v.value for v in graph.status("mic_node").values}
     assert values["windows_dropped"] == "0" and values["dropped_chunks"] == "0"

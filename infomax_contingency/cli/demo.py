@@ -210,9 +210,9 @@ def _run_graph(
     The nodes are stopped whatever happens (an error, :class:`Interrupted`).
     """
     import rclpy
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
 
+    from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
     from infomax_contingency.testing.graph import (
         GraphError,
         GraphProcesses,
@@ -224,18 +224,13 @@ def _run_graph(
     files = [resource_path("config", "robot.yaml")]
     if not args.wav:
         files.append(resource_path("config", "fake_room.yaml"))
-    # Keep-all: the monitor's queues cannot drop a message however it is scheduled.
-    keep_all = QoSProfile(
-        history=HistoryPolicy.KEEP_ALL,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
     with tempfile.TemporaryDirectory(prefix="infomax-demo-") as workdir:
         processes = GraphProcesses(workdir, parameter_files=files, own_process_group=True)
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         recorder = None
         try:
-            recorder = StepRecorder("demo_monitor", stream_qos=keep_all)
+            # Keep-all: the monitor's queues cannot drop a message however it is scheduled.
+            recorder = StepRecorder("demo_monitor", stream_qos=LOSSLESS_READER_QOS)
             with SpinThread(recorder):
                 start = time.monotonic()
                 try:

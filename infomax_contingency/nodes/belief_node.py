@@ -7,12 +7,12 @@ whole history; a bounded memory lets the belief fall again after a partner leave
 Step clock: bits (``sound_step``) and decisions (``vocalize_step``) are joined by their
 step number (:class:`~infomax_contingency.core.stepclock.StepJoiner`), whatever order and
 rate they arrive in. For each step, in order: the bit is counted, **the belief is
-published**, the decision advances the timer. The node follows one stream (one mic_node
-run) and one controller (:class:`~infomax_contingency.core.stepclock.SourceLock`);
-messages from others are counted and ignored, and a followed source silent for
-``source_timeout_s`` is replaced by the next one heard (a restarted node). The decisions
-of a controller are used only while it is followed (the fake room hears the same ones);
-the bits a new stream sent before it was followed are kept and used.
+published**, the decision advances the timer. The node follows one controller
+(:class:`~infomax_contingency.core.stepclock.SourceLock`: a second one is counted and
+ignored; a followed one silent for ``source_timeout_s`` is replaced by the next one
+heard, a restarted node) and the stream that controller answers (one mic_node run): the
+bits of another stream are counted and kept aside, and used if the controller moves to
+that stream (a restarted mic_node). The fake room hears the same decisions.
 
 Nothing is guessed: a step whose bit can no longer arrive is applied without it (not
 counted), a step whose decision can no longer arrive leaves the timer uncertain until it
@@ -40,19 +40,22 @@ from infomax_contingency.core.model import StatisticTracker
 from infomax_contingency.core.stepclock import Arrival, RecentEvents, SourceLock, StepJoiner
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
     VOCALIZE_STEP,
-    StepDecision,
+    StepBit,
     parse_bit,
     parse_decision,
     window_us,
 )
 
-EARLY_DECISIONS = 1024
-"""Decisions kept for a stream not followed yet (they may overtake its first bits)."""
+HELD_BITS = 1024
+"""Bits kept per stream that the controller does not answer (yet)."""
+
+HELD_STREAMS = 8
+"""Streams whose bits are kept at once (the oldest is forgotten first)."""
 
 WATCHED_TOPICS = ("sound", SOUND_STEP, "vocalize", VOCALIZE_STEP)
 """Topics with one rightful publisher each (mic_node, controller_node)."""
@@ -97,7 +100,6 @@ class BeliefNode(GraphNode):
         self.window_us = window_us(self.params.dt)
         self.tracker = StatisticTracker(self.params, memory=memory)
         self.joiner = StepJoiner(self._apply, self.max_pending)
-        self.streams = SourceLock(timeout_s)
         self.controllers = SourceLock(timeout_s)
         self.belief = self.tracker.statistic.belief(self.params)
         self.resets = 0
@@ -108,10 +110,12 @@ class BeliefNode(GraphNode):
         self.stream_changes = 0
         self._stream_started = False
         self._intruders: dict[str, list[str]] = {}
-        self._unfollowed: deque[StepDecision] = deque(maxlen=EARLY_DECISIONS)
+        self.stream: int | None = None
+        """The stream followed: the one the followed controller answers."""
+        self._held: dict[int, deque[StepBit]] = {}
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
-        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step)
-        self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step)
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
+        self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS)
         self.create_service(Trigger, "reset", self._on_reset)
         self.start_diagnostics()
 
@@ -132,32 +136,26 @@ class BeliefNode(GraphNode):
                 throttle_duration_sec=5.0,
             )
             return
-        arrival = self.streams.accept(bit.stream, now)
-        if arrival is Arrival.FOREIGN:
-            self.foreign.note(now)
-            self.streams.hold(bit.stream, bit)
-            self.warn_intrusion(
-                f"ignoring bits of stream {bit.stream} (a second mic_node?): following stream"
-                f" {self.streams.source}"
-            )
+        if bit.stream != self.stream:
+            self._hold(bit, now)
             return
-        held = []
-        if arrival is Arrival.SWITCHED:
-            held = self.streams.take_held(bit.stream)
-            self._new_stream(bit.stream, held[0].step if held else bit.step)
-        elif arrival is Arrival.FIRST:
-            self._join(bit.step)
-        if arrival is not Arrival.FOLLOWED:
-            for early in held:
-                self.joiner.bit(early.step, early.bit)
-            decisions = [d for d in self._unfollowed if d.stream == bit.stream]
-            self._unfollowed.clear()
-            for decision in decisions:
-                self._decision(decision, now)
         if not self.joiner.bit(bit.step, bit.bit):
             self.warn_intrusion(
                 f"bit for step {bit.step} of stream {bit.stream} repeats or goes backwards"
                 f" (last step {self.joiner.last_bit_step}): ignored"
+            )
+
+    def _hold(self, bit: StepBit, now: float) -> None:
+        """Keep a bit of a stream the controller does not answer (yet): maybe it will."""
+        held = self._held.setdefault(bit.stream, deque(maxlen=HELD_BITS))
+        held.append(bit)
+        while len(self._held) > HELD_STREAMS:
+            del self._held[next(iter(self._held))]
+        if self.stream is not None:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"ignoring bits of stream {bit.stream} (a second mic_node?): the controller"
+                f" answers stream {self.stream}"
             )
 
     def _on_vocalize_step(self, msg: Int64MultiArray, stamp: int) -> None:
@@ -169,12 +167,6 @@ class BeliefNode(GraphNode):
                 f"malformed '{VOCALIZE_STEP}' message ignored: {list(msg.data)}"
             )
             return
-        if decision.stream != self.streams.source:
-            self._unfollowed.append(decision)  # its stream may be followed soon
-            return
-        self._decision(decision, now)
-
-    def _decision(self, decision: StepDecision, now: float) -> None:
         arrival = self.controllers.accept(decision.controller, now)
         if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
@@ -188,31 +180,40 @@ class BeliefNode(GraphNode):
                 f"controller {self.controllers.previous} went silent; following controller"
                 f" {decision.controller} (a restarted controller_node?)"
             )
+        if decision.stream != self.stream:
+            self._follow(decision.stream, decision.step)
         if not self.joiner.decision(decision.step, decision.vocalize):
             self.warn_intrusion(
                 f"decision for step {decision.step} repeats, goes backwards or answers no"
                 " bit received: ignored"
             )
 
-    def _join(self, step: int) -> None:
-        """The first bit this node receives: the stream's start, or the middle of a run."""
-        if step > 1:
-            self.tracker.forget_timer_completely()
-            self.get_logger().info(
-                f"joined the stream at step {step}: zero counts, timer unknown until the"
-                " next vocalization"
-            )
+    def _follow(self, stream: int, step: int) -> None:
+        """The controller answers ``stream`` from ``step`` on: follow it from there.
 
-    def _new_stream(self, stream: int, step: int) -> None:
-        self.stream_changes += 1
-        self.gaps.note(self.now_s())
-        self.joiner.restart()
-        self.tracker.forget_timer()
-        self.get_logger().warning(
-            f"stream {self.streams.previous} went silent; following stream {stream} from"
-            f" step {step} (a restarted mic_node?): counts kept, the gap between is not"
-            " guessed"
-        )
+        Bits held for that stream from ``step`` on are used; older ones were never
+        answered (the controller joined that stream at ``step``).
+        """
+        held = [bit for bit in self._held.pop(stream, ()) if bit.step >= step]
+        if self.stream is None:
+            how = "zero counts" + (", timer unknown until the next vocalization" if step > 1
+                                   else "")  # fmt: skip
+            self.get_logger().info(f"joined stream {stream} at step {step}: {how}")
+            if step > 1:
+                self.tracker.forget_timer_completely()
+        else:
+            self.stream_changes += 1
+            self.gaps.note(self.now_s())
+            self.joiner.restart()
+            self.tracker.forget_timer()
+            self.get_logger().warning(
+                f"the controller answers stream {stream} from step {step} instead of stream"
+                f" {self.stream} (a restarted mic_node?): counts kept, the gap between is not"
+                " guessed"
+            )
+        self.stream = stream
+        for bit in held:
+            self.joiner.bit(bit.step, bit.bit)
 
     # ------------------------------------------------------------------ steps
 
@@ -265,7 +266,7 @@ class BeliefNode(GraphNode):
             "timer_certain": self.tracker.timer_certain,
             "uncounted_bits": self.tracker.uncounted,
             "memory_steps": self.tracker.memory,
-            "stream": self.streams.source or "none yet",
+            "stream": self.stream or "none yet",
             "controller": self.controllers.source or "none yet",
             "steps": counts.steps,
             "last_step": (self.joiner.next_step or 1) - 1,

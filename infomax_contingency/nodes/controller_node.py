@@ -34,7 +34,7 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.stepclock import Arrival, RecentEvents, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
@@ -107,7 +107,7 @@ class ControllerNode(GraphNode):
         self._intruders: dict[str, list[str]] = {}
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
-        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step)
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
         self.start_diagnostics()
         self.get_logger().info(
             f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"

@@ -37,7 +37,7 @@ from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 from infomax_contingency.core.stepclock import Arrival, LockstepPacer, RecentEvents, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP, parse_decision
 from infomax_contingency.sim.fake_room import (
@@ -150,7 +150,9 @@ class FakeAudioNode(GraphNode):
         self.timeouts = RecentEvents()
         self.foreign = RecentEvents()
         self._answered: tuple[int, int] = (0, 0)
-        self.vocalize_sub = self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision)
+        self.vocalize_sub = self.subscribe(
+            Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
+        )
         self.start_when_ready(
             self._ready,
             self.start_delay_s,

@@ -80,7 +80,7 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
-from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
@@ -295,7 +295,9 @@ class MicNode(GraphNode):
         self.sound_pub = self.create_publisher(Bool, "sound", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, SOUND_STEP, STREAM_QOS)
         self.energy_pub = self.create_publisher(Float32, "sound_energy", STREAM_QOS)
-        self._decisions_sub = self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision)
+        self._decisions_sub = self.subscribe(
+            Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
+        )
         self.windows = 0
         self.last_energy_db = float("nan")
         self.dropped_chunks = 0

@@ -21,6 +21,16 @@ STREAM_QOS = QoSProfile(
 )
 """QoS of the per-window topics."""
 
+STEP_READER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10 * STREAM_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+"""QoS of the nodes that read ``sound_step`` and ``vocalize_step``: a deeper queue than the
+writers', so that a burst on the topic (an intruder among the true messages) does not
+push a true message out before the node takes it."""
+
 LATCHED_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=1,
@@ -38,3 +48,10 @@ LATCHED_READER_QOS = QoSProfile(
 """QoS to read slow-changing state: the last value on joining, then every change (a
 deeper queue than the writer's, so two quick changes are both received)."""
 
+LOSSLESS_READER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+"""QoS of a monitor that must not lose a step-clock message even when it is busy: the
+middleware keeps every sample received until the monitor takes it (a recorder, tests)."""
