@@ -255,7 +255,7 @@ def test_belief_reset_service_forgets_the_history(run: Callable) -> None:
         sound.publish(b)
         vocalize.publish(d)
     graph.run_until(lambda: node.tracker.statistic.p3 > 0, "a counted bit")
-    client = probe.create_client(Trigger, "reset")
+    client = probe.create_client(Trigger, "/belief_node/reset")
     graph.run_until(client.service_is_ready, "the reset service")
     future = client.call_async(Trigger.Request())
     graph.run_until(future.done, "the reset answer")

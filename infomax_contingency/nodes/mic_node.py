@@ -137,7 +137,13 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             "threshold_mode", "calibrate", "How the sound threshold is set", THRESHOLD_MODES
         ),
         "threshold_db": read.number(
-            "threshold_db", -40.0, "Fixed threshold (threshold_mode fixed)", -150.0, 0.0, "dB"
+            "threshold_db",
+            -40.0,
+            "Fixed threshold (threshold_mode fixed; live)",
+            -150.0,
+            0.0,
+            "dB",
+            read_only=False,
         ),
         "threshold_file": read.text(
             "threshold_file", "", "Threshold file written by calibration (threshold_mode file)"
@@ -287,6 +293,7 @@ class MicNode(GraphNode):
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
         self.binarizer = make_binarizer(config, self._calibration_refused)
+        self.parameters.live("threshold_db", self._set_threshold, self._check_fixed_threshold)
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
@@ -556,6 +563,19 @@ class MicNode(GraphNode):
         for topic, names in self._intruders.items():
             self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
         super().publish_diagnostics()
+
+    def _check_fixed_threshold(self, value: float) -> None:
+        """A live ``threshold_db`` needs ``threshold_mode`` fixed (else it would be ignored)."""
+        mode = self.get_parameter("threshold_mode").value
+        if mode != "fixed":
+            raise ConfigError(
+                f"parameter 'threshold_db' = {value!r} has no effect with threshold_mode"
+                f" {mode!r}: start mic_node with threshold_mode fixed to set it live"
+            )
+
+    def _set_threshold(self, value: float) -> None:
+        """The next window's bit uses the threshold ``value`` (dB full scale)."""
+        self.binarizer.threshold_db = value
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""
