@@ -14,12 +14,16 @@ from typing import Any
 import pytest
 import rclpy
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64, String
 
 from infomax_contingency.nodes.belief_node import BeliefNode
+from infomax_contingency.nodes.controller_node import ControllerNode
+from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
+from infomax_contingency.nodes.graph_node import WAITING_NOTICE_S, WARN
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
@@ -111,7 +115,10 @@ def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:
     assert node.binarizer.calibrating
 
 
-@pytest.mark.parametrize("node_class", [MicNode, BeliefNode, PostureNode, SpeakerNode])
+@pytest.mark.parametrize(
+    "node_class",
+    [MicNode, ControllerNode, BeliefNode, PostureNode, SpeakerNode, FakeAudioNode],
+)
 def test_code_defaults_equal_config_robot_yaml(graph: Callable, node_class: type) -> None:
     """A missing params file changes nothing: every value robot.yaml sets is the default."""
     config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())
@@ -121,3 +128,35 @@ def test_code_defaults_equal_config_robot_yaml(graph: Callable, node_class: type
     for parameter, value in expected.items():
         if node.has_parameter(parameter):
             assert node.get_parameter(parameter).value == value, f"{name}: {parameter}"
+
+
+def test_fake_room_lockstep_timeout_is_live(graph: Callable) -> None:
+    node, probe, executor = graph(FakeAudioNode, lockstep=True)
+    [result] = set_remotely(probe, executor, "fake_audio_node", lockstep_timeout_s=7.5)
+    assert result.successful, result.reason
+    assert node.pacer.timeout_s == 7.5
+    [result] = set_remotely(probe, executor, "fake_audio_node", seed=3)
+    assert not result.successful and "read-only" in result.reason
+
+
+# ------------------------------------------------------------------ waiting is visible
+
+
+@pytest.mark.parametrize(
+    ("node_class", "topic", "how"),
+    [(MicNode, "/audio", "fake_audio_node"), (ControllerNode, "/sound_step", "mic_node")],
+)
+def test_a_waiting_node_says_what_it_waits_for(
+    graph: Callable, node_class: type, topic: str, how: str
+) -> None:
+    node, probe, executor = graph(node_class)
+    statuses = probe.listen("/diagnostics", DiagnosticArray)
+    assert node.check_waiting(1.0) == ""  # too early to say anything
+    waiting = node.check_waiting(WAITING_NOTICE_S + 1.0)
+    assert f"waiting for '{topic}'" in waiting and how in waiting
+    node.publish_diagnostics()
+    executor.run_until(lambda: statuses, "a diagnostics message")
+    [status] = statuses[-1].status
+    assert status.level == WARN and waiting in status.message
+    node.count_arrival(topic.lstrip("/"))
+    assert node.check_waiting(WAITING_NOTICE_S + 2.0) == ""

@@ -337,6 +337,10 @@ class MicNode(GraphNode):
         self.get_logger().info(f"stream id {self.stream_id}")
         self.start_diagnostics()
 
+    def _on_audio_message(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
+        self.count_arrival("audio")
+        self._on_audio(msg, info)
+
     def _calibration_refused(self, message: str) -> None:
         self.get_logger().warning(message)
 
@@ -365,7 +369,13 @@ class MicNode(GraphNode):
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
         self._last_sequence: int | None = None
-        self.create_subscription(Float32MultiArray, "audio", self._on_audio, STREAM_QOS)
+        self.create_subscription(Float32MultiArray, "audio", self._on_audio_message, STREAM_QOS)
+        self.wait_visibly(
+            "audio",
+            f"std_msgs/Float32MultiArray, mono samples at {rate} Hz: start an audio"
+            " driver or fake_audio_node (launch use_fake_room:=true), or set source to wav or"
+            " sounddevice",
+        )
 
     def _setup_microphone(self, device: str, channel: int, queue_s: float) -> None:
         try:
