@@ -27,6 +27,8 @@ A node that exits with an error ends the whole launch with a final line naming i
 ``bringup`` runs the same graph in one process.
 """
 
+import os
+
 from launch.actions import (
     DeclareLaunchArgument,
     EmitEvent,
@@ -54,18 +56,33 @@ def _is_true(context: LaunchContext, name: str) -> bool:
     return LaunchConfiguration(name).perform(context).strip().lower() in TRUE_WORDS
 
 
-def _on_node_exit(event, context: LaunchContext) -> list:
-    """A node that exits with an error status ends the launch, with a final line."""
-    if event.returncode in (0, None) or context.is_shutdown:
-        return []
-    # -2 / -15 / 130 / 143: the node was interrupted because the launch is stopping.
-    if event.returncode in (-2, -15, 130, 143):
-        return []
-    reason = f"{event.action.name} exited with status {event.returncode}"
-    return [
-        LogInfo(msg=f"[{PACKAGE}] {reason}; stopping the whole launch (see its log above)"),
-        EmitEvent(event=Shutdown(reason=reason)),
-    ]
+class _ExitWatch:
+    """Counts the graph's node processes that ended; remembers the first failure."""
+
+    def __init__(self) -> None:
+        self.started = 0
+        self.exited = 0
+        self.failure = ""
+
+    def on_exit(self, event, context: LaunchContext) -> list:
+        """A node that exits with an error ends the launch; the last exit says why."""
+        self.exited += 1
+        actions: list = []
+        # -2 / -15 / 130 / 143: interrupted, because the launch is stopping (Ctrl-C).
+        failed = event.returncode not in (0, None, -2, -15, 130, 143)
+        if failed and not self.failure:
+            self.failure = f"{event.action.name} exited with status {event.returncode}"
+            actions.append(
+                LogInfo(msg=f"{self.failure}: stopping the whole launch (its error is above)")
+            )
+            if not context.is_shutdown:
+                actions.append(EmitEvent(event=Shutdown(reason=self.failure)))
+        if self.failure and self.exited >= self.started:
+            actions.append(LogInfo(msg=f"launch stopped: {self.failure} (its error is above)"))
+        return actions
+
+
+_WATCH = _ExitWatch()
 
 
 def _graph(context: LaunchContext) -> list:
@@ -82,6 +99,15 @@ def _graph(context: LaunchContext) -> list:
         )
         fake_room = True
     realtime = _is_true(context, "realtime")
+    files = ["params_file"] + (["fake_room_file"] if fake_room else [])
+    for argument in files:
+        path = LaunchConfiguration(argument).perform(context)
+        if not os.path.isfile(path):
+            reason = f"{argument}:={path} is not a file: give a ROS parameter file (YAML)"
+            return [
+                LogInfo(msg=f"launch stopped: {reason}"),
+                EmitEvent(event=Shutdown(reason=reason)),
+            ]
 
     def node(executable: str, parameters: list) -> Node:
         return Node(
@@ -110,6 +136,7 @@ def _graph(context: LaunchContext) -> list:
     if _is_true(context, "record"):
         directory = LaunchConfiguration("record_dir")
         actions.append(node("recorder_node", [params_file, {"directory": directory}]))
+    _WATCH.started = len([a for a in actions if isinstance(a, Node)])
     return actions
 
 
@@ -169,8 +196,7 @@ def generate_launch_description() -> LaunchDescription:
     return LaunchDescription(
         [
             *launch_arguments(share),
-            RegisterEventHandler(OnProcessExit(on_exit=_on_node_exit)),
+            RegisterEventHandler(OnProcessExit(on_exit=_WATCH.on_exit)),
             OpaqueFunction(function=_graph),
         ]
     )
-

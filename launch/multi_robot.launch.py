@@ -37,9 +37,7 @@ def _robots(context: LaunchContext) -> list:
             "room_seed": str(index),
         }
         for name in PASSED_ON:
-            value = LaunchConfiguration(name).perform(context)
-            if value:
-                arguments[name] = value
+            arguments[name] = LaunchConfiguration(name).perform(context)
         includes.append(
             IncludeLaunchDescription(
                 PythonLaunchDescriptionSource(one_robot), launch_arguments=arguments.items()
@@ -50,6 +48,7 @@ def _robots(context: LaunchContext) -> list:
 
 def generate_launch_description() -> LaunchDescription:
     """``robots`` graphs in namespaces robot1 .. robotN against N simulated rooms."""
+    share = FindPackageShare(PACKAGE)
     return LaunchDescription(
         [
             DeclareLaunchArgument("robots", default_value="2", description="number of robots"),
@@ -58,10 +57,14 @@ def generate_launch_description() -> LaunchDescription:
             ),
             DeclareLaunchArgument("log_level", default_value="info", description="log level"),
             DeclareLaunchArgument(
-                "params_file", default_value="", description="empty = config/robot.yaml"
+                "params_file",
+                default_value=PathJoinSubstitution([share, "config", "robot.yaml"]),
+                description="ROS parameter file read by every node of every robot",
             ),
             DeclareLaunchArgument(
-                "fake_room_file", default_value="", description="empty = config/fake_room.yaml"
+                "fake_room_file",
+                default_value=PathJoinSubstitution([share, "config", "fake_room.yaml"]),
+                description="parameters of every simulated room",
             ),
             OpaqueFunction(function=_robots),
         ]
