@@ -137,8 +137,15 @@ live: $(STAMP)
 		-p speaker_node:dry_run:=false \
 		$(if $(LIVE_OUTPUT_DEVICE),-p "speaker_node:device:=$(LIVE_OUTPUT_DEVICE)")
 
+# The real `ros2` command line (ros2cli, launch, launch_ros) for the tests that drive
+# `ros2 launch`, `ros2 param` and `ros2 service`: ROS2CLI_VENV (built by .ci/run, or by
+# hand with ../shared/tools/ros2cli/setup.sh DIR) goes on PATH when it holds `ros2`;
+# without it those tests skip with a one-line reason.
+ROS2CLI_VENV ?= $(abspath ../ros2cli-venv)
+
 test: $(STAMP)
 	"$(VENV)/bin/ruff" check .
+	if [ -x "$(ROS2CLI_VENV)/bin/ros2" ]; then export PATH="$$PATH:$(ROS2CLI_VENV)/bin"; fi
 	"$(VPY)" -m pytest -q $(PYTEST_ARGS)
 
 lint: $(STAMP)

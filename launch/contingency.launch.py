@@ -1,66 +1,202 @@
 """Start the contingency-detection graph as separate processes (a real ROS 2 install).
 
-    ros2 launch infomax_contingency contingency.launch.py                  # audio on 'audio'
-    ros2 launch infomax_contingency contingency.launch.py fake_room:=true  # simulated room
+    ros2 launch infomax_contingency contingency.launch.py                      # audio on 'audio'
+    ros2 launch infomax_contingency contingency.launch.py use_fake_room:=true  # simulated room
+    ros2 launch infomax_contingency contingency.launch.py namespace:=robot1 use_fake_room:=true
     ros2 launch infomax_contingency contingency.launch.py params_file:=/path/to/my.yaml
 
-Every node reads ``params_file`` (default: the installed config/robot.yaml); with
-``fake_room:=true`` fake_audio_node joins the graph and mic_node and fake_audio_node
-also read ``fake_room_file`` (default: config/fake_room.yaml, a partner who answers for
-60 s and then leaves, in lockstep). ``bringup`` runs the same graph in one process.
+Arguments (``ros2 launch ... --show-args`` lists them):
+
+- ``namespace`` (default empty): every node, topic and private service lives under it
+  (``/robot1/belief``, ``/robot1/belief_node/reset``); the shipped configs use
+  ``/**/node:`` keys, so they apply in any namespace.
+- ``use_fake_room`` (default false): add fake_audio_node, a simulated room, and listen to
+  it; ``fake_room`` is its old name, still accepted with a deprecation line.
+- ``realtime`` (default true): the fake room plays at the speed of the room (one 0.5 s
+  window per 0.5 s); false runs lockstep, as fast as the graph answers.
+- ``room_seed`` (default empty = fake_room_file's): the simulated room's seed.
+- ``log_level`` (default info): debug, info, warn, error or fatal, for every node.
+- ``params_file`` (default: the installed config/robot.yaml) is read by every node;
+  ``fake_room_file`` (default config/fake_room.yaml) by mic_node and fake_audio_node
+  with the fake room.
+- ``record`` (default false) / ``record_dir``: true adds this package's recorder_node
+  with parameter ``directory`` = ``record_dir``.
+
+A node that exits with an error ends the whole launch with a final line naming it.
+``multi_robot.launch.py`` starts several robots against several simulated rooms;
+``bringup`` runs the same graph in one process.
 """
 
-from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition, UnlessCondition
+import os
+
+from launch.actions import (
+    DeclareLaunchArgument,
+    EmitEvent,
+    LogInfo,
+    OpaqueFunction,
+    RegisterEventHandler,
+)
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
-from launch import LaunchDescription
+from launch import LaunchContext, LaunchDescription
 
 PACKAGE = "infomax_contingency"
 
+GRAPH_NODES = ("controller_node", "belief_node", "posture_node", "speaker_node")
+"""Nodes that read only ``params_file``; mic_node (and the fake room) are added apart."""
 
-def generate_launch_description() -> LaunchDescription:
-    share = FindPackageShare(PACKAGE)
+TRUE_WORDS = ("true", "1", "yes", "on")
+
+
+def _is_true(context: LaunchContext, name: str) -> bool:
+    return LaunchConfiguration(name).perform(context).strip().lower() in TRUE_WORDS
+
+
+class _ExitWatch:
+    """Counts the graph's node processes that ended; remembers the first failure."""
+
+    def __init__(self) -> None:
+        self.started = 0
+        self.exited = 0
+        self.failure = ""
+
+    def on_exit(self, event, context: LaunchContext) -> list:
+        """A node that exits with an error ends the launch; the last exit says why."""
+        self.exited += 1
+        actions: list = []
+        # -2 / -15 / 130 / 143: interrupted, because the launch is stopping (Ctrl-C).
+        failed = event.returncode not in (0, None, -2, -15, 130, 143)
+        if failed and not self.failure:
+            self.failure = f"{event.action.name} exited with status {event.returncode}"
+            actions.append(
+                LogInfo(msg=f"{self.failure}: stopping the whole launch (its error is above)")
+            )
+            if not context.is_shutdown:
+                actions.append(EmitEvent(event=Shutdown(reason=self.failure)))
+        if self.failure and self.exited >= self.started:
+            actions.append(LogInfo(msg=f"launch stopped: {self.failure} (its error is above)"))
+        return actions
+
+
+_WATCH = _ExitWatch()
+
+
+def _graph(context: LaunchContext) -> list:
+    """The nodes, chosen by the launch arguments (evaluated once the arguments are known)."""
     params_file = LaunchConfiguration("params_file")
     fake_room_file = LaunchConfiguration("fake_room_file")
-    fake_room = LaunchConfiguration("fake_room")
+    namespace = LaunchConfiguration("namespace")
+    log_level = LaunchConfiguration("log_level")
+    actions: list = []
+    fake_room = _is_true(context, "use_fake_room")
+    if _is_true(context, "fake_room"):
+        actions.append(
+            LogInfo(msg="fake_room:=true is deprecated; use use_fake_room:=true (same effect)")
+        )
+        fake_room = True
+    realtime = _is_true(context, "realtime")
+    files = ["params_file"] + (["fake_room_file"] if fake_room else [])
+    for argument in files:
+        path = LaunchConfiguration(argument).perform(context)
+        if not os.path.isfile(path):
+            reason = f"{argument}:={path} is not a file: give a ROS parameter file (YAML)"
+            return [
+                LogInfo(msg=f"launch stopped: {reason}"),
+                EmitEvent(event=Shutdown(reason=reason)),
+            ]
 
-    def node(executable: str, parameters: list, condition=None) -> Node:
+    def node(executable: str, parameters: list) -> Node:
         return Node(
             package=PACKAGE,
             executable=executable,
             name=executable,
+            namespace=namespace,
             parameters=parameters,
+            arguments=["--ros-args", "--log-level", log_level],
             output="screen",
             emulate_tty=True,
-            condition=condition,
         )
 
+    if fake_room:
+        # Lockstep on request; paced at the room's speed (speed 1.0) by default.
+        pacing = {"lockstep": not realtime}
+        room = dict(pacing)
+        seed = LaunchConfiguration("room_seed").perform(context).strip()
+        if seed:
+            room["seed"] = int(seed)
+        actions.append(node("mic_node", [params_file, fake_room_file, pacing]))
+        actions.append(node("fake_audio_node", [params_file, fake_room_file, room]))
+    else:
+        actions.append(node("mic_node", [params_file]))
+    actions += [node(name, [params_file]) for name in GRAPH_NODES]
+    if _is_true(context, "record"):
+        directory = LaunchConfiguration("record_dir")
+        actions.append(node("recorder_node", [params_file, {"directory": directory}]))
+    _WATCH.started = len([a for a in actions if isinstance(a, Node)])
+    return actions
+
+
+def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
+    """The arguments of this launch file (also used by multi_robot.launch.py)."""
+    return [
+        DeclareLaunchArgument("namespace", default_value="", description="namespace of the robot"),
+        DeclareLaunchArgument(
+            "params_file",
+            default_value=PathJoinSubstitution([share, "config", "robot.yaml"]),
+            description="ROS parameter file read by every node",
+        ),
+        DeclareLaunchArgument(
+            "use_fake_room",
+            default_value="false",
+            description="true: add fake_audio_node, a simulated room, and listen to it",
+        ),
+        DeclareLaunchArgument(
+            "fake_room", default_value="false", description="deprecated name of use_fake_room"
+        ),
+        DeclareLaunchArgument(
+            "fake_room_file",
+            default_value=PathJoinSubstitution([share, "config", "fake_room.yaml"]),
+            description="parameters of the simulated room (with use_fake_room:=true)",
+        ),
+        DeclareLaunchArgument(
+            "realtime",
+            default_value="true",
+            description="fake room: true = at the room's speed, false = lockstep, as fast as"
+            " the graph answers",
+        ),
+        DeclareLaunchArgument(
+            "room_seed",
+            default_value="",
+            description="fake room: seed of the room; empty = the one of fake_room_file",
+        ),
+        DeclareLaunchArgument(
+            "log_level",
+            default_value="info",
+            choices=["debug", "info", "warn", "error", "fatal"],
+            description="log level of every node",
+        ),
+        DeclareLaunchArgument(
+            "record", default_value="false", description="true: add recorder_node"
+        ),
+        DeclareLaunchArgument(
+            "record_dir",
+            default_value="sessions",
+            description="directory of recorder_node (with record:=true)",
+        ),
+    ]
+
+
+def generate_launch_description() -> LaunchDescription:
+    """The graph of one robot, in ``namespace``."""
+    share = FindPackageShare(PACKAGE)
     return LaunchDescription(
         [
-            DeclareLaunchArgument(
-                "params_file",
-                default_value=PathJoinSubstitution([share, "config", "robot.yaml"]),
-                description="ROS parameter file read by every node",
-            ),
-            DeclareLaunchArgument(
-                "fake_room",
-                default_value="false",
-                description="true: add fake_audio_node, a simulated room, and listen to it",
-            ),
-            DeclareLaunchArgument(
-                "fake_room_file",
-                default_value=PathJoinSubstitution([share, "config", "fake_room.yaml"]),
-                description="parameters of the simulated room (with fake_room:=true)",
-            ),
-            node("mic_node", [params_file], UnlessCondition(fake_room)),
-            node("mic_node", [params_file, fake_room_file], IfCondition(fake_room)),
-            node("fake_audio_node", [params_file, fake_room_file], IfCondition(fake_room)),
-            node("controller_node", [params_file]),
-            node("belief_node", [params_file]),
-            node("posture_node", [params_file]),
-            node("speaker_node", [params_file]),
+            *launch_arguments(share),
+            RegisterEventHandler(OnProcessExit(on_exit=_WATCH.on_exit)),
+            OpaqueFunction(function=_graph),
         ]
     )

@@ -131,7 +131,7 @@ def test_belief_node_killed_and_restarted_publishes_again(
 
     # From a reset on, the new node's beliefs are an offline run of the statistic over
     # the bits and decisions of the steps since the reset: it pairs them correctly.
-    client = rec.create_client(Trigger, "reset")
+    client = rec.create_client(Trigger, "/belief_node/reset")
     assert client.wait_for_service(timeout_sec=60.0)
     before_ns = time.time_ns()
     future = client.call_async(Trigger.Request())

@@ -254,8 +254,9 @@ def test_belief_reset_service_forgets_the_history(run: Callable) -> None:
     for b, d in zip(bits_of(STREAM, [1, 1, 1]), decisions_of(STREAM, [0, 0, 0]), strict=True):
         sound.publish(b)
         vocalize.publish(d)
-    graph.run_until(lambda: node.tracker.statistic.p3 > 0, "a counted bit")
-    client = probe.create_client(Trigger, "reset")
+    graph.run_until(lambda: len(beliefs) == 3, "the three beliefs")
+    assert node.tracker.statistic.p3 > 0
+    client = probe.create_client(Trigger, "/belief_node/reset")
     graph.run_until(client.service_is_ready, "the reset service")
     future = client.call_async(Trigger.Request())
     graph.run_until(future.done, "the reset answer")

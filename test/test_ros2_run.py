@@ -4,8 +4,10 @@
 ``<prefix>/lib/PKG/EXE``. The test builds the package with colcon into a temporary
 workspace, resolves three executables exactly that way, starts them with the install's
 Python path (as ``. install/setup.sh`` would), and reads ``belief`` from this process,
-as ``ros2 topic echo /belief`` would. The launch file cannot run here (ros2launch is not
-installable from PyPI), so it is checked statically.
+as ``ros2 topic echo /belief`` would. Then it starts two graphs in namespaces /robot1
+and /robot2 from the installed config/robot.yaml side by side and checks that robot2's
+beliefs equal those of the graph alone (no cross-talk). The launch file is checked statically here;
+test_launch.py runs it with the real ``ros2`` where that is on PATH.
 """
 
 from __future__ import annotations
@@ -13,14 +15,22 @@ from __future__ import annotations
 import ast
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import rclpy
+import yaml
 
-from infomax_contingency.testing.graph import GraphProcesses, SpinThread, StepRecorder, start_graph
+from infomax_contingency.testing.graph import (
+    GraphProcesses,
+    SpinThread,
+    StepRecorder,
+    start_graph,
+    wait_until,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 PKG = "infomax_contingency"
@@ -86,6 +96,52 @@ def test_ros2_run_layout_runs_the_graph(tmp_path: Path, monkeypatch: pytest.Monk
     # The nodes ran the installed code and found the installed data files.
     share = prefix / "share" / PKG
     assert f"policy {share}/policies/robot_receding_H24_M60.npz" in processes.log("controller_node")
+    beside = two_namespaced_graphs(tmp_path / "two", env, prefix, steps)
+    assert beside == recorder.belief  # robot2 beside robot1 equals the graph alone
+
+
+def two_namespaced_graphs(workdir: Path, env: dict, prefix: Path, steps: int) -> list[float]:
+    """Graphs /robot1 and /robot2 from the installed config/robot.yaml; robot2's beliefs."""
+    workdir.mkdir()
+    config = prefix / "share" / PKG / "config" / "robot.yaml"
+    overrides = {
+        "mic_node": {"source": "wav", "wav_file": str(WAV), "exit_at_end": True},
+        "belief_node": {"memory_steps": 0},
+    }
+    processes: list[subprocess.Popen] = []
+    rclpy.init()
+    recorder = StepRecorder("robot2_echo", namespace="robot2")
+    try:
+        with SpinThread(recorder):
+            for robot, listeners in (("robot1", 2), ("robot2", 3)):
+                for node in ("controller_node", "belief_node", "mic_node"):
+                    command = [str(prefix / "lib" / PKG / node), "--ros-args", "-r"]
+                    command += [f"__ns:=/{robot}", "--params-file", str(config)]
+                    values = dict(overrides.get(node, {}))
+                    if node == "mic_node":
+                        values["wait_for_listeners"] = listeners
+                    # A later file's /**/node: section overrides the installed config's.
+                    path = workdir / f"{robot}.{node}.yaml"
+                    path.write_text(yaml.safe_dump({f"/**/{node}": {"ros__parameters": values}}))
+                    command += ["--params-file", str(path)]
+                    log = (workdir / f"{robot}.{node}.log").open("wb")
+                    processes.append(
+                        subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
+                    )
+            mics = [p for p in processes if p.args[0].endswith("mic_node")]
+            for mic in mics:
+                assert mic.wait(timeout=120) == 0, sorted(p.name for p in workdir.iterdir())
+            assert wait_until(lambda: len(recorder.belief) >= steps, 30.0), "robot2: beliefs"
+    finally:
+        for process in processes:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        for process in processes:
+            process.wait(timeout=30)
+        recorder.destroy_node()
+        rclpy.try_shutdown()
+    assert len(recorder.sound_step) == steps
+    return list(recorder.belief)
 
 
 def test_launch_file_starts_the_installed_executables_with_installed_config() -> None:
@@ -94,23 +150,12 @@ def test_launch_file_starts_the_installed_executables_with_installed_config() ->
     compile(tree, str(path), "exec")
     functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert "generate_launch_description" in functions
-    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)]
-    started = {
-        call.args[0].value
-        for call in calls
-        if getattr(call.func, "id", None) == "node" and isinstance(call.args[0], ast.Constant)
-    }
-    assert started == {
-        "mic_node",
-        "fake_audio_node",
-        "controller_node",
-        "belief_node",
-        "posture_node",
-        "speaker_node",
-    }
-    setup = (ROOT / "setup.py").read_text()
-    for executable in started:
-        assert f'"{executable} = {PKG}.nodes.{executable}:main"' in setup
     strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
+    started = {s for s in strings if isinstance(s, str) and s.endswith("_node") and " " not in s}
+    graph = {"mic_node", "fake_audio_node", "controller_node", "belief_node", "posture_node"}
+    assert started - {"recorder_node"} == graph | {"speaker_node"}
+    setup = (ROOT / "setup.py").read_text()
+    for executable in started - {"recorder_node"}:  # recorder_node: only with record:=true
+        assert f'"{executable} = {PKG}.nodes.{executable}:main"' in setup
     for config in ("robot.yaml", "fake_room.yaml"):
         assert config in strings and (ROOT / "config" / config).is_file()

@@ -24,7 +24,8 @@ diagnostics and logged.
 
 Subscribes ``sound_step``, ``vocalize_step`` (std_msgs/Int64MultiArray, see
 :mod:`~infomax_contingency.nodes.step_topics`); publishes ``belief`` (Float64) and
-``/diagnostics``; service ``reset`` (std_srvs/Trigger) forgets the history.
+``/diagnostics``; private service ``~/reset`` (std_srvs/Trigger, e.g.
+``/belief_node/reset`` or ``/robot1/belief_node/reset``) forgets the history.
 """
 
 from __future__ import annotations
@@ -82,8 +83,9 @@ class BeliefNode(GraphNode):
             )
         memory = read.integer(
             "memory_steps",
-            0,
-            "Counted observations the statistic keeps (a sliding memory); 0 = whole history",
+            60,
+            "Counted observations the statistic keeps (a sliding memory, as the robot"
+            " table's M = 60 in config/robot.yaml); 0 = whole history",
             0,
             1_000_000,
         )
@@ -116,7 +118,7 @@ class BeliefNode(GraphNode):
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
         self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS)
-        self.create_service(Trigger, "reset", self._on_reset)
+        self.create_service(Trigger, "~/reset", self._on_reset)
         self.start_diagnostics()
 
     # ------------------------------------------------------------------ messages

@@ -108,6 +108,9 @@ class ControllerNode(GraphNode):
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
+        self.wait_visibly(
+            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
+        )
         self.start_diagnostics()
         self.get_logger().info(
             f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"

@@ -101,10 +101,11 @@ class FakeAudioNode(GraphNode):
         timeout_s = read.number(
             "lockstep_timeout_s",
             2.0,
-            "Publish the next window anyway after this long",
+            "Publish the next window anyway after this long (live)",
             0.01,
             3600.0,
             "s",
+            read_only=False,
         )
         speed = read.number(
             "speed", 1.0, "Real-time pacing factor (2 = twice as fast)", 0.01, 1000.0
@@ -142,6 +143,7 @@ class FakeAudioNode(GraphNode):
             self.get_logger().warning(f"room timing vs model parameters: {warning}")
         self.room = FakeRoom(config, seed)
         self.pacer = LockstepPacer(timeout_s) if lockstep else None
+        self.parameters.live("lockstep_timeout_s", self._set_lockstep_timeout)
         self.period_s = config.window_s / speed
         self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", STREAM_QOS)
@@ -230,6 +232,11 @@ class FakeAudioNode(GraphNode):
             self.pacer.sent(time.monotonic())
         self.audio_pub.publish(message)
         self.truth_pub.publish(Bool(data=window.partner_present))
+
+    def _set_lockstep_timeout(self, timeout_s: float) -> None:
+        """The lockstep timeout (seconds) from the next window on; no effect unpaced."""
+        if self.pacer is not None:
+            self.pacer.timeout_s = timeout_s
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Windows, vocalizations heard, replies, events, lockstep timeouts."""

@@ -4,6 +4,11 @@ Diagnostics: each node publishes a ``diagnostic_msgs/DiagnosticArray`` on
 ``/diagnostics`` about once a second, built directly (no diagnostic_updater). A fault
 that is over returns the status to OK; its count stays among the values.
 
+Waiting is visible: a node that waits for an input (mic_node for ``audio``,
+controller_node for ``sound_step``) calls :meth:`GraphNode.wait_visibly`; when nothing
+has arrived after :data:`WAITING_NOTICE_S` seconds it logs once what it waits for and
+how to provide it, and its diagnostics say WARN "waiting for ..." until it arrives.
+
 Intruders: a node that listens to a topic with one rightful publisher (``sound`` and
 ``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
 the publishers on it (:meth:`GraphNode.extra_publishers`) and reports a second one by
@@ -44,6 +49,9 @@ _STALLED_WARNING_S = 5.0
 _INTRUDER_WARNING_S = 5.0
 """Seconds between warnings about the same kind of intrusion."""
 
+WAITING_NOTICE_S = 5.0
+"""Seconds without an awaited input before a node says what it waits for."""
+
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
@@ -63,6 +71,11 @@ class GraphNode(Node):
         """Messages ignored because they were published before this node started."""
         self.parameters = ParameterReader(self)
         self.finished: Future = Future()
+        self.arrivals: dict[str, int] = {}
+        """Messages received per topic (as subscribed, relative names)."""
+        self.waiting_for = ""
+        """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
+        self._awaited: list[tuple[str, str]] = []
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
 
     def subscribe(
@@ -80,6 +93,7 @@ class GraphNode(Node):
         """
 
         def receive(msg: Any, info: dict[str, Any]) -> None:
+            self.count_arrival(topic)
             stamp = int(info.get("source_timestamp", 0))
             if 0 < stamp < self.started_ns:
                 self.stale_messages += 1
@@ -144,6 +158,34 @@ class GraphNode(Node):
 
         gate = self.create_timer(_GATE_POLL_S, poll)
 
+    def count_arrival(self, topic: str) -> None:
+        """Count one message received on ``topic`` (done by :meth:`subscribe`)."""
+        self.arrivals[topic] = self.arrivals.get(topic, 0) + 1
+
+    def wait_visibly(self, topic: str, hint: str) -> None:
+        """Say so when nothing arrives on ``topic`` within :data:`WAITING_NOTICE_S` s.
+
+        ``hint`` tells how to provide it (e.g. which node publishes it). Checked about
+        once a second by :meth:`check_waiting`.
+        """
+        self._awaited.append((topic, hint))
+        started_s = self.now_s()
+        self.create_timer(1.0, lambda: self.check_waiting(self.now_s() - started_s))
+
+    def check_waiting(self, waited_s: float) -> str:
+        """After ``waited_s`` seconds: what is still awaited (logged once per topic)."""
+        missing = [(t, h) for t, h in self._awaited if not self.arrivals.get(t)]
+        if waited_s < WAITING_NOTICE_S or not missing:
+            self.waiting_for = ""
+            return ""
+        waiting = "; ".join(
+            f"waiting for '{self.resolve_topic_name(topic)}' ({hint})" for topic, hint in missing
+        )
+        if waiting != self.waiting_for:
+            self.get_logger().warning(f"nothing received after {waited_s:.0f} s: {waiting}")
+        self.waiting_for = waiting
+        return waiting
+
     def now_s(self) -> float:
         """Monotonic seconds (the clock of the step-clock bookkeeping)."""
         return time.monotonic()
@@ -192,6 +234,10 @@ class GraphNode(Node):
     def publish_diagnostics(self) -> None:
         """Publish one DiagnosticArray with this node's status."""
         level, message, values = self.diagnostic_status()
+        if self.waiting_for and level == OK:
+            level, message = WARN, self.waiting_for
+        elif self.waiting_for and level == WARN:
+            message = f"{message}; {self.waiting_for}"
         status = DiagnosticStatus(
             level=level,
             name=f"{self.get_name()}: {type(self).__doc__.splitlines()[0].rstrip('.')}",

@@ -137,7 +137,13 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             "threshold_mode", "calibrate", "How the sound threshold is set", THRESHOLD_MODES
         ),
         "threshold_db": read.number(
-            "threshold_db", -40.0, "Fixed threshold (threshold_mode fixed)", -150.0, 0.0, "dB"
+            "threshold_db",
+            -40.0,
+            "Fixed threshold (threshold_mode fixed; live)",
+            -150.0,
+            0.0,
+            "dB",
+            read_only=False,
         ),
         "threshold_file": read.text(
             "threshold_file", "", "Threshold file written by calibration (threshold_mode file)"
@@ -287,6 +293,7 @@ class MicNode(GraphNode):
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
         self.binarizer = make_binarizer(config, self._calibration_refused)
+        self.parameters.live("threshold_db", self._set_threshold, self._check_fixed_threshold)
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
@@ -332,6 +339,10 @@ class MicNode(GraphNode):
         self.get_logger().info(f"stream id {self.stream_id}")
         self.start_diagnostics()
 
+    def _on_audio_message(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
+        self.count_arrival("audio")
+        self._on_audio(msg, info)
+
     def _calibration_refused(self, message: str) -> None:
         self.get_logger().warning(message)
 
@@ -360,7 +371,13 @@ class MicNode(GraphNode):
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
         self._last_sequence: int | None = None
-        self.create_subscription(Float32MultiArray, "audio", self._on_audio, STREAM_QOS)
+        self.create_subscription(Float32MultiArray, "audio", self._on_audio_message, STREAM_QOS)
+        self.wait_visibly(
+            "audio",
+            f"std_msgs/Float32MultiArray, mono samples at {rate} Hz: start an audio"
+            " driver or fake_audio_node (launch use_fake_room:=true), or set source to wav or"
+            " sounddevice",
+        )
 
     def _setup_microphone(self, device: str, channel: int, queue_s: float) -> None:
         try:
@@ -558,6 +575,19 @@ class MicNode(GraphNode):
         for topic, names in self._intruders.items():
             self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
         super().publish_diagnostics()
+
+    def _check_fixed_threshold(self, value: float) -> None:
+        """A live ``threshold_db`` needs ``threshold_mode`` fixed (else it would be ignored)."""
+        mode = self.get_parameter("threshold_mode").value
+        if mode != "fixed":
+            raise ConfigError(
+                f"parameter 'threshold_db' = {value!r} has no effect with threshold_mode"
+                f" {mode!r}: start mic_node with threshold_mode fixed to set it live"
+            )
+
+    def _set_threshold(self, value: float) -> None:
+        """The next window's bit uses the threshold ``value`` (dB full scale)."""
+        self.binarizer.threshold_db = value
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""

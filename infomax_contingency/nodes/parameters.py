@@ -8,13 +8,20 @@ for a floating-point parameter (``-p window_s:=1``) is accepted.
 
 from __future__ import annotations
 
+import array
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from infomax_contingency.core.model import ModelParams, ParameterError
 
@@ -32,6 +39,49 @@ class ParameterReader:
 
     def __init__(self, node: Node) -> None:
         self._node = node
+        self._coercers: dict[str, Callable[[Any], Any]] = {}
+        self._appliers: dict[str, Callable[[Any], None]] = {}
+        self._checks: dict[str, Callable[[Any], None]] = {}
+        node.add_on_set_parameters_callback(self._on_set)
+
+    def live(
+        self,
+        name: str,
+        on_change: Callable[[Any], None],
+        check: Callable[[Any], None] | None = None,
+    ) -> None:
+        """Let the declared parameter ``name`` change at run time through ``on_change``.
+
+        Only for parameters declared with ``read_only=False``. ``check(value)`` (optional)
+        raises :class:`ConfigError` for a value that its start-up rule allows but the
+        node's other parameters do not (the same message as at start-up).
+        """
+        self._appliers[name] = on_change
+        if check is not None:
+            self._checks[name] = check
+
+    def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Check every parameter of a set by its start-up rule; apply and log them all."""
+        values = {}
+        for parameter in parameters:
+            coerce = self._coercers.get(parameter.name)
+            if coerce is None:  # being declared, or not one of ours (use_sim_time)
+                continue
+            if parameter.name not in self._appliers:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"parameter '{parameter.name}' is read-only while the node runs;"
+                    " restart the node to change it",
+                )
+            try:
+                values[parameter.name] = coerce(parameter.value)
+                self._checks.get(parameter.name, lambda _value: None)(values[parameter.name])
+            except ConfigError as error:
+                return SetParametersResult(successful=False, reason=str(error))
+        for name, value in values.items():
+            self._appliers[name](value)
+            self._node.get_logger().info(f"parameter '{name}' set to {value!r}")
+        return SetParametersResult(successful=True)
 
     def _declare(
         self,
@@ -42,6 +92,18 @@ class ParameterReader:
         allowed: str,
     ) -> Any:
         """Declare; on a value ROS refuses (type or range), explain it as a ConfigError."""
+        value = self._declare_checked(name, default, descriptor, coerce, allowed)
+        self._coercers[name] = coerce
+        return value
+
+    def _declare_checked(
+        self,
+        name: str,
+        default: Any,
+        descriptor: ParameterDescriptor,
+        coerce: Callable[[Any], Any],
+        allowed: str,
+    ) -> Any:
         descriptor.name = name
         descriptor.additional_constraints = allowed
         try:
@@ -66,6 +128,7 @@ class ParameterReader:
         low: float,
         high: float,
         unit: str = "",
+        read_only: bool = True,
     ) -> float:
         """A floating-point parameter in ``[low, high]``."""
         allowed = _range_text(low, high, unit)
@@ -80,11 +143,20 @@ class ParameterReader:
 
         descriptor = ParameterDescriptor(
             description=description,
+            read_only=read_only,
             floating_point_range=[FloatingPointRange(from_value=low, to_value=high, step=0.0)],
         )
         return self._declare(name, float(default), descriptor, coerce, allowed)
 
-    def integer(self, name: str, default: int, description: str, low: int, high: int) -> int:
+    def integer(
+        self,
+        name: str,
+        default: int,
+        description: str,
+        low: int,
+        high: int,
+        read_only: bool = True,
+    ) -> int:
         """An integer parameter in ``[low, high]``."""
         allowed = f"a whole number in [{low}, {high}]"
 
@@ -95,11 +167,14 @@ class ParameterReader:
 
         descriptor = ParameterDescriptor(
             description=description,
+            read_only=read_only,
             integer_range=[IntegerRange(from_value=low, to_value=high, step=1)],
         )
         return self._declare(name, int(default), descriptor, coerce, allowed)
 
-    def flag(self, name: str, default: bool, description: str) -> bool:
+    def flag(
+        self, name: str, default: bool, description: str, read_only: bool = True
+    ) -> bool:
         """A boolean parameter."""
         allowed = "true or false"
 
@@ -109,11 +184,20 @@ class ParameterReader:
             return raw
 
         return self._declare(
-            name, bool(default), ParameterDescriptor(description=description), coerce, allowed
+            name,
+            bool(default),
+            ParameterDescriptor(description=description, read_only=read_only),
+            coerce,
+            allowed,
         )
 
     def text(
-        self, name: str, default: str, description: str, choices: Sequence[str] | None = None
+        self,
+        name: str,
+        default: str,
+        description: str,
+        choices: Sequence[str] | None = None,
+        read_only: bool = True,
     ) -> str:
         """A string parameter, optionally one of ``choices``."""
         allowed = f"one of {', '.join(choices)}" if choices else "a string"
@@ -124,10 +208,16 @@ class ParameterReader:
             return raw
 
         return self._declare(
-            name, str(default), ParameterDescriptor(description=description), coerce, allowed
+            name,
+            str(default),
+            ParameterDescriptor(description=description, read_only=read_only),
+            coerce,
+            allowed,
         )
 
-    def texts(self, name: str, default: Sequence[str], description: str) -> list[str]:
+    def texts(
+        self, name: str, default: Sequence[str], description: str, read_only: bool = True
+    ) -> list[str]:
         """A non-empty list of strings."""
         allowed = "a non-empty list of strings"
 
@@ -139,15 +229,22 @@ class ParameterReader:
             return list(raw)
 
         return self._declare(
-            name, list(default), ParameterDescriptor(description=description), coerce, allowed
+            name,
+            list(default),
+            ParameterDescriptor(description=description, read_only=read_only),
+            coerce,
+            allowed,
         )
 
-    def numbers(self, name: str, default: Sequence[float], description: str) -> list[float]:
+    def numbers(
+        self, name: str, default: Sequence[float], description: str, read_only: bool = True
+    ) -> list[float]:
         """A non-empty list of finite numbers."""
         allowed = "a non-empty list of finite numbers"
 
         def coerce(raw: Any) -> list[float]:
-            if not isinstance(raw, list | tuple) or not raw:
+            # A set through the parameter services hands a double array as array('d').
+            if not isinstance(raw, list | tuple | array.array) or not raw:
                 raise ConfigError(f"parameter '{name}' = {raw!r} is not allowed: {allowed}")
             if not all(
                 isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
@@ -159,7 +256,7 @@ class ParameterReader:
         return self._declare(
             name,
             [float(v) for v in default],
-            ParameterDescriptor(description=description),
+            ParameterDescriptor(description=description, read_only=read_only),
             coerce,
             allowed,
         )
@@ -193,6 +290,7 @@ def device_parameter(node: Node, what: str) -> str:
         " (first match; `infomax-contingency devices` lists them)",
         additional_constraints=allowed,
         dynamic_typing=True,
+        read_only=True,
     )
     value = node.declare_parameter("device", "", descriptor).value
     if isinstance(value, bool) or not isinstance(value, int | str):

@@ -39,10 +39,20 @@ class PostureNode(GraphNode):
         super().__init__(self.NODE_NAME, **kwargs)
         read = self.parameters
         attentive_above = read.number(
-            "attentive_above", 0.9, "Turn attentive when the belief rises above this", 0.0, 1.0
+            "attentive_above",
+            0.9,
+            "Turn attentive when the belief rises above this (live)",
+            0.0,
+            1.0,
+            read_only=False,
         )
         bored_below = read.number(
-            "bored_below", 0.2, "Turn bored when the belief falls below this", 0.0, 1.0
+            "bored_below",
+            0.2,
+            "Turn bored when the belief falls below this (live)",
+            0.0,
+            1.0,
+            read_only=False,
         )
         initial = read.text("initial_posture", BORED, "Posture at start-up", POSTURES)
         self.joint_names = read.texts(
@@ -50,27 +60,27 @@ class PostureNode(GraphNode):
         )
         self.positions = {
             ATTENTIVE: read.numbers(
-                "attentive_positions", DEFAULT_ATTENTIVE, "Joint positions when attentive (rad)"
+                "attentive_positions",
+                DEFAULT_ATTENTIVE,
+                "Joint positions when attentive (rad, live)",
+                read_only=False,
             ),
             BORED: read.numbers(
-                "bored_positions", DEFAULT_BORED, "Joint positions when bored (rad)"
+                "bored_positions",
+                DEFAULT_BORED,
+                "Joint positions when bored (rad, live)",
+                read_only=False,
             ),
         }
         self.move_duration_s = read.number(
-            "move_duration_s", 1.0, "Time to reach a new posture", 0.0, 60.0, "s"
+            "move_duration_s", 1.0, "Time to reach a new posture (live)", 0.0, 60.0, "s",
+            read_only=False,
         )
         for posture, positions in self.positions.items():
-            if len(positions) != len(self.joint_names):
-                raise ConfigError(
-                    f"parameter '{posture}_positions' = {positions}: must hold one position per"
-                    f" joint in 'joint_names' ({len(self.joint_names)}: {self.joint_names})"
-                )
-        if not bored_below < attentive_above:
-            raise ConfigError(
-                f"parameter 'bored_below' = {bored_below}: must be below 'attentive_above'"
-                f" (= {attentive_above}), or the posture could not change back"
-            )
+            self._check_positions(posture, positions)
+        _check_thresholds(attentive_above, bored_below)
         self.hysteresis = PostureHysteresis(attentive_above, bored_below, initial)
+        self._make_live()
         self.changes = 0
         self.belief = float("nan")
         self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
@@ -78,6 +88,41 @@ class PostureNode(GraphNode):
         self.subscribe(Float64, "belief", self._on_belief)
         self._publish(initial)
         self.start_diagnostics()
+
+    def _check_positions(self, posture: str, positions: list[float]) -> None:
+        if len(positions) != len(self.joint_names):
+            raise ConfigError(
+                f"parameter '{posture}_positions' = {positions}: must hold one position per"
+                f" joint in 'joint_names' ({len(self.joint_names)}: {self.joint_names})"
+            )
+
+    def _make_live(self) -> None:
+        """Thresholds, joint targets and move time change at once on ``ros2 param set``."""
+        read, rule = self.parameters, self.hysteresis
+
+        def set_positions(posture: str) -> None:
+            def apply(value: list[float]) -> None:
+                self.positions[posture] = value
+                if rule.posture == posture:
+                    self._publish(posture)
+
+            read.live(
+                f"{posture}_positions", apply, lambda value: self._check_positions(posture, value)
+            )
+
+        read.live(
+            "attentive_above",
+            lambda value: setattr(rule, "attentive_above", value),
+            lambda value: _check_thresholds(value, rule.bored_below),
+        )
+        read.live(
+            "bored_below",
+            lambda value: setattr(rule, "bored_below", value),
+            lambda value: _check_thresholds(rule.attentive_above, value),
+        )
+        set_positions(ATTENTIVE)
+        set_positions(BORED)
+        read.live("move_duration_s", lambda value: setattr(self, "move_duration_s", value))
 
     def _on_belief(self, msg: Float64, stamp: int) -> None:
         self.belief = msg.data
@@ -108,6 +153,15 @@ class PostureNode(GraphNode):
             OK,
             self.hysteresis.posture,
             {"posture": self.hysteresis.posture, "belief": self.belief, "changes": self.changes},
+        )
+
+
+def _check_thresholds(attentive_above: float, bored_below: float) -> None:
+    """Refuse thresholds that would keep the posture from changing back."""
+    if not bored_below < attentive_above:
+        raise ConfigError(
+            f"parameter 'bored_below' = {bored_below}: must be below 'attentive_above'"
+            f" (= {attentive_above}), or the posture could not change back"
         )
 
 

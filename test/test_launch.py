@@ -1,0 +1,208 @@
+"""The launch files and the parameter services through the real ``ros2`` command line.
+
+These tests run where ``ros2`` (ros2cli, launch, launch_ros) is on PATH: a real ROS 2
+install, or the venv that ``../shared/tools/ros2cli/setup.sh`` builds (``make test`` puts
+it on PATH when ``.ci/run`` built it). Elsewhere they skip with a one-line reason. The
+package is built with colcon once per module; each command runs as a user's shell would,
+after ``. install/setup.sh``.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import rclpy
+import yaml
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from infomax_contingency.testing.graph import SpinThread, StepRecorder
+from test_ros2_run import colcon_build
+
+ROOT = Path(__file__).resolve().parent.parent
+ROS2 = shutil.which("ros2")
+pytestmark = pytest.mark.skipif(
+    ROS2 is None, reason="ros2 is not on PATH (build it: ../shared/tools/ros2cli/setup.sh DIR)"
+)
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A colcon build of the package; returns the workspace."""
+    workspace = tmp_path_factory.mktemp("ws")
+    colcon_build(workspace)
+    return workspace
+
+
+def shell(workspace: Path, command: str) -> list[str]:
+    """``command`` in bash after the ros2 CLI's environment and ``. install/setup.sh``."""
+    prefix = Path(ROS2).resolve().parent.parent
+    env_script = prefix / "ros2-env.sh"
+    setup = f". {shlex.quote(str(env_script))} && " if env_script.is_file() else ""
+    setup += f". {shlex.quote(str(workspace / 'install' / 'setup.sh'))} && "
+    return ["bash", "-c", setup + "exec " + command]
+
+
+def ros2(workspace: Path, arguments: str, timeout_s: float = 60.0) -> str:
+    """Run ``ros2 ARGUMENTS`` to its end; its output (stdout and stderr)."""
+    result = subprocess.run(
+        shell(workspace, "ros2 " + arguments),
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )
+    return result.stdout + result.stderr
+
+
+class Launch:
+    """``ros2 launch`` in its own process group, its output collected in a file."""
+
+    def __init__(self, workspace: Path, arguments: str) -> None:
+        self.log = workspace / f"launch-{time.monotonic_ns()}.log"
+        self._file = self.log.open("w")
+        self.process = subprocess.Popen(
+            shell(workspace, "ros2 launch infomax_contingency " + arguments),
+            stdout=self._file,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+    def output(self) -> str:
+        return self.log.read_text()
+
+    def wait_for(self, text: str, timeout_s: float = 60.0) -> None:
+        """Wait until ``text`` appears in the output (polls the log file)."""
+        deadline = time.monotonic() + timeout_s
+        while text not in self.output():
+            assert self.process.poll() is None or text in self.output(), self.output()[-3000:]
+            assert time.monotonic() < deadline, f"no {text!r} in:\n{self.output()[-3000:]}"
+            time.sleep(0.2)  # polls the log file; the deadline above bounds it
+
+    def interrupt(self) -> int:
+        """Ctrl-C in a terminal: SIGINT to the whole process group, twice; the exit status."""
+        for _ in range(2):
+            os.killpg(self.process.pid, signal.SIGINT)
+            try:
+                return self.process.wait(timeout=1.0)
+            except subprocess.TimeoutExpired:
+                pass
+        return self.process.wait(timeout=30.0)
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGKILL)
+            self.process.wait()
+        self._file.close()
+
+
+@pytest.fixture
+def launch(workspace: Path) -> Iterator:
+    started: list[Launch] = []
+
+    def start(arguments: str) -> Launch:
+        started.append(Launch(workspace, arguments))
+        return started[-1]
+
+    yield start
+    for item in started:
+        item.close()
+
+
+@pytest.mark.slow
+def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path, launch) -> None:
+    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true")
+    graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
+    assert "real time x1" in graph.output()  # realtime:=true is the default
+    assert "data:" in ros2(workspace, "topic echo --once /robot7/belief std_msgs/msg/Float64")
+    answer = ros2(workspace, "param set /robot7/posture_node attentive_above 0.5")
+    assert "Set parameter successful" in answer
+    graph.wait_for("parameter 'attentive_above' set to 0.5")
+    answer = ros2(workspace, "param set /robot7/mic_node source wav")
+    assert "read-only" in answer
+    answer = ros2(workspace, "param set /robot7/posture_node bored_below 0.99")
+    assert "must be below 'attentive_above'" in answer
+    answer = ros2(workspace, "service call /robot7/belief_node/reset std_srvs/srv/Trigger")
+    assert "statistic reset after" in answer
+    assert graph.interrupt() == 0
+    assert "Traceback" not in graph.output()
+
+
+@pytest.mark.slow
+def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
+    workspace: Path, launch, tmp_path: Path
+) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
+    graph = launch(f"contingency.launch.py params_file:={bad}")
+    assert graph.process.wait(timeout=60) is not None
+    lines = graph.output().strip().splitlines()
+    assert "window_s" in graph.output() and "Traceback" not in graph.output()
+    assert lines[-1].endswith(
+        "launch stopped: mic_node-1 exited with status 2 (its error is above)"
+    )
+    graph = launch("contingency.launch.py params_file:=/nonexistent.yaml")
+    assert graph.process.wait(timeout=60) is not None
+    assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in graph.output()
+
+
+def record_robot2(graph_launcher, arguments: str, steps: int) -> tuple[list, list]:
+    """Launch ``arguments`` with a recorder on /robot2 from the start: (bits, beliefs)."""
+    rclpy.init()
+    keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    recorder = StepRecorder("robot2_echo", namespace="robot2", stream_qos=keep_all)
+    try:
+        with SpinThread(recorder):
+            graph = graph_launcher(arguments)
+            deadline = time.monotonic() + 90.0
+            while len(recorder.belief) < steps:
+                assert graph.process.poll() is None, graph.output()[-3000:]
+                assert time.monotonic() < deadline, graph.output()[-3000:]
+                time.sleep(0.1)  # polls the recorder; the deadline above bounds it
+            with recorder.lock:
+                bits = [(step, bit) for _stream, step, bit, _us in recorder.sound_step[:steps]]
+                beliefs = recorder.belief[:steps]
+            assert graph.interrupt() == 0
+            assert "Traceback" not in graph.output()
+    finally:
+        recorder.destroy_node()
+        rclpy.try_shutdown()
+    return bits, beliefs
+
+
+@pytest.mark.slow
+def test_two_robots_do_not_cross_talk(workspace: Path, launch, tmp_path: Path) -> None:
+    """The belief of robot2 alone equals that of robot2 beside robot1, step for step."""
+    steps = 40
+    # mic_node waits for this test's recorder too (a third listener of 'sound').
+    config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())
+    config["/**/mic_node"]["ros__parameters"]["wait_for_listeners"] = 3
+    params = tmp_path / "robot.yaml"
+    params.write_text(yaml.safe_dump(config))
+    lockstep = f"realtime:=false params_file:={params}"
+    beside = record_robot2(launch, f"multi_robot.launch.py robots:=2 {lockstep}", steps)
+    alone = record_robot2(
+        launch,
+        f"contingency.launch.py namespace:=robot2 use_fake_room:=true room_seed:=2 {lockstep}",
+        steps,
+    )
+    assert beside[0] == alone[0] and [step for step, _ in alone[0]] == list(range(1, steps + 1))
+    assert beside[1] == alone[1]
+
+
+@pytest.mark.slow
+def test_robots_in_namespaces_have_their_own_topics(workspace: Path, launch) -> None:
+    graph = launch("multi_robot.launch.py robots:=2 realtime:=false")
+    for robot in ("robot1", "robot2"):
+        graph.wait_for(f"[{robot}.mic_node]: listeners connected: starting the step clock")
+    assert "(seed 1), lockstep" in graph.output() and "(seed 2), lockstep" in graph.output()
+    for robot in ("robot1", "robot2"):
+        info = ros2(workspace, f"topic info --no-daemon --spin-time 3 /{robot}/sound_step -v")
+        assert info.count("Node name: mic_node") == 1 and f"/{robot}" in info, info
+    assert graph.interrupt() == 0
