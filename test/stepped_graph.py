@@ -71,12 +71,17 @@ def _parameters(values: dict[str, Any]) -> list[Parameter]:
 
 
 @contextmanager
-def stepped_graph(nodes: dict[str, dict[str, Any]], clock: str) -> Iterator[SteppedGraph]:
+def stepped_graph(
+    nodes: dict[str, dict[str, Any]], clock: str, parameter_files: tuple[str, ...] = ()
+) -> Iterator[SteppedGraph]:
     """The graph of ``nodes`` (name -> parameters) in this process, ``clock`` added last.
 
-    Initialises rclpy and shuts it down afterwards, whatever happens.
+    ``parameter_files``: ROS parameter files every node reads first (``--params-file``);
+    the parameters in ``nodes`` override them. Initialises rclpy and shuts it down
+    afterwards, whatever happens.
     """
-    rclpy.init()
+    files = [arg for path in parameter_files for arg in ("--params-file", str(path))]
+    rclpy.init(args=["--ros-args", *files] if files else None)
     executor = None
     try:
         recorder = StepRecorder()
