@@ -16,6 +16,7 @@ feeding plays a device that goes silent and comes back.
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import os
 import re
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 import pytest
 import rclpy
+import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Bool, Float32, Int64MultiArray
@@ -41,6 +43,7 @@ from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.audio.threshold import kmeans_threshold
 from infomax_contingency.audio.wav import write_wav_int16
+from infomax_contingency.core.model import ModelParams
 from infomax_contingency.nodes.step_topics import StepDecision, decision_message, parse_bit
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor, StepTimeoutError
 
@@ -324,6 +327,10 @@ def test_live_microphone_that_stalls_is_reopened_and_the_gap_stays_a_gap(
     before = noise(2.0, [(0.5, 1.0), (1.5, 2.0)], seed=1)  # 8 windows
     after = noise(3.0, [(0.5, 1.5), (2.5, 3.0)], seed=2)  # 12 windows
     expected = [bool(e > threshold) for e in window_energies_db(before, 16000, window_s)]
+    # short windows keep the test short; the mic refuses a window other than the model's dt
+    model = tmp_path / "model_dt025.yaml"
+    model.write_text(yaml.safe_dump({**dataclasses.asdict(ModelParams.named("robot")),
+                                     "dt": window_s}))  # fmt: skip
     alsa = VirtualAlsa(tmp_path / "alsa")
     fifo = alsa.fifo_microphone("fifomic")
     alsa.write(default_capture="fifomic")
@@ -336,7 +343,8 @@ def test_live_microphone_that_stalls_is_reopened_and_the_gap_stays_a_gap(
     try:
         mic = spawn(
             "mic_node",
-            mic_parameters(threshold, source="sounddevice", device="fifo", window_s=window_s),
+            mic_parameters(threshold, source="sounddevice", device="fifo", window_s=window_s,
+                           params=model),  # fmt: skip
             alsa.env(),
         )
         probe.wait_for(lambda: "at 16000 Hz, 1 channel" in mic.output(), "the microphone", mic)
