@@ -28,6 +28,10 @@ DEADLINE_S = 30.0
 """Seconds a scenario may wait for windows before it gives up (a guard, not a pace)."""
 
 
+SETTLE_S = 0.02
+"""Seconds the speaker scenario lets the output stream run before and after the chirp."""
+
+
 def _log_into(lines: list[str]) -> Callable[[Any, str], None]:
     return lambda level, message: lines.append(message)
 
@@ -92,9 +96,12 @@ def speaker(play: bool) -> dict:
 
     output = SpeakerOutput("fakespeaker", volume=0.5).start()
     events = []
+    # SETTLE_S: not yet replaced by a condition (a truncated chirp otherwise, under load)
     if play:
+        time.sleep(SETTLE_S)
         output.play()
         events = [dataclasses.asdict(e) for e in output.events(5.0)]
+    time.sleep(SETTLE_S)
     status = output.status().as_dict()
     output.close()
     return {"events": events, "status": status}
