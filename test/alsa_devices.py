@@ -1,7 +1,8 @@
 """Hermetic virtual ALSA devices for tests of the real sounddevice -> PortAudio -> ALSA path.
 
 Each test writes its own ALSA configuration into a temporary directory and runs the code
-under test in a **subprocess** with ``ALSA_CONFIG_PATH`` pointing at it: PortAudio reads
+under test in a **subprocess** (a scenario of ``child_alsa.py``) with ``ALSA_CONFIG_PATH``
+pointing at it: PortAudio reads
 the ALSA configuration when it initializes (at ``import sounddevice``), so a fresh process
 per configuration is needed, and no user or system configuration is read or touched.
 
@@ -32,12 +33,15 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from infomax_contingency.audio.wav import read_wav
 
 ROOT = Path(__file__).resolve().parent.parent
+CHILD = Path(__file__).resolve().parent / "child_alsa.py"
+"""The child process that runs each scenario (see its module docstring)."""
 
 
 def _q(path: Path) -> str:
@@ -93,7 +97,7 @@ class VirtualAlsa:
         return self.microphone(name, samples, rate=rate, **kwargs)
 
     def fifo_microphone(self, name: str) -> Path:
-        """A microphone reading float32 samples from a named pipe (see :func:`fifo_prelude`)."""
+        """A microphone reading float32 samples from a named pipe (see ``fifos`` of child_alsa)."""
         fifo = self.directory / f"{name}.fifo"
         if not fifo.exists():
             os.mkfifo(fifo)
@@ -163,16 +167,17 @@ class VirtualAlsa:
         env["PYTHONUNBUFFERED"] = "1"
         return env
 
-    def run(self, code: str, timeout: float = 60.0) -> dict:
-        """Run Python ``code`` in a fresh process that sees only these devices.
+    def run(self, scenario: str, timeout: float = 60.0, **arguments: Any) -> dict:
+        """Run ``scenario`` of ``child_alsa.py`` in a fresh process that sees only these devices.
 
-        The code prints one JSON object on its last line; it is returned, with the
-        process's output under ``_stdout`` and ``_stderr``.
+        ``arguments`` (JSON-serialisable) are the scenario's keyword arguments; the
+        scenario prints one JSON object on its last line, returned with the process's
+        output under ``_stdout`` and ``_stderr``.
         """
         if not self.config.exists():
             self.write()
         proc = subprocess.run(
-            [sys.executable, "-c", code],
+            [sys.executable, str(CHILD), scenario, json.dumps(arguments)],
             env=self.env(),
             cwd=ROOT,
             capture_output=True,
@@ -189,18 +194,6 @@ class VirtualAlsa:
         result["_stderr"] = proc.stderr
         result["_stdout"] = proc.stdout
         return result
-
-
-def fifo_prelude(*fifos: Path) -> str:
-    """Code to run first in a process that uses FIFO microphones.
-
-    PortAudio opens every device while it initializes, and opening a FIFO for reading
-    blocks until someone holds it for writing; the process therefore opens each FIFO
-    read-write (never blocks on Linux) before importing sounddevice. ``FIFO_FDS`` maps
-    each path to its descriptor for writing the audio.
-    """
-    paths = ", ".join(repr(str(f)) for f in fifos)
-    return f"import os\nFIFO_FDS = {{p: os.open(p, os.O_RDWR) for p in [{paths}]}}\n"
 
 
 def read_raw(path: Path, channels: int = 1) -> np.ndarray:

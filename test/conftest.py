@@ -4,6 +4,7 @@ This runs before any test module is imported, so before anything imports rclpy. 
 processes started by tests inherit the environment set here.
 """
 
+import hashlib
 import os
 import random
 
@@ -12,6 +13,24 @@ import pytest
 #: Domain ids used when the environment does not force one. ROS 2 allows 0-232 on Linux;
 #: 0 (the default every other ROS program uses) is left out.
 _DOMAIN_RANGE = (1, 200)
+
+
+
+def _run_domain_id() -> int:
+    """A fresh domain id per run, so that test runs in parallel do not hear each other.
+
+    Under pytest-xdist every worker process imports this file: the workers of one run
+    share a random base (from the run's id) and add their worker number to it, so two
+    workers of one run never share a domain.
+    """
+    low, high = _DOMAIN_RANGE
+    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID", "")
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not run_id or not worker.removeprefix("gw").isdigit():
+        return random.SystemRandom().randint(low, high)
+    base = int(hashlib.sha256(run_id.encode()).hexdigest(), 16)
+    return low + (base + int(worker.removeprefix("gw"))) % (high - low + 1)
+
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 _forced = os.environ.get("INFOMAX_TEST_DOMAIN_ID", "").strip()
@@ -22,8 +41,7 @@ if _forced:
         )
     os.environ["ROS_DOMAIN_ID"] = _forced
 else:
-    # A fresh id per run, so that test runs in parallel do not hear each other.
-    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(*_DOMAIN_RANGE))
+    os.environ["ROS_DOMAIN_ID"] = str(_run_domain_id())
 
 
 def pytest_configure(config: pytest.Config) -> None:

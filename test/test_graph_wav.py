@@ -1,44 +1,36 @@
 """Replaying a recorded interaction (test/data/interaction.wav) through the node graph.
 
 mic_node (source wav, lockstep, k-means calibration on the first 10 s), controller_node
-and belief_node as processes over DDS; the recorder in the test process plays the part
-of ``ros2 topic echo``. The published bits must equal the core's offline computation on
-the same file, and the belief stream an offline run of the same statistic on those bits
-and the published decisions.
+and belief_node in the test process on one hand-stepped executor (real DDS between
+them); the recorder plays the part of ``ros2 topic echo``. The published bits must equal
+the core's offline computation on the same file, and the belief stream an offline run of
+the same statistic on those bits and the published decisions.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-from graph_harness import Graph, graph_fixture
 from infomax_contingency.audio.binarizer import calibration_window_count
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.threshold import kmeans_threshold
 from infomax_contingency.core.model import ModelParams, StatisticTracker
-
-make_graph = graph_fixture()
-pytestmark = pytest.mark.slow
+from stepped_graph import stepped_graph
 
 WAV = Path(__file__).parent / "data" / "interaction.wav"
 WINDOW_S, CALIBRATION_S = 0.5, 10.0
 
 
-def test_recorded_interaction_replays_like_the_offline_computation(
-    make_graph: Callable[[], Graph],
-) -> None:
+def test_recorded_interaction_replays_like_the_offline_computation() -> None:
     energies = window_energies_db(load_mono(WAV), 16000, WINDOW_S)
     threshold = kmeans_threshold(energies[: calibration_window_count(CALIBRATION_S, WINDOW_S)])
     expected_bits = [bool(e > threshold) for e in energies]
     steps = len(energies)
     assert 20 <= steps and 0 < sum(expected_bits) < steps
 
-    graph = make_graph()
     mic = {
         "source": "wav",
         "wav_file": str(WAV),
@@ -49,22 +41,23 @@ def test_recorded_interaction_replays_like_the_offline_computation(
         "calibration_s": CALIBRATION_S,
         "wait_for_listeners": 3,
     }
-    graph.start(
-        {"controller_node": {}, "belief_node": {"memory_steps": 0}, "mic_node": mic}, "mic_node"
-    )
-    graph.wait_steps(steps)
-    mic_process = graph.processes.processes["mic_node"]
-    assert mic_process.wait(timeout=60) == 0, graph.processes.log("mic_node")
-    rec = graph.recorder
-    assert len(rec.sound) == steps, "one bit per window of the file, no more"
-    assert rec.sound == expected_bits
-    assert np.array_equal(np.float32(rec.energy), energies.astype(np.float32))
+    nodes = {"controller_node": {}, "belief_node": {"memory_steps": 0}, "mic_node": mic}
+    with stepped_graph(nodes, "mic_node") as graph:
+        graph.run_steps(steps)
+        mic_node = graph.nodes["mic_node"]
+        graph.run_until(mic_node.finished.done, "mic_node to finish at the end of the file")
+        assert mic_node.finished.result() == 0
+        graph.executor.run_for_callbacks(20)
+        rec = graph.recorder
+        assert len(rec.sound) == steps, "one bit per window of the file, no more"
+        assert rec.sound == expected_bits
+        assert np.array_equal(np.float32(rec.energy), energies.astype(np.float32))
 
-    params = ModelParams.named("robot")
-    tracker = StatisticTracker(params)
-    offline = []
-    for y, u in zip(rec.sound, rec.vocalize, strict=True):
-        offline.append(tracker.observe(y).belief(params))
-        tracker.act(u)
-    assert rec.belief == offline
-    assert any(rec.vocalize), "the controller must have vocalized at least once"
+        params = ModelParams.named("robot")
+        tracker = StatisticTracker(params)
+        offline = []
+        for y, u in zip(rec.sound, rec.vocalize, strict=True):
+            offline.append(tracker.observe(y).belief(params))
+            tracker.act(u)
+        assert rec.belief == offline
+        assert any(rec.vocalize), "the controller must have vocalized at least once"

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from alsa_devices import VirtualAlsa, fifo_prelude, read_raw
+from alsa_devices import VirtualAlsa, read_raw
 from fake_portaudio import FakeBackend, FakeClock, Room, Rule, device
 from infomax_contingency.audio.calibration import energy_histogram, record_energies
 from infomax_contingency.audio.capture import MicrophoneStream
@@ -650,28 +650,9 @@ def test_measure_latency_through_a_simulated_room() -> None:
 
 # --------------------------------------------------------------------------- real ALSA path
 
-CAPTURE = """
-import json, time
-from infomax_contingency.audio.capture import MicrophoneStream
-logs = []
-mic = MicrophoneStream({spec!r}, window_s={window_s}, channel={channel!r},
-                       channels={channels!r}, queue_s=60,
-                       log=lambda level, message: logs.append(message)).start()
-windows, end = [], time.monotonic() + 30
-while len(windows) < {n} and time.monotonic() < end:
-    windows += mic.read_windows(0.1)
-status = mic.status().as_dict()
-mic.close()
-windows = windows[:{n}]
-print(json.dumps(dict(energies=[w.energy_db for w in windows],
-                      intact=all(w.intact and w.segment == 0 for w in windows),
-                      status=status, logs=logs)))
-"""
-
-
 def capture(alsa: VirtualAlsa, spec, n: int, window_s=0.5, channel=None, channels=None) -> dict:
-    code = CAPTURE.format(spec=spec, n=n, window_s=window_s, channel=channel, channels=channels)
-    return alsa.run(code)
+    return alsa.run("capture", spec=spec, n=n, window_s=window_s, channel=channel,
+                    channels=channels)  # fmt: skip
 
 
 def test_alsa_capture_gives_the_bits_of_the_wav_source(tmp_path) -> None:
@@ -711,17 +692,7 @@ def test_alsa_48khz_only_device_is_resampled_to_the_same_bits(tmp_path) -> None:
     alsa.wav_microphone("usb48", wav, only_rate=48000)
     alsa.write(default_capture="usb48")
     # the device really refuses 16 kHz through PortAudio
-    probe = alsa.run(
-        "import json, sounddevice as sd\n"
-        "def ok(rate):\n"
-        "    try:\n"
-        "        sd.check_input_settings('usb48', samplerate=rate, channels=1, dtype='float32')\n"
-        "        return True\n"
-        "    except Exception:\n"
-        "        return False\n"
-        "print(json.dumps(dict(r16=ok(16000), r48=ok(48000),"
-        " default=sd.query_devices('usb48')['default_samplerate'])))"
-    )
+    probe = alsa.run("input_rates", device="usb48")
     assert probe == {**probe, "r16": False, "r48": True, "default": 48000.0}
     reference = window_energies_db(load_mono(wav, 16000), 16000, 0.5)
     result = capture(alsa, "usb48", reference.size)
@@ -730,29 +701,14 @@ def test_alsa_48khz_only_device_is_resampled_to_the_same_bits(tmp_path) -> None:
     assert any("does not open at 16000 Hz" in line for line in result["logs"])
 
 
-MISSING = """
-import json
-from infomax_contingency.audio.capture import MicrophoneStream
-from infomax_contingency.audio.devices import AudioDeviceError
-from infomax_contingency.audio.playback import SpeakerOutput
-messages = []
-for make in (lambda: MicrophoneStream('ReSpeaker'), lambda: MicrophoneStream(5),
-             lambda: SpeakerOutput('HDMI')):
-    try:
-        make().start()
-        messages.append('opened')
-    except AudioDeviceError as error:
-        messages.append(str(error))
-print(json.dumps(dict(messages=messages)))
-"""
-
-
 def test_alsa_missing_device_lists_the_devices(tmp_path) -> None:
     alsa = VirtualAlsa(tmp_path / "alsa")
     alsa.microphone("fakemic", np.zeros(1600))
     alsa.speaker("fakespeaker")
     alsa.write(default_playback="fakespeaker")  # no default input
-    by_name, by_index, speaker = alsa.run(MISSING)["messages"]
+    by_name, by_index, speaker = alsa.run(
+        "missing", devices=[["mic", "ReSpeaker"], ["mic", 5], ["speaker", "HDMI"]]
+    )["messages"]
     assert "no input device name contains 'ReSpeaker'" in by_name
     assert "Available input devices:\n  [0] fakemic (ALSA," in by_name
     assert "by its index" in by_name
@@ -761,36 +717,16 @@ def test_alsa_missing_device_lists_the_devices(tmp_path) -> None:
     # no microphone at all: the system default is missing, and the list says so
     alsa.remove("fakemic")
     alsa.write(default_playback="fakespeaker")
-    (default,) = alsa.run(
-        MISSING.replace("MicrophoneStream('ReSpeaker')", "MicrophoneStream()")
-        .replace("lambda: MicrophoneStream(5),", "")
-        .replace("lambda: SpeakerOutput('HDMI')", "")
-    )["messages"]
+    (default,) = alsa.run("missing", devices=[["mic", None]])["messages"]
     assert "there is no default input device" in default
     assert "PortAudio sees no input device at all" in default and "arecord -l" in default
-
-
-SPEAKER = """
-import json, dataclasses, time
-from infomax_contingency.audio.playback import SpeakerOutput
-speaker = SpeakerOutput('fakespeaker', volume=0.5).start()
-events = []
-if {play}:
-    time.sleep(0.02)
-    speaker.play()
-    events = [dataclasses.asdict(e) for e in speaker.events(5.0)]
-time.sleep(0.02)
-status = speaker.status().as_dict()
-speaker.close()
-print(json.dumps(dict(events=events, status=status)))
-"""
 
 
 def test_alsa_playback_holds_the_chirp_only_when_commanded(tmp_path) -> None:
     alsa = VirtualAlsa(tmp_path / "alsa")
     out = alsa.speaker("fakespeaker")
     alsa.write(default_playback="fakespeaker")
-    result = alsa.run(SPEAKER.format(play=True))
+    result = alsa.run("speaker", play=True)
     status = result["status"]
     rate, channels = status["device_rate"], status["channels"]
     assert status["played"] == 1 and status["errors"] == 0
@@ -808,61 +744,9 @@ def test_alsa_playback_holds_the_chirp_only_when_commanded(tmp_path) -> None:
     event = result["events"][0]
     assert event["start_time"] >= event["requested_time"] - 0.5  # DAC time, monotonic clock
     # without a command: silence only
-    result = alsa.run(SPEAKER.format(play=False))
+    result = alsa.run("speaker", play=False)
     silent = read_raw(out, result["status"]["channels"])
     assert silent.size > 0 and not silent.any()
-
-
-VANISH = """
-{prelude}
-import fcntl, json, shutil, threading, time
-import numpy as np
-from infomax_contingency.audio.capture import MicrophoneStream
-fd = FIFO_FDS[{fifo!r}]
-fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, 1 << 20)  # room for a whole part: no short reads
-a, b = np.load({a!r}), np.load({b!r})
-logs = []
-mic = MicrophoneStream('fifomic', window_s=0.25, stall_timeout_s=0.5, backoff_s=(0.2, 0.8),
-                       queue_s=30, log=lambda level, m: logs.append(m))
-os.write(fd, a.tobytes())
-mic.start()
-phases = []
-
-def director():
-    phase = 'A'
-    while phase != 'B':
-        time.sleep(0.01)
-        status = mic.status()
-        if phase == 'A' and status.state == 'disconnected':
-            shutil.copy({missing!r}, {conf!r})  # the device vanishes
-            time.sleep(0.2)  # the reader is closing the stalled stream by now
-            os.write(fd, np.zeros(16000, '<f4').tobytes())  # its blocked reads return: it ends
-            phase = 'gone'
-        elif phase == 'gone' and "contains 'fifomic'" in status.last_error:
-            # a rescan ran, so the old stream is closed: empty the pipe, queue what the
-            # device will say when it is back, and bring it back
-            os.set_blocking(fd, False)
-            try:
-                while os.read(fd, 1 << 16):
-                    pass
-            except BlockingIOError:
-                pass
-            os.set_blocking(fd, True)
-            os.write(fd, b.tobytes())
-            shutil.copy({full!r}, {conf!r})
-            phase = 'B'
-        phases.append((phase, status.state, status.reconnect_attempts))
-
-threading.Thread(target=director, daemon=True).start()
-windows, end = [], time.monotonic() + 40
-while sum(w.segment == 1 for w in windows) < {nb} and time.monotonic() < end:
-    windows += mic.read_windows(0.05)
-status = mic.status().as_dict()
-os.close(fd)  # no writer left: reads return at once, so the stream closes
-mic.close()
-print(json.dumps(dict(windows=[[w.segment, w.energy_db, w.gap_s] for w in windows],
-                      status=status, logs=logs)))
-"""
 
 
 @pytest.mark.slow
@@ -878,17 +762,18 @@ def test_alsa_device_that_stalls_and_vanishes_is_reopened_when_back(tmp_path) ->
     alsa.remove("fifomic")
     missing = alsa.write(default_playback="fakespeaker", path=tmp_path / "missing.conf")
     alsa.config.write_bytes(full.read_bytes())
-    code = VANISH.format(
-        prelude=fifo_prelude(fifo),
+    result = alsa.run(
+        "vanish",
+        timeout=90,
+        fifos=[str(fifo)],
         fifo=str(fifo),
         a=str(tmp_path / "a.npy"),
         b=str(tmp_path / "b.npy"),
-        missing=str(missing),
-        full=str(full),
+        missing_conf=str(missing),
+        full_conf=str(full),
         conf=str(alsa.config),
         nb=6,
     )
-    result = alsa.run(code, timeout=90)
     status = result["status"]
     segments = [w[0] for w in result["windows"]]
     energies = np.array([w[1] for w in result["windows"]])
@@ -908,17 +793,16 @@ def test_alsa_device_that_stalls_and_vanishes_is_reopened_when_back(tmp_path) ->
 
 
 def test_live_audio_imports_neither_rclpy_nor_sounddevice() -> None:
-    code = (
-        "import sys, infomax_contingency.cli.live\n"
-        "from infomax_contingency.audio import calibration, capture, latency, playback\n"
-        "print(json.dumps(dict(bad=[m for m in ('rclpy', 'sounddevice') if m in sys.modules])))"
-    )
     import subprocess
 
-    out = subprocess.run(
-        [sys.executable, "-c", "import json\n" + code], capture_output=True, text=True, check=True
-    )
-    assert json.loads(out.stdout) == {"bad": []}
+    modules = ",".join(["infomax_contingency.cli.live"] + [
+        f"infomax_contingency.audio.{name}"
+        for name in ("calibration", "capture", "latency", "playback")
+    ])
+    child = Path(__file__).resolve().parent / "child_imports.py"
+    out = subprocess.run([sys.executable, str(child), modules, "rclpy,sounddevice"],
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    assert json.loads(out.stdout) == []
 
 
 def test_record_energies_on_the_fake_clock_and_its_deadline() -> None:

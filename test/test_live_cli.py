@@ -27,17 +27,9 @@ from infomax_contingency.cli import live as live_commands
 from infomax_contingency.cli import main as cli
 from test_live_audio import write_recording
 
-RUN_CLI = """
-import json, sys
-from infomax_contingency.cli.main import main
-rc = main({args!r})
-sys.stdout.flush()
-print(json.dumps(dict(rc=rc)))
-"""
-
 
 def run_cli(alsa: VirtualAlsa, *args: str) -> tuple[int, str, str]:
-    result = alsa.run(RUN_CLI.format(args=list(args)))
+    result = alsa.run("cli", args=list(args))
     stdout = result["_stdout"].rsplit("\n", 2)[0]
     return result["rc"], stdout, result["_stderr"]
 

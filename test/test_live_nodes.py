@@ -3,7 +3,8 @@
 The nodes run as processes (``python -m infomax_contingency.nodes.<node>``) over real DDS,
 with ``ALSA_CONFIG_PATH`` pointing at a configuration of this test only (see
 alsa_devices.py), so the real sounddevice -> PortAudio -> ALSA path is exercised. The
-test process only runs a probe node; it never opens an audio device.
+test process only runs a probe node (on a hand-stepped executor); it never opens an audio
+device.
 
 The virtual devices have no clock: the microphone delivers its recording hundreds of
 times faster than real time (so mic_node gets all its windows at once: ``queue_s`` holds
@@ -15,6 +16,7 @@ feeding plays a device that goes silent and comes back.
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import os
 import re
@@ -30,9 +32,9 @@ from typing import Any
 import numpy as np
 import pytest
 import rclpy
+import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
 from std_msgs.msg import Bool, Float32, Int64MultiArray
 
 from alsa_devices import VirtualAlsa
@@ -41,9 +43,9 @@ from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.audio.threshold import kmeans_threshold
 from infomax_contingency.audio.wav import write_wav_int16
-from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.core.model import ModelParams
 from infomax_contingency.nodes.step_topics import StepDecision, decision_message, parse_bit
-from infomax_contingency.testing.graph import SpinThread, wait_until
+from infomax_contingency.testing.stepped import Probe, SteppedExecutor, StepTimeoutError
 
 ROOT = Path(__file__).resolve().parent.parent
 INTERACTION = Path(__file__).parent / "data" / "interaction.wav"
@@ -114,73 +116,62 @@ def spawn(tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
 # --------------------------------------------------------------------------- probe node
 
 
-class Probe(Node):
-    """Records topics of the nodes under test and publishes to them."""
+class Live:
+    """The test's probe node on a hand-stepped executor: it records and answers the nodes."""
 
     def __init__(self) -> None:
-        super().__init__("live_probe")
-        self.lock = threading.Lock()
-        self.diagnostics: list[Any] = []
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+        self.probe = Probe("live_probe")
+        self.executor = SteppedExecutor([self.probe])
+        self.diagnostics = self.probe.listen("/diagnostics", DiagnosticArray, 100)
 
     def record(self, topic: str, kind: type) -> list[tuple[Any, int]]:
-        """Every message on ``topic`` with its arrival time (system clock, ns)."""
+        """Every message on ``topic`` with the time it was handled (system clock, ns)."""
         received: list[tuple[Any, int]] = []
-
-        def store(msg: Any) -> None:
-            with self.lock:
-                received.append((msg, time.time_ns()))
-
-        self.create_subscription(kind, topic, store, STREAM_QOS)
+        self.probe.listen(topic, kind, then=lambda msg: received.append((msg, time.time_ns())))
         return received
 
     def record_bits(self, namespace: str) -> list[bool]:
         """The bits on ``<namespace>/sound_step`` (whose subscriber starts a mic's clock)."""
         bits: list[bool] = []
-
-        def store(msg: Int64MultiArray) -> None:
-            with self.lock:
-                bits.append(parse_bit(msg).bit)
-
-        self.create_subscription(Int64MultiArray, f"{namespace}/sound_step", store, STREAM_QOS)
+        self.probe.listen(f"{namespace}/sound_step", Int64MultiArray,
+                          then=lambda msg: bits.append(parse_bit(msg).bit))  # fmt: skip
         return bits
 
     def answer(self, namespace: str) -> list[bool]:
         """Answer each bit of ``<namespace>/sound_step`` with "do not vocalize"; the bits."""
         bits: list[bool] = []
-        vocalize = self.create_publisher(
-            Int64MultiArray, f"{namespace}/vocalize_step", STREAM_QOS
-        )
+        vocalize = self.probe.talk(f"{namespace}/vocalize_step", Int64MultiArray)
 
         def on_bit(msg: Int64MultiArray) -> None:
             bit = parse_bit(msg)
-            with self.lock:
-                bits.append(bit.bit)
+            bits.append(bit.bit)
             vocalize.publish(decision_message(StepDecision(bit.stream, bit.step, False, 1)))
 
-        self.create_subscription(Int64MultiArray, f"{namespace}/sound_step", on_bit, STREAM_QOS)
+        self.probe.listen(f"{namespace}/sound_step", Int64MultiArray, then=on_bit)
         return bits
-
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        with self.lock:
-            self.diagnostics.extend(msg.status)
 
     def statuses(self, node: str) -> list[dict[str, Any]]:
         """Key/values of every diagnostics status of ``node`` (level under ``_level``)."""
-        with self.lock:
-            statuses = [s for s in self.diagnostics if s.hardware_id == node]
+        statuses = [s for msg in self.diagnostics for s in msg.status if s.hardware_id == node]
         return [{kv.key: kv.value for kv in s.values} | {"_level": s.level} for s in statuses]
+
+    def wait_for(self, condition: Callable[[], bool], what: str, *nodes: NodeProcess) -> None:
+        """Step the probe until ``condition`` holds; fail with the nodes' logs if it does not."""
+        try:
+            self.executor.run_until(condition, what, deadline_s=TIMEOUT_S)
+        except StepTimeoutError as error:
+            logs = "\n".join(node.output() for node in nodes)
+            pytest.fail(f"{error}\n{logs}")
 
 
 @pytest.fixture
-def probe() -> Iterator[Probe]:
+def probe() -> Iterator[Live]:
     rclpy.init()
-    node = Probe()
+    live = Live()
     try:
-        with SpinThread(node):
-            yield node
+        yield live
     finally:
-        node.destroy_node()
+        live.executor.close()
         rclpy.try_shutdown()
 
 
@@ -207,30 +198,26 @@ def reference(wav: Path) -> tuple[np.ndarray, float, list[bool]]:
     return energies, threshold, bits
 
 
-def wait_for(condition: Callable[[], bool], what: str, *nodes: NodeProcess) -> None:
-    if not wait_until(condition, TIMEOUT_S):
-        logs = "\n".join(node.output() for node in nodes)
-        pytest.fail(f"timed out waiting for {what}\n{logs}")
-
-
-def heard_from(probe: Probe, *nodes: NodeProcess, names: tuple[str, ...]) -> None:
+def heard_from(probe: Live, *nodes: NodeProcess, names: tuple[str, ...]) -> None:
     """Wait for diagnostics from every node in ``names``.
 
     The mic nodes start their step clock once ``sound`` has a subscriber; the probe
     subscribes only after this, so it surely receives their diagnostics to the end.
     """
-    wait_for(lambda: all(probe.statuses(name) for name in names), "diagnostics", *nodes)
+    probe.wait_for(lambda: all(probe.statuses(name) for name in names), "diagnostics", *nodes)
 
 
-def final_status(probe: Probe, node: str, windows: int) -> dict[str, Any]:
+def final_status(probe: Live, node: str, windows: int) -> dict[str, Any]:
     """The diagnostics a mic node publishes when it stops after ``windows`` bits."""
-    wait_for(lambda: any(s.get("windows") == str(windows) for s in probe.statuses(node)), node)
+    probe.wait_for(
+        lambda: any(s.get("windows") == str(windows) for s in probe.statuses(node)), node
+    )
     return next(s for s in probe.statuses(node) if s.get("windows") == str(windows))
 
 
 @pytest.mark.slow
 def test_live_capture_publishes_the_bits_of_the_wav_source(
-    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Probe
+    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Live
 ) -> None:
     wav = tmp_path / "interaction16k.wav"  # the committed recording, at 16 kHz
     write_wav_int16(wav, load_mono(INTERACTION, 16000), 16000)
@@ -258,9 +245,11 @@ def test_live_capture_publishes_the_bits_of_the_wav_source(
     live_energies = probe.record("live/sound_energy", Float32)
     replay_bits = probe.answer("replay")
     replay_energies = probe.record("replay/sound_energy", Float32)
+    probe.wait_for(lambda: len(live_bits) >= n and len(replay_bits) >= n, f"{n} bits", live, replay)
+    probe.wait_for(lambda: live.process.poll() is not None and replay.process.poll() is not None,
+                   "both mic nodes to stop", live, replay)  # fmt: skip
     assert live.wait() == 0, live.output()
     assert replay.wait() == 0, replay.output()
-    wait_for(lambda: len(live_bits) >= n and len(replay_bits) >= n, f"{n} bits", live, replay)
 
     assert [msg.data for msg, _ in live_bits] == bits  # one per window, in order, none lost
     assert live_steps == bits and replay_bits == bits
@@ -285,7 +274,7 @@ def test_live_capture_publishes_the_bits_of_the_wav_source(
 
 @pytest.mark.slow
 def test_live_capture_from_a_48khz_only_microphone_gives_the_same_bits(
-    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Probe
+    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Live
 ) -> None:
     wav = tmp_path / "interaction48k.wav"
     write_wav_int16(wav, load_mono(INTERACTION, 48000), 48000)
@@ -305,8 +294,9 @@ def test_live_capture_from_a_48khz_only_microphone_gives_the_same_bits(
     live_bits = probe.record("sound", Bool)
     live_steps = probe.record_bits("")
     live_energies = probe.record("sound_energy", Float32)
+    probe.wait_for(lambda: len(live_steps) >= len(bits), f"{len(bits)} bits", mic)
+    probe.wait_for(lambda: mic.process.poll() is not None, "the mic node to stop", mic)
     assert mic.wait() == 0, mic.output()
-    wait_for(lambda: len(live_steps) >= len(bits), f"{len(bits)} bits", mic)
     assert [msg.data for msg, _ in live_bits] == bits == live_steps
     assert np.array_equal(
         np.array([msg.data for msg, _ in live_energies], np.float32), energies.astype(np.float32)
@@ -331,12 +321,16 @@ def noise(seconds: float, loud: list[tuple[float, float]], seed: int) -> np.ndar
 
 @pytest.mark.slow
 def test_live_microphone_that_stalls_is_reopened_and_the_gap_stays_a_gap(
-    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Probe
+    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Live
 ) -> None:
     window_s, threshold = 0.25, -40.0
     before = noise(2.0, [(0.5, 1.0), (1.5, 2.0)], seed=1)  # 8 windows
     after = noise(3.0, [(0.5, 1.5), (2.5, 3.0)], seed=2)  # 12 windows
     expected = [bool(e > threshold) for e in window_energies_db(before, 16000, window_s)]
+    # short windows keep the test short; the mic refuses a window other than the model's dt
+    model = tmp_path / "model_dt025.yaml"
+    model.write_text(yaml.safe_dump({**dataclasses.asdict(ModelParams.named("robot")),
+                                     "dt": window_s}))  # fmt: skip
     alsa = VirtualAlsa(tmp_path / "alsa")
     fifo = alsa.fifo_microphone("fifomic")
     alsa.write(default_capture="fifomic")
@@ -349,18 +343,19 @@ def test_live_microphone_that_stalls_is_reopened_and_the_gap_stays_a_gap(
     try:
         mic = spawn(
             "mic_node",
-            mic_parameters(threshold, source="sounddevice", device="fifo", window_s=window_s),
+            mic_parameters(threshold, source="sounddevice", device="fifo", window_s=window_s,
+                           params=model),  # fmt: skip
             alsa.env(),
         )
-        wait_for(lambda: "at 16000 Hz, 1 channel" in mic.output(), "the microphone", mic)
+        probe.wait_for(lambda: "at 16000 Hz, 1 channel" in mic.output(), "the microphone", mic)
         os.write(fd, before.tobytes())
-        wait_for(lambda: len(bits) >= len(expected), "the windows before the stall", mic)
+        probe.wait_for(lambda: len(bits) >= len(expected), "the windows before the stall", mic)
         # no audio: after 1.5 s the device counts as gone; it is reopened (and starves again)
-        wait_for(lambda: "reconnected" in mic.output(), "a reconnection", mic)
+        probe.wait_for(lambda: "reconnected" in mic.output(), "a reconnection", mic)
         assert len(bits) == len(expected)  # nothing was published for the missing time
         os.write(fd, after.tobytes())
-        wait_for(lambda: len(bits) >= len(expected) + 10, "the windows after the gap", mic)
-        wait_for(
+        probe.wait_for(lambda: len(bits) >= len(expected) + 10, "the windows after the gap", mic)
+        probe.wait_for(
             lambda: any(s.get("gaps") == "1" for s in probe.statuses("/mic_node")),
             "diagnostics of the gap",
             mic,
@@ -434,8 +429,8 @@ class PacedReader:
                 chunk = os.read(self.fd, min(allowed, 1 << 16)) if allowed > 0 else b""
             except BlockingIOError:
                 chunk = b""
-            if not chunk:  # not yet allowed, no data, or no writer (yet)
-                time.sleep(0.005)
+            if not chunk:  # not yet allowed, no data, or no writer (yet): the pace of a card
+                self._stop.wait(0.005)
                 continue
             taken += len(chunk)
             with self.lock:
@@ -454,43 +449,45 @@ class PacedReader:
 
 
 def test_speaker_node_plays_the_chirp_on_true_only_and_publishes_when_it_started(
-    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Probe
+    tmp_path: Path, spawn: Callable[..., NodeProcess], probe: Live
 ) -> None:
     alsa = VirtualAlsa(tmp_path / "alsa")
     out = alsa.speaker("fakespeaker")
     alsa.write(default_playback="fakespeaker")
     os.mkfifo(out)  # the device writes into the FIFO; the reader paces it
     started = probe.record("speaker_started", Time)
-    vocalize = probe.create_publisher(Bool, "vocalize", STREAM_QOS)
+    vocalize = probe.probe.talk("vocalize", Bool)
     reader = PacedReader(out, bytes_per_s=4 * 48000 * 4)  # a few times real time
     try:
         speaker = spawn("speaker_node", {"dry_run": False, "device": "speaker"}, alsa.env())
-        wait_for(lambda: vocalize.get_subscription_count() == 1, "speaker_node", speaker)
-        wait_for(
+        probe.wait_for(lambda: vocalize.get_subscription_count() == 1, "speaker_node", speaker)
+        probe.wait_for(
             lambda: re.search(r"at (\d+) Hz, (\d+) channel", speaker.output()) is not None,
             "the speaker's stream",
             speaker,
         )
         match = re.search(r"at (\d+) Hz, (\d+) channel", speaker.output())
         rate, channels = int(match[1]), int(match[2])
-        vocalize.publish(Bool(data=False))
-        time.sleep(0.3)
+        vocalize.publish(Bool(data=False))  # in order: nothing to play
         commanded_ns = time.time_ns()
         vocalize.publish(Bool(data=True))
         vocalize.publish(Bool(data=False))
-        wait_for(lambda: len(started) == 1, "speaker_started", speaker)
+        probe.wait_for(lambda: len(started) == 1, "speaker_started", speaker)
 
         def chirp_through() -> bool:
             loud = np.flatnonzero(reader.samples(channels))
             return loud.size > 0 and reader.samples(channels).size - loud[-1] > 0.3 * rate
 
-        wait_for(chirp_through, "the chirp on the device", speaker)
-        wait_for(
+        probe.wait_for(chirp_through, "the chirp on the device", speaker)
+        probe.wait_for(
             lambda: any(s.get("played") == "1" for s in probe.statuses("/speaker_node")),
             "the speaker's diagnostics",
             speaker,
         )
-        time.sleep(0.3)  # nothing else comes
+        # nothing else comes in the next 0.3 s of what the device plays (silence)
+        heard = reader.samples(channels).size
+        probe.wait_for(lambda: reader.samples(channels).size >= heard + 0.3 * rate,
+                       "0.3 s more from the device", speaker)  # fmt: skip
         played = reader.samples(channels)
         status = next(s for s in probe.statuses("/speaker_node") if s.get("played") == "1")
         speaker.stop()

@@ -1,7 +1,9 @@
 """Node start-up as users meet it: bad parameters refused in one line, clean stops.
 
-Every node runs as its own process (``python -m infomax_contingency.nodes.<node>``, the
-code of the console scripts) with ROS arguments on the command line.
+Every bad configuration is refused in-process (the node class built with the same ROS
+arguments raises the error its executable prints); a few run as their own process
+(``python -m infomax_contingency.nodes.<node>``, the code of the console scripts) with
+ROS arguments on the command line, to show the one ``[ERROR]`` line and exit status 2.
 """
 
 from __future__ import annotations
@@ -15,9 +17,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
 
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.nodes.controller_node import DEFAULT_TABLE
+from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.nodes.belief_node import BeliefNode
+from infomax_contingency.nodes.controller_node import DEFAULT_TABLE, ControllerNode
+from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
+from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.speaker_node import SpeakerNode
 from infomax_contingency.resources import resource_path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -102,6 +111,19 @@ CASES = {
 }
 
 
+NODE_CLASSES = {
+    "mic_node": MicNode,
+    "controller_node": ControllerNode,
+    "belief_node": BeliefNode,
+    "posture_node": PostureNode,
+    "fake_audio_node": FakeAudioNode,
+    "speaker_node": SpeakerNode,
+}
+
+PROCESS_CASES = ("window_type", "damaged_table")
+"""The refusals also run as processes: a parameter's range and a file's content."""
+
+
 def node_command(node: str, parameters: list[str]) -> list[str]:
     command = [sys.executable, "-m", f"infomax_contingency.nodes.{node}", "--ros-args"]
     for parameter in parameters:
@@ -135,6 +157,7 @@ def refusals(tmp_path_factory) -> Iterator[dict[str, subprocess.CompletedProcess
             text=True,
         )
         for name, (node, parameters, _) in CASES.items()
+        if name in PROCESS_CASES
     }
     results = {}
     try:
@@ -149,8 +172,23 @@ def refusals(tmp_path_factory) -> Iterator[dict[str, subprocess.CompletedProcess
                 process.wait()
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_configuration_is_refused_in_process(case: str, tmp_path: Path) -> None:
+    node, parameters, expected = CASES[case]
+    files = {"damaged_table": damaged_table(tmp_path)}
+    arguments = [arg for p in parameters for arg in ("-p", p.format(**files))]
+    rclpy.init(args=["--ros-args", *arguments])
+    try:
+        with pytest.raises(USER_ERRORS) as refused:
+            NODE_CLASSES[node]().destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    assert expected in str(refused.value)
+    assert "\n" not in str(refused.value).strip(), "one line"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", PROCESS_CASES)
 def test_bad_configuration_is_refused_in_one_line(
     refusals: dict[str, subprocess.CompletedProcess], case: str
 ) -> None:

@@ -2,6 +2,7 @@
 
 import ast
 import configparser
+import json
 import os
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from infomax_contingency import resources
 from test_ros2_run import colcon_build
 
 ROOT = Path(__file__).resolve().parent.parent
+HERE = Path(__file__).resolve().parent
 PKG = "infomax_contingency"
 
 EXEC_DEPENDS = {
@@ -214,11 +216,12 @@ def test_resource_path_rejects_paths_outside_the_package(parts: tuple[str, ...])
 
 
 def test_resources_module_does_not_import_rclpy() -> None:
-    code = (
-        "import sys, infomax_contingency.resources as r; r.resource_path('package.xml'); "
-        "sys.exit('rclpy' in sys.modules)"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+    out = subprocess.run(
+        [sys.executable, str(HERE / "child_imports.py"),
+         "infomax_contingency.resources:resource_path:package.xml", "rclpy"],
+        check=True, cwd=ROOT, capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    assert json.loads(out) == []
 
 
 # --- a real colcon build yields the layout that `ros2 run` and launch files expect -----
@@ -244,12 +247,8 @@ def test_colcon_build_layout(tmp_path: Path) -> None:
     # What `ros2 run` does first: find the package prefix through the ament index; and
     # resources then serves data files from the installed share directory.
     env = dict(os.environ, AMENT_PREFIX_PATH=str(prefix))
-    code = (
-        "from ament_index_python.packages import get_package_prefix; "
-        "from infomax_contingency import resources; "
-        f"print(get_package_prefix('{PKG}')); print(resources.share_directory())"
-    )
     out = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+        [sys.executable, str(HERE / "child_prefix.py"), PKG],
+        env=env, capture_output=True, text=True, check=True,
     ).stdout.split()
     assert out == [str(prefix), str(prefix / "share" / PKG)]

@@ -43,11 +43,27 @@ class Probe(Node):
         self.received: dict[str, list[Any]] = {}
         self.pubs: dict[str, Any] = {}
 
-    def listen(self, topic: str, kind: type, qos: QoSProfile = STREAM_QOS) -> list[Any]:
-        """Record every message on ``topic``; returns the list it grows."""
-        self.received[topic] = []
-        self.create_subscription(kind, topic, self.received[topic].append, qos)
-        return self.received[topic]
+    def listen(
+        self,
+        topic: str,
+        kind: type,
+        qos: QoSProfile | int = STREAM_QOS,
+        then: Callable[[Any], None] | None = None,
+    ) -> list[Any]:
+        """Record every message on ``topic``; returns the list it grows.
+
+        ``then(message)``, if given, runs after each message is recorded (e.g. to answer).
+        """
+        received: list[Any] = []
+        self.received[topic] = received
+
+        def record(message: Any) -> None:
+            received.append(message)
+            if then is not None:
+                then(message)
+
+        self.create_subscription(kind, topic, record, qos)
+        return received
 
     def talk(self, topic: str, kind: type, qos: QoSProfile = STREAM_QOS) -> Any:
         """A publisher on ``topic``."""

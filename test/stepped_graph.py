@@ -1,0 +1,102 @@
+"""The lockstep node graph in the test process, on one executor stepped by hand.
+
+:func:`stepped_graph` (a context manager) builds MicNode, ControllerNode, BeliefNode,
+PostureNode and, optionally, FakeAudioNode as plain objects on one
+:class:`~infomax_contingency.testing.stepped.SteppedExecutor`, with a
+:class:`~infomax_contingency.testing.graph.StepRecorder` as ``ros2 topic echo``. The
+clock node (the fake room, or the mic replaying a file) is added last, once every
+other node's topics reach the recorder, as ``start_graph`` does for processes, so no
+node misses the first steps. Nothing runs between the test's ``run_until`` calls;
+assertions are on step numbers, never on wall time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from infomax_contingency.nodes.belief_node import BeliefNode
+from infomax_contingency.nodes.controller_node import ControllerNode
+from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
+from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.testing.graph import StepRecorder
+from infomax_contingency.testing.stepped import SteppedExecutor
+
+NODE_CLASSES: dict[str, type[Node]] = {
+    "mic_node": MicNode,
+    "controller_node": ControllerNode,
+    "belief_node": BeliefNode,
+    "posture_node": PostureNode,
+    "fake_audio_node": FakeAudioNode,
+}
+"""Node name -> class, for the nodes a stepped graph can hold."""
+
+NO_START_DELAY = {"start_delay_s": 0.0}
+"""The start gates wait for their listeners only: in one process nothing else must connect."""
+
+
+@dataclass
+class SteppedGraph:
+    """Nodes, their recorder and the executor that runs them."""
+
+    nodes: dict[str, Node]
+    recorder: StepRecorder
+    executor: SteppedExecutor
+
+    def run_until(self, condition: Callable[[], bool], what: str) -> None:
+        """Step the graph until ``condition`` holds (fails with the counts received)."""
+        try:
+            self.executor.run_until(condition, what)
+        except AssertionError as error:
+            raise AssertionError(f"{error}; received {self.recorder.counts()}") from None
+
+    def run_steps(self, steps: int) -> None:
+        """Step until ``steps`` bits, decisions and beliefs have been recorded."""
+        rec = self.recorder
+        self.run_until(
+            lambda: min(len(rec.sound), len(rec.vocalize), len(rec.belief)) >= steps,
+            f"{steps} steps",
+        )
+
+
+def _parameters(values: dict[str, Any]) -> list[Parameter]:
+    return [Parameter(name, value=value) for name, value in values.items()]
+
+
+@contextmanager
+def stepped_graph(
+    nodes: dict[str, dict[str, Any]], clock: str, parameter_files: tuple[str, ...] = ()
+) -> Iterator[SteppedGraph]:
+    """The graph of ``nodes`` (name -> parameters) in this process, ``clock`` added last.
+
+    ``parameter_files``: ROS parameter files every node reads first (``--params-file``);
+    the parameters in ``nodes`` override them. Initialises rclpy and shuts it down
+    afterwards, whatever happens.
+    """
+    files = [arg for path in parameter_files for arg in ("--params-file", str(path))]
+    rclpy.init(args=["--ros-args", *files] if files else None)
+    executor = None
+    try:
+        recorder = StepRecorder()
+        executor = SteppedExecutor([recorder])
+        built: dict[str, Node] = {}
+        others = [name for name in nodes if name != clock]
+        for name in others:
+            built[name] = executor.add(NODE_CLASSES[name](parameter_overrides=_parameters(
+                {**NO_START_DELAY, **nodes[name]} if name == "mic_node" else nodes[name])))
+        executor.run_until(lambda: recorder.sees(others), f"the nodes {others} to connect")
+        built[clock] = executor.add(
+            NODE_CLASSES[clock](parameter_overrides=_parameters({**NO_START_DELAY, **nodes[clock]}))
+        )
+        yield SteppedGraph(built, recorder, executor)
+    finally:
+        if executor is not None:
+            executor.close()
+        rclpy.try_shutdown()
