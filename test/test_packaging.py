@@ -39,6 +39,7 @@ EXECUTABLES = {
     "posture_node",
     "fake_audio_node",
     "speaker_node",
+    "recorder_node",
     "bringup",
 }
 
