@@ -138,3 +138,31 @@ class BagWriter:
             except OSError:
                 pass
         self._writer.storage = None
+
+
+class BagReadError(OSError):
+    """The session cannot be read; the message says why in one line."""
+
+
+def read_topics(directory: Path, topics: Sequence[str]) -> dict[str, list[tuple[int, Any]]]:
+    """``topic -> [(receive time ns, decoded message), ...]`` of a bag, in time order.
+
+    A topic the bag does not hold maps to an empty list. Messages are decoded with the
+    Jazzy message definitions that ``rosbags`` ships (no rclpy).
+
+    Raises:
+        BagReadError: not a rosbag2 directory, or unreadable.
+    """
+    from rosbags.rosbag2 import Reader, ReaderError
+
+    found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    try:
+        with Reader(Path(directory)) as reader:
+            connections = [c for c in reader.connections if c.topic in found]
+            for connection, time_ns, data in reader.messages(connections=connections):
+                message = typestore.deserialize_cdr(data, connection.msgtype)
+                found[connection.topic].append((time_ns, message))
+    except (ReaderError, OSError) as error:
+        raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
+    return found

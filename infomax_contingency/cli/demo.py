@@ -87,6 +87,11 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         metavar="DIR",
         help="also record the session as a rosbag2 (MCAP) bag in DIR (must not exist)",
     )
+    parser.add_argument(
+        "--no-record-audio",
+        action="store_true",
+        help="with --record: leave the 'audio' topic out of the bag (a bag of a few KB)",
+    )
     parser.set_defaults(run=run_demo)
 
 
@@ -108,7 +113,10 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
         "speaker_node": {"dry_run": True},
     }
     if args.record:
-        nodes["recorder_node"] = {"directory": str(Path(args.record).resolve())}
+        nodes["recorder_node"] = {
+            "directory": str(Path(args.record).resolve()),
+            "record_audio": not args.no_record_audio,
+        }
     if args.wav:
         nodes["mic_node"] = {
             "source": "wav",

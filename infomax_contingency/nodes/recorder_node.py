@@ -22,7 +22,8 @@ ERROR line and an ERROR diagnostic; the recorder stops writing and keeps what it
 written, and the rest of the graph keeps running.
 
 Parameters: ``directory`` (the bag directory to create; it must not exist yet),
-``session_files`` (comma-separated paths to store with the session), ``flush_period_s``.
+``session_files`` (comma-separated paths to store with the session), ``flush_period_s``,
+``record_audio`` (false: leave out the ``audio`` topic, the bulk of a bag).
 Publishes ``session_info``, ``/diagnostics``.
 """
 
@@ -114,6 +115,7 @@ class RecorderNode(GraphNode):
             "flush_period_s", 1.0, "Seconds between flushes of the bag (one chunk)", 0.05,
             3600.0, "s",
         )
+        self.record_audio = read.flag("record_audio", True, "Also record the 'audio' topic")
         if not directory:
             raise ConfigError("parameter 'directory' is empty: name the bag directory to create")
         self.directory = Path(directory)
@@ -182,7 +184,7 @@ class RecorderNode(GraphNode):
 
     def _discover_audio(self) -> None:
         """Subscribe to ``audio`` once it has a publisher (its type is the publisher's)."""
-        if "audio" in self.subscribed:
+        if "audio" in self.subscribed or not self.record_audio:
             return
         for name, types in self.get_topic_names_and_types():
             if name == self.resolve_topic_name("audio") and types:
