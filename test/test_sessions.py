@@ -66,3 +66,8 @@ def test_bad_replay_input_is_one_line_and_status_2(arguments, message, capsys) -
     assert main(arguments) == 2
     error = capsys.readouterr().err
     assert message in error and len(error.strip().splitlines()) == 1
+
+
+def test_demo_refuses_to_record_over_an_existing_directory(tmp_path: Path, capsys) -> None:
+    assert main(["demo", "--record", str(tmp_path)]) == 2
+    assert "exists already" in capsys.readouterr().err
