@@ -18,6 +18,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.cli.main import main
+from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.sessions import load_session
 
 SESSION = Path(__file__).parent / "data" / "session_demo"
@@ -71,3 +72,16 @@ def test_bad_replay_input_is_one_line_and_status_2(arguments, message, capsys) -
 def test_demo_refuses_to_record_over_an_existing_directory(tmp_path: Path, capsys) -> None:
     assert main(["demo", "--record", str(tmp_path)]) == 2
     assert "exists already" in capsys.readouterr().err
+
+
+def test_analyze_finds_the_fake_rooms_periods_and_writes_a_parameter_file(
+    tmp_path: Path, capsys
+) -> None:
+    out = tmp_path / "params.yaml"
+    status = main(["analyze", str(SESSION), "--out", str(out)])
+    text = capsys.readouterr().out
+    assert "only 13 vocalizations" in text and status == 1  # a short session: says so
+    written = ModelParams.load(str(out))
+    # The room's own chirp starts 0.15 s into the window after the decision (lag 0);
+    # replies start 1.0-1.4 s after it and last into the next window (lags 2 and 3).
+    assert (written.ts1, written.ts2, written.ta1, written.ta2) == (0, 0, 2, 3)

@@ -103,32 +103,41 @@ def fig4_study(bits: Sequence[bool], decisions: Sequence[bool], max_lag: int = 2
     Windows at lag ``background_from`` or later (or before the first vocalization) make
     the background; peaks are sought at the lags before it.
     """
+    return fig4_study_of_runs([(bits, decisions)], max_lag, background_from)
+
+
+def fig4_study_of_runs(runs: Sequence[tuple[Sequence[bool], Sequence[bool]]], max_lag: int = 20,
+                       background_from: int = 6) -> Fig4Study:
+    """:func:`fig4_study` of several runs (sessions) pooled; the lag restarts in each."""
     if not 0 < background_from <= max_lag:
         raise ValueError(f"background_from must be in 1 .. max_lag = {max_lag}, got"
                          f" {background_from}")
-    if len(bits) != len(decisions):
-        raise ValueError(f"{len(bits)} bits but {len(decisions)} decisions: one each per step")
     active, total = [0] * max_lag, [0] * max_lag
     background = [0, 0]
-    lag: int | None = None
-    for y, u in zip(bits, decisions, strict=True):
-        if lag is not None and lag < max_lag:
-            active[lag] += int(y)
-            total[lag] += 1
-        if lag is None or lag >= background_from:
-            background[0] += int(y)
-            background[1] += 1
-        lag = 0 if u else (None if lag is None else lag + 1)
+    for bits, decisions in runs:
+        if len(bits) != len(decisions):
+            raise ValueError(
+                f"{len(bits)} bits but {len(decisions)} decisions: one each per step"
+            )
+        lag: int | None = None
+        for y, u in zip(bits, decisions, strict=True):
+            if lag is not None and lag < max_lag:
+                active[lag] += int(y)
+                total[lag] += 1
+            if lag is None or lag >= background_from:
+                background[0] += int(y)
+                background[1] += 1
+            lag = 0 if u else (None if lag is None else lag + 1)
     by_lag = [Rate(a, n) for a, n in zip(active, total, strict=True)]
     base = Rate(*background)
     ceiling = base.interval[1]
-    runs = _runs([rate.total > 0 and rate.interval[0] > ceiling
+    raised = _runs([rate.total > 0 and rate.interval[0] > ceiling
                   for rate in by_lag[:background_from]])
-    self_period = runs[0] if runs and runs[0][0] <= 1 else None
-    later = runs[1:] if self_period else runs
+    self_period = raised[0] if raised and raised[0][0] <= 1 else None
+    later = raised[1:] if self_period else raised
     agent_period = later[0] if later else None
     return Fig4Study(
-        vocalizations=sum(bool(u) for u in decisions),
+        vocalizations=sum(bool(u) for _, decisions in runs for u in decisions),
         by_lag=by_lag,
         background=base,
         self_period=self_period,
