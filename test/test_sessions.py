@@ -85,3 +85,6 @@ def test_analyze_finds_the_fake_rooms_periods_and_writes_a_parameter_file(
     # The room's own chirp starts 0.15 s into the window after the decision (lag 0);
     # replies start 1.0-1.4 s after it and last into the next window (lags 2 and 3).
     assert (written.ts1, written.ts2, written.ta1, written.ta2) == (0, 0, 2, 3)
+    table = tmp_path / "table.npz"
+    assert main(["solve", "--params", str(out), "--mode", "episodic", "--horizon", "4",
+                 "--out", str(table)]) == 0
