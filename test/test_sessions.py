@@ -88,3 +88,9 @@ def test_analyze_finds_the_fake_rooms_periods_and_writes_a_parameter_file(
     table = tmp_path / "table.npz"
     assert main(["solve", "--params", str(out), "--mode", "episodic", "--horizon", "4",
                  "--out", str(table)]) == 0
+
+
+def test_analyze_draws_the_figure(tmp_path: Path) -> None:
+    figure = tmp_path / "fig4.png"
+    main(["analyze", str(SESSION), "--plot", str(figure)])
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

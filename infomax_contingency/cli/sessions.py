@@ -20,7 +20,7 @@ from pathlib import Path
 import yaml
 
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs
+from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
 from infomax_contingency.eval.sessions import load_session, replay_recorded
 
 ACTION_SOURCES = ("recorded",)
@@ -92,6 +92,7 @@ def register_analyze(subparsers: argparse._SubParsersAction) -> None:
         help="model parameters the sessions ran with; the base of --out (default: robot)",
     )
     parser.add_argument("--out", metavar="FILE", help="write a parameter file for solve --params")
+    parser.add_argument("--plot", metavar="FIG.png", help="draw the raster and P(active) here")
     parser.add_argument(
         "--max-lag-s", type=float, default=10.0, help="longest lag shown, seconds (default 10)"
     )
@@ -119,6 +120,10 @@ def run_analyze(args: argparse.Namespace) -> int:
         records = list(replay_recorded(load_session(Path(directory)), params))
         runs.append(([bool(r.y) for r in records], [bool(r.u) for r in records]))
     study = fig4_study_of_runs(runs, max_lag, background_from)
+    if args.plot:
+        from infomax_contingency.eval.fig4_plot import fig4_figure
+
+        print(f"wrote {fig4_figure(study, trial_raster(runs, max_lag), params.dt, args.plot)}")
     print(f"# {len(args.sessions)} session(s), {study.vocalizations} vocalizations,"
           f" windows of {params.dt:g} s (lag 0 = the window right after the decision)")
     print("lag  time_s  P(active) [95 %]")

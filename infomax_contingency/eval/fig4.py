@@ -145,3 +145,18 @@ def fig4_study_of_runs(runs: Sequence[tuple[Sequence[bool], Sequence[bool]]], ma
         self_rate=_pooled(by_lag, self_period) if self_period else None,
         reply_rate=_pooled(by_lag, agent_period) if agent_period else None,
     )
+
+
+def trial_raster(runs: Sequence[tuple[Sequence[bool], Sequence[bool]]], max_lag: int = 20
+                 ) -> list[list[bool]]:
+    """One row per vocalization: the bits at lags 0, 1, ... until the next one (or ``max_lag``)."""
+    rows: list[list[bool]] = []
+    for bits, decisions in runs:
+        current: list[bool] | None = None
+        for y, u in zip(bits, decisions, strict=True):
+            if current is not None and len(current) < max_lag:
+                current.append(bool(y))
+            if u:
+                current = []
+                rows.append(current)
+    return rows
