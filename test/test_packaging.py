@@ -41,6 +41,7 @@ EXECUTABLES = {
     "posture_node",
     "fake_audio_node",
     "speaker_node",
+    "recorder_node",
     "bringup",
 }
 

@@ -82,6 +82,16 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         default=10.0,
         help="seconds of the wav file to calibrate the threshold on (default 10)",
     )
+    parser.add_argument(
+        "--record",
+        metavar="DIR",
+        help="also record the session as a rosbag2 (MCAP) bag in DIR (must not exist)",
+    )
+    parser.add_argument(
+        "--no-record-audio",
+        action="store_true",
+        help="with --record: leave the 'audio' topic out of the bag (a bag of a few KB)",
+    )
     parser.set_defaults(run=run_demo)
 
 
@@ -102,6 +112,11 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
         "posture_node": {"attentive_above": ATTENTIVE_ABOVE, "bored_below": BORED_BELOW},
         "speaker_node": {"dry_run": True},
     }
+    if args.record:
+        nodes["recorder_node"] = {
+            "directory": str(Path(args.record).resolve()),
+            "record_audio": not args.no_record_audio,
+        }
     if args.wav:
         nodes["mic_node"] = {
             "source": "wav",
@@ -114,7 +129,7 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
         }
         return nodes, "mic_node"
     room: dict[str, Any] = {"room": args.room, "seed": args.seed, "max_windows": args.steps}
-    room["wait_for_truth_listeners"] = 1  # this monitor
+    room["wait_for_truth_listeners"] = 2 if args.record else 1  # this monitor (+ recorder)
     room["partner_leave_s"] = args.leave_at if args.leave_at >= 0 else -1.0
     if args.room != "responsive":
         room["partner_arrive_s"] = -1.0
@@ -130,6 +145,8 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
     if args.wav and not Path(args.wav).is_file():
         raise ValueError(f"--wav {args.wav}: no such file")
+    if args.record and Path(args.record).exists():
+        raise ValueError(f"--record {args.record}: exists already; name a new directory")
     if not args.calibration_s > 0:
         raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
 

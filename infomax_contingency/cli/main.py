@@ -26,6 +26,7 @@ from infomax_contingency.cli.live import (
     register_devices,
     register_measure_latency,
 )
+from infomax_contingency.cli.sessions import register_analyze, register_replay
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
@@ -376,6 +377,8 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_learn,
     register_plot,
     register_demo,
+    register_replay,
+    register_analyze,
 ]
 
 

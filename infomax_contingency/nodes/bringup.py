@@ -1,7 +1,8 @@
 """bringup: the whole graph in one process, on one executor.
 
 Starts mic_node, controller_node, belief_node, posture_node and speaker_node (and, with
-``--fake-room``, fake_audio_node, with the mic reading its ``audio`` topic). Parameters
+``--fake-room``, fake_audio_node, with the mic reading its ``audio`` topic; with
+``--record DIR``, recorder_node writing the session to the bag directory DIR). Parameters
 come from the usual ROS arguments, e.g.::
 
     bringup --fake-room --ros-args --params-file config/fake_room.yaml
@@ -27,6 +28,7 @@ from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
 from infomax_contingency.nodes.graph_node import GraphNode
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.recorder_node import RecorderNode
 from infomax_contingency.nodes.runtime import run_nodes
 from infomax_contingency.nodes.speaker_node import SpeakerNode
 
@@ -39,6 +41,11 @@ def _parse(argv: list[str]) -> argparse.Namespace:
         "--fake-room",
         action="store_true",
         help="also run fake_audio_node and let mic_node listen to it (source topic)",
+    )
+    parser.add_argument(
+        "--record",
+        metavar="DIR",
+        help="also run recorder_node, recording the session as a rosbag2 (MCAP) bag in DIR",
     )
     ros_start = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     return parser.parse_args(argv[1:ros_start])
@@ -62,6 +69,12 @@ def main(args: list[str] | None = None) -> int:
     factories += [
         (node.NODE_NAME, node) for node in (ControllerNode, BeliefNode, PostureNode, SpeakerNode)
     ]
+    if options.record:
+        directory = str(options.record)
+        factories.append((
+            RecorderNode.NODE_NAME,
+            lambda: RecorderNode(parameter_overrides=[Parameter("directory", value=directory)]),
+        ))
     return run_nodes(factories, "bringup", argv)
 
 

@@ -41,6 +41,7 @@ NODES = (
     "posture_node",
     "fake_audio_node",
     "speaker_node",
+    "recorder_node",
 )
 """Node executables (module names under ``infomax_contingency.nodes``)."""
 
@@ -51,6 +52,7 @@ PUBLISHES: dict[str, tuple[str, ...]] = {
     "posture_node": ("posture", "joint_targets"),
     "fake_audio_node": ("audio", "partner_present"),
     "speaker_node": (),
+    "recorder_node": ("session_info",),
 }
 """Topics each node publishes (besides /diagnostics)."""
 

@@ -1,0 +1,238 @@
+"""recorder_node: every topic of the graph written to a rosbag2 directory (MCAP storage).
+
+The bag is what ``ros2 bag record`` writes on Jazzy: ``DIR/metadata.yaml`` and
+``DIR/DIR_NAME_0.mcap``, written with the ``rosbags`` library. Each message is stored as
+the serialized CDR bytes received over DDS (a ``raw`` subscription: nothing is
+deserialized), with its receive time (MCAP ``log_time``, ns since the epoch; the
+publish time is not yet stored apart: ``rosbags`` writes the receive time as both), and
+each topic with the QoS its publishers offer (``offered_qos_profiles`` in the metadata).
+
+Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
+``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
+``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
+``/diagnostics``. The session itself (the parameter files and threshold file named in
+``session_files``, their text) goes on the topic ``session_info`` (std_msgs/String,
+YAML) as the first message, and into the metadata's ``custom_data``.
+
+Robustness: the MCAP file is flushed every ``flush_period_s`` seconds (a chunk ends
+there), so a recorder killed with ``kill -9`` leaves a file readable up to the last
+complete chunk (``metadata.yaml`` is only written on a clean stop; the MCAP file reads
+without it). A directory that cannot be created or written, or a full disk, gives one
+ERROR line and an ERROR diagnostic; the recorder stops writing and keeps what it has
+written, and the rest of the graph keeps running.
+
+Parameters: ``directory`` (the bag directory to create; it must not exist yet),
+``session_files`` (comma-separated paths to store with the session), ``flush_period_s``,
+``record_audio`` (false: leave out the ``audio`` topic, the bulk of a bag).
+Publishes ``session_info``, ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import QoSProfile
+from std_msgs.msg import Bool, Float32, Float64, Int64MultiArray, String
+from trajectory_msgs.msg import JointTrajectory
+
+from infomax_contingency.audio.bag import BagWriteError, BagWriter
+from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
+from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.qos import LATCHED_QOS, LATCHED_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.runtime import run_node
+
+SESSION_TOPIC = "session_info"
+"""Topic of the session description (std_msgs/String holding YAML)."""
+
+_DISCOVERY_PERIOD_S = 0.5
+"""Seconds between looks for topics that have no subscription yet (``audio``)."""
+
+
+RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
+    "sound": (Bool, STREAM_QOS),
+    "sound_step": (Int64MultiArray, STREAM_QOS),
+    "sound_energy": (Float32, STREAM_QOS),
+    "vocalize": (Bool, STREAM_QOS),
+    "vocalize_step": (Int64MultiArray, STREAM_QOS),
+    "belief": (Float64, STREAM_QOS),
+    "posture": (String, LATCHED_READER_QOS),
+    "joint_targets": (JointTrajectory, LATCHED_READER_QOS),
+    "speaker_started": (Bool, STREAM_QOS),
+    "partner_present": (Bool, STREAM_QOS),
+    "/diagnostics": (DiagnosticArray, QoSProfile(depth=100)),
+}
+"""Topic -> (message type, QoS of the recorder's subscription); ``audio`` is added when
+it has a publisher (its type is the publisher's)."""
+
+
+def qos_values(profile: QoSProfile) -> dict[str, int]:
+    """A QoS profile as the dict of rmw values that :mod:`audio.bag` stores."""
+    return {
+        "history": int(profile.history), "depth": int(profile.depth),
+        "reliability": int(profile.reliability), "durability": int(profile.durability),
+        "liveliness": int(profile.liveliness),
+        "deadline_ns": profile.deadline.nanoseconds,
+        "lifespan_ns": profile.lifespan.nanoseconds,
+        "liveliness_lease_duration_ns": profile.liveliness_lease_duration.nanoseconds,
+    }
+
+
+def ros_type_name(kind: type) -> str:
+    """``std_msgs/msg/Bool`` for the rclpy class ``std_msgs.msg.Bool``."""
+    package = kind.__module__.split(".")[0]
+    return f"{package}/msg/{kind.__name__}"
+
+
+def session_description(files: list[str]) -> str:
+    """YAML text naming the session's files with their contents (unreadable: the reason)."""
+    contents: dict[str, str] = {}
+    for name in files:
+        try:
+            contents[name] = Path(name).read_text()
+        except OSError as error:
+            contents[name] = f"<unreadable: {error.strerror or error}>"
+    return yaml.safe_dump({"recorded_at_ns": time.time_ns(), "files": contents})
+
+
+class RecorderNode(GraphNode):
+    """Recorder: the graph's topics into a rosbag2 (MCAP) bag."""
+
+    NODE_NAME = "recorder_node"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        read = self.parameters
+        directory = read.text("directory", "", "Bag directory to create (must not exist)")
+        files = read.text(
+            "session_files", "", "Parameter and threshold files to store (comma-separated)"
+        )
+        flush_period_s = read.number(
+            "flush_period_s", 1.0, "Seconds between flushes of the bag (one chunk)", 0.05,
+            3600.0, "s",
+        )
+        self.record_audio = read.flag("record_audio", True, "Also record the 'audio' topic")
+        if not directory:
+            raise ConfigError("parameter 'directory' is empty: name the bag directory to create")
+        self.directory = Path(directory)
+        self.failure = ""
+        self.counts: dict[str, int] = {}
+        self.subscribed: set[str] = set()
+        description = session_description([f.strip() for f in files.split(",") if f.strip()])
+        self.writer: BagWriter | None = None
+        try:
+            self.writer = BagWriter(self.directory, custom_data={"session": description})
+        except BagWriteError as error:
+            self._fail(str(error))
+        self._add_topic(SESSION_TOPIC, String, STREAM_QOS)
+        self._session_pub = self.create_publisher(String, SESSION_TOPIC, LATCHED_QOS)
+        for topic, (kind, qos) in RECORDED_TOPICS.items():
+            self._add_topic(topic, kind, qos)
+        self._write_own(SESSION_TOPIC, String(data=description))
+        self._session_pub.publish(String(data=description))
+        self.create_timer(_DISCOVERY_PERIOD_S, self._discover_audio)
+        self.create_timer(flush_period_s, self._flush)
+        self.start_diagnostics()
+
+    def _fail(self, message: str) -> None:
+        """Stop writing after an error (logged once, shown in the diagnostics)."""
+        if not self.failure:
+            self.failure = message
+            self.get_logger().error(f"recording stopped: {message}")
+        if self.writer is not None:
+            self.writer.abandon()
+            self.writer = None
+
+    def _add_topic(self, topic: str, kind: type, qos: QoSProfile) -> None:
+        """Add ``topic`` to the bag and subscribe to it raw."""
+        name = self.resolve_topic_name(topic)
+        if self.writer is not None:
+            offered = [qos_values(info.qos_profile)
+                       for info in self.get_publishers_info_by_topic(name)]
+            try:
+                self.writer.add_topic(name, ros_type_name(kind), offered or [qos_values(qos)])
+            except BagWriteError as error:
+                self._fail(str(error))
+
+        def receive(data: bytes, info: dict[str, Any]) -> None:
+            self._write(name, data, time.time_ns())
+
+        if topic != SESSION_TOPIC:
+            self.create_subscription(kind, topic, receive, qos, raw=True)
+        self.subscribed.add(topic)
+        self.counts[name] = 0
+
+    def _write_own(self, topic: str, msg: Any) -> None:
+        """Write a message this node makes itself (the session description)."""
+        from rclpy.serialization import serialize_message
+
+        now = time.time_ns()
+        self._write(self.resolve_topic_name(topic), serialize_message(msg), now)
+
+    def _write(self, name: str, data: bytes, received_ns: int) -> None:
+        self.counts[name] = self.counts.get(name, 0) + 1
+        if self.writer is None:
+            return
+        try:
+            self.writer.write(name, data, received_ns)
+        except BagWriteError as error:
+            self._fail(str(error))
+
+    def _discover_audio(self) -> None:
+        """Subscribe to ``audio`` once it has a publisher (its type is the publisher's)."""
+        if "audio" in self.subscribed or not self.record_audio:
+            return
+        for name, types in self.get_topic_names_and_types():
+            if name == self.resolve_topic_name("audio") and types:
+                kind = _message_class(types[0])
+                if kind is not None:
+                    self._add_topic("audio", kind, STREAM_QOS)
+
+    def _flush(self) -> None:
+        if self.writer is not None:
+            try:
+                self.writer.flush()
+            except BagWriteError as error:
+                self._fail(str(error))
+
+    def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
+        """Recording or failed; messages per topic."""
+        values: dict[str, Any] = {"directory": str(self.directory)}
+        values.update({f"messages {name}": count for name, count in self.counts.items()})
+        if self.failure:
+            return ERROR, f"not recording: {self.failure}", values
+        return OK, f"recording to {self.directory}", values
+
+    def destroy_node(self) -> None:
+        """Close the bag (writes ``metadata.yaml``) and destroy the node."""
+        if self.writer is not None:
+            try:
+                self.writer.close()
+            except BagWriteError as error:
+                self.get_logger().error(f"closing the bag: {error}")
+            self.writer = None
+        super().destroy_node()
+
+
+def _message_class(type_name: str) -> type | None:
+    """The rclpy class of ``pkg/msg/Name`` (None if it cannot be imported)."""
+    import importlib
+
+    try:
+        package, _, name = type_name.split("/")
+        return getattr(importlib.import_module(f"{package}.msg"), name)
+    except (ValueError, ImportError, AttributeError):
+        return None
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the recorder node."""
+    return run_node(RecorderNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

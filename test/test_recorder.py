@@ -1,0 +1,158 @@
+"""recorder_node: the graph's topics into a rosbag2 (MCAP) bag, read back independently."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import rclpy
+from mcap.exceptions import EndOfFile
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64, Int64MultiArray
+
+from infomax_contingency.audio.bag import BagWriteError, BagWriter
+from infomax_contingency.nodes.recorder_node import RecorderNode
+from infomax_contingency.testing.stepped import Probe, SteppedExecutor
+
+
+@pytest.fixture
+def ros() -> Iterator[None]:
+    rclpy.init()
+    try:
+        yield
+    finally:
+        rclpy.try_shutdown()
+
+
+def _read_mcap(path: Path) -> list[tuple[str, int, object]]:
+    """(topic, log time ns, decoded message) with the mcap reader and ROS 2 decoder."""
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        return [(channel.topic, message.log_time, decoded)
+                for _, channel, message, decoded in reader.iter_decoded_messages()]
+
+
+def _read_cut_mcap(path: Path) -> list[tuple[str, object]]:
+    """(topic, decoded message) of a file without its end, read record by record."""
+    factory, schemas, channels, messages = DecoderFactory(), {}, {}, []
+    with path.open("rb") as stream:
+        try:
+            for record in StreamReader(stream).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    channel = channels[record.channel_id]
+                    decode = factory.decoder_for(channel.message_encoding,
+                                                 schemas[channel.schema_id])
+                    messages.append((channel.topic, decode(record.data)))
+        except EndOfFile:  # the cut: everything before it was read
+            pass
+    return messages
+
+
+def _record(directory: Path, steps: int) -> tuple[RecorderNode, SteppedExecutor]:
+    recorder = RecorderNode(parameter_overrides=[Parameter("directory", value=str(directory))])
+    probe = Probe()
+    executor = SteppedExecutor([recorder, probe])
+    steps_pub = probe.talk("sound_step", Int64MultiArray)
+    belief_pub = probe.talk("belief", Float64)
+    executor.connected(steps_pub)
+    executor.connected(belief_pub)
+    for step in range(1, steps + 1):
+        steps_pub.publish(Int64MultiArray(data=[7, step, step % 2, 250_000]))
+        belief_pub.publish(Float64(data=step / (steps + 1)))
+    executor.run_until(lambda: recorder.counts["/belief"] == steps
+                       and recorder.counts["/sound_step"] == steps, "all messages recorded")
+    return recorder, executor
+
+
+def test_a_recorded_run_reads_back_with_the_mcap_reader(ros: None, tmp_path: Path) -> None:
+    recorder, executor = _record(tmp_path / "session", 30)
+    executor.close()  # closes the bag: metadata.yaml is written
+    assert (tmp_path / "session" / "metadata.yaml").exists()
+    messages = _read_mcap(tmp_path / "session" / "session.mcap")
+    steps = [m for topic, _, m in messages if topic == "/sound_step"]
+    beliefs = [m.data for topic, _, m in messages if topic == "/belief"]
+    assert [list(m.data) for m in steps] == [[7, s, s % 2, 250_000] for s in range(1, 31)]
+    assert beliefs == [s / 31 for s in range(1, 31)]
+    assert [topic for topic, _, _ in messages].count("/session_info") == 1
+    times = [t for topic, t, _ in messages if topic == "/belief"]
+    assert times == sorted(times) and times[0] > 0
+
+
+def test_a_killed_recorder_leaves_the_flushed_chunks_readable(ros: None, tmp_path: Path) -> None:
+    recorder, executor = _record(tmp_path / "session", 20)
+    recorder._flush()
+    # What a kill -9 leaves: the file as flushed, no summary, no metadata.yaml.
+    data = (tmp_path / "session" / "session.mcap").read_bytes()
+    (tmp_path / "copy.mcap").write_bytes(data)
+    recorder.writer = None  # do not close the bag on teardown
+    executor.close()
+    beliefs = [m.data for topic, m in _read_cut_mcap(tmp_path / "copy.mcap")
+               if topic == "/belief"]
+    assert beliefs == [s / 21 for s in range(1, 21)]
+
+
+def test_an_unwritable_directory_is_one_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(BagWriteError, match="cannot create the bag .*a_file"):
+        BagWriter(tmp_path / "a_file" / "session")
+    (tmp_path / "exists").mkdir()
+    with pytest.raises(BagWriteError, match="exists already"):
+        BagWriter(tmp_path / "exists")
+
+
+def test_the_recorder_keeps_running_when_the_bag_cannot_be_made(ros: None, tmp_path: Path
+                                                                ) -> None:
+    (tmp_path / "a_file").write_text("")
+    recorder = RecorderNode(parameter_overrides=[
+        Parameter("directory", value=str(tmp_path / "a_file" / "session"))])
+    try:
+        level, message, _ = recorder.diagnostic_status()
+        assert level == b"\x02" and "cannot create the bag" in message
+    finally:
+        recorder.destroy_node()
+
+
+def test_a_recorder_killed_with_kill_9_leaves_a_readable_bag(ros: None, tmp_path: Path) -> None:
+    directory = tmp_path / "session"
+    child = subprocess.Popen(
+        [sys.executable, "-m", "infomax_contingency.nodes.recorder_node", "--ros-args",
+         "-p", f"directory:={directory}", "-p", "flush_period_s:=0.1"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    probe = Probe()
+    executor = SteppedExecutor([probe])
+    try:
+        belief_pub = probe.talk("belief", Float64)
+        executor.connected(belief_pub, what="the recorder subscribed to belief")
+        for step in range(1, 11):
+            belief_pub.publish(Float64(data=step / 11))
+        mcap_file = directory / "session.mcap"
+
+        def flushed() -> bool:
+            cut = _read_cut_mcap(mcap_file) if mcap_file.exists() else []
+            return sum(topic == "/belief" for topic, _ in cut) == 10
+
+        executor.run_until(flushed, "the ten beliefs flushed to disk")
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=10)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+        executor.close()
+    assert not (directory / "metadata.yaml").exists()  # killed: no clean close
+    beliefs = [m.data for topic, m in _read_cut_mcap(directory / "session.mcap")
+               if topic == "/belief"]
+    assert beliefs == [step / 11 for step in range(1, 11)]
