@@ -49,12 +49,15 @@ RESTART_TIMEOUT_S = 1.0
 """source_timeout_s in the restart test: a silent stream or controller is replaced after
 this (the other tests keep the default, 3 s)."""
 
+HOLD = {"fault_hold_s": 2.0}
+"""A fault shows in the diagnostics for 2 s after it last happened (10 s by default)."""
+
 MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
-       "wait_for_listeners": 3, "start_delay_s": 0.2}  # fmt: skip
+       "wait_for_listeners": 3, "start_delay_s": 0.2, **HOLD}  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, "start_delay_s": 0.2,
-        "lockstep_timeout_s": 2.0}  # fmt: skip
-BELIEF = {"memory_steps": MEMORY}
-CONTROLLER: dict[str, Any] = {}
+        "lockstep_timeout_s": 2.0, **HOLD}  # fmt: skip
+BELIEF = {"memory_steps": MEMORY, **HOLD}
+CONTROLLER: dict[str, Any] = {**HOLD}
 
 
 @dataclass

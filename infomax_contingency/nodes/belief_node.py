@@ -38,7 +38,7 @@ from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.core.model import StatisticTracker
-from infomax_contingency.core.stepclock import Arrival, RecentEvents, SourceLock, StepJoiner
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepJoiner
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -105,10 +105,10 @@ class BeliefNode(GraphNode):
         self.controllers = SourceLock(timeout_s)
         self.belief = self.tracker.statistic.belief(self.params)
         self.resets = 0
-        self.malformed = RecentEvents()
-        self.wrong_window = RecentEvents()
-        self.foreign = RecentEvents()
-        self.gaps = RecentEvents()
+        self.malformed = self.recent_events()
+        self.wrong_window = self.recent_events()
+        self.foreign = self.recent_events()
+        self.gaps = self.recent_events()
         self.stream_changes = 0
         self._stream_started = False
         self._intruders: dict[str, list[str]] = {}

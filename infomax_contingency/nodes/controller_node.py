@@ -31,7 +31,7 @@ from std_msgs.msg import Bool, Int64MultiArray
 
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.stepclock import Arrival, RecentEvents, SourceLock
+from infomax_contingency.core.stepclock import Arrival, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -101,9 +101,9 @@ class ControllerNode(GraphNode):
         self.steps = 0
         self.vocalizations = 0
         self.missed_steps = 0
-        self.stale_bits = RecentEvents()
-        self.foreign = RecentEvents()
-        self.bad = RecentEvents()
+        self.stale_bits = self.recent_events()
+        self.foreign = self.recent_events()
+        self.bad = self.recent_events()
         self._intruders: dict[str, list[str]] = {}
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)

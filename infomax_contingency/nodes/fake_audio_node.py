@@ -34,7 +34,7 @@ from typing import Any
 
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.core.stepclock import Arrival, LockstepPacer, RecentEvents, SourceLock
+from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -149,8 +149,8 @@ class FakeAudioNode(GraphNode):
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", STREAM_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
         self.controllers = SourceLock(source_timeout_s)
-        self.timeouts = RecentEvents()
-        self.foreign = RecentEvents()
+        self.timeouts = self.recent_events()
+        self.foreign = self.recent_events()
         self._answered: tuple[int, int] = (0, 0)
         self.vocalize_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS

@@ -27,7 +27,7 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
-from infomax_contingency.core.stepclock import LockstepPacer
+from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents
 from infomax_contingency.nodes.parameters import ParameterReader
 from infomax_contingency.nodes.qos import STREAM_QOS
 
@@ -70,6 +70,15 @@ class GraphNode(Node):
         self.stale_messages = 0
         """Messages ignored because they were published before this node started."""
         self.parameters = ParameterReader(self)
+        self.fault_hold_s = self.parameters.number(
+            "fault_hold_s",
+            10.0,
+            "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
+            " its count stays among the values",
+            0.1,
+            3600.0,
+            "s",
+        )
         self.finished: Future = Future()
         self.arrivals: dict[str, int] = {}
         """Messages received per topic (as subscribed, relative names)."""
@@ -185,6 +194,10 @@ class GraphNode(Node):
             self.get_logger().warning(f"nothing received after {waited_s:.0f} s: {waiting}")
         self.waiting_for = waiting
         return waiting
+
+    def recent_events(self) -> RecentEvents:
+        """A fault counter whose diagnostic returns to OK ``fault_hold_s`` after the fault."""
+        return RecentEvents(hold_s=self.fault_hold_s)
 
     def now_s(self) -> float:
         """Monotonic seconds (the clock of the step-clock bookkeeping)."""

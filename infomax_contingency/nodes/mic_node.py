@@ -77,7 +77,7 @@ from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceEr
 from infomax_contingency.audio.energy import WindowAssembler
 from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents, StepOutbox
+from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -319,8 +319,8 @@ class MicNode(GraphNode):
         self.windows_with_loss = 0
         self.window_delay_s = float("nan")
         self.max_window_delay_s = float("nan")
-        self.losses = RecentEvents()
-        self.timeouts = RecentEvents()
+        self.losses = self.recent_events()
+        self.timeouts = self.recent_events()
         self._intruders: dict[str, list[str]] = {}
         if self.source == "wav":
             self._setup_wav(config)

@@ -35,7 +35,6 @@ from std_msgs.msg import Bool
 from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
 from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
 from infomax_contingency.audio.wav import read_wav
-from infomax_contingency.core.stepclock import RecentEvents
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STREAM_QOS
@@ -99,7 +98,7 @@ class SpeakerNode(GraphNode):
                 ) from None
             self.create_timer(EVENTS_POLL_S, self._publish_starts)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
-        self.output_errors = RecentEvents()
+        self.output_errors = self.recent_events()
         self._intruders: dict[str, list[str]] = {}
         self.start_diagnostics()
 
