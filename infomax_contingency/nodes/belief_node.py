@@ -58,14 +58,12 @@ HELD_BITS = 1024
 HELD_STREAMS = 8
 """Streams whose bits are kept at once (the oldest is forgotten first)."""
 
-WATCHED_TOPICS = ("sound", SOUND_STEP, "vocalize", VOCALIZE_STEP)
-"""Topics with one rightful publisher each (mic_node, controller_node)."""
-
 
 class BeliefNode(GraphNode):
     """Belief: the posterior probability that a responsive partner is present."""
 
     NODE_NAME = "belief_node"
+    WATCHED_TOPICS = ("sound", SOUND_STEP, "vocalize", VOCALIZE_STEP)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
@@ -111,7 +109,6 @@ class BeliefNode(GraphNode):
         self.gaps = self.recent_events()
         self.stream_changes = 0
         self._stream_started = False
-        self._intruders: dict[str, list[str]] = {}
         self.stream: int | None = None
         """The stream followed: the one the followed controller answers."""
         self._held: dict[int, deque[StepBit]] = {}
@@ -251,12 +248,6 @@ class BeliefNode(GraphNode):
 
     # ------------------------------------------------------------------ diagnostics
 
-    def publish_diagnostics(self) -> None:
-        """Check for intruders, then publish."""
-        self._intruders = self.extra_publishers(WATCHED_TOPICS)
-        for topic, names in self._intruders.items():
-            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
-        super().publish_diagnostics()
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Belief, statistic, steps, gaps, intruders and the joining queues."""
@@ -285,10 +276,10 @@ class BeliefNode(GraphNode):
             "resets": self.resets,
             "stale_messages": self.stale_messages,
         }
-        for topic, names in self._intruders.items():
+        for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
-        if self._intruders:
-            topics = ", ".join(f"'{topic}'" for topic in self._intruders)
+        if self.intruders:
+            topics = ", ".join(f"'{topic}'" for topic in self.intruders)
             return ERROR, f"more than one publisher on {topics}", values
         if self.foreign.recent(now) or self.wrong_window.recent(now):
             return ERROR, "messages from a second stream or controller (ignored)", values

@@ -66,6 +66,7 @@ class ControllerNode(GraphNode):
     """Controller: decides after every window whether to vocalize."""
 
     NODE_NAME = "controller_node"
+    WATCHED_TOPICS = (SOUND_STEP,)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
@@ -104,7 +105,6 @@ class ControllerNode(GraphNode):
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
-        self._intruders: dict[str, list[str]] = {}
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
@@ -164,12 +164,6 @@ class ControllerNode(GraphNode):
             decision_message(StepDecision(bit.stream, bit.step, u, self.controller_id))
         )
 
-    def publish_diagnostics(self) -> None:
-        """Check for intruders, then publish."""
-        self._intruders = self.extra_publishers((SOUND_STEP,))
-        for topic, names in self._intruders.items():
-            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
-        super().publish_diagnostics()
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Steps, vocalizations, the table, the stream followed and what was refused."""
@@ -192,7 +186,7 @@ class ControllerNode(GraphNode):
             "memory": table.memory,
             "statistic": tuple(self.controller.tracker.statistic),
         }
-        if self._intruders or self.foreign.recent(now) or self.bad.recent(now):
+        if self.intruders or self.foreign.recent(now) or self.bad.recent(now):
             return ERROR, "a second stream on 'sound_step', or refused messages", values
         if self.stale_bits.recent(now):
             return WARN, "repeated or backward steps (ignored)", values

@@ -64,8 +64,13 @@ class GraphNode(Node):
     file) sets :attr:`finished`; :func:`run_node` then returns its result as exit status.
     """
 
+    WATCHED_TOPICS: tuple[str, ...] = ()
+    """Topics with one rightful publisher that this node watches for a second one."""
+
     def __init__(self, node_name: str, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
+        self.intruders: dict[str, list[str]] = {}
+        """Watched topics with more than one publisher -> the publishers (last check)."""
         self.started_ns = time.time_ns()
         self.stale_messages = 0
         """Messages ignored because they were published before this node started."""
@@ -245,7 +250,10 @@ class GraphNode(Node):
         raise NotImplementedError
 
     def publish_diagnostics(self) -> None:
-        """Publish one DiagnosticArray with this node's status."""
+        """Check the watched topics for intruders, then publish this node's status."""
+        self.intruders = self.extra_publishers(self.WATCHED_TOPICS)
+        for topic, names in self.intruders.items():
+            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
         level, message, values = self.diagnostic_status()
         if self.waiting_for and level == OK:
             level, message = WARN, self.waiting_for

@@ -283,6 +283,7 @@ class MicNode(GraphNode):
     """Microphone: audio windows to sound bits."""
 
     NODE_NAME = "mic_node"
+    WATCHED_TOPICS = ("sound", SOUND_STEP)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
@@ -321,7 +322,6 @@ class MicNode(GraphNode):
         self.max_window_delay_s = float("nan")
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
-        self._intruders: dict[str, list[str]] = {}
         if self.source == "wav":
             self._setup_wav(config)
         elif self.source == "topic":
@@ -569,12 +569,6 @@ class MicNode(GraphNode):
 
     # ------------------------------------------------------------------ diagnostics
 
-    def publish_diagnostics(self) -> None:
-        """Check for a second microphone on the bit topics, then publish."""
-        self._intruders = self.extra_publishers(("sound", SOUND_STEP))
-        for topic, names in self._intruders.items():
-            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
-        super().publish_diagnostics()
 
     def _check_fixed_threshold(self, value: float) -> None:
         """A live ``threshold_db`` needs ``threshold_mode`` fixed (else it would be ignored)."""
@@ -609,7 +603,7 @@ class MicNode(GraphNode):
             "calibration_failures": b.calibration_failures,
             "calibration_state": b.state,
         }
-        for topic, names in self._intruders.items():
+        for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
@@ -620,7 +614,7 @@ class MicNode(GraphNode):
             values["windows_with_loss"] = self.windows_with_loss
             values["window_delay_s"] = self.window_delay_s
             values["max_window_delay_s"] = self.max_window_delay_s
-        if self._intruders:
+        if self.intruders:
             return ERROR, "another publisher on 'sound' or 'sound_step'", values
         if not self.started:
             return (

@@ -48,6 +48,7 @@ class SpeakerNode(GraphNode):
     """Speaker: the robot's voice."""
 
     NODE_NAME = "speaker_node"
+    WATCHED_TOPICS = ("vocalize",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
@@ -99,7 +100,6 @@ class SpeakerNode(GraphNode):
             self.create_timer(EVENTS_POLL_S, self._publish_starts)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
         self.output_errors = self.recent_events()
-        self._intruders: dict[str, list[str]] = {}
         self.start_diagnostics()
 
     def _on_vocalize(self, msg: Bool, stamp: int) -> None:
@@ -132,22 +132,13 @@ class SpeakerNode(GraphNode):
             self.speaker.close()
         super().destroy_node()
 
-    def publish_diagnostics(self) -> None:
-        """Check for a second publisher of commands, then publish."""
-        self._intruders = self.extra_publishers(("vocalize",))
-        for topic, names in self._intruders.items():
-            self.warn_intrusion(
-                f"{len(names)} publishers on '{topic}': {', '.join(names)}; the speaker obeys"
-                " every one of them"
-            )
-        super().publish_diagnostics()
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Device, vocalizations, sounds played, output errors, start delay, intruders."""
         values: dict[str, Any] = {"dry_run": self.dry_run, "requests": self.requests}
-        for topic, names in self._intruders.items():
+        for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
-        if self._intruders:
+        if self.intruders:
             return ERROR, "more than one publisher on 'vocalize'", values
         if self.speaker is None:
             values["played"] = 0
