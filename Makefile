@@ -23,6 +23,8 @@ SETUP_INPUTS := requirements.txt requirements-colcon.txt setup.py setup.cfg pack
 # play audio fixtures.
 APT_PACKAGES := libportaudio2 sox espeak-ng alsa-utils
 
+# The suite runs on both cores (pytest-xdist); every worker has a DDS domain of its own.
+PYTEST_XDIST ?= -n 2
 PYTEST_ARGS ?=
 # The demo: the whole node graph (mic, controller, belief, posture, speaker, fake room) as
 # separate processes over DDS, in lockstep: a partner answers for 60 s, then leaves.
@@ -146,7 +148,7 @@ ROS2CLI_VENV ?= $(abspath ../ros2cli-venv)
 test: $(STAMP)
 	"$(VENV)/bin/ruff" check .
 	if [ -x "$(ROS2CLI_VENV)/bin/ros2" ]; then export PATH="$$PATH:$(ROS2CLI_VENV)/bin"; fi
-	"$(VPY)" -m pytest -q $(PYTEST_ARGS)
+	"$(VPY)" -m pytest -q $(PYTEST_XDIST) $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	"$(VENV)/bin/ruff" check .
