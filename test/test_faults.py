@@ -322,7 +322,11 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     # The last bits a killed mic_node published may reach some listeners and not others
     # (it cannot resend them): the belief node may lack the last step or two of stream A.
     lost_at_kill = len(pairs_a) + len(pairs_b) - len(got)
-    assert 0 <= lost_at_kill <= 2, f"A {join_step}..{max(decided_a)}, B {first_b}..{last_b}"
+    assert 0 <= lost_at_kill <= 2, (
+        f"A {join_step}..{max(decided_a)}, B {first_b}..{last_b}, {len(got)} beliefs;"
+        f" {dict((v.key, v.value) for v in graph.status('belief_node').values)}\n"
+        + graph.processes.log("belief_node")[-4000:]
+    )
     pairs_a = pairs_a[: len(pairs_a) - lost_at_kill]
     expected = _offline([(pairs_a, "joined"), (pairs_b, "new stream")])
     _assert_same_beliefs(got, expected, graph.processes.log("belief_node")[-3000:])

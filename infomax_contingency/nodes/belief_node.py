@@ -166,7 +166,7 @@ class BeliefNode(GraphNode):
                 f"malformed '{VOCALIZE_STEP}' message ignored: {list(msg.data)}"
             )
             return
-        arrival = self.controllers.accept(decision.controller, now)
+        arrival = self.controllers.accept(decision.controller, self.sent_s(stamp, now))
         if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(

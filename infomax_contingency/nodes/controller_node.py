@@ -129,7 +129,7 @@ class ControllerNode(GraphNode):
                 throttle_duration_sec=5.0,
             )
             return
-        arrival = self.streams.accept(bit.stream, now)
+        arrival = self.streams.accept(bit.stream, self.sent_s(stamp, now))
         if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(

@@ -206,7 +206,7 @@ class FakeAudioNode(GraphNode):
         if decision is None:
             return
         now = self.now_s()
-        if self.controllers.accept(decision.controller, now) is Arrival.FOREIGN:
+        if self.controllers.accept(decision.controller, self.sent_s(stamp, now)) is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(
                 f"ignoring decisions of controller {decision.controller} (a second"

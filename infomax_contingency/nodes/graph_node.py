@@ -204,6 +204,16 @@ class GraphNode(Node):
         """A fault counter whose diagnostic returns to OK ``fault_hold_s`` after the fault."""
         return RecentEvents(hold_s=self.fault_hold_s)
 
+    @staticmethod
+    def sent_s(stamp_ns: int, fallback_s: float) -> float:
+        """When a message was published (s, system clock), or ``fallback_s`` if unknown.
+
+        A source lock measures a followed source's silence between publication times, so
+        a node that falls behind (a backlog under load) does not mistake its own delay
+        for the source's silence.
+        """
+        return stamp_ns / 1e9 if stamp_ns > 0 else fallback_s
+
     def now_s(self) -> float:
         """Monotonic seconds (the clock of the step-clock bookkeeping)."""
         return time.monotonic()
