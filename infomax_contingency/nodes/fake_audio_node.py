@@ -37,7 +37,7 @@ from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP, parse_decision
 from infomax_contingency.sim.fake_room import (
@@ -146,7 +146,7 @@ class FakeAudioNode(GraphNode):
         self.parameters.live("lockstep_timeout_s", self._set_lockstep_timeout)
         self.period_s = config.window_s / speed
         self.started = False
-        self.audio_pub = self.create_publisher(Float32MultiArray, "audio", STREAM_QOS)
+        self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
         self.controllers = SourceLock(source_timeout_s)
         self.timeouts = self.recent_events()

@@ -80,7 +80,7 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
-from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
@@ -371,7 +371,9 @@ class MicNode(GraphNode):
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
         self._last_sequence: int | None = None
-        self.create_subscription(Float32MultiArray, "audio", self._on_audio_message, STREAM_QOS)
+        self.create_subscription(
+            Float32MultiArray, "audio", self._on_audio_message, AUDIO_QOS
+        )
         self.wait_visibly(
             "audio",
             f"std_msgs/Float32MultiArray, mono samples at {rate} Hz: start an audio"

@@ -1,8 +1,10 @@
 """QoS profiles of the graph's topics.
 
-The step-clock topics (``audio``, ``sound``, ``sound_energy``, ``vocalize``, ``belief``,
-``partner_present`` and their stamped companions) are reliable, keep-last
-:data:`STREAM_DEPTH`; slow-changing state (``posture``, ``joint_targets``) is reliable and
+The step-clock topics (``sound``, ``sound_energy``, ``vocalize``, ``belief``,
+``partner_present`` and the stamped ``sound_step``, ``vocalize_step``) are reliable,
+keep-last :data:`STREAM_DEPTH` (a deep history: a listener starved of CPU for a while
+still gets every message resent); ``audio`` chunks are up to megabytes, so their
+history is :data:`AUDIO_DEPTH`; slow-changing state (``posture``, ``joint_targets``) is reliable and
 transient-local with depth 1, so a late joiner gets the current value.
 """
 
@@ -10,8 +12,12 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-STREAM_DEPTH = 100
-"""History depth of the step-clock topics (messages kept for a slow reader)."""
+STREAM_DEPTH = 1000
+"""History depth of the step-clock topics (messages kept for a slow reader): at most
+about 100 kB of small messages per topic."""
+
+AUDIO_DEPTH = 100
+"""History depth of the ``audio`` topic."""
 
 STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -21,15 +27,23 @@ STREAM_QOS = QoSProfile(
 )
 """QoS of the per-window topics."""
 
-STEP_READER_QOS = QoSProfile(
+AUDIO_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=10 * STREAM_DEPTH,
+    depth=AUDIO_DEPTH,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-"""QoS of the nodes that read ``sound_step`` and ``vocalize_step``: a deeper queue than the
-writers', so that a burst on the topic (an intruder among the true messages) does not
-push a true message out before the node takes it."""
+"""QoS of ``audio``."""
+
+STEP_READER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=STREAM_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+"""QoS of the nodes that read ``sound_step`` and ``vocalize_step``: as deep as the writers',
+so that a burst on the topic (an intruder among the true messages) does not push a true
+message out before the node takes it."""
 
 LATCHED_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,

@@ -43,7 +43,7 @@ from trajectory_msgs.msg import JointTrajectory
 from infomax_contingency.audio.bag import BagWriteError, BagWriter
 from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import LATCHED_QOS, LATCHED_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import AUDIO_QOS, LATCHED_QOS, LATCHED_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 
 SESSION_TOPIC = "session_info"
@@ -190,7 +190,7 @@ class RecorderNode(GraphNode):
             if name == self.resolve_topic_name("audio") and types:
                 kind = _message_class(types[0])
                 if kind is not None:
-                    self._add_topic("audio", kind, STREAM_QOS)
+                    self._add_topic("audio", kind, AUDIO_QOS)
 
     def _flush(self) -> None:
         if self.writer is not None:
