@@ -46,7 +46,7 @@ def graph_nodes(room: dict, audio: bool) -> dict[str, dict]:
             "source": "topic",
             "threshold_mode": "fixed",
             "threshold_db": -40.0,
-            "wait_for_listeners": 3,
+            "wait_for_listeners": 2,  # controller and belief (the recorder reads 'sound')
         },
         "controller_node": {},
         "belief_node": {"memory_steps": 60},
@@ -72,7 +72,7 @@ def run_graph(workdir: Path, room: dict, steps: int, audio: bool):
 
     processes = GraphProcesses(workdir)
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    recorder = StepRecorder("bench_recorder", audio=audio)
+    recorder = StepRecorder("bench_recorder", audio=audio, step_topics=False)
     try:
         with SpinThread(recorder):
             nodes = graph_nodes(room, audio)

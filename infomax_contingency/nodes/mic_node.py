@@ -543,7 +543,13 @@ class MicNode(GraphNode):
         """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
         if not self.started or self.finished.done():
             return
-        paced = self._decisions_sub.get_publisher_count() > 0
+        outbox = self.outbox
+        # Pacing matters only when more would go out than may be unanswered: only then ask
+        # the graph whether a controller answers (one query per window is measurable).
+        paced = (
+            outbox.in_flight + outbox.backlog > outbox.max_ahead
+            and self._decisions_sub.get_publisher_count() > 0
+        )
         for step, (energy_db, bit) in self.outbox.release(paced):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))

@@ -52,11 +52,17 @@ def new_source_id() -> int:
     return secrets.randbits(48) + 1
 
 
+def _dimension(fields: tuple[str, ...]) -> MultiArrayDimension:
+    return MultiArrayDimension(label=",".join(fields), size=len(fields), stride=len(fields))
+
+
+_LAYOUTS = {fields: [_dimension(fields)] for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS)}
+"""The one-dimension layout of each message kind, made once (a message per window)."""
+
+
 def _message(fields: tuple[str, ...], values: tuple[int, ...]) -> Int64MultiArray:
     message = Int64MultiArray()
-    message.layout.dim = [
-        MultiArrayDimension(label=",".join(fields), size=len(fields), stride=len(fields))
-    ]
+    message.layout.dim = _LAYOUTS[fields]
     message.data = [int(v) for v in values]
     return message
 

@@ -224,6 +224,8 @@ class StepRecorder(Node):
         stream_qos: QoS of the step-clock subscriptions (default
             :data:`~infomax_contingency.nodes.qos.STREAM_QOS`); e.g. keep-all so that a
             slow reader cannot drop messages.
+        step_topics: also record ``sound_step`` and ``vocalize_step`` (a benchmark that
+            measures the graph leaves them out: they would load the machine it measures).
     """
 
     def __init__(
@@ -231,6 +233,7 @@ class StepRecorder(Node):
         name: str = "step_recorder",
         audio: bool = False,
         stream_qos: QoSProfile | None = None,
+        step_topics: bool = True,
         **kwargs: Any,
     ) -> None:
         super().__init__(name, **kwargs)
@@ -257,6 +260,8 @@ class StepRecorder(Node):
             ("sound_step", Int64MultiArray, self.sound_step, stream_qos),
             ("vocalize_step", Int64MultiArray, self.vocalize_step, stream_qos),
         ):
+            if topic.endswith("_step") and not step_topics:
+                continue
             self.times[topic] = []
             self._subscribe(kind, topic, self._recorder(topic, store), qos)
         if audio:
