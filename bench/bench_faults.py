@@ -116,15 +116,20 @@ def run(workdir: Path, intrusion_s: float) -> int:
 
 
 def _kill_and_restart(node: str, processes, recorder, wait) -> float:
-    """Kill ``node``, start it again; seconds from the kill to the next belief."""
+    """Kill ``node``, start it again; seconds from the kill to the next belief published."""
     beliefs_before = len(recorder.belief)
     killed_at = time.monotonic()
     processes.kill(node)
     if node != "belief_node":  # a new one once the room has timed out waiting for it
         wait(lambda: time.monotonic() - killed_at > 2.5, "the room's timeout")
+    restarted_ns = time.time_ns()
     processes.start(node, NODES[node])
-    beliefs_now = len(recorder.belief)
-    wait(lambda: len(recorder.belief) > beliefs_now, "a new belief")
+
+    def published_since_restart() -> bool:
+        times = recorder.times["belief"]
+        return bool(times) and times[-1][1] > restarted_ns
+
+    wait(published_since_restart, "a belief published after the restart")
     back = time.monotonic() - killed_at
     wait(lambda: len(recorder.belief) > beliefs_before + 60, "60 more steps")
     return back
