@@ -41,7 +41,9 @@ from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_trans
 from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
-pytestmark = pytest.mark.slow
+# The graph tests that start many node processes run one at a time (on one pytest-xdist
+# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("node_graphs")]
 
 ROBOT = ModelParams.named("robot")
 MEMORY = 60

@@ -21,6 +21,10 @@ from infomax_contingency.cli import demo as demo_module
 from infomax_contingency.testing.graph import wait_until
 from stepped_graph import stepped_graph
 
+# The graph tests that start many node processes run one at a time (on one pytest-xdist
+# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
+pytestmark = pytest.mark.xdist_group("node_graphs")
+
 ROOT = Path(__file__).resolve().parent.parent
 WAV = ROOT / "test" / "data" / "interaction.wav"
 STEP_LINE = re.compile(r"^\s*(\d+)\s+([\d.]+)\s+([01])\s+(yes|-)\s+([\d.]+)\s+(attentive|bored)")

@@ -28,9 +28,14 @@ from test_ros2_run import colcon_build
 
 ROOT = Path(__file__).resolve().parent.parent
 ROS2 = shutil.which("ros2")
-pytestmark = pytest.mark.skipif(
-    ROS2 is None, reason="ros2 is not on PATH (build it: ../shared/tools/ros2cli/setup.sh DIR)"
-)
+# The graph tests that start many node processes run one at a time (on one pytest-xdist
+# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
+pytestmark = [
+    pytest.mark.skipif(
+        ROS2 is None, reason="ros2 is not on PATH (build it: ../shared/tools/ros2cli/setup.sh DIR)"
+    ),
+    pytest.mark.xdist_group("node_graphs"),
+]
 
 
 @pytest.fixture(scope="module")

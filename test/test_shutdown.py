@@ -16,6 +16,10 @@ from pathlib import Path
 
 import pytest
 
+# The graph tests that start many node processes run one at a time (on one pytest-xdist
+# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
+pytestmark = pytest.mark.xdist_group("node_graphs")
+
 ROOT = Path(__file__).resolve().parent.parent
 STARTED = "starting the step clock"
 
