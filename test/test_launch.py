@@ -208,6 +208,9 @@ def test_robots_in_namespaces_have_their_own_topics(workspace: Path, launch) -> 
         graph.wait_for(f"[{robot}.mic_node]: listeners connected: starting the step clock")
     assert "(seed 1), lockstep" in graph.output() and "(seed 2), lockstep" in graph.output()
     for robot in ("robot1", "robot2"):
-        info = ros2(workspace, f"topic info --no-daemon --spin-time 3 /{robot}/sound_step -v")
+        for _ in range(10):  # node names reach the CLI's discovery a little after the topics
+            info = ros2(workspace, f"topic info --no-daemon --spin-time 3 /{robot}/sound_step -v")
+            if "_NODE_NAME_UNKNOWN_" not in info:
+                break
         assert info.count("Node name: mic_node") == 1 and f"/{robot}" in info, info
     assert graph.interrupt() == 0

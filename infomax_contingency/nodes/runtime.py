@@ -89,6 +89,16 @@ class StopSignals:
             signal.signal(signum, handler)
         self._previous.clear()
 
+    def ignore_from_now_on(self) -> None:
+        """Ignore SIGINT and SIGTERM: the process is ending.
+
+        ``ros2 launch`` sends them again on a second Ctrl-C; one must not raise a
+        KeyboardInterrupt while the interpreter shuts down.
+        """
+        for signum in self._previous:
+            signal.signal(signum, signal.SIG_IGN)
+        self._previous.clear()
+
 
 def spin_until_done(executor: Executor, done: Future, stop: StopSignals | None = None) -> None:
     """Spin ``executor`` until ``done`` completes, ``stop`` is requested or ROS shuts down.
@@ -150,7 +160,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                 pass
         executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
-        stop.restore()
+        stop.ignore_from_now_on()
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
