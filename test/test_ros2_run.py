@@ -135,7 +135,7 @@ def two_namespaced_graphs(workdir: Path, env: dict, prefix: Path, steps: int) ->
             mics = [p for p in processes if p.args[0].endswith("mic_node")]
             for mic in mics:
                 assert mic.wait(timeout=120) == 0, sorted(p.name for p in workdir.iterdir())
-            assert wait_until(lambda: len(recorder.belief) >= steps, 30.0), "robot2: beliefs"
+            assert wait_until(lambda: len(recorder.belief) >= steps, 120.0), "robot2: beliefs"
     finally:
         for process in processes:
             if process.poll() is None:

@@ -112,6 +112,7 @@ class BeliefNode(GraphNode):
         self.stream: int | None = None
         """The stream followed: the one the followed controller answers."""
         self._held: dict[int, deque[StepBit]] = {}
+        self._joining = False
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
         self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS)
@@ -195,11 +196,7 @@ class BeliefNode(GraphNode):
         """
         held = [bit for bit in self._held.pop(stream, ()) if bit.step >= step]
         if self.stream is None:
-            how = "zero counts" + (", timer unknown until the next vocalization" if step > 1
-                                   else "")  # fmt: skip
-            self.get_logger().info(f"joined stream {stream} at step {step}: {how}")
-            if step > 1:
-                self.tracker.forget_timer_completely()
+            self._joining = True  # announced, and the timer set, at the first step applied
         else:
             self.stream_changes += 1
             self.gaps.note(self.now_s())
@@ -218,6 +215,13 @@ class BeliefNode(GraphNode):
 
     def _apply(self, step: int, y: bool | None, u: bool | None) -> None:
         """Apply one step in order: count the bit, publish the belief, act."""
+        if self._joining:
+            self._joining = False
+            how = "zero counts" + (", timer unknown until the next vocalization" if step > 1
+                                   else "")  # fmt: skip
+            self.get_logger().info(f"joined stream {self.stream} at step {step}: {how}")
+            if step > 1:  # the decisions before it are unknown
+                self.tracker.forget_timer_completely()
         if y is None:
             self.tracker.skip_observation()
         else:
