@@ -506,7 +506,9 @@ def test_speaker_node_plays_the_chirp_on_true_only_and_publishes_when_it_started
     assert 800 <= np.argmax(spectrum) * rate / chirp.size <= 2400  # the chirp's band
     assert status["device"] == "fakespeaker" and status["state"] == "connected"
     assert status["requests"] == "1" and status["errors"] == "0" and status["_level"] == OK
-    assert float(status["start_delay_s"]) >= 0.0  # from the command to the sound's start
+    # From the command to the sound's start, as estimated from PortAudio's output time:
+    # the estimate may lie a millisecond early.
+    assert float(status["start_delay_s"]) >= -0.005
     (stamp, received_ns) = started[0]
     started_ns = stamp.sec * 10**9 + stamp.nanosec
     assert commanded_ns - 50_000_000 <= started_ns <= received_ns + 1_000_000_000
