@@ -202,6 +202,7 @@ def test_two_robots_do_not_cross_talk(workspace: Path, launch, tmp_path: Path) -
 
 
 @pytest.mark.slow
+@pytest.mark.unreliable  # the launch output sometimes lacks a room's start line
 def test_robots_in_namespaces_have_their_own_topics(workspace: Path, launch) -> None:
     graph = launch("multi_robot.launch.py robots:=2 realtime:=false")
     for robot in ("robot1", "robot2"):
