@@ -75,7 +75,8 @@ def room_nodes(
     """The graph against the fake room in lockstep (recorder included in the listeners)."""
     return {
         "mic_node": {"source": "topic", **FIXED_THRESHOLD, "wait_for_listeners": listeners},
-        "controller_node": {},
+        # mic, belief, room and the recorder hear every decision
+        "controller_node": {"wait_for_listeners": listeners + 1},
         "belief_node": {"memory_steps": memory_steps},
         "posture_node": {},
         "fake_audio_node": {**room, "max_windows": steps, "wait_for_truth_listeners": 1},

@@ -84,7 +84,7 @@ def test_the_shipped_configs_find_the_partner_and_notice_they_left() -> None:
     """config/robot.yaml + config/fake_room.yaml, in-process on one stepped executor."""
     nodes = {
         "mic_node": {"source": "topic", "wait_for_listeners": 3},
-        "controller_node": {},
+        "controller_node": {"wait_for_listeners": 4},  # mic, belief, room, recorder
         "belief_node": {},
         "posture_node": {},
         "fake_audio_node": {"wait_for_truth_listeners": 1},

@@ -41,7 +41,8 @@ def test_recorded_interaction_replays_like_the_offline_computation() -> None:
         "calibration_s": CALIBRATION_S,
         "wait_for_listeners": 3,
     }
-    nodes = {"controller_node": {}, "belief_node": {"memory_steps": 0}, "mic_node": mic}
+    nodes = {"controller_node": {"wait_for_listeners": 3}, "belief_node": {"memory_steps": 0},
+             "mic_node": mic}  # fmt: skip
     with stepped_graph(nodes, "mic_node") as graph:
         graph.run_steps(steps)
         mic_node = graph.nodes["mic_node"]

@@ -100,12 +100,13 @@ def offline_beliefs(bits: Any, decisions: Any, memory: int = 0) -> tuple[list[fl
 
 
 def test_controller_answers_every_bit_like_the_offline_controller(run: Callable) -> None:
-    node, probe, graph = run(ControllerNode)
+    node, probe, graph = run(ControllerNode, wait_for_listeners=1)  # the probe
     decisions = probe.listen("vocalize", Bool)
     steps = probe.listen("vocalize_step", Int64MultiArray)
     sound = probe.talk("sound_step", Int64MultiArray)
     graph.connected(sound)
     graph.connected(node.step_pub)
+    graph.run_until(lambda: node.answering, "the controller to answer")
     bits = np.random.default_rng(4).random(80) < 0.3
     for message in bits_of(STREAM, bits):
         sound.publish(message)
@@ -124,11 +125,12 @@ def test_controller_answers_every_bit_like_the_offline_controller(run: Callable)
 
 
 def test_controller_ignores_a_second_stream_and_repeated_steps(run: Callable) -> None:
-    node, probe, graph = run(ControllerNode)
+    node, probe, graph = run(ControllerNode, wait_for_listeners=1)  # the probe
     steps = probe.listen("vocalize_step", Int64MultiArray)
     sound = probe.talk("sound_step", Int64MultiArray)
     graph.connected(sound)
     graph.connected(node.step_pub)
+    graph.run_until(lambda: node.answering, "the controller to answer")
     first, intruder = bits_of(STREAM, [1, 0, 0, 1]), bits_of(STREAM + 1, [1, 1, 1])
     for message in (first[0], intruder[0], first[1], first[1], intruder[1], first[2],
                     intruder[2], first[3]):  # fmt: skip
@@ -142,11 +144,12 @@ def test_controller_ignores_a_second_stream_and_repeated_steps(run: Callable) ->
 
 
 def test_controller_counts_steps_it_never_saw(run: Callable) -> None:
-    node, probe, graph = run(ControllerNode)
+    node, probe, graph = run(ControllerNode, wait_for_listeners=1)  # the probe
     steps = probe.listen("vocalize_step", Int64MultiArray)
     sound = probe.talk("sound_step", Int64MultiArray)
     graph.connected(sound)
     graph.connected(node.step_pub)
+    graph.run_until(lambda: node.answering, "the controller to answer")
     messages = bits_of(STREAM, [0] * 10)
     for message in messages[:3] + messages[7:]:
         sound.publish(message)

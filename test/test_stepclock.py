@@ -69,9 +69,9 @@ def test_a_later_message_from_the_same_source_proves_an_earlier_one_lost() -> No
 
 def test_repeated_backward_and_unknown_steps_are_refused() -> None:
     joiner, applied = _joiner(max_pending=10)
-    joiner.bit(5, True)  # joins at step 5
+    assert joiner.bit(5, True) and joiner.decision(5, True)  # joins at step 5
     assert not joiner.bit(5, False) and not joiner.bit(3, True)
-    assert joiner.decision(5, True) and not joiner.decision(5, False)
+    assert not joiner.decision(5, False)
     assert not joiner.decision(4, True)
     assert not joiner.decision(500, True)  # answers no bit received
     counts = joiner.counts
@@ -87,12 +87,39 @@ def test_decisions_before_the_join_are_dropped() -> None:
     assert applied == [(4, True, False)] and joiner.counts.early_decisions == 1
 
 
+def test_the_join_is_the_first_whole_step_whatever_the_order_before_it() -> None:
+    # A listener connecting mid-stream: the sources' first messages arrive out of order.
+    joiner, applied = _joiner()
+    joiner.bit(267, True)
+    joiner.decision(268, False)
+    joiner.decision(267, True)  # repaired after the later one: still joins at 267
+    joiner.bit(268, False)
+    assert applied == [(267, True, True), (268, False, False)]
+    assert joiner.counts.missing_decisions == joiner.counts.stale_decisions == 0
+
+    joiner, applied = _joiner()
+    joiner.bit(12, True)
+    joiner.decision(11, True)  # its bit never comes: not a step of this listener
+    joiner.bit(13, False)
+    joiner.decision(12, False)
+    joiner.decision(13, True)
+    assert applied == [(12, True, False), (13, False, True)]
+    assert joiner.counts.early_decisions == 1 and joiner.counts.missing_bits == 0
+    assert not joiner.bit(11, True)  # older than the join: stale
+
+
 def test_pending_steps_are_bounded() -> None:
     joiner, applied = _joiner(max_pending=5)
+    joiner.decision(1, False)
     for step in range(1, 13):
-        joiner.bit(step, False)  # no controller answers
-    assert [s for s, _, u in applied] == list(range(1, 8)) and all(u is None for *_, u in applied)
-    assert joiner.pending_bits == 5 and joiner.counts.forced == 7
+        joiner.bit(step, False)  # the controller answers step 1, then no more
+    assert [s for s, _, u in applied] == list(range(1, 8))
+    assert all(u is None for *_, u in applied[1:])
+    assert joiner.pending_bits == 5 and joiner.counts.forced == 6
+    before_join, _ = _joiner(max_pending=5)
+    for step in range(1, 13):
+        before_join.bit(step, False)  # no decision at all: nothing joins, 5 bits kept
+    assert before_join.pending_bits == 5 and before_join.counts.early_bits == 7
 
 
 def test_restart_begins_a_new_stream() -> None:
@@ -104,6 +131,21 @@ def test_restart_begins_a_new_stream() -> None:
     joiner.bit(1, False)
     joiner.decision(1, False)
     assert applied == [(1, True, True), (1, False, False)]
+
+
+def test_finish_applies_the_awaited_steps_without_their_decisions() -> None:
+    joiner, applied = _joiner()
+    joiner.bit(1, True)
+    joiner.decision(1, False)
+    joiner.bit(2, True)
+    joiner.bit(3, False)
+    joiner.decision(3, True)
+    joiner.bit(4, False)
+    joiner.finish()
+    assert applied == [(1, True, False), (2, True, None), (3, False, True), (4, False, None)]
+    assert joiner.counts.missing_decisions == 2 and joiner.pending_bits == 0
+    joiner.finish()  # nothing left: nothing applied twice
+    assert len(applied) == 4
 
 
 # ---------------------------------------------------------------------- SourceLock, outbox

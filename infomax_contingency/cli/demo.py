@@ -106,8 +106,11 @@ def isolate_dds() -> str:
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     """Per-node parameters (over the config files) and the node that sets the pace."""
     listeners = 3  # controller, belief and this monitor
+    # The decisions' listeners: mic, belief, this monitor, the room or (wav) nobody else,
+    # and the recorder.
+    decision_listeners = 3 + (not args.wav) + bool(args.record)
     nodes: dict[str, dict[str, Any]] = {
-        "controller_node": {},
+        "controller_node": {"wait_for_listeners": decision_listeners},
         "belief_node": {"memory_steps": args.memory},
         "posture_node": {"attentive_above": ATTENTIVE_ABOVE, "bored_below": BORED_BELOW},
         "speaker_node": {"dry_run": True},

@@ -133,7 +133,9 @@ class JoinCounts:
     stale_decisions: int = 0
     """Decisions for a step already applied or answered: repeated or going backwards."""
     early_decisions: int = 0
-    """Decisions for steps this listener joined after (dropped at the join)."""
+    """Decisions for steps before the join (dropped at the join)."""
+    early_bits: int = 0
+    """Bits for steps before the join (dropped at the join)."""
     unknown_step_decisions: int = 0
     """Decisions for a step far beyond every bit received (never seen)."""
     forced: int = 0
@@ -143,11 +145,15 @@ class JoinCounts:
 class StepJoiner:
     """Apply the bits and decisions of one stream in step order, each step exactly once.
 
-    ``apply(step, y, u)`` is called for steps ``s, s + 1, ...`` from the first bit
-    received (``s``); ``y`` or ``u`` is None when that message can no longer arrive: the
-    bits come from one microphone and the decisions from one controller, each in order,
-    so a later message from the same source proves an earlier one lost. At most
-    ``max_pending`` steps wait; beyond that the oldest is applied without its decision.
+    ``apply(step, y, u)`` is called for steps ``s, s + 1, ...`` from the join: the first
+    step ``s`` whose bit and decision have both arrived (messages for earlier steps are
+    dropped). Until then they are taken in any order: a listener that connects in the
+    middle of a stream may receive a source's first messages out of order (DDS repairs
+    the samples sent while it was connecting). After the join ``y`` or ``u`` is None when
+    that message can no longer arrive: the bits come from one microphone and the
+    decisions from one controller, each in order, so a later message from the same
+    source proves an earlier one lost. At most ``max_pending`` steps wait; beyond that
+    the oldest is applied without its decision.
 
     Args:
         apply: called with ``(step, y, u)`` in step order.
@@ -185,44 +191,80 @@ class StepJoiner:
 
     def bit(self, step: int, y: bool) -> bool:
         """Bit ``y`` of ``step`` arrived; False if it was stale (repeated or backwards)."""
-        if step <= self.last_bit_step or (self.next_step is not None and step < self.next_step):
+        if self.next_step is None:
+            return self._before_join(self._bits, step, y)
+        if step <= self.last_bit_step or step < self.next_step:
             self.counts.stale_bits += 1
             return False
-        if self.next_step is None:
-            self.next_step = step
-            early = [s for s in self._decisions if s < step]
-            for s in early:
-                del self._decisions[s]
-            self.counts.early_decisions += len(early)
         self._bits[step] = bool(y)
         self.last_bit_step = step
         self._drain()
         return True
 
+    def _before_join(self, store: dict[int, bool], step: int, value: bool) -> bool:
+        """Keep a message that came before the join (any order); join once a step is whole."""
+        is_bit = store is self._bits
+        if step in store:
+            if is_bit:
+                self.counts.stale_bits += 1
+            else:
+                self.counts.stale_decisions += 1
+            return False
+        store[step] = bool(value)
+        if len(store) > self.max_pending:
+            del store[min(store)]
+            if is_bit:
+                self.counts.early_bits += 1
+            else:
+                self.counts.early_decisions += 1
+        whole = self._bits.keys() & self._decisions.keys()
+        if whole:
+            first = min(whole)
+            early_bits = [s for s in self._bits if s < first]
+            early_decisions = [s for s in self._decisions if s < first]
+            for s in early_bits:
+                del self._bits[s]
+            for s in early_decisions:
+                del self._decisions[s]
+            self.counts.early_bits += len(early_bits)
+            self.counts.early_decisions += len(early_decisions)
+            self.next_step = first
+            self.last_bit_step = max(self._bits)
+            self.last_decision_step = max(self._decisions)
+            self._drain()
+        return True
+
     def decision(self, step: int, u: bool) -> bool:
         """Decision ``u`` on ``step`` arrived; False if it was stale or for no known step."""
-        if step <= self.last_decision_step or (
-            self.next_step is not None and step < self.next_step
-        ):
+        if self.next_step is None:
+            return self._before_join(self._decisions, step, u)
+        if step <= self.last_decision_step or step < self.next_step:
             self.counts.stale_decisions += 1
             return False
-        if self.next_step is not None and step > self.last_bit_step + self.max_pending:
+        if step > self.last_bit_step + self.max_pending:
             self.counts.unknown_step_decisions += 1
             return False
         self._decisions[step] = bool(u)
-        if len(self._decisions) > self.max_pending:  # only before the first bit
-            del self._decisions[min(self._decisions)]
-            self.counts.early_decisions += 1
         self.last_decision_step = step
         self._drain()
         return True
 
-    def _drain(self) -> None:
+    def finish(self) -> None:
+        """The stream ends here: apply every step up to the last bit, missing ones as None.
+
+        For a stream the controller no longer answers (it answers a new one): the
+        decisions still awaited can never arrive. Decisions beyond the last bit are
+        dropped. Afterwards :meth:`restart` begins the next stream.
+        """
+        self._drain(finish=True)
+        self._decisions.clear()
+
+    def _drain(self, finish: bool = False) -> None:
         while self.next_step is not None and self.next_step <= self.last_bit_step:
             step = self.next_step
             bit_known = step in self._bits or self.last_bit_step > step
             decision_known = step in self._decisions or self.last_decision_step > step
-            if not (bit_known and decision_known):
+            if not (bit_known and decision_known or finish):
                 if self.last_bit_step - step < self.max_pending:
                     return
                 self.counts.forced += 1

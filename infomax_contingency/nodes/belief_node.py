@@ -200,6 +200,7 @@ class BeliefNode(GraphNode):
         else:
             self.stream_changes += 1
             self.gaps.note(self.now_s())
+            self.joiner.finish()  # the old stream's awaited decisions can never arrive
             self.joiner.restart()
             self.tracker.forget_timer()
             self.get_logger().warning(

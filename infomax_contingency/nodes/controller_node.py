@@ -13,6 +13,9 @@ Step clock: the node answers every bit on ``sound_step`` of the stream it follow
 and ignored; a followed stream silent for ``source_timeout_s`` is replaced by the next
 one heard, a restarted mic_node) with one decision, published on ``vocalize`` (Bool, for
 the speaker) and on ``vocalize_step`` with the step it answers and this controller's id.
+It answers once ``vocalize_step`` has ``wait_for_listeners`` subscribers, each connected
+(so that its listeners all hear the same decisions): the last bit that came before is
+then answered, earlier ones are not (counted as ``unanswered_before_start``).
 Steps it never saw (it joined late, messages were lost) are counted, and their windows
 passed without a bit and without a vocalization; a bit that repeats or goes backwards is
 ignored. Bits whose window length is not the model's dt are refused.
@@ -92,6 +95,12 @@ class ControllerNode(GraphNode):
             "A followed mic_node stream silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         )
+        self.wait_for_listeners = read.integer(
+            "wait_for_listeners", 2,
+            f"Subscribers of '{VOCALIZE_STEP}' before the first decision (mic_node and"
+            " belief_node; also fake_audio_node in lockstep)",
+            0, 100,
+        )
         self.table_path = _table_path(path)
         table = PolicyTable.load(self.table_path, expected_params=params)
         self.controller = PolicyController(table)
@@ -108,6 +117,10 @@ class ControllerNode(GraphNode):
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
+        self.answering = False
+        self.unanswered_bits = 0
+        self._last_unanswered: tuple[Int64MultiArray, int] | None = None
+        self.start_when_ready(self._listeners_ready, 0.0, self._start_answering)
         self.wait_visibly(
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )
@@ -118,7 +131,32 @@ class ControllerNode(GraphNode):
             + f"; controller id {self.controller_id}"
         )
 
+    def _listeners_ready(self) -> bool:
+        return self.step_pub.get_subscription_count() >= self.wait_for_listeners
+
+    def _start_answering(self) -> None:
+        """The listeners are connected: answer the last bit that came before, then all."""
+        self.answering = True
+        held, self._last_unanswered = self._last_unanswered, None
+        if held is not None:
+            self.unanswered_bits -= 1
+        self.get_logger().info(
+            f"listeners connected on '{VOCALIZE_STEP}': answering bits"
+            + (f" ({self.unanswered_bits} earlier ones are not answered)"
+               if self.unanswered_bits else "")
+        )
+        if held is not None:
+            self._on_sound_step(*held)
+
     def _on_sound_step(self, msg: Int64MultiArray, stamp: int) -> None:
+        if not self.answering:
+            # A decision published before its listeners are connected would reach some
+            # of them and not others: the belief would not be that of the true decisions.
+            # The last bit waits (in lockstep its window waits for the answer); older
+            # ones are not answered, and the listeners count them as missing decisions.
+            self.unanswered_bits += 1
+            self._last_unanswered = (msg, stamp)
+            return
         bit = parse_bit(msg)
         now = self.now_s()
         if bit is None or bit.window_us != self.window_us:
@@ -172,6 +210,7 @@ class ControllerNode(GraphNode):
         values = {
             "steps": self.steps,
             "last_step": self.last_step,
+            "unanswered_before_start": self.unanswered_bits,
             "vocalizations": self.vocalizations,
             "missed_steps": self.missed_steps,
             "stream": self.streams.source or "none yet",
@@ -188,6 +227,9 @@ class ControllerNode(GraphNode):
         }
         if self.intruders or self.foreign.recent(now) or self.bad.recent(now):
             return ERROR, "a second stream on 'sound_step', or refused messages", values
+        if not self.answering:
+            waiting = f"waiting for {self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'"
+            return WARN, waiting, values
         if self.stale_bits.recent(now):
             return WARN, "repeated or backward steps (ignored)", values
         return OK, f"{self.steps} steps, {self.vocalizations} vocalizations", values
