@@ -157,6 +157,84 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in graph.output()
 
 
+def robot_params(tmp_path: Path, name: str, **sections: dict) -> Path:
+    """The installed-style config/robot.yaml with ``/**/NODE:`` values changed."""
+    config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())
+    for node, values in sections.items():
+        config[f"/**/{node}"]["ros__parameters"].update(values)
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+@pytest.mark.slow
+def test_realtime_chooses_the_pacing_of_the_fake_room(workspace: Path, launch) -> None:
+    """The pacing each node reports (its log line and its parameter), not a measured rate."""
+    for realtime, lockstep, line in (("false", "True", "(seed 1), lockstep"),
+                                     ("true", "False", "(seed 1), real time x1")):  # fmt: skip
+        graph = launch(f"contingency.launch.py use_fake_room:=true realtime:={realtime}")
+        graph.wait_for(f"[fake_audio_node]: room 'responsive' {line}")
+        answer = ros2(workspace, "param get /fake_audio_node lockstep")
+        assert f"Boolean value is: {lockstep}" in answer, answer
+        assert graph.interrupt() == 0
+        assert "Traceback" not in graph.output()
+
+
+@pytest.mark.slow
+def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Path) -> None:
+    """mic_node's own end stops the fake room and the rest: the launch exits 0 by itself."""
+    params = robot_params(tmp_path, "short.yaml", mic_node={"max_windows": 8})
+    graph = launch(
+        f"contingency.launch.py use_fake_room:=true realtime:=false params_file:={params}"
+    )
+    assert graph.process.wait(timeout=120) == 0, graph.output()[-3000:]
+    output = graph.output()
+    assert "[mic_node]: 8 bits published (max_windows): stopping" in output
+    assert "mic_node-1 finished by itself (max_windows or exit_at_end): stopping" in output
+    for node in ("fake_audio_node-2", "controller_node-3", "belief_node-4"):
+        assert f"[{node}]: process has finished cleanly" in output
+    assert output.strip().splitlines()[-1].endswith(
+        "launch ended: mic_node-1 finished by itself (max_windows or exit_at_end)"
+    )
+    assert "Traceback" not in output
+
+
+@pytest.mark.slow
+def test_overrides_reach_a_namespaced_node_in_the_documented_form(workspace: Path) -> None:
+    """README: ``-p name:=value`` after ``--params-file`` reaches ``/robot1/mic_node``.
+
+    ``-p mic_node:name:=value`` does not: rcl reads the node prefix of ``-p`` as one name
+    token, and rclpy matches it as ``/mic_node`` against the fully qualified node name.
+    """
+    config = workspace / "install" / "infomax_contingency" / "share" / "infomax_contingency"
+    config = config / "config" / "robot.yaml"
+    for override, expected in (("threshold_db:=-35.0", "-35.0"),
+                               ("mic_node:threshold_db:=-35.0", "-40.0")):  # fmt: skip
+        log = workspace / f"run-{time.monotonic_ns()}.log"
+        with log.open("w") as output:
+            process = subprocess.Popen(
+                shell(
+                    workspace,
+                    "ros2 run infomax_contingency mic_node --ros-args -r __ns:=/robot1"
+                    f" --params-file {config} -p {override}",
+                ),
+                stdout=output,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+        try:
+            answer = ""
+            deadline = time.monotonic() + 60.0
+            while "Double value is" not in answer:  # until the node's services answer
+                assert process.poll() is None, log.read_text()
+                assert time.monotonic() < deadline, answer + log.read_text()
+                answer = ros2(workspace, "param get /robot1/mic_node threshold_db")
+            assert f"Double value is: {expected}" in answer, (override, answer)
+        finally:
+            os.killpg(process.pid, signal.SIGINT)
+            assert process.wait(timeout=30) == 0, log.read_text()
+
+
 def record_robot2(graph_launcher, arguments: str, steps: int) -> tuple[list, list]:
     """Launch ``arguments`` with a recorder on /robot2 from the start: (bits, beliefs)."""
     rclpy.init()

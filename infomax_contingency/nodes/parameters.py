@@ -4,6 +4,11 @@ Parameters are declared with a description and a range (``ros2 param describe`` 
 them); a bad value stops the node at start-up with one line naming the parameter, the
 value and what is allowed (:class:`ConfigError`), never a traceback. An integer given
 for a floating-point parameter (``-p window_s:=1``) is accepted.
+
+A live set (``ros2 param set``) is checked by the same rule and refused with the same
+message: rclpy checks a descriptor's type and range before any set-parameters callback,
+so the check runs in a pre-set callback (:meth:`ParameterReader._check_first`), ahead
+of rclpy's.
 """
 
 from __future__ import annotations
