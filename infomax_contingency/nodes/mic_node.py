@@ -31,6 +31,12 @@ seconds ahead, so every window of the file gets a bit; a stream's calibration wi
 are consumed (their ``sound_energy`` is published, but no ``sound``: the step clock
 starts after calibration). ``refresh_s > 0`` refits the threshold online on the last
 ``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db`` apart).
+Live (``ros2 param set``, checked as at start-up): ``threshold_mode`` (fixed and file
+apply from the next window; a bad threshold file refuses the set with its error;
+calibrate starts a new calibration: a wav file's first seconds again, else the next
+``calibration_s`` seconds of windows, without bits), ``threshold_file``,
+``threshold_db`` (mode fixed) and ``refresh_s`` (a new, empty buffer; the threshold in
+force stays).
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
