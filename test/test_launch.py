@@ -200,36 +200,48 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
 
 
 @pytest.mark.slow
-def test_overrides_reach_a_namespaced_node_in_the_documented_form(workspace: Path) -> None:
-    """README: ``-p name:=value`` after ``--params-file`` reaches ``/robot1/mic_node``.
+def test_overrides_of_a_namespaced_node_in_the_documented_form(
+    workspace: Path, tmp_path: Path
+) -> None:
+    """README: a second parameter file reaches ``/robot1/mic_node``; ``-p`` does not.
 
-    ``-p mic_node:name:=value`` does not: rcl reads the node prefix of ``-p`` as one name
-    token, and rclpy matches it as ``/mic_node`` against the fully qualified node name.
+    rcl keeps one entry per node key (``/**``, ``/**/mic_node``, ``/mic_node``) in the
+    order the keys first appear; rclpy applies every key that matches the node, later
+    keys winning. ``-p name:=value`` goes to ``/**``, which robot.yaml opens before its
+    ``/**/mic_node:`` section; ``-p mic_node:name:=value`` is the key ``/mic_node``,
+    which matches only the root namespace.
     """
     config = workspace / "install" / "infomax_contingency" / "share" / "infomax_contingency"
     config = config / "config" / "robot.yaml"
-    for override, expected in (("threshold_db:=-35.0", "-35.0"),
-                               ("mic_node:threshold_db:=-35.0", "-40.0")):  # fmt: skip
+    override = tmp_path / "override.yaml"
+    override.write_text("/**/mic_node:\n  ros__parameters:\n    threshold_db: -35.0\n")
+    for namespace, arguments, expected in (
+        ("/robot1", f"--params-file {override}", "-35.0"),
+        ("/robot1", "-p mic_node:threshold_db:=-35.0", "-40.0"),
+        ("/robot1", "-p threshold_db:=-35.0", "-40.0"),
+        ("/", "-p mic_node:threshold_db:=-35.0", "-35.0"),
+    ):
         log = workspace / f"run-{time.monotonic_ns()}.log"
         with log.open("w") as output:
             process = subprocess.Popen(
                 shell(
                     workspace,
-                    "ros2 run infomax_contingency mic_node --ros-args -r __ns:=/robot1"
-                    f" --params-file {config} -p {override}",
+                    f"ros2 run infomax_contingency mic_node --ros-args -r __ns:={namespace}"
+                    f" --params-file {config} {arguments}",
                 ),
                 stdout=output,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
             )
         try:
+            node = f"{namespace.rstrip('/')}/mic_node"
             answer = ""
             deadline = time.monotonic() + 60.0
             while "Double value is" not in answer:  # until the node's services answer
                 assert process.poll() is None, log.read_text()
                 assert time.monotonic() < deadline, answer + log.read_text()
-                answer = ros2(workspace, "param get /robot1/mic_node threshold_db")
-            assert f"Double value is: {expected}" in answer, (override, answer)
+                answer = ros2(workspace, f"param get {node} threshold_db")
+            assert f"Double value is: {expected}" in answer, (namespace, arguments, answer)
         finally:
             os.killpg(process.pid, signal.SIGINT)
             assert process.wait(timeout=30) == 0, log.read_text()
