@@ -23,9 +23,10 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 
+from infomax_contingency.audio.binarizer import WavReplay
 from infomax_contingency.audio.devices import AudioDeviceError
 from infomax_contingency.audio.playback import PlayEvent
-from infomax_contingency.audio.threshold import ThresholdFit, save_threshold
+from infomax_contingency.audio.threshold import ThresholdFit, kmeans_split, save_threshold
 from infomax_contingency.nodes import speaker_node
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
@@ -385,3 +386,19 @@ def test_a_waiting_node_says_what_it_waits_for(
     assert status.level == WARN and waiting in status.message
     node.count_arrival(topic.lstrip("/"))
     assert node.check_waiting(WAITING_NOTICE_S + 2.0) == ""
+
+
+def test_mic_calibrate_live_on_a_wav_file_reads_its_start_again(graph: Callable) -> None:
+    """A wav source is calibrated again on its first seconds: no window goes without a bit."""
+    wav = ROOT / "test" / "data" / "interaction.wav"
+    node, probe, executor = graph(
+        MicNode, source="wav", wav_file=str(wav), threshold_mode="fixed", threshold_db=0.0,
+        calibration_s=4.0,
+    )  # fmt: skip
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
+    assert result.successful, result.reason
+    energies = WavReplay(wav, 0.5).calibration_energies(4.0, 0.5)
+    assert node.binarizer.threshold_db == kmeans_split(energies).threshold_db
+    assert not node.binarizer.calibrating
+    [result] = set_remotely(probe, executor, "mic_node", min_separation_db=50.0)
+    assert not result.successful and "read-only" in result.reason
