@@ -23,11 +23,15 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   with parameter ``directory`` = ``record_dir``.
 
 A node that exits with an error ends the whole launch with a final line naming it.
+mic_node ending by itself (status 0: ``max_windows`` bits published, or the end of a wav
+file with ``exit_at_end``) stops the other nodes of its robot with SIGINT, so the launch
+ends (status 0) once they are done; the last line says so.
 ``multi_robot.launch.py`` starts several robots against several simulated rooms;
 ``bringup`` runs the same graph in one process.
 """
 
 import os
+import signal
 
 from launch.actions import (
     DeclareLaunchArgument,
@@ -37,7 +41,8 @@ from launch.actions import (
     RegisterEventHandler,
 )
 from launch.event_handlers import OnProcessExit
-from launch.events import Shutdown
+from launch.events import Shutdown, matches_action
+from launch.events.process import SignalProcess
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
@@ -57,17 +62,45 @@ def _is_true(context: LaunchContext, name: str) -> bool:
 
 
 class _ExitWatch:
-    """Counts the graph's node processes that ended; remembers the first failure."""
+    """Watches this robot's node processes: the first failure, mic_node's own end."""
 
     def __init__(self) -> None:
         self.started = 0
         self.exited = 0
         self.failure = ""
+        self.finished = ""
+        self.nodes: list = []
+        """This robot's node actions (another robot's launch has a watch of its own)."""
+        self.mic = None
+
+    def owns(self, action) -> bool:
+        """True for a node process of this robot."""
+        return any(action is node for node in self.nodes)
 
     def on_exit(self, event, context: LaunchContext) -> list:
-        """A node that exits with an error ends the launch; the last exit says why."""
+        """A node that exits with an error ends the launch; the last exit says why.
+
+        mic_node ending by itself (status 0) stops the robot's other nodes with SIGINT.
+        """
         self.exited += 1
         actions: list = []
+        if event.action is self.mic and event.returncode == 0 and not self.failure:
+            if not context.is_shutdown and not self.finished:
+                self.finished = (
+                    f"{event.action.name} finished by itself (max_windows or exit_at_end)"
+                )
+                actions.append(LogInfo(msg=f"{self.finished}: stopping the other nodes"))
+                actions += [
+                    EmitEvent(
+                        event=SignalProcess(
+                            signal_number=signal.SIGINT, process_matcher=matches_action(node)
+                        )
+                    )
+                    for node in self.nodes
+                    if node is not self.mic
+                ]
+        if self.finished and not self.failure and self.exited >= self.started:
+            actions.append(LogInfo(msg=f"launch ended: {self.finished}"))
         # -2 / -15 / 130 / 143: interrupted, because the launch is stopping (Ctrl-C).
         failed = event.returncode not in (0, None, -2, -15, 130, 143)
         if failed and not self.failure:
@@ -128,15 +161,18 @@ def _graph(context: LaunchContext) -> list:
         seed = LaunchConfiguration("room_seed").perform(context).strip()
         if seed:
             room["seed"] = int(seed)
-        actions.append(node("mic_node", [params_file, fake_room_file, pacing]))
+        _WATCH.mic = node("mic_node", [params_file, fake_room_file, pacing])
+        actions.append(_WATCH.mic)
         actions.append(node("fake_audio_node", [params_file, fake_room_file, room]))
     else:
-        actions.append(node("mic_node", [params_file]))
+        _WATCH.mic = node("mic_node", [params_file])
+        actions.append(_WATCH.mic)
     actions += [node(name, [params_file]) for name in GRAPH_NODES]
     if _is_true(context, "record"):
         directory = LaunchConfiguration("record_dir")
         actions.append(node("recorder_node", [params_file, {"directory": directory}]))
-    _WATCH.started = len([a for a in actions if isinstance(a, Node)])
+    _WATCH.nodes = [a for a in actions if isinstance(a, Node)]
+    _WATCH.started = len(_WATCH.nodes)
     return actions
 
 
@@ -196,7 +232,7 @@ def generate_launch_description() -> LaunchDescription:
     return LaunchDescription(
         [
             *launch_arguments(share),
-            RegisterEventHandler(OnProcessExit(on_exit=_WATCH.on_exit)),
+            RegisterEventHandler(OnProcessExit(target_action=_WATCH.owns, on_exit=_WATCH.on_exit)),
             OpaqueFunction(function=_graph),
         ]
     )

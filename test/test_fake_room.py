@@ -136,3 +136,28 @@ def test_closed_loop_finds_the_partner_and_not_the_noise() -> None:
         results[room] = np.array([r.belief for r in records])
         assert [r.t for r in records] == list(range(1, 201))
     assert results["responsive"][-1] > 0.99 and results["noisy"].max() < 0.05
+
+
+def test_reconfigure_applies_from_the_next_window_and_is_deterministic() -> None:
+    def run() -> tuple[list[float], list[bool]]:
+        room = FakeRoom(FakeRoomConfig.preset("noisy"), seed=8)
+        energies, present = [], []
+        for index in range(20):
+            if index == 10:
+                room.reconfigure(
+                    FakeRoomConfig.preset(
+                        "noisy", noise_floor_db=-30.0, event_rate_hz=0.0, partner_arrive_s=6.0
+                    )
+                )
+            window = room.next_window()
+            energies.append(float(window_energies_db(window.samples, 16000, 0.5)[0]))
+            present.append(window.partner_present)
+        return energies, present
+
+    energies, present = run()
+    assert max(energies[:10]) > -40 and all(abs(e + 30.0) < 0.5 for e in energies[12:])
+    assert present == [False] * 12 + [True] * 8
+    assert run() == (energies, present)
+    room = FakeRoom(FakeRoomConfig(), seed=1)
+    with pytest.raises(ValueError, match="window_s cannot change"):
+        room.reconfigure(FakeRoomConfig(window_s=0.25))

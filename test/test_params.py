@@ -7,27 +7,37 @@ that ``ros2 param set`` calls) and watches the node's output change.
 
 from __future__ import annotations
 
+import array
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import rclpy
 import yaml
+from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 
+from infomax_contingency.audio.binarizer import WavReplay
+from infomax_contingency.audio.devices import AudioDeviceError
+from infomax_contingency.audio.playback import PlayEvent
+from infomax_contingency.audio.threshold import ThresholdFit, kmeans_split, save_threshold
+from infomax_contingency.nodes import speaker_node
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
 from infomax_contingency.nodes.graph_node import WAITING_NOTICE_S, WARN
 from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import SpeakerNode
+from infomax_contingency.nodes.step_topics import parse_decision
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -97,6 +107,32 @@ def test_parameters_that_cannot_change_are_read_only_with_a_reason(graph: Callab
     assert not node.describe_parameter("attentive_above").read_only
 
 
+def test_an_out_of_range_set_gets_the_start_up_message(graph: Callable) -> None:
+    """The node's own check runs before rclpy's range check: the reason is the node's."""
+    with pytest.raises(ConfigError) as start_up:
+        MicNode(namespace="start_up", parameter_overrides=[Parameter("threshold_db", value=5.0)])
+    node, probe, executor = graph(MicNode, threshold_mode="fixed", threshold_db=-40.0)
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=5.0)
+    assert not result.successful and result.reason == str(start_up.value)
+    assert result.reason == (
+        "parameter 'threshold_db' = 5.0 is not allowed: a number in [-150, 0] dB"
+    )
+    assert node.get_parameter("threshold_db").value == -40.0
+    assert node.binarizer.threshold_db == -40.0
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="bogus")
+    assert result.reason == (
+        "parameter 'threshold_mode' = 'bogus' is not allowed: one of calibrate, fixed, file"
+    )
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30)  # an integer
+    assert result.successful, result.reason
+    assert node.get_parameter("threshold_db").value == -30.0
+    assert node.binarizer.threshold_db == -30.0
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db="loud")
+    assert result.reason == (
+        "parameter 'threshold_db' = 'loud' is not allowed: a number in [-150, 0] dB"
+    )
+
+
 def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
     node, probe, executor = graph(MicNode, threshold_mode="fixed", threshold_db=-40.0)
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
@@ -115,6 +151,144 @@ def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:
     assert node.binarizer.calibrating
 
 
+def _windows(levels_db: list[float], seed: int = 3) -> np.ndarray:
+    """Noise windows of 0.5 s at 16 kHz, one per RMS level (dB full scale)."""
+    rng = np.random.default_rng(seed)
+    return np.concatenate([rng.standard_normal(8000) * 10 ** (level / 20) for level in levels_db])
+
+
+def _audio(samples: np.ndarray) -> Float32MultiArray:
+    message = Float32MultiArray()
+    message.data = array.array("f", samples.astype(np.float32).tobytes())
+    return message
+
+
+def _threshold_file(path: Path, threshold_db: float) -> Path:
+    fit = ThresholdFit(threshold_db, threshold_db - 20, threshold_db + 20, 5, 5)
+    save_threshold(path, fit, window_s=0.5, rate=16000, source="test")
+    return path
+
+
+def test_mic_threshold_mode_and_refresh_are_live(graph: Callable, tmp_path: Path) -> None:
+    node, probe, executor = graph(
+        MicNode, source="topic", threshold_mode="fixed", threshold_db=-40.0,
+        calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0,
+    )  # fmt: skip
+    bits = probe.listen("sound", Bool)
+    probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
+    energies = probe.listen("sound_energy", Float32)
+    audio = probe.talk("audio", Float32MultiArray)
+    executor.connected(audio)
+    executor.run_until(lambda: node.started, "the mic's start gate")
+
+    def play(levels: list[float], bits_expected: int) -> list[bool]:
+        before, heard = len(bits), len(energies)
+        audio.publish(_audio(_windows(levels)))
+        executor.run_until(
+            lambda: len(energies) == heard + len(levels) and len(bits) == before + bits_expected,
+            f"{len(levels)} windows",
+        )
+        return [m.data for m in bits[before:]]
+
+    assert play([-20.0, -60.0], 2) == [True, False]  # fixed at -40 dB
+    threshold = _threshold_file(tmp_path / "threshold.yaml", -10.0)
+    [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(threshold))
+    assert result.successful, result.reason  # kept: the mode is still fixed
+    assert play([-20.0], 1) == [True]
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="file")
+    assert result.successful, result.reason
+    assert play([-20.0, -5.0], 2) == [False, True]  # the file's -10 dB, at once
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("just text")
+    [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(bad))
+    assert not result.successful and "threshold file" in result.reason and str(bad) in result.reason
+    assert play([-20.0], 1) == [False]  # still the good file
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
+    assert result.successful, result.reason
+    # calibration_s 1 s = 2 windows without bits, then the k-means threshold (-40 dB here)
+    assert play([-60.0, -20.0, -30.0, -50.0], 2) == [True, False]
+    assert abs(node.binarizer.threshold_db - (-40.0)) < 1.0
+    [result] = set_remotely(probe, executor, "mic_node", refresh_s=0.5)
+    assert not result.successful
+    assert result.reason.startswith("parameter 'refresh_s' = 0.5: must be 0 (off) or at least")
+    [result] = set_remotely(probe, executor, "mic_node", refresh_s=2.0)
+    assert result.successful, result.reason
+    assert node.binarizer.refresh_windows == 4 and node.binarizer.threshold_db is not None
+    # a full refresh buffer of quiet -60 and sound -10 dB moves the threshold from about
+    # -40 to about -35 dB: a -37 dB window after it is quiet
+    assert play([-60.0, -10.0, -60.0, -10.0, -37.0], 5) == [False, True, False, True, False]
+    assert node.binarizer.refits_accepted >= 1
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="fixed")
+    assert result.successful, result.reason
+    assert play([-35.0, -45.0], 2) == [True, False]  # threshold_db -40 again
+
+
+# ------------------------------------------------------------------ speaker, fake room
+
+
+class FakeSpeaker:
+    """Stands in for SpeakerOutput: every play() starts a sound at once."""
+
+    opened: list[FakeSpeaker] = []
+    fail = False
+
+    def __init__(self, device: Any, log: Any = None, **sound: Any) -> None:
+        self.sequence = 0
+        self.pending: list[PlayEvent] = []
+        self.closed = False
+
+    def start(self) -> FakeSpeaker:
+        if FakeSpeaker.fail:
+            raise AudioDeviceError("no output device 'x'; output devices: none")
+        FakeSpeaker.opened.append(self)
+        return self
+
+    def play(self) -> int:
+        self.sequence += 1
+        self.pending.append(PlayEvent(self.sequence, 1.0, 1.0, 0.2, False))
+        return self.sequence
+
+    def events(self, timeout: float = 0.0) -> list[PlayEvent]:
+        events, self.pending = self.pending, []
+        return events
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(speaker_node, "SpeakerOutput", FakeSpeaker)
+    monkeypatch.setattr(FakeSpeaker, "opened", [])
+    node, probe, executor = graph(SpeakerNode)
+    started = probe.listen("speaker_started", TimeMsg)
+    vocalize = probe.talk("vocalize", Bool)
+    executor.connected(vocalize)
+
+    def vocalize_once() -> None:
+        requests = node.requests
+        vocalize.publish(Bool(data=True))
+        executor.run_until(lambda: node.requests == requests + 1, "a vocalization")
+
+    vocalize_once()
+    monkeypatch.setattr(FakeSpeaker, "fail", True)
+    [result] = set_remotely(probe, executor, "speaker_node", dry_run=False)
+    assert not result.successful and result.reason.startswith("parameter 'device' = '':")
+    assert "dry_run:=true runs the node without a loudspeaker" in result.reason
+    assert node.dry_run and node.speaker is None
+    monkeypatch.setattr(FakeSpeaker, "fail", False)
+    [result] = set_remotely(probe, executor, "speaker_node", dry_run=False)
+    assert result.successful, result.reason
+    vocalize_once()
+    executor.run_until(lambda: len(started) == 1, "the sound's start time")
+    [speaker] = FakeSpeaker.opened
+    [result] = set_remotely(probe, executor, "speaker_node", dry_run=True)
+    assert result.successful, result.reason
+    assert speaker.closed and node.speaker is None
+    vocalize_once()
+    executor.run_for_callbacks(20)
+    assert len(started) == 1 and node.requests == 3, "dry run again: counted, not played"
+
+
 @pytest.mark.parametrize(
     "node_class",
     [MicNode, ControllerNode, BeliefNode, PostureNode, SpeakerNode, FakeAudioNode],
@@ -128,6 +302,58 @@ def test_code_defaults_equal_config_robot_yaml(graph: Callable, node_class: type
     for parameter, value in expected.items():
         if node.has_parameter(parameter):
             assert node.get_parameter(parameter).value == value, f"{name}: {parameter}"
+
+
+def test_fake_room_partner_and_replies_are_live(graph: Callable) -> None:
+    """The partner leaves and comes back, replies stop: seen on partner_present and audio."""
+    node, probe, executor = graph(
+        FakeAudioNode, room="responsive", event_rate_hz=0.0, reply_probability=1.0,
+        seed=5, start_delay_s=0.0,
+    )  # fmt: skip
+    truth = probe.listen("partner_present", Bool)
+    audio = probe.listen("audio", Float32MultiArray)
+    decisions = probe.talk("vocalize_step", Int64MultiArray)
+    executor.connected(decisions)
+    step = [0]
+
+    def windows(vocalize: list[bool]) -> list[bool]:
+        """One decision per window (after the first); the ground truth of the new windows."""
+        executor.run_until(lambda: len(truth) == step[0] + 1, "a window")
+        before = len(truth)
+        for u in vocalize:
+            step[0] += 1
+            message = Int64MultiArray(data=[77, step[0], int(u), 5])
+            assert parse_decision(message) is not None
+            decisions.publish(message)
+            executor.run_until(
+                lambda: len(truth) == len(audio) == step[0] + 1, f"window {step[0] + 1}"
+            )
+        return [m.data for m in truth[before:]]
+
+    assert windows([True, False, False, False, False, False]) == [True] * 6
+    assert node.room.replies == 1
+    [result] = set_remotely(probe, executor, "fake_audio_node", partner_leave_s=0.0)
+    assert not result.successful
+    assert result.reason == (
+        "room parameter partner_leave_s = 0.0: must be > partner_arrive_s (= 0.0) or negative"
+    )
+    leave_s = node.room.now_s + 1.0  # two windows from now
+    [result] = set_remotely(probe, executor, "fake_audio_node", partner_leave_s=leave_s)
+    assert result.successful, result.reason
+    assert windows([False, False, True, False, False, False]) == [True, True] + [False] * 4
+    assert node.room.replies == 1, "nobody there to reply"
+    results = set_remotely(probe, executor, "fake_audio_node", partner_leave_s=-1.0,
+                           reply_probability=0.0)  # fmt: skip
+    assert [r.successful for r in results] == [True, True]
+    assert windows([True, False, False, False, False, False]) == [True] * 6
+    assert node.room.replies == 1 and node.room.vocalizations == 3, "present, but silent"
+    [result] = set_remotely(probe, executor, "fake_audio_node", noise_floor_db=-30.0)
+    assert result.successful, result.reason
+    windows([False])
+    last = np.frombuffer(audio[-1].data, np.float32).astype(np.float64)
+    assert abs(10 * np.log10(np.mean(last**2)) - (-30.0)) < 0.5, "the new floor at once"
+    [result] = set_remotely(probe, executor, "fake_audio_node", window_s=0.25)
+    assert not result.successful and "read-only" in result.reason
 
 
 def test_fake_room_lockstep_timeout_is_live(graph: Callable) -> None:
@@ -160,3 +386,19 @@ def test_a_waiting_node_says_what_it_waits_for(
     assert status.level == WARN and waiting in status.message
     node.count_arrival(topic.lstrip("/"))
     assert node.check_waiting(WAITING_NOTICE_S + 2.0) == ""
+
+
+def test_mic_calibrate_live_on_a_wav_file_reads_its_start_again(graph: Callable) -> None:
+    """A wav source is calibrated again on its first seconds: no window goes without a bit."""
+    wav = ROOT / "test" / "data" / "interaction.wav"
+    node, probe, executor = graph(
+        MicNode, source="wav", wav_file=str(wav), threshold_mode="fixed", threshold_db=0.0,
+        calibration_s=4.0,
+    )  # fmt: skip
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
+    assert result.successful, result.reason
+    energies = WavReplay(wav, 0.5).calibration_energies(4.0, 0.5)
+    assert node.binarizer.threshold_db == kmeans_split(energies).threshold_db
+    assert not node.binarizer.calibrating
+    [result] = set_remotely(probe, executor, "mic_node", min_separation_db=50.0)
+    assert not result.successful and "read-only" in result.reason

@@ -22,6 +22,12 @@ restarted belief_node starts from zero counts at the first step it receives, wit
 timer uncertain unless that step is the stream's first. Each case is counted in the
 diagnostics and logged.
 
+Start: the node subscribes ``sound_step`` only once its ``vocalize_step`` subscription
+is matched with a publisher (a controller). mic_node's start gate counts the listeners
+of ``sound_step``, so the graph's first bit waits until this node also hears the
+controller: a belief_node whose processes connect slowly (a loaded machine) does not
+miss the first decisions and join the stream late.
+
 Subscribes ``sound_step``, ``vocalize_step`` (std_msgs/Int64MultiArray, see
 :mod:`~infomax_contingency.nodes.step_topics`); publishes ``belief`` (Float64) and
 ``/diagnostics``; private service ``~/reset`` (std_srvs/Trigger, e.g.
@@ -51,6 +57,9 @@ from infomax_contingency.nodes.step_topics import (
     parse_decision,
     window_us,
 )
+
+BITS_GATE_POLL_S = 0.02
+"""Seconds between checks for a controller before ``sound_step`` is subscribed."""
 
 HELD_BITS = 1024
 """Bits kept per stream that the controller does not answer (yet)."""
@@ -114,10 +123,20 @@ class BeliefNode(GraphNode):
         self._held: dict[int, deque[StepBit]] = {}
         self._joining = False
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
-        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
-        self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS)
+        self._decisions_sub = self.subscribe(
+            Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS
+        )
+        self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.start_diagnostics()
+
+    def _subscribe_bits_when_ready(self) -> None:
+        """Subscribe ``sound_step`` once a controller's ``vocalize_step`` is matched."""
+        if self._decisions_sub.get_publisher_count() == 0:
+            return
+        self._bits_gate.cancel()
+        self.destroy_timer(self._bits_gate)
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
 
     # ------------------------------------------------------------------ messages
 

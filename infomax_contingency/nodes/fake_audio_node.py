@@ -4,7 +4,12 @@ The room (:class:`~infomax_contingency.sim.fake_room.FakeRoom`) is chosen by ``r
 (responsive | silent | noisy) and every one of its parameters can be overridden (noise
 floor, background events, the robot's own sound, the partner's arrival, departure,
 reply probability, delays and level; see :mod:`infomax_contingency.sim.fake_room`).
-Deterministic for a given ``seed``.
+Deterministic for a given ``seed``. Every room parameter but ``rate_hz`` and
+``window_s`` is live (``ros2 param set``): it is checked as at start-up and applies from
+the next window on (:meth:`~infomax_contingency.sim.fake_room.FakeRoom.reconfigure`):
+the partner's schedule (``partner_arrive_s``, ``partner_leave_s``, in room time), the
+reply probability, levels, delays and the rate of background events; sounds already
+playing or scheduled play out as they were made.
 
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
 decision on window t arrived on ``vocalize_step`` (or after ``lockstep_timeout_s``;
@@ -28,6 +33,7 @@ the ground truth of each window, right after its audio) and ``/diagnostics``.
 from __future__ import annotations
 
 import array
+import dataclasses
 import sys
 import time
 from typing import Any
@@ -75,6 +81,9 @@ ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
 )
 """(name, description, low, high, unit) of the room's floating-point parameters."""
 
+FIXED_ROOM_PARAMETERS = ("window_s",)
+"""Room parameters that cannot change while the room runs (with ``rate_hz``)."""
+
 
 class FakeAudioNode(GraphNode):
     """Fake audio: a simulated room with or without a responsive partner."""
@@ -95,7 +104,11 @@ class FakeAudioNode(GraphNode):
             )
         }
         for name, description, low, high, unit in ROOM_PARAMETERS:
-            values[name] = read.number(name, getattr(defaults, name), description, low, high, unit)
+            live = name not in FIXED_ROOM_PARAMETERS
+            values[name] = read.number(
+                name, getattr(defaults, name), description + (" (live)" if live else ""),
+                low, high, unit, read_only=not live,
+            )
         seed = read.integer("seed", 0, "Random seed (same seed, same room)", 0, 2**31 - 1)
         lockstep = read.flag("lockstep", True, "Publish window t+1 after the vocalize for window t")
         timeout_s = read.number(
@@ -141,7 +154,9 @@ class FakeAudioNode(GraphNode):
             raise ConfigError(str(error)) from None
         for warning in timing_warnings(config, params):
             self.get_logger().warning(f"room timing vs model parameters: {warning}")
+        self.params = params
         self.room = FakeRoom(config, seed)
+        self._live_room_parameters()
         self.pacer = LockstepPacer(timeout_s) if lockstep else None
         self.parameters.live("lockstep_timeout_s", self._set_lockstep_timeout)
         self.period_s = config.window_s / speed
@@ -232,6 +247,35 @@ class FakeAudioNode(GraphNode):
             self.pacer.sent(time.monotonic())
         self.audio_pub.publish(message)
         self.truth_pub.publish(Bool(data=window.partner_present))
+
+    def _live_room_parameters(self) -> None:
+        """Let every room parameter but rate_hz and window_s change while the room runs."""
+        for name, *_ in ROOM_PARAMETERS:
+            if name not in FIXED_ROOM_PARAMETERS:
+                self.parameters.live(
+                    name,
+                    lambda value, name=name: self._reconfigure(name, value),
+                    lambda value, name=name: self._room_config(name, value),
+                )
+
+    def _room_config(self, name: str, value: float) -> FakeRoomConfig:
+        """The room's parameters with ``name`` = ``value``; ConfigError as at start-up."""
+        try:
+            return dataclasses.replace(self.room.config, **{name: value})
+        except ValueError as error:
+            raise ConfigError(str(error)) from None
+
+    def _reconfigure(self, name: str, value: float) -> None:
+        """The room goes on with ``name`` = ``value`` from the next window on."""
+        config = self._room_config(name, value)
+        self.room.reconfigure(config)
+        self.get_logger().info(
+            f"room: {name} = {value:g} from window {self.room.windows_made + 1} on (room time"
+            f" {self.room.now_s:g} s; partner present then:"
+            f" {config.partner_present_at(self.room.now_s)})"
+        )
+        for warning in timing_warnings(config, self.params):
+            self.get_logger().warning(f"room timing vs model parameters: {warning}")
 
     def _set_lockstep_timeout(self, timeout_s: float) -> None:
         """The lockstep timeout (seconds) from the next window on; no effect unpaced."""

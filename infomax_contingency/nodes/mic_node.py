@@ -31,6 +31,12 @@ seconds ahead, so every window of the file gets a bit; a stream's calibration wi
 are consumed (their ``sound_energy`` is published, but no ``sound``: the step clock
 starts after calibration). ``refresh_s > 0`` refits the threshold online on the last
 ``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db`` apart).
+Live (``ros2 param set``, checked as at start-up): ``threshold_mode`` (fixed and file
+apply from the next window; a bad threshold file refuses the set with its error;
+calibrate starts a new calibration: a wav file's first seconds again, else the next
+``calibration_s`` seconds of windows, without bits), ``threshold_file``,
+``threshold_db`` (mode fixed) and ``refresh_s`` (a new, empty buffer; the threshold in
+force stays).
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -55,6 +61,7 @@ blocks, lost samples, gaps and reconnections).
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Callable
@@ -134,7 +141,9 @@ class MicConfig:
 def _read_threshold(read: ParameterReader) -> dict[str, Any]:
     return {
         "threshold_mode": read.text(
-            "threshold_mode", "calibrate", "How the sound threshold is set", THRESHOLD_MODES
+            "threshold_mode", "calibrate",
+            "How the sound threshold is set (live: fixed and file apply at once, calibrate"
+            " starts a new calibration)", THRESHOLD_MODES, read_only=False,
         ),
         "threshold_db": read.number(
             "threshold_db",
@@ -146,14 +155,18 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             read_only=False,
         ),
         "threshold_file": read.text(
-            "threshold_file", "", "Threshold file written by calibration (threshold_mode file)"
+            "threshold_file", "",
+            "Threshold file written by calibration (threshold_mode file; live: loaded at once"
+            " in mode file)", read_only=False,
         ),
         "calibration_s": read.number(
             "calibration_s", 10.0, "Calibration audio (threshold_mode calibrate)",
             0.02, 3600.0, "s",
         ),
         "refresh_s": read.number(
-            "refresh_s", 0.0, "Online threshold refresh buffer; 0 = off", 0.0, 86400.0, "s"
+            "refresh_s", 0.0,
+            "Online threshold refresh buffer; 0 = off (live: the buffer starts empty)",
+            0.0, 86400.0, "s", read_only=False,
         ),
         "min_separation_db": read.number(
             "min_separation_db", 10.0,
@@ -245,31 +258,47 @@ def read_config(node: GraphNode) -> MicConfig:
             f" {params.dt:g} s (parameter 'params'): one window must be one step of the"
             " model"
         )
-    if config.refresh_s > 0 and round(config.refresh_s / config.window_s) < 2:
-        raise ConfigError(
-            f"parameter 'refresh_s' = {config.refresh_s}: must be 0 (off) or at least two"
-            f" windows ({2 * config.window_s:g} s)"
-        )
-    if config.threshold_mode == "file" and not config.threshold_file:
-        raise ConfigError(
-            "parameter 'threshold_file' is empty: threshold_mode 'file' needs the path"
-            " of a threshold file written by calibration"
-        )
+    check_refresh(config.refresh_s, config.window_s)
+    check_threshold_file(config.threshold_mode, config.threshold_file)
     if config.source == "wav" and not config.wav_file:
         raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")
     return config
 
 
+def check_refresh(refresh_s: float, window_s: float) -> None:
+    """``refresh_s`` (seconds) is 0 (off) or at least two windows of ``window_s`` seconds."""
+    if refresh_s > 0 and round(refresh_s / window_s) < 2:
+        raise ConfigError(
+            f"parameter 'refresh_s' = {refresh_s}: must be 0 (off) or at least two"
+            f" windows ({2 * window_s:g} s)"
+        )
+
+
+def check_threshold_file(threshold_mode: str, threshold_file: str) -> None:
+    """threshold_mode ``file`` needs a ``threshold_file`` path."""
+    if threshold_mode == "file" and not threshold_file:
+        raise ConfigError(
+            "parameter 'threshold_file' is empty: threshold_mode 'file' needs the path"
+            " of a threshold file written by calibration"
+        )
+
+
 def make_binarizer(
-    config: MicConfig, on_refused: Callable[[str], None] | None = None
+    config: MicConfig,
+    on_refused: Callable[[str], None] | None = None,
+    keep_threshold_db: float | None = None,
 ) -> Binarizer:
     """The binarizer that ``threshold_mode`` asks for.
 
     ``on_refused`` is told (one line naming the gap in dB) when a calibration cannot
     separate sound from quiet; no bit comes from such a calibration.
+    ``keep_threshold_db`` (dB), if given, is the threshold in force to keep whatever the
+    mode (a live change of ``refresh_s``).
     """
     refresh = round(config.refresh_s / config.window_s) if config.refresh_s > 0 else 0
     separation = config.min_separation_db
+    if keep_threshold_db is not None:
+        return Binarizer(keep_threshold_db, 0, refresh, separation, on_refused)
     if config.threshold_mode == "fixed":
         return Binarizer(config.threshold_db, 0, refresh, separation, on_refused)
     if config.threshold_mode == "file":
@@ -294,7 +323,7 @@ class MicNode(GraphNode):
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
         self.binarizer = make_binarizer(config, self._calibration_refused)
-        self.parameters.live("threshold_db", self._set_threshold, self._check_fixed_threshold)
+        self._live_threshold_parameters()
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
@@ -352,14 +381,7 @@ class MicNode(GraphNode):
         channel = None if config.channel < 0 else config.channel
         self.replay = WavReplay(config.wav_file, self.window_s, channel, config.loop)
         if config.threshold_mode == "calibrate":
-            fit = self.binarizer.calibrate(
-                self.replay.calibration_energies(config.calibration_s, self.window_s)
-            )
-            self.get_logger().info(
-                f"threshold {fit.threshold_db:.2f} dB from the first {fit.n_low + fit.n_high}"
-                f" windows of {config.wav_file} (quiet {fit.low_mean_db:.1f} dB, sound"
-                f" {fit.high_mean_db:.1f} dB)"
-            )
+            self._calibrate_from_file(self.binarizer, config)
         if config.lockstep:
             self.pacer = LockstepPacer(config.lockstep_timeout_s)
         self.get_logger().info(
@@ -575,8 +597,97 @@ class MicNode(GraphNode):
             self.microphone.close()
         super().destroy_node()
 
-    # ------------------------------------------------------------------ diagnostics
+    # ------------------------------------------------------------------ live threshold
 
+    def _live_threshold_parameters(self) -> None:
+        """Let threshold_db, threshold_mode, threshold_file and refresh_s change live."""
+        live = self.parameters.live
+        live("threshold_db", self._set_threshold, self._check_fixed_threshold)
+        live("threshold_mode", self._set_threshold_mode, self._threshold_binarizer)
+        live("threshold_file", self._set_threshold_file, self._check_threshold_file)
+        live("refresh_s", self._set_refresh, self._check_refresh)
+
+    def _calibrate_from_file(
+        self, binarizer: Binarizer, config: MicConfig, log: bool = True
+    ) -> None:
+        """Calibrate ``binarizer`` on the first ``calibration_s`` seconds of the wav file."""
+        fit = binarizer.calibrate(
+            self.replay.calibration_energies(config.calibration_s, self.window_s)
+        )
+        if log:
+            self.get_logger().info(
+                f"threshold {fit.threshold_db:.2f} dB from the first"
+                f" {fit.n_low + fit.n_high} windows of {config.wav_file} (quiet"
+                f" {fit.low_mean_db:.1f} dB, sound {fit.high_mean_db:.1f} dB)"
+            )
+
+    def _threshold_binarizer(self, mode: str, log: bool = False) -> Binarizer:
+        """The binarizer of threshold_mode ``mode`` now; ConfigError if it cannot be made.
+
+        ``fixed`` takes the ``threshold_db`` parameter, ``file`` loads and checks
+        ``threshold_file`` (its error is the refusal), ``calibrate`` calibrates a wav file
+        on its first ``calibration_s`` seconds, any other source on its next windows.
+        """
+        config = dataclasses.replace(
+            self.config,
+            threshold_mode=mode,
+            threshold_db=self.get_parameter("threshold_db").value,
+            threshold_file=self.get_parameter("threshold_file").value,
+        )
+        check_threshold_file(mode, config.threshold_file)
+        try:
+            binarizer = make_binarizer(config, self._calibration_refused)
+            if mode == "calibrate" and self.replay is not None:
+                self._calibrate_from_file(binarizer, config, log)
+        except AudioError as error:
+            raise ConfigError(str(error)) from None
+        return binarizer
+
+    def _set_threshold_mode(self, mode: str) -> None:
+        """Switch to threshold_mode ``mode`` (setting the same mode again starts it anew)."""
+        self.binarizer = self._threshold_binarizer(mode, log=True)
+        self.config = dataclasses.replace(self.config, threshold_mode=mode)
+        if self.binarizer.calibrating:
+            self.get_logger().info(
+                f"calibrating on the next {self.binarizer.calibration_windows} windows: no bits"
+                " until then (their energies are published)"
+            )
+        else:
+            self.get_logger().info(
+                f"threshold_mode {mode}: threshold {self.binarizer.threshold_db:.2f} dB from"
+                " the next window on"
+            )
+
+    def _check_threshold_file(self, path: str) -> None:
+        """In threshold_mode file, a new ``threshold_file`` must load."""
+        if self.config.threshold_mode != "file":
+            return  # kept for a later switch to threshold_mode file
+        check_threshold_file("file", path)
+        try:
+            load_threshold(path)
+        except AudioError as error:
+            raise ConfigError(str(error)) from None
+
+    def _set_threshold_file(self, path: str) -> None:
+        """Use the threshold of ``path`` at once in threshold_mode file; else keep it for later."""
+        self.config = dataclasses.replace(self.config, threshold_file=path)
+        if self.config.threshold_mode == "file":
+            self.binarizer = make_binarizer(self.config, self._calibration_refused)
+
+    def _check_refresh(self, refresh_s: float) -> None:
+        check_refresh(refresh_s, self.window_s)
+
+    def _set_refresh(self, refresh_s: float) -> None:
+        """A new refresh buffer (empty) of ``refresh_s`` seconds; the threshold in force stays.
+
+        During a calibration the calibration starts again with the new buffer.
+        """
+        self.config = dataclasses.replace(self.config, refresh_s=refresh_s)
+        keep = self.binarizer.threshold_db
+        if keep is None:
+            self.binarizer = self._threshold_binarizer(self.config.threshold_mode)
+        else:
+            self.binarizer = make_binarizer(self.config, self._calibration_refused, keep)
 
     def _check_fixed_threshold(self, value: float) -> None:
         """A live ``threshold_db`` needs ``threshold_mode`` fixed (else it would be ignored)."""
@@ -584,12 +695,15 @@ class MicNode(GraphNode):
         if mode != "fixed":
             raise ConfigError(
                 f"parameter 'threshold_db' = {value!r} has no effect with threshold_mode"
-                f" {mode!r}: start mic_node with threshold_mode fixed to set it live"
+                f" {mode!r}: set threshold_mode fixed first (live) to set it"
             )
 
     def _set_threshold(self, value: float) -> None:
         """The next window's bit uses the threshold ``value`` (dB full scale)."""
         self.binarizer.threshold_db = value
+        self.config = dataclasses.replace(self.config, threshold_db=value)
+
+    # ------------------------------------------------------------------ diagnostics
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""

@@ -4,6 +4,11 @@ Parameters are declared with a description and a range (``ros2 param describe`` 
 them); a bad value stops the node at start-up with one line naming the parameter, the
 value and what is allowed (:class:`ConfigError`), never a traceback. An integer given
 for a floating-point parameter (``-p window_s:=1``) is accepted.
+
+A live set (``ros2 param set``) is checked by the same rule and refused with the same
+message: rclpy checks a descriptor's type and range before any set-parameters callback,
+so the check runs in a pre-set callback (:meth:`ParameterReader._check_first`), ahead
+of rclpy's.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ class ParameterReader:
         self._coercers: dict[str, Callable[[Any], Any]] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
+        self._refusal = ""
+        node.add_pre_set_parameters_callback(self._check_first)
         node.add_on_set_parameters_callback(self._on_set)
 
     def live(
@@ -60,8 +67,40 @@ class ParameterReader:
         if check is not None:
             self._checks[name] = check
 
+    def _check_first(self, parameters: list[Parameter]) -> list[Parameter]:
+        """Check a set by the start-up rules before rclpy checks the descriptors.
+
+        rclpy checks a descriptor's type and range (with its own wording) before any
+        set-parameters callback runs, so a refusal would never carry this node's message.
+        This pre-set callback runs first: a live parameter's value is coerced as at
+        start-up (an integer for a floating-point parameter is accepted); a value the
+        start-up rule refuses is replaced by the parameter's current value (which passes
+        the descriptor) and the refusal is kept, to be returned by :meth:`_on_set`, so the
+        set fails with the start-up message and nothing changes. Read-only and foreign
+        parameters pass unchanged (rclpy refuses a read-only one, naming it).
+        """
+        self._refusal = ""
+        checked = []
+        for parameter in parameters:
+            coerce = self._coercers.get(parameter.name)
+            if coerce is None or parameter.name not in self._appliers:
+                checked.append(parameter)
+                continue
+            try:
+                value = coerce(parameter.value)
+                self._checks.get(parameter.name, lambda _value: None)(value)
+            except ConfigError as error:
+                self._refusal = self._refusal or str(error)
+                checked.append(self._node.get_parameter(parameter.name))
+                continue
+            checked.append(Parameter(parameter.name, value=value))
+        return checked
+
     def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
         """Check every parameter of a set by its start-up rule; apply and log them all."""
+        if self._refusal:
+            reason, self._refusal = self._refusal, ""
+            return SetParametersResult(successful=False, reason=reason)
         values = {}
         for parameter in parameters:
             coerce = self._coercers.get(parameter.name)

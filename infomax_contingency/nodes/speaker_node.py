@@ -11,7 +11,9 @@ the sound still plays starts it again (``overlap`` ``restart``) or is ignored
 A device that is not there at start-up stops the node with the list of output devices.
 
 With ``dry_run`` (the default, for machines without a loudspeaker) no device is opened:
-vocalizations are only counted and logged at debug level.
+vocalizations are only counted and logged at debug level. ``dry_run`` is live: false
+opens the loudspeaker at once (a device that cannot be opened refuses the set with the
+start-up message), true closes it; the next ``vocalize`` follows the new value.
 
 Subscribes ``vocalize`` (Bool). Publishes ``speaker_started``
 (builtin_interfaces/Time, reliable): for every sound played, the time its first sample
@@ -53,8 +55,10 @@ class SpeakerNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
         read = self.parameters
-        self.dry_run = read.flag("dry_run", True, "Only count vocalizations, play nothing")
-        device = device_parameter(self, "Loudspeaker (without dry_run)")
+        self.dry_run = read.flag(
+            "dry_run", True, "Only count vocalizations, play nothing (live)", read_only=False
+        )
+        self.device = device_parameter(self, "Loudspeaker (without dry_run)")
         sound_file = read.text("sound_file", "", "WAV file to play; empty = the robot's chirp")
         volume = read.number(
             "volume",
@@ -72,32 +76,27 @@ class SpeakerNode(GraphNode):
             "A vocalization while the sound still plays: restart the sound, or skip the command",
             OVERLAP_POLICIES,
         )
+        self.sound = {
+            "sound": sound_file or None,
+            "duration_s": duration_s,
+            "volume": volume,
+            "overlap": overlap,
+        }
         self.requests = 0
         self.start_delay_s = float("nan")
         self._errors_reported = 0
         self.speaker: SpeakerOutput | None = None
+        self._opened: SpeakerOutput | None = None
+        """A loudspeaker opened by a live ``dry_run`` false, until the set applies."""
         self.started_pub = self.create_publisher(TimeMsg, "speaker_started", STREAM_QOS)
         if self.dry_run:
             if sound_file:
                 read_wav(sound_file)  # a bad file is refused in a dry run too
             self.get_logger().info("dry run: vocalizations are counted, not played")
         else:
-            speaker = SpeakerOutput(
-                device or None,
-                sound=sound_file or None,
-                duration_s=duration_s,
-                volume=volume,
-                overlap=overlap,
-                log=self.log_at,
-            )
-            try:
-                self.speaker = speaker.start()
-            except AudioDeviceError as error:
-                raise ConfigError(
-                    f"parameter 'device' = {device!r}: {error}\n"
-                    "(dry_run:=true runs the node without a loudspeaker)"
-                ) from None
-            self.create_timer(EVENTS_POLL_S, self._publish_starts)
+            self.speaker = self._open_speaker()
+        self.create_timer(EVENTS_POLL_S, self._publish_starts)
+        self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
         self.output_errors = self.recent_events()
         self.start_diagnostics()
@@ -114,8 +113,37 @@ class SpeakerNode(GraphNode):
                 f"cannot play: {self.speaker.status().last_error}", throttle_duration_sec=5.0
             )
 
+    def _open_speaker(self) -> SpeakerOutput:
+        """The loudspeaker ``device``, started; ConfigError (the start-up message) if it fails."""
+        speaker = SpeakerOutput(self.device or None, log=self.log_at, **self.sound)
+        try:
+            return speaker.start()
+        except AudioDeviceError as error:
+            raise ConfigError(
+                f"parameter 'device' = {self.device!r}: {error}\n"
+                "(dry_run:=true runs the node without a loudspeaker)"
+            ) from None
+
+    def _check_dry_run(self, dry_run: bool) -> None:
+        """Leaving the dry run needs the loudspeaker: it is opened here (kept for the set)."""
+        if not dry_run and self.speaker is None and self._opened is None:
+            self._opened = self._open_speaker()
+
+    def _set_dry_run(self, dry_run: bool) -> None:
+        """Dry run (close the loudspeaker) or play (the one opened by the check)."""
+        self.dry_run = dry_run
+        if dry_run and self.speaker is not None:
+            self.speaker.close()
+            self.speaker = None
+            self.get_logger().info("dry run: the loudspeaker is closed")
+        elif not dry_run and self.speaker is None:
+            self.speaker, self._opened = self._opened, None
+            self.get_logger().info("playing vocalizations on the loudspeaker")
+
     def _publish_starts(self) -> None:
         """Publish the start time of every sound that started since the last call."""
+        if self.speaker is None:
+            return
         events = self.speaker.events(0.0)
         if not events:
             return
@@ -128,8 +156,9 @@ class SpeakerNode(GraphNode):
 
     def destroy_node(self) -> None:
         """Release the loudspeaker, then the node."""
-        if self.speaker is not None:
-            self.speaker.close()
+        for speaker in (self.speaker, self._opened):
+            if speaker is not None:
+                speaker.close()
         super().destroy_node()
 
 

@@ -214,6 +214,33 @@ class FakeRoom:
         self.replies = 0
         self.events = 0
 
+    def reconfigure(self, config: FakeRoomConfig) -> None:
+        """Go on with new room parameters from the next window on.
+
+        ``rate_hz`` and ``window_s`` must stay (the windows already made keep their
+        timing). Levels, the partner's schedule and reply parameters apply to what
+        happens from now on: sounds already playing or scheduled (a reply on its way)
+        play as they were made. A new ``event_rate_hz`` draws the next background event
+        afresh from the start of the next window (exact for a Poisson process).
+        Deterministic: the same changes at the same windows give the same room.
+
+        Raises:
+            ValueError: ``rate_hz`` or ``window_s`` differs from the room's.
+        """
+        for name in ("rate_hz", "window_s"):
+            if getattr(config, name) != getattr(self.config, name):
+                raise ValueError(
+                    f"room parameter {name} cannot change while the room runs"
+                    f" ({getattr(self.config, name)!r} -> {getattr(config, name)!r})"
+                )
+        old, self.config = self.config, config
+        if config.self_level_db != old.self_level_db:
+            chirp = synthesize_chirp(self.rate, ROBOT_SOUND_S, amplitude=1.0)
+            self._chirp = _rms_scaled(chirp, config.self_level_db)
+        self._floor_rms = 10.0 ** (config.noise_floor_db / 20.0)
+        if config.event_rate_hz != old.event_rate_hz:
+            self._next_event = self.windows_made * self.window + self._event_gap()
+
     @property
     def now_s(self) -> float:
         """Room time of the start of the next window, seconds."""

@@ -225,7 +225,8 @@ class StepRecorder(Node):
             :data:`~infomax_contingency.nodes.qos.STREAM_QOS`); e.g. keep-all so that a
             slow reader cannot drop messages.
         step_topics: also record ``sound_step`` and ``vocalize_step`` (a benchmark that
-            measures the graph leaves them out: they would load the machine it measures).
+            measures the graph leaves them out: they would load the machine it measures);
+            False leaves them to a later :meth:`record_step_topics`.
     """
 
     def __init__(
@@ -250,6 +251,7 @@ class StepRecorder(Node):
         self.vocalize_step: list[tuple[int, ...]] = []
         self.times: dict[str, list[tuple[float, int]]] = {}
         self.on_message: Callable[[str], None] | None = None
+        self._stream_qos = stream_qos
         for topic, kind, store, qos in (
             ("sound", Bool, self.sound, stream_qos),
             ("sound_energy", Float32, self.energy, stream_qos),
@@ -257,18 +259,28 @@ class StepRecorder(Node):
             ("belief", Float64, self.belief, stream_qos),
             ("partner_present", Bool, self.partner_present, stream_qos),
             ("posture", String, None, LATCHED_READER_QOS),
-            ("sound_step", Int64MultiArray, self.sound_step, stream_qos),
-            ("vocalize_step", Int64MultiArray, self.vocalize_step, stream_qos),
         ):
-            if topic.endswith("_step") and not step_topics:
-                continue
             self.times[topic] = []
             self._subscribe(kind, topic, self._recorder(topic, store), qos)
+        if step_topics:
+            self.record_step_topics()
         if audio:
             self.times["audio"] = []
             self.create_subscription(
                 Float32MultiArray, "audio", self._recorder("audio", None), STREAM_QOS
             )
+
+    def record_step_topics(self) -> None:
+        """Subscribe ``sound_step`` and ``vocalize_step`` (now, if not at construction).
+
+        mic_node counts the listeners of ``sound_step`` before its first bit: a recorder
+        that subscribes it only once its other topics reach it (:meth:`sees`) is counted
+        only when it will miss none of the graph's messages.
+        """
+        steps = (("sound_step", self.sound_step), ("vocalize_step", self.vocalize_step))
+        for topic, store in steps:
+            self.times[topic] = []
+            self._subscribe(Int64MultiArray, topic, self._recorder(topic, store), self._stream_qos)
 
     def _subscribe(self, kind: Any, topic: str, callback: Callable, qos: QoSProfile) -> None:
         """Subscribe, counting the messages DDS reports lost in ``lost[topic]``."""
