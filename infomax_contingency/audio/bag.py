@@ -15,6 +15,7 @@ QoS profiles are given as plain dicts of rmw values (``history``, ``depth``,
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -166,3 +167,27 @@ def read_topics(directory: Path, topics: Sequence[str]) -> dict[str, list[tuple[
     except (ReaderError, OSError) as error:
         raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
     return found
+
+
+@functools.cache
+def _jazzy_types() -> Any:
+    """The Jazzy message definitions ``rosbags`` ships (built once)."""
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def encode(message_type: str, **fields: Any) -> bytes:
+    """The CDR bytes of a ``message_type`` (``pkg/msg/Name``) message with ``fields``.
+
+    For sessions made offline (no rclpy): the bytes rclpy would put on the wire. An
+    ``std_msgs/msg/*MultiArray`` takes ``data`` as a sequence and an empty layout.
+    """
+    typestore = _jazzy_types()
+    kinds = typestore.types
+    if message_type.endswith("MultiArray"):
+        import numpy as np
+
+        dtype = {"Int64MultiArray": np.int64, "Float32MultiArray": np.float32}[
+            message_type.rsplit("/", 1)[1]]
+        fields = {"layout": kinds["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0),
+                  "data": np.asarray(fields["data"], dtype=dtype)}
+    return bytes(typestore.serialize_cdr(kinds[message_type](**fields), message_type))

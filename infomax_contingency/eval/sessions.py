@@ -298,3 +298,42 @@ def decisions_from_reference(path: Path, channel: int, window_s: float,
     sounding = bits_from_energies(energies, fit.threshold_db)
     onsets = sounding[1:] & ~sounding[:-1]
     return [bool(u) for u in onsets] + [False], fit.threshold_db
+
+
+OFFLINE_STREAM = 1
+"""Stream id of a session made offline (:func:`write_offline_session`)."""
+OFFLINE_CONTROLLER = 2
+"""Controller id of a session made offline."""
+
+
+def write_offline_session(directory: Path, bits: Sequence[bool], decisions: Sequence[bool],
+                          beliefs: Sequence[float], dt: float, start_ns: int = 0) -> Path:
+    """A session bag of an offline run (e.g. the audio-level fake room's loop).
+
+    It holds what a recorded graph run holds for replay and ``analyze``: ``/sound_step``
+    and ``/sound`` (the bits), ``/vocalize_step`` and ``/vocalize`` (the decisions) and
+    ``/belief``, message ``t`` (from 0) stamped ``start_ns + t dt`` (receive and publish
+    time alike). No ``/diagnostics``: replays use the whole history unless told a memory.
+    """
+    from infomax_contingency.audio.bag import BagWriter, encode
+
+    writer = BagWriter(Path(directory))
+    stream_qos = [{"history": 1, "depth": 1000, "reliability": 1, "durability": 2}]
+    topics = {"/sound": "std_msgs/msg/Bool", "/sound_step": "std_msgs/msg/Int64MultiArray",
+              "/vocalize": "std_msgs/msg/Bool",
+              "/vocalize_step": "std_msgs/msg/Int64MultiArray", "/belief": "std_msgs/msg/Float64"}
+    for topic, kind in topics.items():
+        writer.add_topic(topic, kind, stream_qos)
+    window_us = round(dt * 1e6)
+    for t, (y, u, belief) in enumerate(zip(bits, decisions, beliefs, strict=True)):
+        time_ns = start_ns + round(t * dt * 1e9)
+        step = t + 1
+        writer.write("/sound", encode("std_msgs/msg/Bool", data=bool(y)), time_ns)
+        writer.write("/sound_step", encode("std_msgs/msg/Int64MultiArray",
+                     data=[OFFLINE_STREAM, step, int(y), window_us]), time_ns)
+        writer.write("/vocalize", encode("std_msgs/msg/Bool", data=bool(u)), time_ns + 1)
+        writer.write("/vocalize_step", encode("std_msgs/msg/Int64MultiArray",
+                     data=[OFFLINE_STREAM, step, int(u), OFFLINE_CONTROLLER]), time_ns + 1)
+        writer.write("/belief", encode("std_msgs/msg/Float64", data=float(belief)), time_ns + 2)
+    writer.close()
+    return Path(directory)
