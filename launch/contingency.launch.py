@@ -20,7 +20,13 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   ``fake_room_file`` (default config/fake_room.yaml) by mic_node and fake_audio_node
   with the fake room.
 - ``record`` (default false) / ``record_dir``: true adds this package's recorder_node
-  with parameter ``directory`` = ``record_dir``.
+  with parameter ``directory`` = ``record_dir``; mic_node then waits for it as a third
+  listener of ``sound_step`` (and the fake room for its ``partner_present``), so the bag
+  holds the session from its first step.
+- ``controller`` (default empty: the policy table): ``interval:MIN_S-MAX_S`` makes
+  controller_node follow the calibration protocol, sounds at random intervals uniform over
+  MIN_S .. MAX_S seconds; with ``record:=true`` that is a calibration session for
+  ``infomax-contingency analyze`` (``calibration-session`` does it in one command).
 
 A node that exits with an error ends the whole launch with a final line naming it.
 ``multi_robot.launch.py`` starts several robots against several simulated rooms;
@@ -121,6 +127,10 @@ def _graph(context: LaunchContext) -> list:
             emulate_tty=True,
         )
 
+    record = _is_true(context, "record")
+    # Recording: the recorder is a third listener of the bits (controller, belief,
+    # recorder) and the room's truth listener, so the first step is not sent before it.
+    mic = {"wait_for_listeners": 3} if record else {}
     if fake_room:
         # Lockstep on request; paced at the room's speed (speed 1.0) by default.
         pacing = {"lockstep": not realtime}
@@ -128,12 +138,17 @@ def _graph(context: LaunchContext) -> list:
         seed = LaunchConfiguration("room_seed").perform(context).strip()
         if seed:
             room["seed"] = int(seed)
-        actions.append(node("mic_node", [params_file, fake_room_file, pacing]))
+        if record:
+            room["wait_for_truth_listeners"] = 1
+        actions.append(node("mic_node", [params_file, fake_room_file, {**pacing, **mic}]))
         actions.append(node("fake_audio_node", [params_file, fake_room_file, room]))
     else:
-        actions.append(node("mic_node", [params_file]))
-    actions += [node(name, [params_file]) for name in GRAPH_NODES]
-    if _is_true(context, "record"):
+        actions.append(node("mic_node", [params_file, mic]))
+    controller = LaunchConfiguration("controller").perform(context).strip()
+    actions += [node(name, [params_file] + ([{"controller": controller}] if controller and
+                                            name == "controller_node" else []))
+                for name in GRAPH_NODES]
+    if record:
         directory = LaunchConfiguration("record_dir")
         actions.append(node("recorder_node", [params_file, {"directory": directory}]))
     _WATCH.started = len([a for a in actions if isinstance(a, Node)])
@@ -181,6 +196,12 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
         ),
         DeclareLaunchArgument(
             "record", default_value="false", description="true: add recorder_node"
+        ),
+        DeclareLaunchArgument(
+            "controller",
+            default_value="",
+            description="controller_node's decisions: empty = the policy table;"
+            " interval:MIN_S-MAX_S = the calibration protocol (sounds at random intervals)",
         ),
         DeclareLaunchArgument(
             "record_dir",

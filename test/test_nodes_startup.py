@@ -77,6 +77,17 @@ CASES = {
         ["policy_file:=nope.npz"],
         "cannot find 'policies/nope.npz'",
     ),
+    "calibration_controller": (
+        "controller_node",
+        ["controller:=fixed:3"],
+        "parameter 'controller' = 'fixed:3': must be empty (the policy table) or"
+        " interval:MIN_S-MAX_S",
+    ),
+    "calibration_interval": (
+        "controller_node",
+        ["controller:=interval:6-3"],
+        "parameter 'controller' = 'interval:6-3': interval controller: need 0 < MIN_S <= MAX_S",
+    ),
     "memory": (
         "belief_node",
         ["memory_steps:=-1"],

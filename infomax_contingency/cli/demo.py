@@ -255,7 +255,7 @@ def _run_graph(
                 except GraphError as error:
                     return _node_failure(processes) or str(error).splitlines()[0]
                 print(f"# demo: the graph is up; running ({clock} sets the pace)", flush=True)
-                steps, failure = _wait_for_run(args, processes, recorder)
+                steps, failure = _wait_for_run(args, processes, recorder, clock)
                 if failure:
                     return failure
                 elapsed = time.monotonic() - start
@@ -275,9 +275,14 @@ def _run_graph(
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
 
 
-def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any) -> tuple[int, str]:
-    """Wait until every step is recorded: (steps, "") or (steps so far, why not)."""
-    if args.wav:
+def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,
+                  clock: str = "fake_audio_node") -> tuple[int, str]:
+    """Wait until every step is recorded: (steps, "") or (steps so far, why not).
+
+    With mic_node as the clock (a wav file, a live microphone with ``max_windows``) the
+    run ends when mic_node exits; with the fake room after ``args.steps`` steps.
+    """
+    if clock == "mic_node":
         mic = processes.processes["mic_node"]
         ok = _wait_with_watchdog(
             lambda: mic.poll() is not None, recorder, STALL_TIMEOUT_S, processes
