@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from infomax_contingency.audio.bag import read_topics
+from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.cli.main import main
 from infomax_contingency.eval.sessions import load_session
 
@@ -67,11 +68,16 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
 def test_a_recorded_demo_holds_every_step_of_every_topic(tmp_path: Path) -> None:
     """The recorder is up before the graph starts: nothing of the first steps is lost."""
     bag = tmp_path / "demo"
-    result = _cli("demo", "--steps", "40", "--seed", "3", "--record", str(bag),
-                  "--no-record-audio")
+    result = _cli("demo", "--steps", "40", "--seed", "3", "--record", str(bag))
     assert result.returncode == 0, result.stdout + result.stderr
     topics = _assert_every_step_recorded(bag, 40)
     assert all(m.data for _, m in topics["/partner_present"])  # the partner stays 60 s
+    # mic_node's source bag windows the recorded audio again: with the room's threshold
+    # (config/fake_room.yaml: fixed, -40 dB) its bits are the recorded ones.
+    replay = BagReplay(bag, 0.5, 16000)
+    assert replay.has_audio and replay.n_windows == 40
+    energies = [replay.next_window()[0] for _ in range(40)]
+    assert [bool(e > -40.0) for e in energies] == [bool(m.data) for _, m in topics["/sound"]]
 
 
 @pytest.mark.parametrize("arguments, message", [

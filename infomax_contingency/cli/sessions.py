@@ -26,11 +26,10 @@ import numpy as np
 import yaml
 
 from infomax_contingency.audio.wav import open_wav_info
-from infomax_contingency.core.controllers import make_controller
+from infomax_contingency.core.controllers import ReplayedDecisions, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
 from infomax_contingency.eval.sessions import (
-    ReplayedDecisions,
     decisions_from_reference,
     decisions_from_times,
     load_session,

@@ -21,6 +21,7 @@ is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and r
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -233,6 +234,38 @@ class RandomIntervalController(Controller):
         """Forget the history and draw a first interval again."""
         super().reset()
         self.wait = self._draw()
+
+
+class ReplayedDecisions(Controller):
+    """A controller that answers each step with a given decision (a recorded table).
+
+    The decisions come from a recording: a session bag, an actions CSV file or a
+    reference channel (``eval.sessions``); step ``t`` (from 1) is answered with
+    ``decisions[t - 1]``, and 0 past their end. Missed steps move on as many decisions.
+    """
+
+    name = "recorded"
+
+    def __init__(self, params: ModelParams, decisions: Sequence[bool], name: str = "") -> None:
+        super().__init__(params)
+        self.decisions = [bool(u) for u in decisions]
+        self.position = 0
+        self.name = name or self.name
+
+    def decide(self, statistic: Statistic) -> int:
+        """The next given decision."""
+        self.position += 1
+        return int(self.position <= len(self.decisions) and self.decisions[self.position - 1])
+
+    def missed(self, steps: int) -> None:
+        """As :meth:`Controller.missed`; the decisions of the missed steps are skipped."""
+        super().missed(steps)
+        self.position += max(steps, 0)
+
+    def reset(self) -> None:
+        """Forget the history and start again from the first decision."""
+        super().reset()
+        self.position = 0
 
 
 def _interval_seconds(argument: str) -> tuple[float, float]:

@@ -31,7 +31,7 @@ from infomax_contingency.audio.threshold import (
     require_separation,
 )
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams, Statistic, StatisticTracker
+from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import BitObservation, StepRecord, step_record
@@ -131,28 +131,6 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
 
 ACTIONS_CSV_HEADER = "time_s"
 """The one column of an actions CSV file: when the robot's sound was commanded (s)."""
-
-
-class ReplayedDecisions(Controller):
-    """A controller that answers each step with a given decision (a recorded table).
-
-    The decisions come from an actions CSV file or a reference channel
-    (:func:`decisions_from_times`, :func:`decisions_from_reference`); step ``t``
-    (from 1) is answered with ``decisions[t - 1]``, and 0 past their end.
-    """
-
-    name = "recorded"
-
-    def __init__(self, params: ModelParams, decisions: Sequence[bool], name: str = "") -> None:
-        super().__init__(params)
-        self.decisions = [bool(u) for u in decisions]
-        self.position = 0
-        self.name = name or self.name
-
-    def decide(self, statistic: Statistic) -> int:
-        """The next given decision."""
-        self.position += 1
-        return int(self.position <= len(self.decisions) and self.decisions[self.position - 1])
 
 
 class _GivenBits:

@@ -8,7 +8,9 @@ parameters than ``params`` is refused at start-up with the differences named. Ep
 tables restart an episode at their horizon; receding tables keep a sliding memory of M
 counted observations. ``controller: interval:MIN_S-MAX_S`` replaces the table by the
 paper's calibration protocol: vocalize at random intervals, uniform over MIN_S .. MAX_S
-seconds, whatever is heard (seeded by the controller id, which is logged).
+seconds, whatever is heard (seeded by the controller id, which is logged);
+``controller: recorded:BAG`` answers step t of the stream with the decision the robot
+recorded for step t in a session bag (for mic_node's ``source: bag``: a faithful replay).
 
 Step clock: the node answers every bit on ``sound_step`` of the stream it follows
 (:class:`~infomax_contingency.core.stepclock.SourceLock`: a second mic_node is counted
@@ -32,9 +34,12 @@ from typing import Any
 import numpy as np
 from std_msgs.msg import Bool, Int64MultiArray
 
+from infomax_contingency.audio.bag_replay import recorded_decisions
+from infomax_contingency.audio.common import AudioError
 from infomax_contingency.core.controllers import (
+    Controller,
     PolicyController,
-    RandomIntervalController,
+    ReplayedDecisions,
     make_controller,
 )
 from infomax_contingency.core.model import ModelParams
@@ -70,18 +75,20 @@ def _table_path(value: str) -> str:
         raise ConfigError(f"parameter 'policy_file' = {value!r}: {error}") from None
 
 
-def _calibration_controller(spec: str, params: ModelParams, seed: int
-                            ) -> RandomIntervalController:
-    """The ``interval:MIN_S-MAX_S`` controller of parameter ``controller`` (seeded)."""
-    if not spec.startswith("interval:"):
-        raise ConfigError(f"parameter 'controller' = {spec!r}: must be empty (the policy"
-                          " table) or interval:MIN_S-MAX_S (seconds, e.g. interval:3-6)")
+def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
+    """The controller of parameter ``controller``: interval:MIN_S-MAX_S or recorded:BAG."""
+    kind, _, argument = spec.partition(":")
     try:
-        controller = make_controller(spec, params, np.random.default_rng(seed))
-    except ValueError as error:
+        if kind == "interval":
+            return make_controller(spec, params, np.random.default_rng(seed))
+        if kind == "recorded" and argument:
+            return ReplayedDecisions(params, recorded_decisions(Path(argument)),
+                                     name=f"recorded:{argument}")
+    except (ValueError, OSError, AudioError) as error:
         raise ConfigError(f"parameter 'controller' = {spec!r}: {error}") from None
-    assert isinstance(controller, RandomIntervalController)
-    return controller
+    raise ConfigError(f"parameter 'controller' = {spec!r}: must be empty (the policy table),"
+                      " interval:MIN_S-MAX_S (seconds, e.g. interval:3-6) or recorded:BAG (a"
+                      " session bag's decisions)")
 
 
 class ControllerNode(GraphNode):
@@ -117,12 +124,13 @@ class ControllerNode(GraphNode):
         spec = read.text(
             "controller", "",
             "Empty: decide with the policy table; interval:MIN_S-MAX_S: vocalize at random"
-            " intervals, uniform over MIN_S .. MAX_S seconds (the calibration protocol)",
+            " intervals, uniform over MIN_S .. MAX_S seconds (the calibration protocol);"
+            " recorded:BAG: answer each step with a session bag's recorded decision",
         )
         self.controller_id = new_source_id()
         self.table_path = _table_path(path)
         if spec:
-            self.controller = _calibration_controller(spec, params, self.controller_id)
+            self.controller = _other_controller(spec, params, self.controller_id)
         else:
             table = PolicyTable.load(self.table_path, expected_params=params)
             self.controller = PolicyController(table)
@@ -143,7 +151,7 @@ class ControllerNode(GraphNode):
         )
         self.start_diagnostics()
         if spec:
-            self.get_logger().info(f"controller {self.controller.name} (calibration protocol);"
+            self.get_logger().info(f"controller {self.controller.name} (no table);"
                                    f" controller id {self.controller_id}")
         else:
             self.get_logger().info(
