@@ -130,7 +130,7 @@ class BagWriter:
 
     def __init__(self, directory: Path, custom_data: Mapping[str, str] | None = None) -> None:
         self.directory = Path(directory)
-        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.typestore = _jazzy_types()
         self.topics: dict[str, Any] = {}
         try:
             self._writer = _Writer(self.directory, version=BAG_VERSION,
@@ -216,7 +216,7 @@ def read_topics(directory: Path, topics: Sequence[str]) -> dict[str, list[tuple[
     from rosbags.rosbag2 import Reader, ReaderError
 
     found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
-    typestore = get_typestore(Stores.ROS2_JAZZY)
+    typestore = _jazzy_types()
     try:
         with Reader(Path(directory)) as reader:
             connections = [c for c in reader.connections if c.topic in found]
