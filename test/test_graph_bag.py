@@ -12,11 +12,14 @@ from pathlib import Path
 
 import pytest
 
+from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.bag_replay import BagReplay, recorded_decisions
 from infomax_contingency.eval.sessions import load_session
 from stepped_graph import stepped_graph
 
 SESSION = Path(__file__).parent / "data" / "session_demo"
+STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief",
+               "/partner_present")
 
 pytestmark = pytest.mark.xdist_group("node_graphs")
 
@@ -54,3 +57,33 @@ def test_the_bag_reader_serves_the_recorded_bits_and_decisions() -> None:
     assert [bit for _, bit in served] == [bit for _, bit in session.bits]
     assert replay.next_window() is None
     assert recorded_decisions(SESSION) == [u for _, u in session.decisions]
+
+
+def test_a_recorded_room_session_holds_every_step_of_every_topic(tmp_path: Path) -> None:
+    """The recorder subscribes before the graph starts: no topic misses a step.
+
+    The graph (fake room, mic, controller, belief, recorder) waits for the recorder as a
+    listener of ``sound_step``, ``partner_present`` and ``audio``, as the demo does when
+    it records; the stepped graph also waits for its ``session_info``.
+    """
+    bag = tmp_path / "session"
+    steps = 40
+    nodes = {
+        "controller_node": {}, "belief_node": {"memory_steps": 60},
+        "recorder_node": {"directory": str(bag)},
+        "mic_node": {"source": "topic", "threshold_mode": "fixed", "wait_for_listeners": 3},
+        "fake_audio_node": {"seed": 3, "max_windows": steps, "wait_for_truth_listeners": 2,
+                            "wait_for_listeners": 2},  # audio: the mic and the recorder
+    }
+    with stepped_graph(nodes, "fake_audio_node") as graph:
+        graph.run_steps(steps)
+        recorder = graph.nodes["recorder_node"]
+        graph.run_until(lambda: all(recorder.counts.get(topic, 0) >= steps for topic in
+                                    (*STEP_TOPICS, "/audio")), "the recorder to record all")
+        truth = list(graph.recorder.partner_present)
+    topics = read_topics(bag, (*STEP_TOPICS, "/audio", "/session_info"))
+    for topic in (*STEP_TOPICS, "/audio"):
+        assert len(topics[topic]) == steps, (topic, len(topics[topic]))
+    assert [int(m.data[1]) for _, m in topics["/sound_step"]] == list(range(1, steps + 1))
+    assert [m.data for _, m in topics["/partner_present"]] == truth
+    assert len(topics["/session_info"]) == 1

@@ -93,7 +93,7 @@ def _graph(args: argparse.Namespace, steps: int) -> tuple[argparse.Namespace,
                      if args.threshold_file else
                      {"threshold_mode": "calibrate", "calibration_s": args.calibration_s})
         nodes["mic_node"] = {"source": "sounddevice", "device": args.device,
-                             "max_windows": steps, "wait_for_listeners": 3, **threshold}
+                             "max_windows": steps, "wait_for_listeners": 4, **threshold}
         nodes["speaker_node"] = {"dry_run": False}
         clock = "mic_node"
     return run, nodes, clock

@@ -105,7 +105,9 @@ def isolate_dds() -> str:
 
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     """Per-node parameters (over the config files) and the node that sets the pace."""
-    listeners = 3  # controller, belief and this monitor
+    # controller, belief and this monitor, and the recorder: with the recorder counted,
+    # three subscribers of 'sound_step' could be there before the controller is.
+    listeners = 4 if args.record else 3
     nodes: dict[str, dict[str, Any]] = {
         "controller_node": {},
         "belief_node": {"memory_steps": args.memory},
@@ -130,6 +132,9 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
         return nodes, "mic_node"
     room: dict[str, Any] = {"room": args.room, "seed": args.seed, "max_windows": args.steps}
     room["wait_for_truth_listeners"] = 2 if args.record else 1  # this monitor (+ recorder)
+    if args.record and not args.no_record_audio:
+        room["wait_for_listeners"] = 2  # mic_node and the recorder, which subscribes to
+        # 'audio' once it sees the room's publisher: no audio before it is lost
     room["partner_leave_s"] = args.leave_at if args.leave_at >= 0 else -1.0
     if args.room != "responsive":
         room["partner_arrive_s"] = -1.0
