@@ -8,11 +8,13 @@
    ``--windows`` windows, not an hour-long run; the diagnostics traffic (about six
    small messages a second) is left out.
 2. **Replay** (``--actions recorded``, offline): steps per second over the committed
-   ``test/data/session_demo`` bag (reading the bag included).
+   ``test/data/session_demo`` bag (120 steps) and over a ``--replay-steps`` session made
+   offline (the bit-level responsive room, rule controller), with the bag read included
+   and excluded.
 
 Run from the repository root::
 
-    .venv/bin/python bench/bench_sessions.py [--windows 2000] [--audio]
+    .venv/bin/python bench/bench_sessions.py [--windows 2000] [--audio] [--replay-steps N]
 """
 
 from __future__ import annotations
@@ -78,13 +80,32 @@ def bench_recorder(windows: int, audio: bool) -> None:
           f" extrapolated); bag {size / 1e6:.2f} MB -> {size * per_hour / 1e6:.0f} MB per hour")
 
 
-def bench_replay(repeats: int = 20) -> None:
-    """Replay the committed session ``repeats`` times; print steps per second."""
+def _offline_bag(directory: Path, steps: int) -> Path:
+    """A session bag of ``steps`` steps of the responsive bit-level room (rule controller)."""
+    import numpy as np
+
+    from infomax_contingency.core.controllers import make_controller
+    from infomax_contingency.core.model import ModelParams
+    from infomax_contingency.eval.sessions import write_offline_session
+    from infomax_contingency.sim.simulation import simulate
+    from infomax_contingency.sim.world import make_room
+
+    params = ModelParams.load("robot")
+    rng = np.random.default_rng(0)
+    records = simulate(params, make_controller("rule", params, rng),
+                       make_room("responsive", params, rng), steps, rng)
+    return write_offline_session(directory, [bool(r.y) for r in records],
+                                 [bool(r.u) for r in records], [r.belief for r in records],
+                                 params.dt)
+
+
+def bench_replay(session_dir: Path, repeats: int) -> None:
+    """Replay a session ``repeats`` times; print steps per second with and without the read."""
     from infomax_contingency.core.model import ModelParams
     from infomax_contingency.eval.sessions import load_session, replay_recorded
 
-    session_dir = Path(__file__).resolve().parents[1] / "test" / "data" / "session_demo"
     params = ModelParams.load("robot")
+    load_session(session_dir)  # the message definitions are built once per process
     start = time.perf_counter()
     steps = 0
     for _ in range(repeats):
@@ -95,8 +116,9 @@ def bench_replay(repeats: int = 20) -> None:
     for _ in range(repeats):
         sum(1 for _ in replay_recorded(session, params))
     compute = time.perf_counter() - start
-    print(f"replay --actions recorded: {steps / elapsed:,.0f} steps/s reading the bag included,"
-          f" {steps / compute:,.0f} steps/s once read ({steps} steps)")
+    print(f"replay --actions recorded, {session_dir.name} ({steps // repeats} steps):"
+          f" {steps / elapsed:,.0f} steps/s reading the bag included, {steps / compute:,.0f}"
+          f" steps/s once read ({steps} steps replayed)")
 
 
 def main() -> int:
@@ -104,10 +126,15 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--windows", type=int, default=2000)
     parser.add_argument("--audio", action="store_true", help="also record 16 kHz audio")
+    parser.add_argument("--replay-steps", type=int, default=20_000,
+                        help="steps of the offline session replayed (default 20000)")
     args = parser.parse_args()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", "201")
-    bench_replay()
+    committed = Path(__file__).resolve().parents[1] / "test" / "data" / "session_demo"
+    bench_replay(committed, repeats=20)
+    with tempfile.TemporaryDirectory() as workdir:
+        bench_replay(_offline_bag(Path(workdir) / "offline", args.replay_steps), repeats=3)
     bench_recorder(args.windows, args.audio)
     return 0
 

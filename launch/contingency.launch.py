@@ -20,7 +20,13 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   ``fake_room_file`` (default config/fake_room.yaml) by mic_node and fake_audio_node
   with the fake room.
 - ``record`` (default false) / ``record_dir``: true adds this package's recorder_node
-  with parameter ``directory`` = ``record_dir``.
+  with parameter ``directory`` = ``record_dir``; mic_node then waits for it as a third
+  listener of ``sound_step`` (and the fake room for its ``partner_present``), so the bag
+  holds the session from its first step.
+- ``controller`` (default empty: the policy table): ``interval:MIN_S-MAX_S`` makes
+  controller_node follow the calibration protocol, sounds at random intervals uniform over
+  MIN_S .. MAX_S seconds; with ``record:=true`` that is a calibration session for
+  ``infomax-contingency analyze`` (``calibration-session`` does it in one command).
 
 A node that exits with an error ends the whole launch with a final line naming it.
 mic_node ending by itself (status 0: ``max_windows`` bits published, or the end of a wav
@@ -52,7 +58,8 @@ from launch import LaunchContext, LaunchDescription
 PACKAGE = "infomax_contingency"
 
 GRAPH_NODES = ("controller_node", "belief_node", "posture_node", "speaker_node")
-"""Nodes that read only ``params_file``; mic_node (and the fake room) are added apart."""
+"""Nodes started from ``params_file`` (controller_node also reads ``fake_room_file`` with the
+fake room); mic_node (and the fake room) are added apart."""
 
 TRUE_WORDS = ("true", "1", "yes", "on")
 
@@ -154,6 +161,10 @@ def _graph(context: LaunchContext) -> list:
             emulate_tty=True,
         )
 
+    record = _is_true(context, "record")
+    # Recording: the recorder is a third listener of the bits (controller, belief,
+    # recorder) and the room's truth listener, so the first step is not sent before it.
+    mic = {"wait_for_listeners": 3} if record else {}
     if fake_room:
         # Lockstep on request; paced at the room's speed (speed 1.0) by default.
         pacing = {"lockstep": not realtime}
@@ -161,14 +172,26 @@ def _graph(context: LaunchContext) -> list:
         seed = LaunchConfiguration("room_seed").perform(context).strip()
         if seed:
             room["seed"] = int(seed)
-        _WATCH.mic = node("mic_node", [params_file, fake_room_file, pacing])
+        if record:
+            room["wait_for_truth_listeners"] = 1
+        _WATCH.mic = node("mic_node", [params_file, fake_room_file, {**pacing, **mic}])
         actions.append(_WATCH.mic)
         actions.append(node("fake_audio_node", [params_file, fake_room_file, room]))
     else:
-        _WATCH.mic = node("mic_node", [params_file])
+        _WATCH.mic = node("mic_node", [params_file, mic])
         actions.append(_WATCH.mic)
-    actions += [node(name, [params_file]) for name in GRAPH_NODES]
-    if _is_true(context, "record"):
+    controller: dict = {}
+    spec = LaunchConfiguration("controller").perform(context).strip()
+    if spec:
+        controller["controller"] = spec
+    if record:
+        # The decisions' listeners: mic, belief (and the room), and the recorder.
+        controller["wait_for_listeners"] = 4 if fake_room else 3
+    actions += [node(name, [params_file] + ([fake_room_file] if fake_room and
+                                            name == "controller_node" else [])
+                     + ([controller] if controller and name == "controller_node" else []))
+                for name in GRAPH_NODES]
+    if record:
         directory = LaunchConfiguration("record_dir")
         actions.append(node("recorder_node", [params_file, {"directory": directory}]))
     _WATCH.nodes = [a for a in actions if isinstance(a, Node)]
@@ -217,6 +240,12 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
         ),
         DeclareLaunchArgument(
             "record", default_value="false", description="true: add recorder_node"
+        ),
+        DeclareLaunchArgument(
+            "controller",
+            default_value="",
+            description="controller_node's decisions: empty = the policy table;"
+            " interval:MIN_S-MAX_S = the calibration protocol (sounds at random intervals)",
         ),
         DeclareLaunchArgument(
             "record_dir",

@@ -26,6 +26,7 @@ from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.recorder_node import RecorderNode
 from infomax_contingency.testing.graph import StepRecorder
 from infomax_contingency.testing.stepped import SteppedExecutor
 
@@ -35,6 +36,7 @@ NODE_CLASSES: dict[str, type[Node]] = {
     "belief_node": BeliefNode,
     "posture_node": PostureNode,
     "fake_audio_node": FakeAudioNode,
+    "recorder_node": RecorderNode,
 }
 """Node name -> class, for the nodes a stepped graph can hold."""
 

@@ -77,6 +77,32 @@ CASES = {
         ["policy_file:=nope.npz"],
         "cannot find 'policies/nope.npz'",
     ),
+    "no_bag": (
+        "mic_node",
+        ["source:=bag"],
+        "parameter 'bag_dir' is empty: source 'bag' needs a session bag",
+    ),
+    "missing_bag": (
+        "mic_node",
+        ["source:=bag", "bag_dir:=/nonexistent/session"],
+        "parameter 'bag_dir' = '/nonexistent/session': cannot read the session",
+    ),
+    "missing_bag_decisions": (
+        "controller_node",
+        ["controller:=recorded:/nonexistent/session"],
+        "parameter 'controller' = 'recorded:/nonexistent/session': cannot read the session",
+    ),
+    "calibration_controller": (
+        "controller_node",
+        ["controller:=fixed:3"],
+        "parameter 'controller' = 'fixed:3': must be empty (the policy table),"
+        " interval:MIN_S-MAX_S",
+    ),
+    "calibration_interval": (
+        "controller_node",
+        ["controller:=interval:6-3"],
+        "parameter 'controller' = 'interval:6-3': interval controller: need 0 < MIN_S <= MAX_S",
+    ),
     "memory": (
         "belief_node",
         ["memory_steps:=-1"],

@@ -139,3 +139,24 @@ def test_read_session_round_trip(tmp_path) -> None:
     assert plots.read_session(path) == records
     counts = plots.session_counts(ROBOT, records)
     assert counts.shape == (10, 4) and counts[-1].sum() <= 10
+
+
+def test_plot_a_session_bag(tmp_path, capsys: pytest.CaptureFixture) -> None:
+    bag = Path(__file__).parent / "data" / "session_demo"
+    out = tmp_path / "bag.png"
+    assert cli.main(["plot", "--session", str(bag), "--out", str(out)]) == 0
+    assert out.read_bytes().startswith(PNG_MAGIC)
+    assert "120 steps" in capsys.readouterr().out
+    # The figure draws the recorded belief (replayed exactly with the recorded actions).
+    from infomax_contingency.eval.sessions import load_session, replay_recorded
+
+    session = load_session(bag)
+    records = [r.__dict__ for r in replay_recorded(session, ROBOT)]
+    figure = plots.session_figure(ROBOT, records, memory=session.memory_steps)
+    belief_line = figure.axes[1].get_lines()[0]
+    assert list(belief_line.get_ydata()) == session.beliefs
+    not_a_bag = tmp_path / "empty_dir"
+    not_a_bag.mkdir()
+    assert cli.main(["plot", "--session", str(not_a_bag), "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert "cannot read the session" in error and error.count("\n") == 1

@@ -5,21 +5,23 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64, Int64MultiArray
+from std_msgs.msg import Bool, Float64, Int64MultiArray
 
 from infomax_contingency.audio.bag import BagWriteError, BagWriter
-from infomax_contingency.nodes.recorder_node import RecorderNode
+from infomax_contingency.nodes.recorder_node import RECORDED_TOPICS, RecorderNode
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
 
@@ -88,6 +90,36 @@ def test_a_recorded_run_reads_back_with_the_mcap_reader(ros: None, tmp_path: Pat
     assert [topic for topic, _, _ in messages].count("/session_info") == 1
     times = [t for topic, t, _ in messages if topic == "/belief"]
     assert times == sorted(times) and times[0] > 0
+
+
+def test_receive_and_publish_times_are_stored_apart(ros: None, tmp_path: Path) -> None:
+    before = time.time_ns()
+    recorder, executor = _record(tmp_path / "session", 20)
+    executor.close()
+    with (tmp_path / "session" / "session.mcap").open("rb") as stream:
+        times = [(message.publish_time, message.log_time)
+                 for _, channel, message in make_reader(stream).iter_messages()
+                 if channel.topic == "/belief"]
+    assert len(times) == 20
+    # Published (the DDS source timestamp) after the test began, received after that.
+    assert all(before <= published <= received for published, received in times)
+    assert any(published < received for published, received in times)
+    publish_order = [published for published, _ in times]
+    assert publish_order == sorted(publish_order)
+
+
+def test_the_recorder_subscribes_every_topic_with_its_publishers_type(ros: None,
+                                                                      tmp_path: Path) -> None:
+    """A type other than the publisher's never matches: the topic would stay empty."""
+    recorder = RecorderNode(parameter_overrides=[Parameter("directory", value=str(tmp_path / "s"))])
+    try:
+        types = {s.topic_name: s.msg_type for s in recorder.subscriptions}
+        assert {f"/{t}" if not t.startswith("/") else t for t in RECORDED_TOPICS} <= set(types)
+        assert types["/speaker_started"] is TimeMsg  # builtin_interfaces/Time
+        assert types["/partner_present"] is Bool and types["/belief"] is Float64
+        assert any(p.topic_name == "/session_info" for p in recorder.publishers)
+    finally:
+        recorder.destroy_node()
 
 
 def test_a_killed_recorder_leaves_the_flushed_chunks_readable(ros: None, tmp_path: Path) -> None:

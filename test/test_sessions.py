@@ -60,7 +60,7 @@ def test_the_bag_reads_the_same_with_rosbags_and_with_mcap() -> None:
 
 @pytest.mark.parametrize("arguments, message", [
     (["replay", "/nonexistent/session"], "cannot read the session"),
-    (["replay", str(SESSION), "--actions", "channel:1"], "not supported yet"),
+    (["replay", str(SESSION), "--actions", "channel:1"], "goes with a wav file"),
     (["replay", str(SESSION), "--memory", "-1"], "--memory must be >= 0"),
 ])
 def test_bad_replay_input_is_one_line_and_status_2(arguments, message, capsys) -> None:

@@ -1,7 +1,9 @@
 """Sessions on disk: a rosbag2 directory with MCAP storage, written with ``rosbags``.
 
 :class:`BagWriter` takes serialized CDR bytes as they came over DDS (nothing is decoded
-here, no rclpy), with the receive time in ns since the epoch as the message time. It
+here, no rclpy), with the receive time in ns since the epoch as the message time (MCAP
+``log_time``, what ``ros2 bag`` and ``rosbags`` readers order by) and the publisher's send
+time (the DDS source timestamp) as MCAP ``publish_time``. It
 ends a chunk and flushes the file on :meth:`BagWriter.flush`, so a writer that dies
 leaves a file readable up to the last flushed chunk. Every failure of the file system
 (no such directory, not writable, disk full) is one :class:`BagWriteError` with a
@@ -15,7 +17,9 @@ QoS profiles are given as plain dicts of rmw values (``history``, ``depth``,
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +32,58 @@ from rosbags.interfaces import (
     QosTime,
 )
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2.storage_mcap import (
+    McapWriter,
+    write_record,
+    write_uint16,
+    write_uint32,
+    write_uint64,
+)
 from rosbags.typesys import Stores, get_typestore
 
 BAG_VERSION = 9
 """rosbag2 metadata version (the one Jazzy writes)."""
+
+
+class _McapPublishTimeStorage(McapWriter):
+    """rosbags' MCAP storage, writing each message's publish time beside its log time.
+
+    ``rosbags`` 0.11 writes its one timestamp as both MCAP times; this storage writes
+    :attr:`publish_time_ns` (set just before each write) as ``publish_time``. The record
+    is the one ``McapWriter.write`` makes, with that field changed.
+    """
+
+    publish_time_ns: int | None = None
+
+    def write(self, connection: Any, timestamp: int, data: bytes | memoryview) -> None:
+        """Write one message with log time ``timestamp`` and the set publish time."""
+        publish = timestamp if self.publish_time_ns is None else self.publish_time_ns
+        self.message_start_time = min(timestamp, self.message_start_time)
+        self.message_end_time = max(timestamp, self.message_end_time)
+        self.channel_stats[connection.id] += 1
+        self.chunk.message_start_time = min(timestamp, self.chunk.message_start_time)
+        self.chunk.message_end_time = max(timestamp, self.chunk.message_end_time)
+        self.chunk.msgs[connection.id].append((timestamp, self.chunk.bio.tell()))
+        record = BytesIO()
+        write_uint16(record, connection.id)
+        write_uint32(record, 0)
+        write_uint64(record, timestamp)
+        write_uint64(record, publish)
+        record.write(data)
+        write_record(self.chunk.bio, _MCAP_MESSAGE_OPCODE, record)
+        if self.chunk.bio.tell() > _MCAP_CHUNK_BYTES:
+            self.close_chunk()
+
+
+_MCAP_MESSAGE_OPCODE = 0x05
+_MCAP_CHUNK_BYTES = 2**20
+"""A chunk is closed once it holds this many bytes (as ``rosbags`` does)."""
+
+
+class _Writer(Writer):
+    """rosbags' rosbag2 writer with the MCAP storage that keeps publish times."""
+
+    STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: _McapPublishTimeStorage}
 
 
 class BagWriteError(OSError):
@@ -78,10 +130,10 @@ class BagWriter:
 
     def __init__(self, directory: Path, custom_data: Mapping[str, str] | None = None) -> None:
         self.directory = Path(directory)
-        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.typestore = _jazzy_types()
         self.topics: dict[str, Any] = {}
         try:
-            self._writer = Writer(self.directory, version=BAG_VERSION,
+            self._writer = _Writer(self.directory, version=BAG_VERSION,
                                   storage_plugin=StoragePlugin.MCAP)
             for key, value in (custom_data or {}).items():
                 self._writer.set_custom_data(key, value)
@@ -102,8 +154,16 @@ class BagWriter:
             raise BagWriteError(f"cannot add topic {topic} to the bag: {_reason(error)}") \
                 from error
 
-    def write(self, topic: str, data: bytes, time_ns: int) -> None:
-        """Append one serialized message received at ``time_ns`` (ns since the epoch)."""
+    def write(self, topic: str, data: bytes, time_ns: int, publish_ns: int | None = None
+              ) -> None:
+        """Append one serialized message received at ``time_ns`` (ns since the epoch).
+
+        ``publish_ns``: when its publisher sent it (the DDS source timestamp, ns since the
+        epoch), stored as the MCAP ``publish_time``; None: the receive time.
+        """
+        storage = self._writer.storage
+        if isinstance(storage, _McapPublishTimeStorage):
+            storage.publish_time_ns = None if publish_ns is None else int(publish_ns)
         try:
             self._writer.write(self.topics[topic], int(time_ns), data)
         except (WriterError, OSError) as error:
@@ -156,7 +216,7 @@ def read_topics(directory: Path, topics: Sequence[str]) -> dict[str, list[tuple[
     from rosbags.rosbag2 import Reader, ReaderError
 
     found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
-    typestore = get_typestore(Stores.ROS2_JAZZY)
+    typestore = _jazzy_types()
     try:
         with Reader(Path(directory)) as reader:
             connections = [c for c in reader.connections if c.topic in found]
@@ -166,3 +226,27 @@ def read_topics(directory: Path, topics: Sequence[str]) -> dict[str, list[tuple[
     except (ReaderError, OSError) as error:
         raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
     return found
+
+
+@functools.cache
+def _jazzy_types() -> Any:
+    """The Jazzy message definitions ``rosbags`` ships (built once)."""
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def encode(message_type: str, **fields: Any) -> bytes:
+    """The CDR bytes of a ``message_type`` (``pkg/msg/Name``) message with ``fields``.
+
+    For sessions made offline (no rclpy): the bytes rclpy would put on the wire. An
+    ``std_msgs/msg/*MultiArray`` takes ``data`` as a sequence and an empty layout.
+    """
+    typestore = _jazzy_types()
+    kinds = typestore.types
+    if message_type.endswith("MultiArray"):
+        import numpy as np
+
+        dtype = {"Int64MultiArray": np.int64, "Float32MultiArray": np.float32}[
+            message_type.rsplit("/", 1)[1]]
+        fields = {"layout": kinds["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0),
+                  "data": np.asarray(fields["data"], dtype=dtype)}
+    return bytes(typestore.serialize_cdr(kinds[message_type](**fields), message_type))

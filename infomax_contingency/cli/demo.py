@@ -105,7 +105,9 @@ def isolate_dds() -> str:
 
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     """Per-node parameters (over the config files) and the node that sets the pace."""
-    listeners = 3  # controller, belief and this monitor
+    # controller, belief and this monitor, and the recorder: with the recorder counted,
+    # three subscribers of 'sound_step' could be there before the controller is.
+    listeners = 4 if args.record else 3
     # The decisions' listeners: mic, belief, this monitor, the room or (wav) nobody else,
     # and the recorder.
     decision_listeners = 3 + (not args.wav) + bool(args.record)
@@ -133,6 +135,9 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
         return nodes, "mic_node"
     room: dict[str, Any] = {"room": args.room, "seed": args.seed, "max_windows": args.steps}
     room["wait_for_truth_listeners"] = 2 if args.record else 1  # this monitor (+ recorder)
+    if args.record and not args.no_record_audio:
+        room["wait_for_listeners"] = 2  # mic_node and the recorder, which subscribes to
+        # 'audio' once it sees the room's publisher: no audio before it is lost
     room["partner_leave_s"] = args.leave_at if args.leave_at >= 0 else -1.0
     if args.room != "responsive":
         room["partner_arrive_s"] = -1.0
@@ -258,7 +263,7 @@ def _run_graph(
                 except GraphError as error:
                     return _node_failure(processes) or str(error).splitlines()[0]
                 print(f"# demo: the graph is up; running ({clock} sets the pace)", flush=True)
-                steps, failure = _wait_for_run(args, processes, recorder)
+                steps, failure = _wait_for_run(args, processes, recorder, clock)
                 if failure:
                     return failure
                 elapsed = time.monotonic() - start
@@ -278,9 +283,14 @@ def _run_graph(
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
 
 
-def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any) -> tuple[int, str]:
-    """Wait until every step is recorded: (steps, "") or (steps so far, why not)."""
-    if args.wav:
+def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,
+                  clock: str = "fake_audio_node") -> tuple[int, str]:
+    """Wait until every step is recorded: (steps, "") or (steps so far, why not).
+
+    With mic_node as the clock (a wav file, a live microphone with ``max_windows``) the
+    run ends when mic_node exits; with the fake room after ``args.steps`` steps.
+    """
+    if clock == "mic_node":
         mic = processes.processes["mic_node"]
         ok = _wait_with_watchdog(
             lambda: mic.poll() is not None, recorder, STALL_TIMEOUT_S, processes

@@ -669,7 +669,15 @@ def _default_controller(params: ModelParams) -> str:
 
 def _run_plot(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
-    if args.session:
+    memory = args.memory
+    if args.session and Path(args.session).is_dir():  # a recorded session (bag)
+        from infomax_contingency.eval.sessions import load_session, replay_recorded
+
+        session = load_session(Path(args.session))
+        memory = memory or session.memory_steps
+        records = [record.__dict__ for record in replay_recorded(session, params, memory)]
+        title = args.title or f"recorded session {Path(args.session).name}"
+    elif args.session:
         records = plots.read_session(args.session)
         title = args.title or f"session {Path(args.session).name}"
     else:
@@ -683,7 +691,7 @@ def _run_plot(args: argparse.Namespace) -> int:
         title = args.title or (
             f"{args.params} parameters, {controller.name} in room {room.name}, seed {args.seed}"
         )
-    path = plots.plot_session(params, records, args.out, title=title, memory=args.memory)
+    path = plots.plot_session(params, records, args.out, title=title, memory=memory)
     print(f"wrote {path} ({path.stat().st_size:,} bytes, {len(records)} steps)")
     return 0
 
@@ -695,7 +703,9 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", required=True, help="PNG file to write")
     parser.add_argument(
-        "--session", help="JSON-lines session file (`simulate --json` output); else simulate"
+        "--session",
+        help="a session bag (recorder_node; replayed with its recorded actions) or a"
+        " JSON-lines file (`simulate --json` output); else simulate",
     )
     parser.add_argument(
         "--params", default="robot", help="parameter set of the session (default: robot)"
@@ -716,7 +726,8 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
         "--memory",
         type=int,
         default=0,
-        help="sliding memory of the replayed counts (and of rule/greedy); 0 = all (default)",
+        help="sliding memory of the replayed counts (and of rule/greedy); 0 = all (default;"
+        " for a bag: belief_node's memory, from the bag)",
     )
     parser.add_argument("--title", help="figure title")
     parser.set_defaults(run=_run_plot)

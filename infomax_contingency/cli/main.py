@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.cli.calibration_session import register_calibration_session
 from infomax_contingency.cli.demo import register_demo
 from infomax_contingency.cli.experiments import register_experiment, register_learn, register_plot
 from infomax_contingency.cli.live import (
@@ -379,6 +380,7 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_demo,
     register_replay,
     register_analyze,
+    register_calibration_session,
 ]
 
 

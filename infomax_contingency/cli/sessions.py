@@ -4,7 +4,11 @@
 
 ``--actions recorded`` (the default) drives the statistic with the robot's recorded
 decisions, no policy in the loop: the replayed belief equals the recorded one step for
-step, and the command says whether it does (exit status 1 if not). ``--json`` prints
+step, and the command says whether it does (exit status 1 if not). ``--actions
+policy:FILE`` (or any ``simulate --controller``) puts a table or rule in the loop on the
+recorded bits (a what-if). A plain wav file replays with ``--actions FILE.csv`` (column
+``time_s``) or ``--actions channel:N`` (the robot's own output on channel N); see
+:mod:`infomax_contingency.eval.sessions` for how times and onsets map to steps. ``--json`` prints
 one line per step with the keys of ``simulate --json`` (t, z, y, u, belief, entropy,
 ratio), streamed. ``analyze``: the Fig. 4 study (:mod:`infomax_contingency.eval.fig4`)
 of one or more sessions, and a parameter file for ``solve --params``.
@@ -15,27 +19,48 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import yaml
 
+from infomax_contingency.audio.wav import open_wav_info
+from infomax_contingency.core.controllers import ReplayedDecisions, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
-from infomax_contingency.eval.sessions import load_session, replay_recorded
+from infomax_contingency.eval.sessions import (
+    decisions_from_reference,
+    decisions_from_times,
+    load_session,
+    read_action_times,
+    recorded_bits,
+    replay_bits,
+    replay_recorded,
+    wav_bits,
+)
+from infomax_contingency.sim.simulation import RunSummary
 
-ACTION_SOURCES = ("recorded",)
-"""The ``--actions`` values implemented (policy:FILE, FILE.csv and channel:N are not yet)."""
+ACTION_KINDS = ("recorded", "policy:FILE", "rule[:C]", "FILE.csv", "channel:N")
+"""The ``--actions`` values: recorded (a bag's own), a controller (policy:FILE, or any
+``simulate --controller``), an actions CSV file or a reference channel (a wav file)."""
 
 
 def register_replay(subparsers: argparse._SubParsersAction) -> None:
     """``replay SESSION``: the belief of a recorded session, computed again."""
     parser = subparsers.add_parser(
-        "replay", help="replay a recorded session (bag) offline with its recorded actions"
+        "replay", help="replay a recorded session (bag) or a wav file offline",
+        description="Replay a session bag with its recorded actions (the default) or with"
+        " a policy in the loop (what-if), or a plain wav file with its actions from a CSV"
+        " file (column time_s: when the robot's sound was commanded) or from a channel"
+        " carrying the robot's own output.",
     )
-    parser.add_argument("session", metavar="SESSION", help="bag directory written by recorder_node")
+    parser.add_argument("session", metavar="SESSION",
+                        help="bag directory written by recorder_node, or a .wav file")
     parser.add_argument(
-        "--actions", default="recorded",
-        help="where the robot's actions come from: recorded (default; the only one so far)",
+        "--actions", default=None,
+        help="recorded (default for a bag), policy:FILE or another controller (what-if),"
+        " FILE.csv or channel:N (for a wav file)",
     )
     parser.add_argument(
         "--params", default="robot", metavar="NAME|FILE",
@@ -43,28 +68,119 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--memory", type=int, default=None,
-        help="observations the belief keeps; default: belief_node's, from the bag",
+        help="observations the belief keeps; default: belief_node's, from the bag (a wav"
+        " file: all)",
     )
+    parser.add_argument("--seed", type=int, default=0, help="seed of a random controller")
+    parser.add_argument("--mic-channel", type=int, default=None, metavar="C",
+                        help="wav: the microphone's channel (default: the mix of all; with"
+                        " channel:N the lowest channel other than N)")
+    parser.add_argument("--threshold-db", type=float, default=None,
+                        help="wav: the sound threshold, dB (default: calibrate)")
+    parser.add_argument("--calibration-s", type=float, default=10.0,
+                        help="wav: seconds at its start to calibrate the threshold on"
+                        " (default 10)")
     parser.add_argument("--json", action="store_true", help="one JSON object per step")
     parser.set_defaults(run=run_replay)
 
 
-def run_replay(args: argparse.Namespace) -> int:
-    """Replay; 0 when the replayed belief equals the recorded one, 1 when it does not."""
-    if args.actions not in ACTION_SOURCES:
-        raise ValueError(
-            f"--actions {args.actions}: not supported yet; use one of {', '.join(ACTION_SOURCES)}"
-        )
+def _check_replay(args: argparse.Namespace, is_wav: bool) -> str:
+    """The ``--actions`` kind after checking the arguments (ValueError: one line)."""
     if args.memory is not None and args.memory < 0:
         raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
-    session = load_session(Path(args.session))
+    if not args.calibration_s > 0:
+        raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
+    if args.threshold_db is not None and not -150.0 <= args.threshold_db <= 0.0:
+        raise ValueError(f"--threshold-db must lie in -150 .. 0 dB, got {args.threshold_db}")
+    if args.mic_channel is not None and args.mic_channel < 0:
+        raise ValueError(f"--mic-channel must be >= 0, got {args.mic_channel}")
+    actions = args.actions or ("recorded" if not is_wav else "")
+    if actions.startswith("channel:"):
+        kind = "channel"
+    elif actions.lower().endswith(".csv"):
+        kind = "csv"
+    elif actions == "recorded":
+        kind = "recorded"
+    elif actions:
+        kind = "controller"
+    else:
+        raise ValueError(f"{args.session} is a wav file: it has no recorded actions; give"
+                         " --actions FILE.csv, channel:N or policy:FILE")
+    if is_wav and kind == "recorded":
+        raise ValueError(f"--actions recorded: {args.session} is a wav file: it has no"
+                         " recorded actions; give --actions FILE.csv, channel:N or policy:FILE")
+    if not is_wav and kind in ("csv", "channel"):
+        raise ValueError(f"--actions {actions}: an actions file or channel goes with a wav"
+                         f" file; the session {args.session} has its recorded actions")
+    return kind
+
+
+def _reference_channel(text: str) -> int:
+    number = text.partition(":")[2]
+    if not number.isdigit():
+        raise ValueError(f"--actions {text}: the channel must be a whole number >= 0,"
+                         " e.g. channel:1")
+    return int(number)
+
+
+def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams) -> tuple[Iterator,
+                                                                                   str]:
+    """The replayed steps of a wav file and a description of where its actions came from."""
+    path = Path(args.session)
+    mic = args.mic_channel
+    reference = _reference_channel(args.actions) if kind == "channel" else None
+    if reference is not None:
+        channels = open_wav_info(path).channels
+        if reference >= channels:
+            raise ValueError(f"--actions {args.actions}: {path} has {channels} channel(s),"
+                             f" numbered 0 .. {channels - 1}")
+        if channels < 2:
+            raise ValueError(f"--actions {args.actions}: {path} has one channel; the robot's"
+                             " output must be a channel beside the microphone's")
+        mic = (0 if reference != 0 else 1) if mic is None else mic
+        if mic == reference:
+            raise ValueError(f"--mic-channel {mic} is the reference channel of --actions"
+                             f" {args.actions}")
+    bits, threshold = wav_bits(path, params.dt, mic, args.threshold_db, args.calibration_s)
+    memory = args.memory or 0
+    if kind == "controller":
+        controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
+                                     memory=memory)
+        what = f"controller {controller.name} deciding on the recorded bits (what-if)"
+    else:
+        if kind == "csv":
+            times = read_action_times(Path(args.actions))
+            decisions = decisions_from_times(times, len(bits), params.dt,
+                                             f"actions file {args.actions}")
+            what = f"actions from {args.actions}"
+        else:
+            decisions, level = decisions_from_reference(path, reference, params.dt)
+            what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
+        controller = ReplayedDecisions(params, decisions)
+    return replay_bits(bits, controller, memory), f"{what}; sound threshold {threshold:.1f} dB"
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    """Replay; with recorded actions 0 when the belief equals the recorded one, else 1."""
+    is_wav = Path(args.session).suffix.lower() == ".wav" and not Path(args.session).is_dir()
+    kind = _check_replay(args, is_wav)
     params = ModelParams.load(args.params)
+    if is_wav:
+        records, what = _wav_records(args, kind, params)
+        return _print_what_if(args, records, what)
+    session = load_session(Path(args.session))
+    if kind == "controller":
+        memory = session.memory_steps if args.memory is None else args.memory
+        controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
+                                     memory=memory)
+        records = replay_bits(recorded_bits(session), controller, memory)
+        return _print_what_if(args, records, f"controller {controller.name} deciding on the"
+                              " recorded bits (what-if)")
     replayed = []
     for record in replay_recorded(session, params, args.memory):
         replayed.append(record.belief)
         if args.json:
-            sys.stdout.write(json.dumps(record.__dict__) + "\n")
-            sys.stdout.flush()
+            _write_line(json.dumps(record.__dict__))
     same = replayed == session.beliefs
     first_difference = next(
         (i for i, (a, b) in enumerate(zip(replayed, session.beliefs, strict=False)) if a != b),
@@ -77,6 +193,25 @@ def run_replay(args: argparse.Namespace) -> int:
     )
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def _write_line(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def _print_what_if(args: argparse.Namespace, records: Iterator, what: str) -> int:
+    """Stream the steps (``--json``) and print a summary line; 0."""
+    summary = RunSummary()
+    for record in records:
+        summary.add(record)
+        if args.json:
+            _write_line(json.dumps(record.__dict__))
+    final = "-" if summary.final_belief is None else f"{summary.final_belief:.6f}"
+    print(f"# replay {args.session}, {what}: {summary.steps} steps, {summary.vocalizations}"
+          f" vocalizations; final P(S=1) = {final} -> {summary.verdict}",
+          file=sys.stderr if args.json else sys.stdout)
+    return 0
 
 
 def register_analyze(subparsers: argparse._SubParsersAction) -> None:

@@ -13,10 +13,15 @@ is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and r
 * ``greedy`` — one-step infomax (``H = 1``).
 * ``fixed:K`` — vocalize every K steps.
 * ``random:P`` — vocalize with probability P.
+* ``interval:MIN_S-MAX_S`` — the paper's calibration protocol: vocalize at random
+  intervals drawn uniformly from MIN_S .. MAX_S seconds (rounded to whole steps of
+  ``dt``, at least one step), the first after one such interval.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +31,9 @@ from infomax_contingency.core import model
 from infomax_contingency.core.model import ModelParams, Statistic, StatisticTracker
 from infomax_contingency.core.policy_table import EPISODIC, PolicyTable
 
-CONTROLLER_KINDS = ("policy:FILE", "rule[:C]", "greedy", "fixed:K", "random:P")
+CONTROLLER_KINDS = (
+    "policy:FILE", "rule[:C]", "greedy", "fixed:K", "random:P", "interval:MIN_S-MAX_S"
+)
 
 
 def rule_decisions(
@@ -182,6 +189,93 @@ class RandomController(Controller):
         return int(self.rng.random() < self.probability)
 
 
+class RandomIntervalController(Controller):
+    """Vocalize after random intervals, uniform over ``min_steps .. max_steps`` steps.
+
+    The paper's calibration protocol (Section 6): the robot sounds at random moments
+    whatever it hears, so that what follows its sounds can be measured. The interval
+    from one vocalization to the next (and from the start to the first) is drawn
+    uniformly from the whole numbers ``min_steps .. max_steps``.
+    """
+
+    def __init__(self, params: ModelParams, min_steps: int, max_steps: int,
+                 rng: np.random.Generator) -> None:
+        super().__init__(params)
+        if not 1 <= min_steps <= max_steps:
+            raise ValueError(f"interval controller: need 1 <= min steps <= max steps, got"
+                             f" {min_steps} .. {max_steps}")
+        self.min_steps, self.max_steps = min_steps, max_steps
+        self.rng = rng
+        self.name = f"interval:{min_steps * params.dt:g}-{max_steps * params.dt:g}"
+        self.wait = self._draw()
+
+    @classmethod
+    def from_seconds(cls, params: ModelParams, min_s: float, max_s: float,
+                     rng: np.random.Generator) -> RandomIntervalController:
+        """Intervals of ``min_s .. max_s`` seconds, rounded to steps of ``params.dt``."""
+        if not (math.isfinite(min_s) and math.isfinite(max_s) and 0 < min_s <= max_s):
+            raise ValueError(f"interval controller: need 0 < MIN_S <= MAX_S seconds, got"
+                             f" {min_s:g} .. {max_s:g}")
+        low = max(1, round(min_s / params.dt))
+        return cls(params, low, max(low, round(max_s / params.dt)), rng)
+
+    def _draw(self) -> int:
+        return int(self.rng.integers(self.min_steps, self.max_steps + 1))
+
+    def decide(self, statistic: Statistic) -> int:
+        """Vocalize when the drawn interval has passed; then draw the next one."""
+        self.wait -= 1
+        if self.wait > 0:
+            return 0
+        self.wait = self._draw()
+        return 1
+
+    def reset(self) -> None:
+        """Forget the history and draw a first interval again."""
+        super().reset()
+        self.wait = self._draw()
+
+
+class ReplayedDecisions(Controller):
+    """A controller that answers each step with a given decision (a recorded table).
+
+    The decisions come from a recording: a session bag, an actions CSV file or a
+    reference channel (``eval.sessions``); step ``t`` (from 1) is answered with
+    ``decisions[t - 1]``, and 0 past their end. Missed steps move on as many decisions.
+    """
+
+    name = "recorded"
+
+    def __init__(self, params: ModelParams, decisions: Sequence[bool], name: str = "") -> None:
+        super().__init__(params)
+        self.decisions = [bool(u) for u in decisions]
+        self.position = 0
+        self.name = name or self.name
+
+    def decide(self, statistic: Statistic) -> int:
+        """The next given decision."""
+        self.position += 1
+        return int(self.position <= len(self.decisions) and self.decisions[self.position - 1])
+
+    def missed(self, steps: int) -> None:
+        """As :meth:`Controller.missed`; the decisions of the missed steps are skipped."""
+        super().missed(steps)
+        self.position += max(steps, 0)
+
+    def reset(self) -> None:
+        """Forget the history and start again from the first decision."""
+        super().reset()
+        self.position = 0
+
+
+def _interval_seconds(argument: str) -> tuple[float, float]:
+    """``(min_s, max_s)`` of ``MIN_S-MAX_S``."""
+    low, separator, high = argument.partition("-")
+    if not separator:
+        raise ValueError("interval needs MIN_S-MAX_S seconds, e.g. interval:3-6")
+    return float(low), float(high)
+
+
 def make_controller(
     spec: str, params: ModelParams, rng: np.random.Generator, memory: int = 0
 ) -> Controller:
@@ -204,6 +298,9 @@ def make_controller(
             return FixedIntervalController(params, int(argument))
         if kind == "random":
             return RandomController(params, float(argument), rng)
+        if kind == "interval":
+            return RandomIntervalController.from_seconds(params, *_interval_seconds(argument),
+                                                         rng)
     except ValueError as error:
         if "could not convert" in str(error) or "invalid literal" in str(error):
             raise ValueError(f"controller {spec!r}: bad number {argument!r}") from None

@@ -6,7 +6,11 @@ decision ``u_t = 1`` has lag 0. A trial runs from one vocalization to the next, 
 ``max_lag`` windows. Rates come with 95 % Wilson intervals. A lag is *raised* when its
 interval lies wholly above the background's (the windows with no vocalization in the
 last ``background_from`` windows); the first run of raised lags starting at lag 0 or 1 is the
-self-feedback period (ts1, ts2), the next run the agent's reply period (ta1, ta2).
+self-feedback period (ts1, ts2), the next run the agent's reply period (ta1, ta2). When the
+replies begin right after the robot's own sound the two make one run: the self period is
+then its longest prefix whose rates agree with the first lag's (overlapping 95 %
+intervals: the robot hears itself about every time), and the reply period the rest of
+that run. Replies exactly as frequent as the self-feedback cannot be told from it.
 """
 
 from __future__ import annotations
@@ -96,6 +100,26 @@ def _pooled(rates: Sequence[Rate], period: tuple[int, int]) -> Rate:
     return Rate(sum(r.active for r in chosen), sum(r.total for r in chosen))
 
 
+def _intervals_overlap(a: Rate, b: Rate) -> bool:
+    (low_a, high_a), (low_b, high_b) = a.interval, b.interval
+    return low_a <= high_b and low_b <= high_a
+
+
+def _split_self_run(by_lag: Sequence[Rate], run: tuple[int, int]
+                    ) -> tuple[tuple[int, int], tuple[int, int] | None]:
+    """The self period and the rest of a raised run that starts at lag 0 or 1.
+
+    A reply that begins right after the robot's own sound makes one raised run of both;
+    the self period is the run's longest prefix whose rates agree with its first lag's
+    (95 % intervals overlap), the rest (if any) is where the replies begin.
+    """
+    first, last = run
+    end = first
+    while end < last and _intervals_overlap(by_lag[end + 1], by_lag[first]):
+        end += 1
+    return (first, end), ((end + 1, last) if end < last else None)
+
+
 def fig4_study(bits: Sequence[bool], decisions: Sequence[bool], max_lag: int = 20,
                background_from: int = 6) -> Fig4Study:
     """The Fig. 4 study of one run: ``bits[t]`` heard in window t, ``decisions[t]`` after it.
@@ -135,6 +159,10 @@ def fig4_study_of_runs(runs: Sequence[tuple[Sequence[bool], Sequence[bool]]], ma
                   for rate in by_lag[:background_from]])
     self_period = raised[0] if raised and raised[0][0] <= 1 else None
     later = raised[1:] if self_period else raised
+    if self_period is not None:
+        self_period, reply_start = _split_self_run(by_lag, self_period)
+        if reply_start is not None:
+            later = [reply_start, *later]
     agent_period = later[0] if later else None
     return Fig4Study(
         vocalizations=sum(bool(u) for _, decisions in runs for u in decisions),

@@ -6,18 +6,35 @@ the recorded ``sound_step`` bits and ``vocalize_step`` decisions by step with th
 :class:`~infomax_contingency.core.model.StatisticTracker` that belief_node runs, so the
 replayed belief equals the recorded ``belief`` step for step (exactly: same code, same
 inputs). Steps are windows of ``params.dt`` seconds, numbered from 1 within a stream.
+
+Other actions (:func:`replay_bits`): a policy or rule deciding on the recorded bits (a
+what-if: the recording does not answer other decisions), or, for a plain wav file
+recorded elsewhere, decisions from an actions CSV file (:func:`read_action_times`,
+:func:`decisions_from_times`) or from a channel carrying the robot's own output
+(:func:`decisions_from_reference`), with the file's bits (:func:`wav_bits`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from infomax_contingency.audio.bag import read_topics
+from infomax_contingency.audio.binarizer import Binarizer, WavReplay
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.energy import wav_energies
+from infomax_contingency.audio.threshold import (
+    bits_from_energies,
+    kmeans_split,
+    require_separation,
+)
+from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.stepclock import StepJoiner
-from infomax_contingency.sim.simulation import StepRecord
+from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.simulation import BitObservation, StepRecord, step_record
 
 SESSION_TOPICS = ("/sound_step", "/vocalize_step", "/belief", "/diagnostics")
 """Topics a replay with recorded actions reads."""
@@ -107,3 +124,194 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
             joiner.decision(step, decisions[step])
         yield from out
         out.clear()
+
+
+# --------------------------------------------------------------------------------------
+# What-if replays and plain wav files: actions from a policy, a CSV file or a channel.
+
+ACTIONS_CSV_HEADER = "time_s"
+"""The one column of an actions CSV file: when the robot's sound was commanded (s)."""
+
+
+class _GivenBits:
+    """A loop world that hears given bits whatever is decided (a recording)."""
+
+    def __init__(self, bits: Sequence[bool]) -> None:
+        self.bits = iter(bits)
+
+    def observe(self) -> BitObservation:
+        return BitObservation(int(next(self.bits)))
+
+    def act(self, u: int) -> None:
+        """A recording does not answer."""
+
+
+def replay_bits(bits: Sequence[bool], controller: Controller, memory: int = 0
+                ) -> Iterator[StepRecord]:
+    """The steps of ``controller`` deciding on recorded ``bits``, as ``simulate --json`` rows.
+
+    A recording does not answer the decisions: the bits are those recorded whatever the
+    controller does, so with a policy in the loop this is a what-if on the same sound
+    (a partner who would have answered other sounds is not simulated). The reported
+    belief keeps ``memory`` counted observations (0 = all) and starts from zero counts,
+    the timer "long ago".
+    """
+    loop = run_loop(_GivenBits(bits), controller, len(bits), memory=memory)
+    return (step_record(controller.params, step) for step in loop)
+
+
+def recorded_bits(session: RecordedSession) -> list[bool]:
+    """The bits of the session's stream in step order (a step never recorded is skipped)."""
+    return [bit for _, bit in sorted(dict(session.bits).items())]
+
+
+def wav_bits(path: Path, window_s: float, channel: int | None, threshold_db: float | None,
+             calibration_s: float) -> tuple[list[bool], float]:
+    """The bits of a wav file's windows and the threshold used (dB).
+
+    The microphone is ``channel`` (None: the mix of all channels), windowed and
+    binarized as mic_node's ``source: wav`` does: ``threshold_db``, or the k-means
+    calibration of the first ``calibration_s`` seconds (every window gets a bit).
+
+    Raises:
+        AudioError: unreadable file, missing channel, or a calibration that cannot
+            separate sound from quiet.
+    """
+    replay = WavReplay(path, window_s, channel)
+    binarizer = Binarizer(threshold_db)
+    if threshold_db is None:
+        binarizer.calibrate(replay.calibration_energies(calibration_s, window_s))
+    bits = []
+    while (energy := replay.next_energy()) is not None:
+        bits.append(bool(binarizer.push(energy)))
+    return bits, float(binarizer.threshold_db)
+
+
+def read_action_times(path: Path) -> list[float]:
+    """The ``time_s`` column of an actions CSV file (seconds, strictly increasing, >= 0).
+
+    Raises:
+        ValueError: unreadable file, a header other than ``time_s``, a value that is not
+            a finite number >= 0, or times that do not increase; the message names the
+            file and the line.
+    """
+    try:
+        lines = Path(path).read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"actions file {path}: cannot read it ({error})") from None
+    rows = [(number, line.strip()) for number, line in enumerate(lines, 1) if line.strip()]
+    if not rows or rows[0][1].lstrip("\ufeff") != ACTIONS_CSV_HEADER:
+        found = rows[0][1][:40] if rows else "an empty file"
+        raise ValueError(f"actions file {path}: the first line must be the header"
+                         f" '{ACTIONS_CSV_HEADER}' (one column), found {found!r}")
+    times: list[float] = []
+    for number, text in rows[1:]:
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"actions file {path} line {number}: {text[:40]!r} is not a"
+                             " time in seconds (one column, time_s)") from None
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"actions file {path} line {number}: time_s must be a finite"
+                             f" number >= 0, got {text[:40]!r}")
+        if times and value <= times[-1]:
+            raise ValueError(f"actions file {path} line {number}: time_s {value:g} does not"
+                             f" come after the previous {times[-1]:g} (times must increase)")
+        times.append(value)
+    return times
+
+
+def decisions_from_times(times: Sequence[float], windows: int, dt: float, what: str
+                         ) -> list[bool]:
+    """Per-step decisions from the moments the robot's sound was commanded (seconds).
+
+    Convention (the graph's timing): window ``k`` (from 0) covers ``[k dt, (k+1) dt)``;
+    the decision on window ``k`` is taken at its end and its sound commanded then, so a
+    command at time ``t`` lies in window ``j = floor(t / dt)`` and is the decision on
+    window ``j - 1`` (``u = 1`` at step ``j``, counting steps from 1). A command in the
+    first window follows no window and is refused, as are two in one window and a
+    command at or after the end of the recording (``windows * dt``).
+
+    Raises:
+        ValueError: one of those, naming ``what`` (the actions file) and the time.
+    """
+    decisions = [False] * windows
+    for t in times:
+        window = math.floor(t / dt + 1e-9)
+        if window >= windows:
+            raise ValueError(f"{what}: time_s {t:g} lies beyond the recording"
+                             f" ({windows * dt:g} s, {windows} windows of {dt:g} s)")
+        if window == 0:
+            raise ValueError(f"{what}: time_s {t:g} lies in the first window (before"
+                             f" {dt:g} s), before any decision could have been taken")
+        if decisions[window - 1]:
+            raise ValueError(f"{what}: two sounds commanded in the window at"
+                             f" {window * dt:g} s (one decision per window)")
+        decisions[window - 1] = True
+    return decisions
+
+
+def decisions_from_reference(path: Path, channel: int, window_s: float,
+                             min_separation_db: float = 10.0) -> tuple[list[bool], float]:
+    """Per-step decisions from a channel carrying the robot's own output, and its threshold.
+
+    Onset rule: the channel's windows are split into quiet and sounding by the k-means
+    threshold of all its window energies (refused when the two clusters lie less than
+    ``min_separation_db`` apart: a silent channel); a sounding window whose previous
+    window is quiet is an onset, and an onset in window ``j`` is the decision on window
+    ``j - 1`` (as :func:`decisions_from_times`). A sound already playing in the first
+    window follows no decision and is not counted; two sounds in consecutive windows
+    make one onset.
+
+    Raises:
+        AudioError: unreadable file or missing channel.
+        ValueError: the channel holds no robot sound.
+    """
+    energies = wav_energies(path, window_s, channel)
+    try:
+        fit = require_separation(kmeans_split(energies), min_separation_db)
+    except AudioError as error:
+        raise ValueError(f"--actions channel:{channel}: the channel holds no sound of the"
+                         f" robot ({error})") from None
+    sounding = bits_from_energies(energies, fit.threshold_db)
+    onsets = sounding[1:] & ~sounding[:-1]
+    return [bool(u) for u in onsets] + [False], fit.threshold_db
+
+
+OFFLINE_STREAM = 1
+"""Stream id of a session made offline (:func:`write_offline_session`)."""
+OFFLINE_CONTROLLER = 2
+"""Controller id of a session made offline."""
+
+
+def write_offline_session(directory: Path, bits: Sequence[bool], decisions: Sequence[bool],
+                          beliefs: Sequence[float], dt: float, start_ns: int = 0) -> Path:
+    """A session bag of an offline run (e.g. the audio-level fake room's loop).
+
+    It holds what a recorded graph run holds for replay and ``analyze``: ``/sound_step``
+    and ``/sound`` (the bits), ``/vocalize_step`` and ``/vocalize`` (the decisions) and
+    ``/belief``, message ``t`` (from 0) stamped ``start_ns + t dt`` (receive and publish
+    time alike). No ``/diagnostics``: replays use the whole history unless told a memory.
+    """
+    from infomax_contingency.audio.bag import BagWriter, encode
+
+    writer = BagWriter(Path(directory))
+    stream_qos = [{"history": 1, "depth": 1000, "reliability": 1, "durability": 2}]
+    topics = {"/sound": "std_msgs/msg/Bool", "/sound_step": "std_msgs/msg/Int64MultiArray",
+              "/vocalize": "std_msgs/msg/Bool",
+              "/vocalize_step": "std_msgs/msg/Int64MultiArray", "/belief": "std_msgs/msg/Float64"}
+    for topic, kind in topics.items():
+        writer.add_topic(topic, kind, stream_qos)
+    window_us = round(dt * 1e6)
+    for t, (y, u, belief) in enumerate(zip(bits, decisions, beliefs, strict=True)):
+        time_ns = start_ns + round(t * dt * 1e9)
+        step = t + 1
+        writer.write("/sound", encode("std_msgs/msg/Bool", data=bool(y)), time_ns)
+        writer.write("/sound_step", encode("std_msgs/msg/Int64MultiArray",
+                     data=[OFFLINE_STREAM, step, int(y), window_us]), time_ns)
+        writer.write("/vocalize", encode("std_msgs/msg/Bool", data=bool(u)), time_ns + 1)
+        writer.write("/vocalize_step", encode("std_msgs/msg/Int64MultiArray",
+                     data=[OFFLINE_STREAM, step, int(u), OFFLINE_CONTROLLER]), time_ns + 1)
+        writer.write("/belief", encode("std_msgs/msg/Float64", data=float(belief)), time_ns + 2)
+    writer.close()
+    return Path(directory)

@@ -6,7 +6,11 @@ the name of a table in the package's ``policies/`` directory (default: the commi
 robot table, found through the share directory). A table solved for other model
 parameters than ``params`` is refused at start-up with the differences named. Episodic
 tables restart an episode at their horizon; receding tables keep a sliding memory of M
-counted observations.
+counted observations. ``controller: interval:MIN_S-MAX_S`` replaces the table by the
+paper's calibration protocol: vocalize at random intervals, uniform over MIN_S .. MAX_S
+seconds, whatever is heard (seeded by the controller id, which is logged);
+``controller: recorded:BAG`` answers step t of the stream with the decision the robot
+recorded for step t in a session bag (for mic_node's ``source: bag``: a faithful replay).
 
 Step clock: the node answers every bit on ``sound_step`` of the stream it follows
 (:class:`~infomax_contingency.core.stepclock.SourceLock`: a second mic_node is counted
@@ -30,9 +34,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from std_msgs.msg import Bool, Int64MultiArray
 
-from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.audio.bag_replay import recorded_decisions
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.core.controllers import (
+    Controller,
+    PolicyController,
+    ReplayedDecisions,
+    make_controller,
+)
+from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.stepclock import Arrival, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
@@ -63,6 +76,22 @@ def _table_path(value: str) -> str:
         return str(resource_path(DEFAULT_TABLE[0], name))
     except FileNotFoundError as error:
         raise ConfigError(f"parameter 'policy_file' = {value!r}: {error}") from None
+
+
+def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
+    """The controller of parameter ``controller``: interval:MIN_S-MAX_S or recorded:BAG."""
+    kind, _, argument = spec.partition(":")
+    try:
+        if kind == "interval":
+            return make_controller(spec, params, np.random.default_rng(seed))
+        if kind == "recorded" and argument:
+            return ReplayedDecisions(params, recorded_decisions(Path(argument)),
+                                     name=f"recorded:{argument}")
+    except (ValueError, OSError, AudioError) as error:
+        raise ConfigError(f"parameter 'controller' = {spec!r}: {error}") from None
+    raise ConfigError(f"parameter 'controller' = {spec!r}: must be empty (the policy table),"
+                      " interval:MIN_S-MAX_S (seconds, e.g. interval:3-6) or recorded:BAG (a"
+                      " session bag's decisions)")
 
 
 class ControllerNode(GraphNode):
@@ -101,10 +130,19 @@ class ControllerNode(GraphNode):
             " belief_node; also fake_audio_node in lockstep)",
             0, 100,
         )
-        self.table_path = _table_path(path)
-        table = PolicyTable.load(self.table_path, expected_params=params)
-        self.controller = PolicyController(table)
+        spec = read.text(
+            "controller", "",
+            "Empty: decide with the policy table; interval:MIN_S-MAX_S: vocalize at random"
+            " intervals, uniform over MIN_S .. MAX_S seconds (the calibration protocol);"
+            " recorded:BAG: answer each step with a session bag's recorded decision",
+        )
         self.controller_id = new_source_id()
+        self.table_path = _table_path(path)
+        if spec:
+            self.controller = _other_controller(spec, params, self.controller_id)
+        else:
+            table = PolicyTable.load(self.table_path, expected_params=params)
+            self.controller = PolicyController(table)
         self.window_us = window_us(params.dt)
         self.streams = SourceLock(timeout_s)
         self.last_step = 0
@@ -125,11 +163,15 @@ class ControllerNode(GraphNode):
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )
         self.start_diagnostics()
-        self.get_logger().info(
-            f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
-            + (f", memory {table.memory}" if table.mode == "receding" else "")
-            + f"; controller id {self.controller_id}"
-        )
+        if spec:
+            self.get_logger().info(f"controller {self.controller.name} (no table);"
+                                   f" controller id {self.controller_id}")
+        else:
+            self.get_logger().info(
+                f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
+                + (f", memory {table.memory}" if table.mode == "receding" else "")
+                + f"; controller id {self.controller_id}"
+            )
 
     def _listeners_ready(self) -> bool:
         return self.step_pub.get_subscription_count() >= self.wait_for_listeners
@@ -205,7 +247,6 @@ class ControllerNode(GraphNode):
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Steps, vocalizations, the table, the stream followed and what was refused."""
-        table = self.controller.table
         now = self.now_s()
         values = {
             "steps": self.steps,
@@ -219,12 +260,14 @@ class ControllerNode(GraphNode):
             "stale_bits": self.stale_bits.count,
             "refused_messages": self.bad.count,
             "stream_changes": self.streams.switches,
-            "policy_file": self.table_path,
-            "mode": table.mode,
-            "horizon": table.horizon,
-            "memory": table.memory,
             "statistic": tuple(self.controller.tracker.statistic),
         }
+        table = getattr(self.controller, "table", None)
+        if table is None:
+            values["controller"] = self.controller.name
+        else:
+            values.update(policy_file=self.table_path, mode=table.mode,
+                          horizon=table.horizon, memory=table.memory)
         if self.intruders or self.foreign.recent(now) or self.bad.recent(now):
             return ERROR, "a second stream on 'sound_step', or refused messages", values
         if not self.answering:

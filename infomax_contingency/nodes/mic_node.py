@@ -10,6 +10,12 @@ Sources (parameter ``source``):
 * ``topic`` — chunks of mono samples on ``audio`` (std_msgs/Float32MultiArray, in
   [-1, 1], at ``audio_rate_hz``), windowed as they come. A gap in the stream (a missing
   publication sequence number) drops the incomplete window and is counted.
+* ``bag`` — a recorded session (``bag_dir``, a recorder_node bag), paced like ``wav``:
+  its recorded audio windowed again and binarized with this node's threshold, or, when
+  the bag holds no audio, its recorded bits (:mod:`~infomax_contingency.audio.bag_replay`).
+  With controller_node's ``controller: recorded:BAG`` answering with the robot's
+  recorded decisions, the graph replays the session faithfully (the belief is the
+  recorded one when the bits are); with a policy it is a what-if on the same sound.
 * ``sounddevice`` — a live microphone through PortAudio
   (:class:`~infomax_contingency.audio.capture.MicrophoneStream`): ``device`` is empty (the
   system default), an index, or a part of the device's name (first match; the match is
@@ -66,12 +72,14 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
+from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.audio.binarizer import (
     UNSEPARATED,
     Binarizer,
@@ -99,7 +107,7 @@ from infomax_contingency.nodes.step_topics import (
     window_us,
 )
 
-SOURCES = ("wav", "topic", "sounddevice")
+SOURCES = ("wav", "topic", "sounddevice", "bag")
 THRESHOLD_MODES = ("calibrate", "fixed", "file")
 
 MICROPHONE_POLL_S = 0.02
@@ -128,6 +136,7 @@ class MicConfig:
     max_steps_ahead: int
     max_backlog_s: float
     wav_file: str
+    bag_dir: str
     channel: int
     loop: bool
     lockstep: bool
@@ -205,6 +214,7 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
 def _read_sources(node: GraphNode, read: ParameterReader) -> dict[str, Any]:
     return {
         "wav_file": read.text("wav_file", "", "WAV file to replay (source wav)"),
+        "bag_dir": read.text("bag_dir", "", "Session bag to replay (source bag)"),
         "channel": read.integer(
             "channel", -1,
             "Channel of the file or microphone to use; -1 = mix all channels", -1, 1023,
@@ -243,7 +253,7 @@ def read_config(node: GraphNode) -> MicConfig:
         source=read.text(
             "source", "topic",
             "Where audio comes from: wav (a file), topic (the 'audio' topic),"
-            " sounddevice (a live microphone)", SOURCES,
+            " sounddevice (a live microphone), bag (a recorded session)", SOURCES,
         ),
         window_s=read.number(
             "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
@@ -262,6 +272,8 @@ def read_config(node: GraphNode) -> MicConfig:
     check_threshold_file(config.threshold_mode, config.threshold_file)
     if config.source == "wav" and not config.wav_file:
         raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")
+    if config.source == "bag" and not config.bag_dir:
+        raise ConfigError("parameter 'bag_dir' is empty: source 'bag' needs a session bag")
     return config
 
 
@@ -341,6 +353,7 @@ class MicNode(GraphNode):
         self.bad_chunks = 0
         self.started = False
         self.replay: WavReplay | None = None
+        self.bag: BagReplay | None = None
         self.pacer: LockstepPacer | None = None
         self._pace_timer = None
         self.ended = False
@@ -353,6 +366,9 @@ class MicNode(GraphNode):
         self.timeouts = self.recent_events()
         if self.source == "wav":
             self._setup_wav(config)
+        elif self.source == "bag":
+            self.bag = open_bag_replay(self, config)
+            self.pacer = LockstepPacer(config.lockstep_timeout_s) if config.lockstep else None
         elif self.source == "topic":
             self._setup_topic(config.audio_rate_hz)
         else:
@@ -432,7 +448,7 @@ class MicNode(GraphNode):
     def _start(self) -> None:
         self.started = True
         self.get_logger().info("listeners connected: starting the step clock")
-        if self.replay is not None:
+        if self.replay is not None or self.bag is not None:
             if self.pacer is None:
                 self._pace_timer = self.create_timer(self.window_s, self._emit_from_file)
             self._emit_from_file()
@@ -462,19 +478,23 @@ class MicNode(GraphNode):
     # ------------------------------------------------------------------ windows
 
     def _emit_from_file(self) -> None:
-        energy = self.replay.next_energy()
+        if self.bag is not None:
+            energy, recorded_bit = self.bag.next_window() or (None, None)
+        else:
+            energy, recorded_bit = self.replay.next_energy(), None
         if energy is None:
             if not self.ended:
                 self.ended = True
                 if self._pace_timer is not None:
                     self._pace_timer.cancel()
-                self.get_logger().info(f"end of {self.replay.path} after {self.windows} windows")
+                path = self.bag.directory if self.bag is not None else self.replay.path
+                self.get_logger().info(f"end of {path} after {self.windows} windows")
                 if self.exit_at_end:
                     self._finish_publishing()
             return
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
-        self._window(energy)
+        self._window(energy, recorded_bit)
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -536,11 +556,14 @@ class MicNode(GraphNode):
             self.windows_with_loss += 1
             self.losses.note(self.now_s())
 
-    def _window(self, energy_db: float) -> None:
-        """A window was made: its bit (after calibration) waits in the outbox to go out."""
+    def _window(self, energy_db: float, recorded_bit: bool | None = None) -> None:
+        """A window was made: its bit (after calibration) waits in the outbox to go out.
+
+        ``recorded_bit``: the bit a session bag recorded for it (no threshold applied).
+        """
         self.last_energy_db = energy_db
-        was_calibrating = self.binarizer.calibrating
-        bit = self.binarizer.push(energy_db)
+        was_calibrating = self.binarizer.calibrating and recorded_bit is None
+        bit = self.binarizer.push(energy_db) if recorded_bit is None else recorded_bit
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))
             return
@@ -753,6 +776,20 @@ class MicNode(GraphNode):
         if self.losses.recent(now) or self.timeouts.recent(now):
             return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
         return OK, f"{self.windows} windows", values
+
+
+def open_bag_replay(node: MicNode, config: MicConfig) -> BagReplay:
+    """The session bag of ``source: bag``; calibrates the threshold on its audio if asked."""
+    try:
+        bag = BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz)
+    except (OSError, AudioError) as error:
+        raise ConfigError(f"parameter 'bag_dir' = {config.bag_dir!r}: {error}") from None
+    if bag.has_audio and config.threshold_mode == "calibrate":
+        node.binarizer.calibrate(bag.calibration_energies(config.calibration_s, config.window_s))
+    what = "its audio, binarized again" if bag.has_audio else "its recorded bits"
+    node.get_logger().info(f"replaying the session {config.bag_dir}: {bag.n_windows} windows"
+                           f" of {config.window_s} s from {what}")
+    return bag
 
 
 def main(args: list[str] | None = None) -> int:

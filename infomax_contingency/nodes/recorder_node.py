@@ -3,16 +3,21 @@
 The bag is what ``ros2 bag record`` writes on Jazzy: ``DIR/metadata.yaml`` and
 ``DIR/DIR_NAME_0.mcap``, written with the ``rosbags`` library. Each message is stored as
 the serialized CDR bytes received over DDS (a ``raw`` subscription: nothing is
-deserialized), with its receive time (MCAP ``log_time``, ns since the epoch; the
-publish time is not yet stored apart: ``rosbags`` writes the receive time as both), and
-each topic with the QoS its publishers offer (``offered_qos_profiles`` in the metadata).
+deserialized), with two times, both ns since the epoch: its receive time (MCAP
+``log_time``, the one ``ros2 bag`` and ``rosbags`` order and play by: when DDS received it
+on this machine) and its publish time (MCAP ``publish_time``: the DDS source timestamp,
+when the publisher sent it), and each topic with the QoS its publishers offer
+(``offered_qos_profiles`` in the metadata).
 
 Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
 ``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
 ``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
 ``/diagnostics``. The session itself (the parameter files and threshold file named in
 ``session_files``, their text) goes on the topic ``session_info`` (std_msgs/String,
-YAML) as the first message, and into the metadata's ``custom_data``.
+YAML) as the first message, and into the metadata's ``custom_data``. ``session_info`` is
+also published (transient-local), and only once every subscription of the recorder
+exists, so a launcher that waits for it (the demo does) cannot start the graph before the
+recorder listens.
 
 Robustness: the MCAP file is flushed every ``flush_period_s`` seconds (a chunk ends
 there), so a recorder killed with ``kill -9`` leaves a file readable up to the last
@@ -35,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Bool, Float32, Float64, Int64MultiArray, String
@@ -62,7 +68,7 @@ RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
     "belief": (Float64, STREAM_QOS),
     "posture": (String, LATCHED_READER_QOS),
     "joint_targets": (JointTrajectory, LATCHED_READER_QOS),
-    "speaker_started": (Bool, STREAM_QOS),
+    "speaker_started": (TimeMsg, STREAM_QOS),
     "partner_present": (Bool, STREAM_QOS),
     "/diagnostics": (DiagnosticArray, QoSProfile(depth=100)),
 }
@@ -129,9 +135,11 @@ class RecorderNode(GraphNode):
         except BagWriteError as error:
             self._fail(str(error))
         self._add_topic(SESSION_TOPIC, String, STREAM_QOS)
-        self._session_pub = self.create_publisher(String, SESSION_TOPIC, LATCHED_QOS)
         for topic, (kind, qos) in RECORDED_TOPICS.items():
             self._add_topic(topic, kind, qos)
+        # Announced only now that every subscription exists: a graph that waits for
+        # 'session_info' (the demo's monitor) starts once nothing can be missed.
+        self._session_pub = self.create_publisher(String, SESSION_TOPIC, LATCHED_QOS)
         self._write_own(SESSION_TOPIC, String(data=description))
         self._session_pub.publish(String(data=description))
         self.create_timer(_DISCOVERY_PERIOD_S, self._discover_audio)
@@ -159,7 +167,8 @@ class RecorderNode(GraphNode):
                 self._fail(str(error))
 
         def receive(data: bytes, info: dict[str, Any]) -> None:
-            self._write(name, data, time.time_ns())
+            received = int(info.get("received_timestamp", 0)) or time.time_ns()
+            self._write(name, data, received, int(info.get("source_timestamp", 0)) or None)
 
         if topic != SESSION_TOPIC:
             self.create_subscription(kind, topic, receive, qos, raw=True)
@@ -171,14 +180,15 @@ class RecorderNode(GraphNode):
         from rclpy.serialization import serialize_message
 
         now = time.time_ns()
-        self._write(self.resolve_topic_name(topic), serialize_message(msg), now)
+        self._write(self.resolve_topic_name(topic), serialize_message(msg), now, now)
 
-    def _write(self, name: str, data: bytes, received_ns: int) -> None:
+    def _write(self, name: str, data: bytes, received_ns: int, published_ns: int | None
+               ) -> None:
         self.counts[name] = self.counts.get(name, 0) + 1
         if self.writer is None:
             return
         try:
-            self.writer.write(name, data, received_ns)
+            self.writer.write(name, data, received_ns, published_ns)
         except BagWriteError as error:
             self._fail(str(error))
 

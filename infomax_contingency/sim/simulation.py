@@ -16,7 +16,7 @@ import numpy as np
 
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams, advance_timer
-from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.loop import LoopStep, run_loop
 
 
 class BitRoom(Protocol):
@@ -112,18 +112,20 @@ def iter_simulate(
         raise ValueError(f"steps must be >= 1, got {steps}")
     controller.reset()
     loop = run_loop(BitWorld(params, room, rng), controller, steps, memory=memory)
-    return (
-        StepRecord(
-            t=step.t,
-            time_s=round((step.t - 1) * params.dt, 9),
-            z=step.z,
-            y=int(step.observation.y),
-            u=step.u,
-            belief=step.statistic.belief(params),
-            entropy=step.statistic.entropy(params),
-            ratio=step.statistic.variance_ratio(params),
-        )
-        for step in loop
+    return (step_record(params, step) for step in loop)
+
+
+def step_record(params: ModelParams, step: LoopStep) -> StepRecord:
+    """The :class:`StepRecord` of one step of :func:`~infomax_contingency.sim.loop.run_loop`."""
+    return StepRecord(
+        t=step.t,
+        time_s=round((step.t - 1) * params.dt, 9),
+        z=step.z,
+        y=int(step.observation.y),
+        u=step.u,
+        belief=step.statistic.belief(params),
+        entropy=step.statistic.entropy(params),
+        ratio=step.statistic.variance_ratio(params),
     )
 
 

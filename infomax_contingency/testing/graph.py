@@ -259,6 +259,8 @@ class StepRecorder(Node):
             ("belief", Float64, self.belief, stream_qos),
             ("partner_present", Bool, self.partner_present, stream_qos),
             ("posture", String, None, LATCHED_READER_QOS),
+            # recorder_node announces itself here once all its subscriptions exist.
+            ("session_info", String, None, LATCHED_READER_QOS),
         ):
             self.times[topic] = []
             self._subscribe(kind, topic, self._recorder(topic, store), qos)

@@ -1,0 +1,113 @@
+"""A recorded session's windows served again: what mic_node's ``source: bag`` publishes.
+
+A session bag (recorder_node) holds the audio when it was recorded (``/audio``, chunks of
+mono float32 samples at the rate of the graph's ``audio`` topic) and always the bits of
+the microphone stream it heard (``/sound_step``, with ``/sound_energy`` beside them).
+:class:`BagReplay` serves one window at a time:
+
+* with audio: the recorded samples windowed again (one window = ``window_s``), their
+  energy and **no bit** — the caller binarizes them with its own threshold, so a
+  replay can try another threshold; the bits equal the recorded ones for the threshold
+  the session used;
+* without audio: the recorded energy and the **recorded bit** of each step of the first
+  stream heard, in step order.
+
+The robot's recorded decisions for the same steps are :attr:`BagReplay.decisions`
+(controller_node's ``controller: recorded:BAG`` answers with them, for a faithful
+replay). Nothing here imports rclpy: the bag is read with ``rosbags``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from infomax_contingency.audio.bag import read_topics
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.energy import WindowAssembler
+
+BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
+"""Topics a bag replay reads."""
+
+
+def recorded_decisions(directory: Path) -> list[bool]:
+    """The robot's recorded decision for each step (from 1) of the session's first stream.
+
+    ``decisions[t - 1]`` answers step ``t``; a step without a recorded decision is False.
+
+    Raises:
+        BagReadError: the bag cannot be read.
+        AudioError: it holds no ``sound_step`` (no stream to follow).
+    """
+    topics = read_topics(directory, ("/sound_step", "/vocalize_step"))
+    stream, steps = _first_stream(directory, topics["/sound_step"])
+    decided = {int(d[1]): bool(d[2]) for d in (list(m.data) for _, m in topics["/vocalize_step"])
+               if d[0] == stream}
+    return [decided.get(step, False) for step in range(1, steps + 1)]
+
+
+def _first_stream(directory: Path, sound_steps: list) -> tuple[int, int]:
+    """(stream id, last step) of the first mic stream recorded."""
+    if not sound_steps:
+        raise AudioError(f"the session {directory} holds no sound_step messages: nothing to"
+                         " replay")
+    stream = int(sound_steps[0][1].data[0])
+    return stream, max(int(m.data[1]) for _, m in sound_steps if int(m.data[0]) == stream)
+
+
+class BagReplay:
+    """The windows of a session bag, one at a time (see the module docstring).
+
+    Args:
+        directory: the bag.
+        window_s: window length, seconds (the model's dt).
+        audio_rate_hz: sample rate of the recorded ``audio`` topic, Hz.
+
+    Raises:
+        BagReadError: the bag cannot be read.
+        AudioError: it holds neither audio nor bits.
+    """
+
+    def __init__(self, directory: Path, window_s: float, audio_rate_hz: int) -> None:
+        self.directory = Path(directory)
+        topics = read_topics(self.directory, BAG_TOPICS)
+        self.has_audio = bool(topics["/audio"])
+        self.windows: list[tuple[float, bool | None]]
+        if self.has_audio:
+            assembler = WindowAssembler(audio_rate_hz, window_s)
+            energies: list[float] = []
+            for _, chunk in topics["/audio"]:
+                energies.extend(assembler.push(np.asarray(chunk.data, dtype=np.float32)))
+            self.windows = [(float(e), None) for e in energies]
+        else:
+            stream, _ = _first_stream(self.directory, topics["/sound_step"])
+            steps = [(int(m.data[1]), bool(m.data[2])) for _, m in topics["/sound_step"]
+                     if int(m.data[0]) == stream]
+            # Calibration windows (energy, no bit) come first: the last energies are the
+            # steps' (an energy not recorded is nan).
+            energies = [float(m.data) for _, m in topics["/sound_energy"]][-len(steps):]
+            energies = [math.nan] * (len(steps) - len(energies)) + energies
+            self.windows = [(energy, bit) for energy, (_, bit) in
+                            zip(energies, sorted(steps), strict=True)]
+        if not self.windows:
+            raise AudioError(f"the session {self.directory} holds no complete window of audio")
+        self.position = 0
+
+    @property
+    def n_windows(self) -> int:
+        """Windows in the session."""
+        return len(self.windows)
+
+    def next_window(self) -> tuple[float, bool | None] | None:
+        """(energy dB, recorded bit or None to binarize) of the next window; None at the end."""
+        if self.position >= len(self.windows):
+            return None
+        self.position += 1
+        return self.windows[self.position - 1]
+
+    def calibration_energies(self, calibration_s: float, window_s: float) -> np.ndarray:
+        """Energies of the first ``calibration_s`` seconds (for ``threshold_mode`` calibrate)."""
+        count = max(2, round(calibration_s / window_s))
+        return np.array([energy for energy, _ in self.windows[:count]])

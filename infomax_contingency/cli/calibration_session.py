@@ -1,0 +1,118 @@
+"""``infomax-contingency calibration-session``: the paper's calibration protocol, recorded.
+
+For ``--minutes`` of room time the robot sounds at random intervals, uniform over
+``--min-interval-s`` .. ``--max-interval-s`` seconds, whatever it hears (controller_node
+with ``controller: interval:MIN_S-MAX_S``), while a person answers; recorder_node writes
+the session to ``--out``, a bag for ``infomax-contingency analyze`` (the Fig. 4 study),
+which turns it into a parameter file for ``solve``.
+
+``--fake-room`` runs it against the simulated room (lockstep: minutes of room time take
+seconds; its reply delays are those of config/fake_room.yaml); without it the graph runs
+live: the microphone (``--device``, the threshold from ``--threshold-file`` or calibrated
+on the first ``--calibration-s`` seconds) and the loudspeaker, in real time, and the
+session ends after ``--minutes``. The launch file does the same with
+``record:=true controller:=interval:MIN_S-MAX_S``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from infomax_contingency.cli import demo
+
+DEFAULT_INTERVAL_S = (3.0, 6.0)
+"""Default range of the random intervals between the robot's sounds, seconds."""
+
+
+def register_calibration_session(subparsers: argparse._SubParsersAction) -> None:
+    """``calibration-session``: record the random-interval protocol for ``analyze``."""
+    parser = subparsers.add_parser(
+        "calibration-session",
+        help="record the paper's calibration protocol (sounds at random intervals) for analyze",
+        description=__doc__.split("\n\n")[1],
+    )
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="bag directory to write (must not exist)")
+    parser.add_argument("--minutes", type=float, default=5.0,
+                        help="length of the session, minutes of room time (default 5)")
+    parser.add_argument("--min-interval-s", type=float, default=DEFAULT_INTERVAL_S[0],
+                        help=f"shortest interval between sounds, s (default"
+                        f" {DEFAULT_INTERVAL_S[0]:g})")
+    parser.add_argument("--max-interval-s", type=float, default=DEFAULT_INTERVAL_S[1],
+                        help=f"longest interval between sounds, s (default"
+                        f" {DEFAULT_INTERVAL_S[1]:g})")
+    parser.add_argument("--fake-room", action="store_true",
+                        help="against the simulated room (lockstep) instead of live audio")
+    parser.add_argument("--seed", type=int, default=1, help="fake room: its seed (default 1)")
+    parser.add_argument("--device", default="", help="live: the microphone (index or name)")
+    parser.add_argument("--threshold-file", default="",
+                        help="live: a threshold file written by calibrate (default: calibrate"
+                        " on the first --calibration-s seconds)")
+    parser.add_argument("--calibration-s", type=float, default=10.0,
+                        help="live: seconds to calibrate the threshold on (default 10)")
+    parser.add_argument("--no-record-audio", action="store_true",
+                        help="leave the 'audio' topic out of the bag")
+    parser.set_defaults(run=run_calibration_session)
+
+
+def _check(args: argparse.Namespace) -> int:
+    """The session's steps after checking the arguments (ValueError: one line)."""
+    if not (math.isfinite(args.minutes) and args.minutes > 0):
+        raise ValueError(f"--minutes must be > 0, got {args.minutes:g}")
+    low, high = args.min_interval_s, args.max_interval_s
+    if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
+        raise ValueError(f"--min-interval-s and --max-interval-s: need 0 < min <= max"
+                         f" seconds, got {low:g} .. {high:g}")
+    if not args.calibration_s > 0:
+        raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s:g}")
+    if args.threshold_file and not Path(args.threshold_file).is_file():
+        raise ValueError(f"--threshold-file {args.threshold_file}: no such file")
+    if Path(args.out).exists():
+        raise ValueError(f"--out {args.out}: exists already; name a new directory")
+    return max(1, round(args.minutes * 60 / demo.WINDOW_S))
+
+
+def _graph(args: argparse.Namespace, steps: int) -> tuple[argparse.Namespace,
+                                                          dict[str, dict[str, Any]], str]:
+    """The demo's arguments, the nodes and the clock node of the session."""
+    run = argparse.Namespace(
+        steps=steps, seed=args.seed, room="responsive", leave_at=-1.0, memory=60, wav=None,
+        calibration_s=args.calibration_s, record=args.out,
+        no_record_audio=args.no_record_audio,
+    )
+    nodes, clock = demo._nodes(run)
+    nodes["controller_node"] = {
+        "controller": f"interval:{args.min_interval_s:g}-{args.max_interval_s:g}"}
+    if not args.fake_room:
+        del nodes["fake_audio_node"]
+        threshold = ({"threshold_mode": "file", "threshold_file": args.threshold_file}
+                     if args.threshold_file else
+                     {"threshold_mode": "calibrate", "calibration_s": args.calibration_s})
+        nodes["mic_node"] = {"source": "sounddevice", "device": args.device,
+                             "max_windows": steps, "wait_for_listeners": 4, **threshold}
+        nodes["speaker_node"] = {"dry_run": False}
+        clock = "mic_node"
+    return run, nodes, clock
+
+
+def run_calibration_session(args: argparse.Namespace) -> int:
+    """Record the session; 0 after it, 1 if the graph failed, 2 for bad arguments."""
+    steps = _check(args)
+    demo.isolate_dds()
+    run, nodes, clock = _graph(args, steps)
+    where = "the simulated room" if args.fake_room else "live audio"
+    print(f"# calibration-session: {args.minutes:g} min ({steps} windows) against {where},"
+          f" a sound every {args.min_interval_s:g}-{args.max_interval_s:g} s; recording to"
+          f" {args.out}", flush=True)
+    outcome = demo._run_graph(run, nodes, clock)
+    if isinstance(outcome, str):
+        print(f"infomax-contingency calibration-session: error: {outcome}", file=sys.stderr)
+        return 1
+    monitor, steps_run, elapsed = outcome
+    print(f"# recorded {steps_run} steps, {sum(monitor.vocalize[:steps_run])} sounds, in"
+          f" {elapsed:.1f} s; next: infomax-contingency analyze {args.out} --out params.yaml")
+    return 0

@@ -1,0 +1,89 @@
+"""mic_node ``source: bag``: a recorded session replayed into the node graph.
+
+mic_node serves the committed session's recorded bits (the bag holds no audio),
+controller_node answers each step with the robot's recorded decision (``controller:
+recorded:BAG``) and belief_node computes the belief: it equals the recorded belief step
+for step. With the robot's table instead, the graph decides again on the same bits.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from infomax_contingency.audio.bag import read_topics
+from infomax_contingency.audio.bag_replay import BagReplay, recorded_decisions
+from infomax_contingency.eval.sessions import load_session
+from stepped_graph import stepped_graph
+
+SESSION = Path(__file__).parent / "data" / "session_demo"
+STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief",
+               "/partner_present")
+
+pytestmark = pytest.mark.xdist_group("node_graphs")
+
+
+def _graph(controller: dict) -> dict:
+    mic = {"source": "bag", "bag_dir": str(SESSION), "lockstep": True, "exit_at_end": True,
+           "threshold_mode": "fixed", "wait_for_listeners": 3}
+    return {"controller_node": controller, "belief_node": {"memory_steps": 60}, "mic_node": mic}
+
+
+def _replay(controller: dict) -> tuple[list, list, list]:
+    with stepped_graph(_graph(controller), "mic_node") as graph:
+        graph.run_steps(120)
+        mic_node = graph.nodes["mic_node"]
+        graph.run_until(mic_node.finished.done, "mic_node to finish at the end of the bag")
+        assert mic_node.finished.result() == 0
+        graph.executor.run_for_callbacks(20)
+        rec = graph.recorder
+        return list(rec.sound), list(rec.vocalize), list(rec.belief)
+
+
+def test_a_session_with_its_recorded_decisions_replays_to_the_recorded_belief() -> None:
+    session = load_session(SESSION)
+    bits, decisions, beliefs = _replay({"controller": f"recorded:{SESSION}"})
+    assert bits == [bit for _, bit in session.bits]
+    assert decisions == [u for _, u in session.decisions]
+    assert beliefs == session.beliefs
+
+
+def test_the_bag_reader_serves_the_recorded_bits_and_decisions() -> None:
+    replay = BagReplay(SESSION, 0.5, 16000)
+    session = load_session(SESSION)
+    assert not replay.has_audio and replay.n_windows == 120
+    served = [replay.next_window() for _ in range(120)]
+    assert [bit for _, bit in served] == [bit for _, bit in session.bits]
+    assert replay.next_window() is None
+    assert recorded_decisions(SESSION) == [u for _, u in session.decisions]
+
+
+def test_a_recorded_room_session_holds_every_step_of_every_topic(tmp_path: Path) -> None:
+    """The recorder subscribes before the graph starts: no topic misses a step.
+
+    The graph (fake room, mic, controller, belief, recorder) waits for the recorder as a
+    listener of ``sound_step``, ``partner_present`` and ``audio``, as the demo does when
+    it records; the stepped graph also waits for its ``session_info``.
+    """
+    bag = tmp_path / "session"
+    steps = 40
+    nodes = {
+        "controller_node": {}, "belief_node": {"memory_steps": 60},
+        "recorder_node": {"directory": str(bag)},
+        "mic_node": {"source": "topic", "threshold_mode": "fixed", "wait_for_listeners": 3},
+        "fake_audio_node": {"seed": 3, "max_windows": steps, "wait_for_truth_listeners": 2,
+                            "wait_for_listeners": 2},  # audio: the mic and the recorder
+    }
+    with stepped_graph(nodes, "fake_audio_node") as graph:
+        graph.run_steps(steps)
+        recorder = graph.nodes["recorder_node"]
+        graph.run_until(lambda: all(recorder.counts.get(topic, 0) >= steps for topic in
+                                    (*STEP_TOPICS, "/audio")), "the recorder to record all")
+        truth = list(graph.recorder.partner_present)
+    topics = read_topics(bag, (*STEP_TOPICS, "/audio", "/session_info"))
+    for topic in (*STEP_TOPICS, "/audio"):
+        assert len(topics[topic]) == steps, (topic, len(topics[topic]))
+    assert [int(m.data[1]) for _, m in topics["/sound_step"]] == list(range(1, steps + 1))
+    assert [m.data for _, m in topics["/partner_present"]] == truth
+    assert len(topics["/session_info"]) == 1

@@ -1,0 +1,158 @@
+"""replay --actions: a controller on recorded bits, a wav file with an actions CSV or channel.
+
+A policy on a session's recorded bits, a wav file with an actions CSV file or with a
+channel carrying the robot's own output; and their bad input.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from infomax_contingency.audio.resample import load_mono
+from infomax_contingency.audio.synth import synthesize_chirp
+from infomax_contingency.audio.wav import write_wav_int16
+from infomax_contingency.cli.main import main
+from infomax_contingency.eval.sessions import decisions_from_times, load_session
+from infomax_contingency.resources import resource_path
+
+DATA = Path(__file__).parent / "data"
+SESSION = DATA / "session_demo"
+WAV = DATA / "interaction.wav"
+CHIRPS_S = (1.0, 5.0, 9.5, 14.0)
+"""When interaction.wav's robot chirps start (test/data/make_interaction.py)."""
+ROBOT_TABLE = resource_path("policies", "robot_receding_H24_M60.npz")
+JSON_KEYS = {"t", "time_s", "z", "y", "u", "belief", "entropy", "ratio"}
+
+
+def _rows(capsys) -> list[dict]:
+    return [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+
+
+def _csv(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def stereo_wav(tmp_path: Path) -> Path:
+    """interaction.wav on channel 0 and the robot's chirps alone on channel 1 (16 kHz)."""
+    rate = 16000
+    mic = load_mono(WAV, rate)
+    reference = np.zeros_like(mic)
+    chirp = synthesize_chirp(rate, 0.2, amplitude=0.5)
+    for start_s in CHIRPS_S:
+        start = round(start_s * rate)
+        reference[start:start + chirp.size] += chirp
+    path = tmp_path / "stereo.wav"
+    write_wav_int16(path, np.stack([mic, reference], axis=1), rate)
+    return path
+
+
+def test_the_robots_own_table_on_the_recorded_bits_makes_the_recorded_decisions(capsys
+                                                                                 ) -> None:
+    # The session was recorded with this table in the loop: on the same bits it decides
+    # as the robot did, and its belief is the recorded one.
+    assert main(["replay", str(SESSION), "--actions", f"policy:{ROBOT_TABLE}", "--json"]) == 0
+    rows = _rows(capsys)
+    session = load_session(SESSION)
+    assert [row["u"] for row in rows] == [int(u) for _, u in session.decisions]
+    assert [row["belief"] for row in rows] == session.beliefs
+    assert JSON_KEYS == set(rows[0])
+
+
+def test_another_controller_on_the_recorded_bits_is_a_what_if(capsys) -> None:
+    assert main(["replay", str(SESSION), "--actions", "fixed:4", "--json"]) == 0
+    rows = _rows(capsys)
+    assert len(rows) == 120
+    assert [row["u"] for row in rows] == [int(t % 4 == 0) for t in range(1, 121)]
+    assert [row["y"] for row in rows] == [int(b) for _, b in load_session(SESSION).bits]
+
+
+def test_a_wav_with_an_actions_csv_puts_each_sound_on_the_step_before_its_window(
+    tmp_path: Path, capsys
+) -> None:
+    actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
+    assert main(["replay", str(WAV), "--actions", str(actions), "--json"]) == 0
+    rows = _rows(capsys)
+    assert len(rows) == 36 and JSON_KEYS == set(rows[0])
+    # A sound commanded at t lies in window floor(t / 0.5) (from 0): the decision on the
+    # window before it, step floor(t / 0.5) counting from 1.
+    assert [row["t"] for row in rows if row["u"]] == [2, 10, 19, 28]
+    assert [row["z"] for row in rows if row["t"] in (3, 11, 20, 29)] == [0, 0, 0, 0]
+    assert all(row["y"] for row in rows if row["t"] in (3, 11, 20, 29))  # the chirp heard
+
+
+def test_a_reference_channel_gives_the_decisions_of_the_csv(stereo_wav: Path, tmp_path: Path,
+                                                            capsys) -> None:
+    actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
+    assert main(["replay", str(stereo_wav), "--actions", str(actions), "--mic-channel", "0",
+                 "--json"]) == 0
+    from_csv = _rows(capsys)
+    assert main(["replay", str(stereo_wav), "--actions", "channel:1", "--json"]) == 0
+    from_channel = _rows(capsys)
+    assert [row["t"] for row in from_channel if row["u"]] == [2, 10, 19, 28]
+    assert from_channel == from_csv
+
+
+def test_time_mapping_convention() -> None:
+    assert decisions_from_times([0.5, 1.0, 1.99], 5, 0.5, "x") == [True, True, True, False, False]
+    with pytest.raises(ValueError, match="two sounds commanded"):
+        decisions_from_times([0.6, 0.9], 4, 0.5, "x")
+
+
+@pytest.mark.parametrize("csv_text, message", [
+    ("time\n1.0\n", "the first line must be the header 'time_s'"),
+    ("time_s,u\n1.0,1\n", "the first line must be the header 'time_s'"),
+    ("", "found 'an empty file'"),
+    ("time_s\n5.0\n2.0\n", "line 3: time_s 2 does not come after the previous 5"),
+    ("time_s\n5.0\n5.0\n", "does not come after"),
+    ("time_s\n1.0\nabc\n", "line 3: 'abc' is not a time in seconds"),
+    ("time_s\n-1.0\n", "must be a finite number >= 0"),
+    ("time_s\nnan\n", "must be a finite number >= 0"),
+    ("time_s\n18.0\n", "time_s 18 lies beyond the recording (18 s, 36 windows"),
+    ("time_s\n100\n", "lies beyond the recording"),
+    ("time_s\n0.2\n", "lies in the first window"),
+])
+def test_a_bad_actions_csv_is_one_line_and_status_2(csv_text: str, message: str,
+                                                    tmp_path: Path, capsys) -> None:
+    actions = _csv(tmp_path / "actions.csv", csv_text)
+    assert main(["replay", str(WAV), "--actions", str(actions)]) == 2
+    error = capsys.readouterr().err
+    assert message in error, error
+    assert len(error.strip().splitlines()) == 1
+
+
+def test_bad_channels_and_combinations_are_one_line_and_status_2(stereo_wav: Path,
+                                                                 tmp_path: Path, capsys
+                                                                 ) -> None:
+    silent = tmp_path / "silent.wav"
+    mic = load_mono(WAV, 16000)
+    write_wav_int16(silent, np.stack([mic, np.zeros_like(mic)], axis=1), 16000)
+    cases = [
+        ([str(stereo_wav), "--actions", "channel:2"], "has 2 channel(s), numbered 0 .. 1"),
+        ([str(stereo_wav), "--actions", "channel:x"], "must be a whole number"),
+        ([str(WAV), "--actions", "channel:0"], "has one channel"),
+        ([str(silent), "--actions", "channel:1"], "the channel holds no sound of the robot"),
+        ([str(stereo_wav), "--actions", "channel:1", "--mic-channel", "1"],
+         "is the reference channel"),
+        ([str(stereo_wav), "--actions", "policy:x.npz", "--mic-channel", "5"],
+         "channel 5 does not exist"),
+        ([str(WAV)], "has no recorded actions"),
+        ([str(WAV), "--actions", "recorded"], "has no recorded actions"),
+        ([str(SESSION), "--actions", "channel:1"], "goes with a wav file"),
+        ([str(SESSION), "--actions", str(tmp_path / "a.csv")], "goes with a wav file"),
+        ([str(WAV), "--actions", str(tmp_path / "none.csv")], "cannot read it"),
+        ([str(WAV), "--actions", "policy:/nonexistent.npz"], "nonexistent.npz"),
+        ([str(WAV), "--actions", "bogus"], "unknown controller"),
+        ([str(WAV), "--actions", "fixed:3", "--calibration-s", "0"], "--calibration-s"),
+        ([str(WAV), "--actions", "fixed:3", "--threshold-db", "5"], "--threshold-db"),
+    ]
+    for arguments, message in cases:
+        assert main(["replay", *arguments]) == 2, arguments
+        error = capsys.readouterr().err
+        assert message in error, (arguments, error)
+        assert len(error.strip().splitlines()) == 1, error
