@@ -5,10 +5,12 @@ k-means of calibration window energies (dB); the bit of a window is ``energy > t
 (:func:`bits_from_energies`, the one bit rule). A calibration whose cluster means lie
 closer than a least separation cannot tell sound from quiet (:func:`require_separation`).
 Threshold files are small YAML files (:func:`save_threshold`, :func:`load_threshold`).
+:class:`NoiseFloorTracker` follows the noise floor (a low percentile of recent levels).
 """
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import datetime
 import math
@@ -280,3 +282,55 @@ def load_threshold(path: str | os.PathLike[str]) -> float:
     if not math.isfinite(value):
         raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
     return float(value)
+
+
+# --------------------------------------------------------------------------- noise floor
+
+
+class NoiseFloorTracker:
+    """A slow estimate of the noise floor: a low percentile of the last window levels.
+
+    The floor is the ``percentile``-th percentile (lower nearest rank: the
+    ``floor(percentile / 100 * (n - 1))``-th smallest, from 0) of the last ``capacity``
+    window levels (dB); ``percentile = 0`` is the minimum (minimum statistics). Sounds
+    shorter than a ``1 - percentile / 100`` share of the buffer do not move it, so a
+    partner's replies stay above it while a slowly louder room raises it.
+
+    Args:
+        capacity: number of most recent windows kept (at least 1).
+        percentile: 0 .. 50.
+    """
+
+    def __init__(self, capacity: int, percentile: float) -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
+            raise AudioError(f"noise-floor capacity must be an integer >= 1, got {capacity!r}")
+        if isinstance(percentile, bool) or not isinstance(percentile, int | float):
+            raise AudioError(f"noise_percentile must be a number in [0, 50], got {percentile!r}")
+        if not 0.0 <= percentile <= 50.0:
+            raise AudioError(f"noise_percentile must be in [0, 50], got {percentile!r}")
+        self.capacity = capacity
+        self.percentile = float(percentile)
+        self._order: deque[float] = deque()  # levels in arrival order
+        self._sorted: list[float] = []  # the same levels, sorted
+
+    def __len__(self) -> int:
+        return len(self._order)
+
+    def add(self, level_db: float) -> None:
+        """Append one window level (dB), dropping the oldest when full."""
+        if not math.isfinite(level_db):
+            raise AudioError(f"window level must be finite, got {level_db!r}")
+        level = float(level_db)
+        if len(self._order) == self.capacity:
+            oldest = self._order.popleft()
+            del self._sorted[bisect.bisect_left(self._sorted, oldest)]
+        self._order.append(level)
+        bisect.insort(self._sorted, level)
+
+    @property
+    def floor_db(self) -> float | None:
+        """The current floor estimate, dB; None before the first window."""
+        if not self._sorted:
+            return None
+        rank = math.floor(self.percentile / 100.0 * (len(self._sorted) - 1))
+        return self._sorted[rank]
