@@ -24,13 +24,24 @@ Sources (parameter ``source``):
   (``window_delay_s`` in the diagnostics: from a window's last sample to its bit). A
   device that is not there at start-up stops the node with the list of input devices.
 
-Threshold (``threshold_mode``): ``fixed`` (``threshold_db``), ``file`` (a threshold file
-written by calibration, ``threshold_file``), or ``calibrate``: the two-cluster k-means
-of the first ``calibration_s`` seconds. A wav file is calibrated by reading its first
-seconds ahead, so every window of the file gets a bit; a stream's calibration windows
-are consumed (their ``sound_energy`` is published, but no ``sound``: the step clock
-starts after calibration). ``refresh_s > 0`` refits the threshold online on the last
-``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db`` apart).
+Bit source (``bit_source``, :mod:`~infomax_contingency.audio.bitsource`): ``energy``
+(the window energy against the threshold; the default), ``speech_band`` (the energy of
+the 300-3400 Hz band against the threshold) or ``vad`` (WebRTC's voice-activity
+detector: a window is active with at least ``vad_min_voiced_s`` of voiced
+``vad_frame_ms`` frames; ``vad_aggressiveness`` 0-3; 8, 16, 32 or 48 kHz audio only; no
+threshold). ``sound_energy`` is the full-band window energy whatever the source.
+
+Threshold (``threshold_mode``, sources energy and speech_band): ``fixed``
+(``threshold_db``), ``file`` (a threshold file written by calibration,
+``threshold_file``), ``calibrate``: the two-cluster k-means of the first
+``calibration_s`` seconds, or ``noise_floor``: ``noise_margin_db`` above the
+``noise_percentile``-th percentile of the last ``noise_window_s`` seconds of levels (the
+first ``calibration_s`` seconds only start the floor). A wav file is calibrated by
+reading its first seconds ahead, so every window of the file gets a bit; a stream's
+calibration windows are consumed (their ``sound_energy`` is published, but no ``sound``:
+the step clock starts after calibration). ``refresh_s > 0`` refits the threshold online
+on the last ``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db``
+apart).
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -65,17 +76,19 @@ import numpy as np
 from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.audio.binarizer import (
-    UNSEPARATED,
-    Binarizer,
-    WavReplay,
-    calibration_window_count,
+from infomax_contingency.audio.binarizer import UNSEPARATED, WavReplay
+from infomax_contingency.audio.bitsource import (
+    BIT_SOURCES,
+    THRESHOLD_MODES,
+    VAD_FRAMES_MS,
+    VAD_RATES_HZ,
+    BitSource,
+    make_bit_source,
 )
 from infomax_contingency.audio.capture import MicrophoneStream, Window
-from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
 from infomax_contingency.audio.energy import WindowAssembler
-from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
@@ -93,7 +106,6 @@ from infomax_contingency.nodes.step_topics import (
 )
 
 SOURCES = ("wav", "topic", "sounddevice")
-THRESHOLD_MODES = ("calibrate", "fixed", "file")
 
 MICROPHONE_POLL_S = 0.02
 """Seconds between reads of the live microphone's finished windows."""
@@ -109,12 +121,19 @@ class MicConfig:
     params: ModelParams
     source: str
     window_s: float
+    bit_source: str
     threshold_mode: str
     threshold_db: float
     threshold_file: str
     calibration_s: float
     refresh_s: float
     min_separation_db: float
+    noise_margin_db: float
+    noise_window_s: float
+    noise_percentile: float
+    vad_aggressiveness: int
+    vad_frame_ms: int
+    vad_min_voiced_s: float
     wait_for_listeners: int
     start_delay_s: float
     max_windows: int
@@ -159,6 +178,39 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             "min_separation_db", 10.0,
             "Least gap between cluster means to accept a calibration or a refit",
             0.0, 100.0, "dB",
+        ),
+        "noise_margin_db": read.number(
+            "noise_margin_db", 10.0, "Threshold above the noise floor (threshold_mode noise_floor)",
+            0.0, 100.0, "dB",
+        ),
+        "noise_window_s": read.number(
+            "noise_window_s", 30.0,
+            "Recent audio the noise floor is taken over (threshold_mode noise_floor)",
+            0.01, 86400.0, "s",
+        ),
+        "noise_percentile": read.number(
+            "noise_percentile", 10.0,
+            "Percentile of recent levels that is the noise floor; 0 = the minimum"
+            " (threshold_mode noise_floor)", 0.0, 50.0, "%",
+        ),
+    }
+
+
+def _read_vad(read: ParameterReader) -> dict[str, Any]:
+    return {
+        "vad_aggressiveness": read.integer(
+            "vad_aggressiveness", 2,
+            "How readily the voice-activity detector calls a frame unvoiced (bit_source vad)",
+            0, 3,
+        ),
+        "vad_frame_ms": read.integer(
+            "vad_frame_ms", 30, "Voice-activity frame length: 10, 20 or 30 (bit_source vad)",
+            10, 30, "ms",
+        ),
+        "vad_min_voiced_s": read.number(
+            "vad_min_voiced_s", 0.1,
+            "Voiced time that makes a window active (bit_source vad; at most window_s)",
+            0.001, 10.0, "s",
         ),
     }
 
@@ -235,7 +287,14 @@ def read_config(node: GraphNode) -> MicConfig:
         window_s=read.number(
             "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
         ),
+        bit_source=read.text(
+            "bit_source", "energy",
+            "How a window becomes a bit: energy (window energy against the threshold),"
+            " speech_band (300-3400 Hz energy against the threshold), vad (voice-activity"
+            " detector)", tuple(BIT_SOURCES),
+        ),
         **_read_threshold(read),
+        **_read_vad(read),
         **_read_step_clock(read),
         **_read_sources(node, read),
     )
@@ -250,7 +309,8 @@ def read_config(node: GraphNode) -> MicConfig:
             f"parameter 'refresh_s' = {config.refresh_s}: must be 0 (off) or at least two"
             f" windows ({2 * config.window_s:g} s)"
         )
-    if config.threshold_mode == "file" and not config.threshold_file:
+    _check_bit_source(config)
+    if config.threshold_mode == "file" and not config.threshold_file and config.bit_source != "vad":
         raise ConfigError(
             "parameter 'threshold_file' is empty: threshold_mode 'file' needs the path"
             " of a threshold file written by calibration"
@@ -260,23 +320,64 @@ def read_config(node: GraphNode) -> MicConfig:
     return config
 
 
+def bit_rate_hz(config: MicConfig) -> int:
+    """Sample rate of the windows the bit source sees, Hz: the topic's, else 16 kHz."""
+    return config.audio_rate_hz if config.source == "topic" else PROCESSING_RATE_HZ
+
+
+def _check_bit_source(config: MicConfig) -> None:
+    """The checks of the bit-source parameters that a range cannot express."""
+    if config.bit_source == "vad":
+        rate = bit_rate_hz(config)
+        if rate not in VAD_RATES_HZ:
+            raise ConfigError(
+                f"parameter 'audio_rate_hz' = {rate}: bit_source vad takes audio at"
+                f" {', '.join(map(str, VAD_RATES_HZ))} Hz only (webrtcvad)"
+            )
+        if config.vad_frame_ms not in VAD_FRAMES_MS:
+            raise ConfigError(
+                f"parameter 'vad_frame_ms' = {config.vad_frame_ms}: must be 10, 20 or 30 ms"
+            )
+        if config.vad_min_voiced_s > config.window_s:
+            raise ConfigError(
+                f"parameter 'vad_min_voiced_s' = {config.vad_min_voiced_s:g} s is longer than"
+                f" a window (window_s = {config.window_s:g} s): no window could be active"
+            )
+    if config.threshold_mode == "noise_floor" and config.refresh_s > 0:
+        raise ConfigError(
+            f"parameter 'refresh_s' = {config.refresh_s:g}: refits a k-means threshold;"
+            " threshold_mode noise_floor follows the noise floor by itself: set it to 0"
+        )
+
+
 def make_binarizer(
     config: MicConfig, on_refused: Callable[[str], None] | None = None
-) -> Binarizer:
-    """The binarizer that ``threshold_mode`` asks for.
+) -> BitSource:
+    """The bit source that ``bit_source`` and ``threshold_mode`` ask for.
 
     ``on_refused`` is told (one line naming the gap in dB) when a calibration cannot
     separate sound from quiet; no bit comes from such a calibration.
     """
-    refresh = round(config.refresh_s / config.window_s) if config.refresh_s > 0 else 0
-    separation = config.min_separation_db
-    if config.threshold_mode == "fixed":
-        return Binarizer(config.threshold_db, 0, refresh, separation, on_refused)
-    if config.threshold_mode == "file":
-        threshold = load_threshold(config.threshold_file)
-        return Binarizer(threshold, 0, refresh, separation, on_refused)
-    windows = calibration_window_count(config.calibration_s, config.window_s)
-    return Binarizer(None, windows, refresh, separation, on_refused)
+    if config.bit_source == "vad":
+        options: dict[str, Any] = {
+            "vad_aggressiveness": config.vad_aggressiveness,
+            "vad_frame_ms": config.vad_frame_ms,
+            "vad_min_voiced_s": config.vad_min_voiced_s,
+        }
+    else:
+        options = {
+            "threshold_mode": config.threshold_mode,
+            "threshold_db": config.threshold_db,
+            "threshold_file": config.threshold_file,
+            "calibration_s": config.calibration_s,
+            "refresh_s": config.refresh_s,
+            "min_separation_db": config.min_separation_db,
+            "noise_margin_db": config.noise_margin_db,
+            "noise_window_s": config.noise_window_s,
+            "noise_percentile": config.noise_percentile,
+            "on_calibration_refused": on_refused,
+        }
+    return make_bit_source(config.bit_source, bit_rate_hz(config), config.window_s, **options)
 
 
 class MicNode(GraphNode):
@@ -293,7 +394,13 @@ class MicNode(GraphNode):
         self.wait_for_listeners = config.wait_for_listeners
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
-        self.binarizer = make_binarizer(config, self._calibration_refused)
+        self.bits = make_binarizer(config, self._calibration_refused)
+        self.binarizer = self.bits.rule
+        """The threshold rule of sources energy and speech_band (None for vad)."""
+        if config.bit_source != "energy":
+            self.get_logger().info(
+                f"bit source {config.bit_source}: {BIT_SOURCES[config.bit_source]}"
+            )
         self.parameters.live("threshold_db", self._set_threshold, self._check_fixed_threshold)
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
@@ -350,11 +457,18 @@ class MicNode(GraphNode):
 
     def _setup_wav(self, config: MicConfig) -> None:
         channel = None if config.channel < 0 else config.channel
-        self.replay = WavReplay(config.wav_file, self.window_s, channel, config.loop)
-        if config.threshold_mode == "calibrate":
-            fit = self.binarizer.calibrate(
-                self.replay.calibration_energies(config.calibration_s, self.window_s)
-            )
+        samples = self.bits.needs_samples
+        self.replay = WavReplay(config.wav_file, self.window_s, channel, config.loop,
+                                samples=samples)  # fmt: skip
+        if config.threshold_mode == "calibrate" and config.bit_source != "vad":
+            if samples:
+                fit = self.bits.calibrate_windows(
+                    self.replay.calibration_windows(config.calibration_s, self.window_s)
+                )
+            else:
+                fit = self.binarizer.calibrate(
+                    self.replay.calibration_energies(config.calibration_s, self.window_s)
+                )
             self.get_logger().info(
                 f"threshold {fit.threshold_db:.2f} dB from the first {fit.n_low + fit.n_high}"
                 f" windows of {config.wav_file} (quiet {fit.low_mean_db:.1f} dB, sound"
@@ -440,7 +554,12 @@ class MicNode(GraphNode):
     # ------------------------------------------------------------------ windows
 
     def _emit_from_file(self) -> None:
-        energy = self.replay.next_energy()
+        samples: np.ndarray | None = None
+        if self.replay.samples:
+            samples = self.replay.next_window()
+            energy = None if samples is None else 0.0  # the bit source measures it
+        else:
+            energy = self.replay.next_energy()
         if energy is None:
             if not self.ended:
                 self.ended = True
@@ -452,7 +571,7 @@ class MicNode(GraphNode):
             return
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
-        self._window(energy)
+        self._window(energy, samples)
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -482,12 +601,20 @@ class MicNode(GraphNode):
                 self.losses.note(self.now_s())
                 self.assembler.reset()
             self._last_sequence = sequence
+        chunk = np.frombuffer(msg.data, dtype=np.float32)
         try:
-            energies = self.assembler.push(np.frombuffer(msg.data, dtype=np.float32))
+            if self.bits.needs_samples:
+                windows = self.assembler.push_windows(chunk)
+            else:
+                energies = self.assembler.push(chunk)
         except AudioError as error:
             self.bad_chunks += 1
             self.losses.note(self.now_s())
             self.get_logger().warning(f"audio chunk ignored: {error}", throttle_duration_sec=5.0)
+            return
+        if self.bits.needs_samples:
+            for samples in windows:
+                self._window(0.0, samples)
             return
         for energy in energies:
             self._window(float(energy))
@@ -497,7 +624,7 @@ class MicNode(GraphNode):
             if self.finished.done():
                 return
             self._note_window(window)
-            self._window(window.energy_db)
+            self._window(window.energy_db, window.samples if self.bits.needs_samples else None)
             self.window_delay_s = time.monotonic() - window.end_time
             self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
 
@@ -514,20 +641,24 @@ class MicNode(GraphNode):
             self.windows_with_loss += 1
             self.losses.note(self.now_s())
 
-    def _window(self, energy_db: float) -> None:
-        """A window was made: its bit (after calibration) waits in the outbox to go out."""
+    def _window(self, energy_db: float, samples: np.ndarray | None = None) -> None:
+        """A window was made: its bit (after calibration) waits in the outbox to go out.
+
+        ``samples``: the window's samples, for a bit source that needs them (then its
+        energy comes from the bit source and ``energy_db`` is not used).
+        """
+        was_calibrating = self.bits.calibrating
+        if samples is None:
+            bit = self.bits.push(energy_db)
+        else:
+            bit = self.bits.push_window(samples)
+            energy_db = self.bits.last_energy_db
         self.last_energy_db = energy_db
-        was_calibrating = self.binarizer.calibrating
-        bit = self.binarizer.push(energy_db)
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))
             return
         if was_calibrating:
-            fit = self.binarizer.fit
-            self.get_logger().info(
-                f"calibrated: threshold {fit.threshold_db:.2f} dB (quiet {fit.low_mean_db:.1f}"
-                f" dB, sound {fit.high_mean_db:.1f} dB)"
-            )
+            self.get_logger().info(self.bits.ready_message())
         dropped = self.outbox.dropped
         self.outbox.push((energy_db, bit))
         if self.outbox.dropped > dropped:
@@ -580,6 +711,11 @@ class MicNode(GraphNode):
 
     def _check_fixed_threshold(self, value: float) -> None:
         """A live ``threshold_db`` needs ``threshold_mode`` fixed (else it would be ignored)."""
+        if self.config.bit_source == "vad":
+            raise ConfigError(
+                f"parameter 'threshold_db' = {value!r} has no effect with bit_source vad (no"
+                " threshold)"
+            )
         mode = self.get_parameter("threshold_mode").value
         if mode != "fixed":
             raise ConfigError(
@@ -593,7 +729,7 @@ class MicNode(GraphNode):
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""
-        b = self.binarizer
+        b = self.bits
         now = self.now_s()
         values: dict[str, Any] = {
             "source": self.source,
@@ -602,14 +738,11 @@ class MicNode(GraphNode):
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
-            "threshold_db": b.threshold_db if b.threshold_db is not None else "calibrating",
+            "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
             "dropped_chunks": self.dropped_chunks,
             "bad_chunks": self.bad_chunks,
-            "refits_accepted": b.refits_accepted,
-            "refits_rejected": b.refits_rejected,
-            "calibration_failures": b.calibration_failures,
-            "calibration_state": b.state,
+            **b.diagnostic_values(),
         }
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
