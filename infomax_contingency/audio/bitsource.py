@@ -36,7 +36,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import butter, sosfilt
 
 from infomax_contingency.audio.binarizer import (
     Binarizer,
@@ -127,6 +126,9 @@ class SpeechBandLevel:
                 f"speech band up to {high:g} Hz needs a sample rate above {2 * high:g} Hz,"
                 f" got {rate_hz} Hz"
             )
+        from scipy.signal import butter, sosfilt  # lazy: scipy.signal takes ~0.5 s to load
+
+        self._sosfilt = sosfilt
         self.rate_hz = rate_hz
         self.band_hz = (float(low), float(high))
         self._sos = butter(SPEECH_BAND_ORDER, self.band_hz, btype="bandpass", fs=rate_hz,
@@ -135,7 +137,7 @@ class SpeechBandLevel:
 
     def level_db(self, x: NDArray[np.float64]) -> float:
         """Band energy of the next window (mono samples), dB."""
-        y, self._state = sosfilt(self._sos, x, zi=self._state)
+        y, self._state = self._sosfilt(self._sos, x, zi=self._state)
         return _energy_db(y)
 
     def fresh(self) -> SpeechBandLevel:
