@@ -115,6 +115,27 @@ def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:
     assert node.binarizer.calibrating
 
 
+def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
+    graph: Callable,
+) -> None:
+    node, probe, executor = graph(MicNode, bit_source="vad", threshold_mode="fixed")
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
+    assert not result.successful and "no effect with bit_source vad" in result.reason
+    assert node.binarizer is None and node.bits.name == "vad"
+    for name in ("bit_source", "noise_margin_db", "noise_window_s", "noise_percentile",
+                 "vad_aggressiveness", "vad_frame_ms", "vad_min_voiced_s"):  # fmt: skip
+        assert node.describe_parameter(name).read_only, name
+    [result] = set_remotely(probe, executor, "mic_node", bit_source="energy")
+    assert not result.successful and "read-only" in result.reason
+
+
+def test_mic_speech_band_threshold_is_live_in_fixed_mode(graph: Callable) -> None:
+    node, probe, executor = graph(MicNode, bit_source="speech_band", threshold_mode="fixed")
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30.0)
+    assert result.successful, result.reason
+    assert node.bits.threshold_db == -30.0
+
+
 @pytest.mark.parametrize(
     "node_class",
     [MicNode, ControllerNode, BeliefNode, PostureNode, SpeakerNode, FakeAudioNode],

@@ -79,6 +79,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from infomax_contingency.audio.binarizer import UNSEPARATED, WavReplay
 from infomax_contingency.audio.bitsource import (
     BIT_SOURCES,
+    SPEECH_BAND_HZ,
     THRESHOLD_MODES,
     VAD_FRAMES_MS,
     VAD_RATES_HZ,
@@ -343,6 +344,12 @@ def _check_bit_source(config: MicConfig) -> None:
                 f"parameter 'vad_min_voiced_s' = {config.vad_min_voiced_s:g} s is longer than"
                 f" a window (window_s = {config.window_s:g} s): no window could be active"
             )
+    if config.bit_source == "speech_band" and not bit_rate_hz(config) > 2 * SPEECH_BAND_HZ[1]:
+        raise ConfigError(
+            f"parameter 'audio_rate_hz' = {bit_rate_hz(config)}: bit_source speech_band needs"
+            f" audio above {2 * SPEECH_BAND_HZ[1]:g} Hz (twice the band's upper edge,"
+            f" {SPEECH_BAND_HZ[1]:g} Hz)"
+        )
     if config.threshold_mode == "noise_floor" and config.refresh_s > 0:
         raise ConfigError(
             f"parameter 'refresh_s' = {config.refresh_s:g}: refits a k-means threshold;"
