@@ -561,6 +561,16 @@ class MicNode(GraphNode):
     # ------------------------------------------------------------------ windows
 
     def _emit_from_file(self) -> None:
+        """Serve the next window of the file (and more, while they yield no bit).
+
+        A window that yields no bit (a bit source warming up) is followed at once by the
+        next: no decision will come back for it.
+        """
+        while self._emit_window_from_file() is None and not self.ended:
+            pass
+
+    def _emit_window_from_file(self) -> bool | None:
+        """Serve the next window of the file: its bit, or None (no bit, or the end)."""
         samples: np.ndarray | None = None
         if self.replay.samples:
             samples = self.replay.next_window()
@@ -575,10 +585,11 @@ class MicNode(GraphNode):
                 self.get_logger().info(f"end of {self.replay.path} after {self.windows} windows")
                 if self.exit_at_end:
                     self._finish_publishing()
-            return
+            self.ended = True
+            return None
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
-        self._window(energy, samples)
+        return self._window(energy, samples)
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -648,11 +659,12 @@ class MicNode(GraphNode):
             self.windows_with_loss += 1
             self.losses.note(self.now_s())
 
-    def _window(self, energy_db: float, samples: np.ndarray | None = None) -> None:
+    def _window(self, energy_db: float, samples: np.ndarray | None = None) -> bool | None:
         """A window was made: its bit (after calibration) waits in the outbox to go out.
 
         ``samples``: the window's samples, for a bit source that needs them (then its
-        energy comes from the bit source and ``energy_db`` is not used).
+        energy comes from the bit source and ``energy_db`` is not used). Returns the bit
+        (None for a calibration window).
         """
         was_calibrating = self.bits.calibrating
         if samples is None:
@@ -663,7 +675,7 @@ class MicNode(GraphNode):
         self.last_energy_db = energy_db
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))
-            return
+            return None
         if was_calibrating:
             self.get_logger().info(self.bits.ready_message())
         dropped = self.outbox.dropped
@@ -676,6 +688,7 @@ class MicNode(GraphNode):
                 throttle_duration_sec=5.0,
             )
         self._release()
+        return bit
 
     def _release(self) -> None:
         """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
