@@ -140,10 +140,6 @@ class SpeechBandLevel:
         y, self._state = self._sosfilt(self._sos, x, zi=self._state)
         return _energy_db(y)
 
-    def fresh(self) -> SpeechBandLevel:
-        """The same filter from rest (for levels read ahead, e.g. a file's start)."""
-        return SpeechBandLevel(self.rate_hz, self.band_hz)
-
 
 class LevelBitSource:
     """A window level (dB) against a threshold rule: ``energy`` and ``speech_band``.
@@ -223,12 +219,7 @@ class LevelBitSource:
         """
         if not isinstance(self.rule, Binarizer):
             raise AudioError("only threshold_mode calibrate is calibrated ahead")
-        band = None if self.band is None else self.band.fresh()
-        levels = [
-            _energy_db(row) if band is None else band.level_db(row)
-            for row in np.asarray(windows, dtype=np.float64)
-        ]
-        return self.rule.calibrate(levels)
+        return self.rule.calibrate(window_levels_db(self.name, windows, self.rate_hz))
 
     def ready_message(self) -> str:
         """One line for the log once the first bit comes (after calibration or warm-up)."""
@@ -370,8 +361,13 @@ BitSource = LevelBitSource | VadBitSource
 """What :func:`make_bit_source` returns."""
 
 
-def _threshold_rule(window_s: float, options: dict[str, Any]) -> Binarizer | NoiseFloorBinarizer:
-    """The threshold rule that ``options['threshold_mode']`` asks for."""
+def _threshold_rule(
+    level: str, window_s: float, options: dict[str, Any]
+) -> Binarizer | NoiseFloorBinarizer:
+    """The threshold rule that ``options['threshold_mode']`` asks for.
+
+    ``level`` is the source's name: a threshold file must hold a threshold of its level.
+    """
     mode = options["threshold_mode"]
     refresh_s = options["refresh_s"]
     if isinstance(refresh_s, bool) or not isinstance(refresh_s, int | float) or not refresh_s >= 0:
@@ -395,8 +391,8 @@ def _threshold_rule(window_s: float, options: dict[str, Any]) -> Binarizer | Noi
     if mode == "fixed":
         return Binarizer(options["threshold_db"], 0, refresh, separation, on_refused)
     if mode == "file":
-        return Binarizer(load_threshold(options["threshold_file"]), 0, refresh, separation,
-                         on_refused)  # fmt: skip
+        threshold = load_threshold(options["threshold_file"], level)
+        return Binarizer(threshold, 0, refresh, separation, on_refused)
     if mode == "calibrate":
         windows = calibration_window_count(options["calibration_s"], window_s)
         return Binarizer(None, windows, refresh, separation, on_refused)
@@ -438,4 +434,40 @@ def make_bit_source(name: str, rate_hz: int, window_s: float, **options: Any) ->
             chosen["vad_min_voiced_s"],
         )
     band = SpeechBandLevel(rate_hz) if name == "speech_band" else None
-    return LevelBitSource(name, rate_hz, window_s, _threshold_rule(window_s, chosen), band)
+    return LevelBitSource(name, rate_hz, window_s, _threshold_rule(name, window_s, chosen), band)
+
+
+class WindowLevels:
+    """The levels (dB) a threshold of source ``name`` applies to, for windows in order.
+
+    ``energy``: the window energies; ``speech_band``: the band energies, the filter
+    starting from rest and carried from call to call (as in a stream). For calibration
+    audio read ahead (a file, a recording).
+
+    Raises:
+        AudioError: ``name`` has no threshold (``vad``) or is unknown.
+    """
+
+    def __init__(self, name: str, rate_hz: int) -> None:
+        if name not in ("energy", "speech_band"):
+            raise AudioError(
+                f"bit source {name!r} has no threshold to calibrate; energy and speech_band"
+                " have"
+            )
+        self.name = name
+        self._band = SpeechBandLevel(rate_hz) if name == "speech_band" else None
+
+    def levels_db(self, windows: ArrayLike) -> NDArray[np.float64]:
+        """Levels of the next windows (one per row), dB; AudioError for bad samples."""
+        rows = np.asarray(windows, dtype=np.float64)
+        if rows.ndim != 2:
+            raise AudioError(f"windows must be shaped (windows, samples), got {rows.shape}")
+        rows = as_mono(rows.ravel(), "window samples").reshape(rows.shape)
+        if self._band is None:
+            return frame_energies_db(rows)
+        return np.array([self._band.level_db(row) for row in rows])
+
+
+def window_levels_db(name: str, windows: ArrayLike, rate_hz: int) -> NDArray[np.float64]:
+    """:class:`WindowLevels` of windows read ahead (one per row), from a filter at rest."""
+    return WindowLevels(name, rate_hz).levels_db(windows)

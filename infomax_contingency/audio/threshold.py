@@ -203,6 +203,7 @@ def save_threshold(
     window_s: float,
     rate: int,
     source: str,
+    level: str = "energy",
 ) -> None:
     """Write a calibrated threshold to a small YAML file (replaced atomically).
 
@@ -212,6 +213,9 @@ def save_threshold(
         window_s: window length used for the energies, seconds.
         rate: processing sample rate, Hz.
         source: where the calibration audio came from (file name, device, ...).
+        level: the window level the threshold applies to: ``energy`` (the window
+            energy; the field is then left out, as in files before levels existed) or
+            another bit source's level (``speech_band``), written as the field ``level``.
     """
     window_s = check_positive_seconds(window_s, "window_s")
     rate = check_rate(rate)
@@ -230,24 +234,32 @@ def save_threshold(
         "source": str(source),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }
+    if level != "energy":
+        record["level"] = str(level)
+    what = "energy" if level == "energy" else f"{level} level"
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(
-        "# Sound threshold: a window is 'sound' (y = 1) iff its energy > threshold_db.\n"
+        f"# Sound threshold: a window is 'sound' (y = 1) iff its {what} > threshold_db.\n"
         + yaml.safe_dump(record, sort_keys=False),
         encoding="utf-8",
     )
     tmp.replace(path)
 
 
-def load_threshold(path: str | os.PathLike[str]) -> float:
+def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:
     """Read the threshold (dB) from a file written by :func:`save_threshold`.
+
+    Args:
+        path: the threshold file.
+        level: the window level it must apply to (a file without the field ``level``
+            applies to ``energy``).
 
     Raises:
         AudioError: the file is missing, is not a YAML mapping, has another format
-            version, lacks ``format_version`` or ``threshold_db``, or the threshold is
-            not a finite number.
+            version, lacks ``format_version`` or ``threshold_db``, the threshold is
+            not a finite number, or it applies to another level.
     """
     path = Path(path)
     if not path.is_file():
@@ -275,6 +287,12 @@ def load_threshold(path: str | os.PathLike[str]) -> float:
         raise AudioError(
             f"threshold file {path} has format_version {version!r}; this package reads "
             f"format_version {THRESHOLD_FORMAT_VERSION}. Recalibrate to rewrite it."
+        )
+    file_level = record.get("level", "energy")
+    if file_level != level:
+        raise AudioError(
+            f"threshold file {path} holds a threshold of the {file_level} level, not of the"
+            f" {level} level: calibrate again with --bit-source {level}"
         )
     value = record["threshold_db"]
     if isinstance(value, bool) or not isinstance(value, int | float):
