@@ -326,3 +326,19 @@ def test_the_offline_loop_takes_any_bit_source(name: str) -> None:
         assert records == run(lambda: Binarizer(-40.0))
     assert all(math.isfinite(r.energy_db) for r in records)
     assert kmeans_split([r.energy_db for r in records]).separation_db > 10
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def test_demo_hands_its_bit_source_to_mic_node() -> None:
+    from infomax_contingency.cli import demo
+    from infomax_contingency.cli.main import build_parser
+
+    for extra, expected in (([], None), (["--bit-source", "vad"], "vad")):
+        for source in ([], ["--wav", str(WAV)]):
+            args = build_parser().parse_args(["demo", *source, *extra])
+            nodes, _clock = demo._nodes(args)
+            assert nodes["mic_node"].get("bit_source") == expected
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["demo", "--bit-source", "silero"])
