@@ -231,21 +231,25 @@ def test_vad_hears_speech_over_a_steady_noise_floor_and_not_the_floor(speech: np
     noise_bits = [vad.push_window(w) for w in windows_of(floor)]
     noisy_speech = speech + rng.normal(0, rms * 10 ** (-15 / 20), speech.size)
     speech_bits = [vad.push_window(w) for w in windows_of(noisy_speech)]
-    assert sum(noise_bits) == 0
+    assert sum(noise_bits) <= 1  # the detector learns the floor in its first frames
     assert sum(speech_bits) >= 0.8 * len(speech_bits)
     assert vad.diagnostic_values()["voiced_windows"] == sum(speech_bits)
 
 
 def test_vad_frames_run_on_across_window_edges(speech: np.ndarray) -> None:
-    """30 ms frames do not fit a 0.5 s window: the rest waits, so chunking changes nothing."""
-    whole = make_bit_source("vad", RATE, WINDOW_S)
-    voiced = []
+    """30 ms frames do not fit a 0.5 s window: the rest waits for the next window."""
+    import webrtcvad
+
+    source = make_bit_source("vad", RATE, WINDOW_S)
+    voiced_frames = 0
     for w in windows_of(speech):
-        whole.push_window(w)
-        voiced.append(whole.last_voiced_s)
-    frames = speech.size // 480  # every 30 ms frame of the whole signal, counted once
-    assert sum(round(v / 0.03) for v in voiced) <= frames
-    assert sum(round(v / 0.03) for v in voiced) >= frames - 17  # frames voiced or not
+        source.push_window(w)
+        voiced_frames += round(source.last_voiced_s / 0.03)
+    pcm = np.round(speech * 32767.0).astype(np.int16)
+    whole = webrtcvad.Vad(2)  # the same detector over the whole signal, frame after frame
+    frames = pcm[: pcm.size // 480 * 480].reshape(-1, 480)
+    assert voiced_frames == sum(whole.is_speech(f.tobytes(), RATE) for f in frames)
+    assert voiced_frames > 0.5 * len(frames)
     shorter = make_bit_source("vad", RATE, 0.25, vad_min_voiced_s=0.05)
     assert sum(shorter.push_window(w) for w in speech.reshape(-1, 4000)) > 0
 
