@@ -369,10 +369,14 @@ def test_mic_bit_sources_window_any_chunking_like_offline(
     graph.connected(audio)
     graph.run_until(lambda: node.started, "the mic's start gate")
     samples = _room_audio(16).astype(np.float64)
+    broken = np.zeros(5000)
+    broken[[10, 20]] = np.nan, np.inf
+    audio.publish(_audio_message(broken))  # refused whole: counted, no window from it
     for chunk in np.array_split(samples, 37):  # chunks that do not line up with windows
         audio.publish(_audio_message(chunk))
     graph.run_until(lambda: len(energies) == 16 and len(steps) == 16 - calibration,
                     "16 windows and their bits")  # fmt: skip
+    assert node.bad_chunks == 1
     offline = make_bit_source(bit_source, 16000, 0.5, **options)
     expected = [offline.push_window(w) for w in samples.reshape(16, 8000)]
     assert expected[:calibration] == [None] * calibration
