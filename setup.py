@@ -28,7 +28,7 @@ setup(
         *_share("policies", "*.npz", "*.md"),
         *_share("launch", "*.py"),
     ],
-    install_requires=["numpy", "scipy", "pyyaml", "sounddevice", "rosbags"],
+    install_requires=["numpy", "scipy", "pyyaml", "sounddevice", "rosbags", "webrtcvad-wheels"],
     zip_safe=True,
     maintainer="infomax_contingency maintainers",
     maintainer_email="maintainers@example.com",

@@ -10,10 +10,13 @@ the same statistic on those bits and the published decisions.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 
-from infomax_contingency.audio.binarizer import calibration_window_count
+from infomax_contingency.audio.binarizer import WavReplay, calibration_window_count
+from infomax_contingency.audio.bitsource import make_bit_source
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.threshold import kmeans_threshold
@@ -62,3 +65,42 @@ def test_recorded_interaction_replays_like_the_offline_computation() -> None:
             tracker.act(u)
         assert rec.belief == offline
         assert any(rec.vocalize), "the controller must have vocalized at least once"
+
+
+@pytest.mark.parametrize(
+    ("bit_source", "options"),
+    [
+        ("speech_band", {"threshold_mode": "calibrate", "calibration_s": CALIBRATION_S}),
+        ("energy", {"threshold_mode": "noise_floor", "calibration_s": 2.0}),
+        ("vad", {}),
+    ],
+)
+def test_recorded_interaction_replays_like_the_offline_bit_source(
+    bit_source: str, options: dict[str, Any]
+) -> None:
+    windows = WavReplay(WAV, WINDOW_S, samples=True)
+    offline = make_bit_source(bit_source, 16000, WINDOW_S, **options)
+    if options.get("threshold_mode") == "calibrate":  # a file is calibrated by reading ahead
+        offline.calibrate_windows(windows.calibration_windows(CALIBRATION_S, WINDOW_S))
+    bits = [offline.push_window(windows.next_window()) for _ in range(windows.n_windows)]
+    expected = [bit for bit in bits if bit is not None]
+    assert 0 < sum(expected) < len(expected)
+
+    mic = {
+        "source": "wav",
+        "wav_file": str(WAV),
+        "lockstep": True,
+        "exit_at_end": True,
+        "window_s": WINDOW_S,
+        "bit_source": bit_source,
+        "wait_for_listeners": 3,
+        **options,
+    }
+    nodes = {"controller_node": {}, "belief_node": {"memory_steps": 0}, "mic_node": mic}
+    with stepped_graph(nodes, "mic_node") as graph:
+        graph.run_steps(len(expected))
+        mic_node = graph.nodes["mic_node"]
+        graph.run_until(mic_node.finished.done, "mic_node to finish at the end of the file")
+        assert mic_node.finished.result() == 0
+        graph.executor.run_for_callbacks(20)
+        assert graph.recorder.sound == expected

@@ -18,6 +18,8 @@ import yaml
 from alsa_devices import VirtualAlsa
 from fake_portaudio import FakeBackend, FakeClock, Room, device
 from infomax_contingency.audio import devices as audio_devices
+from infomax_contingency.audio.bitsource import make_bit_source, window_levels_db
+from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.latency import measure_latency
 from infomax_contingency.audio.resample import load_mono
@@ -87,6 +89,35 @@ def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) ->
     assert yaml.safe_load(live.read_text())["source"] == "device:fakemic"
     assert "calibrated on 14 windows of 0.5 s from fakemic (16000 Hz)" in stdout
     assert "threshold" in stdout and " dB | " in stdout
+
+
+def test_calibrate_for_the_speech_band_on_a_wav_and_live_writes_its_level(
+    room_wav, tmp_path
+) -> None:
+    offline = tmp_path / "band.yaml"
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--bit-source", "speech_band",
+                     "--out", str(offline)]) == 0  # fmt: skip
+    windows = load_mono(room_wav)[: 14 * 8000].reshape(14, 8000)
+    fit = kmeans_split(window_levels_db("speech_band", windows, 16000))
+    assert load_threshold(offline, "speech_band") == fit.threshold_db
+    assert yaml.safe_load(offline.read_text())["level"] == "speech_band"
+    assert "its speech_band level > threshold_db" in offline.read_text()
+    with pytest.raises(AudioError, match="holds a threshold of the speech_band level, not of"):
+        load_threshold(offline)  # mic_node's bit_source energy refuses it
+    energy = tmp_path / "energy.yaml"
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(energy)]) == 0
+    assert "level" not in yaml.safe_load(energy.read_text())  # as before levels existed
+    with pytest.raises(AudioError, match="calibrate again with --bit-source speech_band"):
+        make_bit_source("speech_band", 16000, 0.5, threshold_mode="file",
+                        threshold_file=str(energy))  # fmt: skip
+    alsa = VirtualAlsa(tmp_path / "alsa")
+    alsa.wav_microphone("fakemic", room_wav)
+    alsa.write(default_capture="fakemic")
+    live = tmp_path / "live.yaml"
+    rc, stdout, _ = run_cli(alsa, "calibrate", "--device", "fake", "--seconds", "7",
+                            "--bit-source", "speech_band", "--out", str(live))  # fmt: skip
+    assert rc == 0, stdout
+    assert load_threshold(live, "speech_band") == fit.threshold_db
 
 
 def test_calibrate_on_a_missing_device_lists_the_devices(tmp_path) -> None:

@@ -38,6 +38,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Bool, Float32, Int64MultiArray
 
 from alsa_devices import VirtualAlsa
+from infomax_contingency.audio.bitsource import make_bit_source
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.synth import synthesize_chirp
@@ -270,6 +271,64 @@ def test_live_capture_publishes_the_bits_of_the_wav_source(
     # the counters are there, and no published window lost anything
     for key in ("overflows", "dropped_blocks", "lost_samples", "gaps", "reconnects"):
         assert status[key].isdigit(), (key, status)
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("node_graphs")
+@pytest.mark.parametrize(
+    ("bit_source", "options"),
+    [
+        ("speech_band", {"threshold_mode": "noise_floor", "calibration_s": 2.0}),
+        ("vad", {}),
+    ],
+)
+def test_live_capture_with_a_bit_source_publishes_the_bits_of_the_wav_source(
+    tmp_path: Path,
+    spawn: Callable[..., NodeProcess],
+    probe: Live,
+    bit_source: str,
+    options: dict[str, Any],
+) -> None:
+    """One smoke test per bit source that needs the samples: microphone = file = offline."""
+    wav = tmp_path / "interaction16k.wav"
+    write_wav_int16(wav, load_mono(INTERACTION, 16000), 16000)
+    windows = load_mono(wav)
+    windows = windows[: windows.size // 8000 * 8000].reshape(-1, 8000)
+    offline = make_bit_source(bit_source, 16000, WINDOW_S, **options)
+    bits = [bit for bit in (offline.push_window(w) for w in windows) if bit is not None]
+    n = len(bits)
+    assert 0 < sum(bits) < n
+    alsa = VirtualAlsa(tmp_path / "alsa")
+    alsa.wav_microphone("fakemic", wav)
+    alsa.write(default_capture="fakemic")
+    common = {"window_s": WINDOW_S, "bit_source": bit_source, "wait_for_listeners": 1,
+              "start_delay_s": 0.2, **options}  # fmt: skip
+    live = spawn(
+        "mic_node",
+        {**common, "source": "sounddevice", "device": 0, "queue_s": 60.0, "max_windows": n},
+        alsa.env(),
+        "live",
+    )
+    replay = spawn(
+        "mic_node",
+        {**common, "source": "wav", "wav_file": wav, "lockstep": True, "exit_at_end": True},
+        alsa.env(),
+        "replay",
+    )
+    heard_from(probe, live, replay, names=("/live/mic_node", "/replay/mic_node"))
+    live_bits = probe.record_bits("live")
+    replay_bits = probe.answer("replay")
+    probe.wait_for(lambda: len(live_bits) >= n and len(replay_bits) >= n, f"{n} bits", live, replay)
+    probe.wait_for(lambda: live.process.poll() is not None and replay.process.poll() is not None,
+                   "both mic nodes to stop", live, replay)  # fmt: skip
+    assert live.wait() == 0, live.output()
+    assert replay.wait() == 0, replay.output()
+    assert live_bits == bits and replay_bits == bits
+    out = live.output()
+    assert f"bit source {bit_source}" in out
+    assert "Traceback" not in out and "[ERROR]" not in out
+    status = final_status(probe, "/live/mic_node", n)
+    assert status["bit_source"] == bit_source and status["windows_with_loss"] == "0"
 
 
 @pytest.mark.slow

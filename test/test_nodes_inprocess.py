@@ -19,6 +19,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiAr
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
+from infomax_contingency.audio.bitsource import make_bit_source
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.threshold import kmeans_split
 from infomax_contingency.core.controllers import PolicyController
@@ -349,6 +350,47 @@ def test_mic_topic_source_windows_any_chunking_and_calibrates(run: Callable) -> 
     assert [p.bit for p in parsed] == expected_bits
     assert {(p.stream, p.window_us) for p in parsed} == {(node.stream_id, WINDOW_US)}
     assert node.dropped_chunks == 0 and node.windows == 12
+
+
+@pytest.mark.parametrize(
+    ("bit_source", "options", "calibration"),
+    [
+        ("speech_band", {"threshold_mode": "calibrate", "calibration_s": 2.0}, 4),
+        ("energy", {"threshold_mode": "noise_floor", "calibration_s": 2.0}, 4),
+        ("speech_band", {"threshold_mode": "noise_floor", "calibration_s": 1.0}, 2),
+        ("vad", {}, 0),
+    ],
+)
+def test_mic_bit_sources_window_any_chunking_like_offline(
+    run: Callable, bit_source: str, options: dict[str, Any], calibration: int
+) -> None:
+    node, probe, graph = run(MicNode, source="topic", bit_source=bit_source,
+                             wait_for_listeners=1, start_delay_s=0.0, **options)  # fmt: skip
+    steps = probe.listen("sound_step", Int64MultiArray)
+    energies = probe.listen("sound_energy", Float32)
+    audio = probe.talk("audio", Float32MultiArray)
+    graph.connected(audio)
+    graph.run_until(lambda: node.started, "the mic's start gate")
+    samples = _room_audio(16).astype(np.float64)
+    broken = np.zeros(5000)
+    broken[[10, 20]] = np.nan, np.inf
+    audio.publish(_audio_message(broken))  # refused whole: counted, no window from it
+    for chunk in np.array_split(samples, 37):  # chunks that do not line up with windows
+        audio.publish(_audio_message(chunk))
+    graph.run_until(lambda: len(energies) == 16 and len(steps) == 16 - calibration,
+                    "16 windows and their bits")  # fmt: skip
+    assert node.bad_chunks == 1
+    offline = make_bit_source(bit_source, 16000, 0.5, **options)
+    expected = [offline.push_window(w) for w in samples.reshape(16, 8000)]
+    assert expected[:calibration] == [None] * calibration
+    assert [parse_bit(m).bit for m in steps] == expected[calibration:]
+    assert 0 < sum(expected[calibration:]) < 16 - calibration
+    assert np.array_equal(
+        np.float32([m.data for m in energies]),
+        window_energies_db(samples, 16000, 0.5).astype(np.float32),
+    )
+    _, _, values = node.diagnostic_status()
+    assert values["bit_source"] == bit_source and values["calibration_state"] == "ready"
 
 
 def test_mic_holds_a_burst_until_the_controller_answers(run: Callable) -> None:

@@ -62,6 +62,47 @@ CASES = {
         ["source:=topic", "threshold_mode:=file"],
         "parameter 'threshold_file' is empty",
     ),
+    "bit_source": (
+        "mic_node",
+        ["source:=topic", "bit_source:=silero"],
+        "parameter 'bit_source' = 'silero' is not allowed: one of energy, speech_band, vad",
+    ),
+    "vad_rate": (
+        "mic_node",
+        ["source:=topic", "bit_source:=vad", "audio_rate_hz:=44100"],
+        "parameter 'audio_rate_hz' = 44100: bit_source vad takes audio at 8000, 16000, 32000,"
+        " 48000 Hz only",
+    ),
+    "vad_frame": (
+        "mic_node",
+        ["source:=topic", "bit_source:=vad", "vad_frame_ms:=25"],
+        "parameter 'vad_frame_ms' = 25: must be 10, 20 or 30 ms",
+    ),
+    "vad_aggressiveness": (
+        "mic_node",
+        ["source:=topic", "bit_source:=vad", "vad_aggressiveness:=4"],
+        "parameter 'vad_aggressiveness' = 4 is not allowed: a whole number in [0, 3]",
+    ),
+    "vad_voiced": (
+        "mic_node",
+        ["source:=topic", "bit_source:=vad", "vad_min_voiced_s:=0.6"],
+        "parameter 'vad_min_voiced_s' = 0.6 s is longer than a window (window_s = 0.5 s)",
+    ),
+    "speech_band_rate": (
+        "mic_node",
+        ["source:=topic", "bit_source:=speech_band", "audio_rate_hz:=6000"],
+        "parameter 'audio_rate_hz' = 6000: bit_source speech_band needs audio above 6800 Hz",
+    ),
+    "noise_refresh": (
+        "mic_node",
+        ["source:=topic", "threshold_mode:=noise_floor", "refresh_s:=10.0"],
+        "parameter 'refresh_s' = 10: refits a k-means threshold; threshold_mode noise_floor",
+    ),
+    "noise_percentile": (
+        "mic_node",
+        ["source:=topic", "threshold_mode:=noise_floor", "noise_percentile:=80.0"],
+        "parameter 'noise_percentile' = 80.0 is not allowed: a number in [0, 50] %",
+    ),
     "foreign_table": (
         "controller_node",
         ["params:=paper"],

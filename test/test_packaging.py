@@ -32,6 +32,7 @@ EXEC_DEPENDS = {
     "python3-scipy",
     "python3-yaml",
     "python3-sounddevice-pip",
+    "python3-webrtcvad-wheels-pip",
 }
 EXECUTABLES = {
     "infomax-contingency",

@@ -121,7 +121,8 @@ def test_an_out_of_range_set_gets_the_start_up_message(graph: Callable) -> None:
     assert node.binarizer.threshold_db == -40.0
     [result] = set_remotely(probe, executor, "mic_node", threshold_mode="bogus")
     assert result.reason == (
-        "parameter 'threshold_mode' = 'bogus' is not allowed: one of calibrate, fixed, file"
+        "parameter 'threshold_mode' = 'bogus' is not allowed: one of calibrate, fixed, file,"
+        " noise_floor"
     )
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30)  # an integer
     assert result.successful, result.reason
@@ -287,6 +288,28 @@ def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatc
     vocalize_once()
     executor.run_for_callbacks(20)
     assert len(started) == 1 and node.requests == 3, "dry run again: counted, not played"
+
+
+def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
+    graph: Callable,
+) -> None:
+    node, probe, executor = graph(MicNode, bit_source="vad", threshold_mode="fixed")
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
+    assert not result.successful and "no effect with bit_source vad" in result.reason
+    assert node.binarizer is None and node.bits.name == "vad"
+    for name in ("bit_source", "noise_margin_db", "noise_window_s", "noise_percentile",
+                 "vad_aggressiveness", "vad_frame_ms", "vad_min_voiced_s"):  # fmt: skip
+        assert node.describe_parameter(name).read_only, name
+    [result] = set_remotely(probe, executor, "mic_node", bit_source="energy")
+    assert not result.successful and "read-only" in result.reason
+
+
+def test_mic_speech_band_threshold_is_live_in_fixed_mode(graph: Callable) -> None:
+    node, probe, executor = graph(MicNode, bit_source="speech_band", threshold_mode="fixed")
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30.0)
+    assert result.successful, result.reason
+    assert node.bits.threshold_db == -30.0
+
 
 
 @pytest.mark.parametrize(

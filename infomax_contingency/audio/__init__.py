@@ -6,9 +6,13 @@ Modules, lowest first (each imports only those above it):
 * :mod:`.wav` — WAV header parsing, block-by-block and whole-file reading, mixdown, writing.
 * :mod:`.resample` — whole-signal and streaming resampling (bit-identical).
 * :mod:`.energy` — window energies, WindowAssembler, the one WAV-to-energies path.
-* :mod:`.threshold` — k-means threshold, the bit rule, separation check, threshold files.
+* :mod:`.threshold` — k-means threshold, the bit rule, separation check, threshold files,
+  the noise-floor tracker.
 * :mod:`.synth` — the robot's synthesized chirp.
-* :mod:`.binarizer` — WavReplay and Binarizer (energies to bits, calibration).
+* :mod:`.binarizer` — WavReplay and Binarizer (energies to bits, calibration), and
+  NoiseFloorBinarizer (a margin above a tracked noise floor).
+* :mod:`.bitsource` — bit sources by name (energy, speech_band, vad): one window of
+  samples to one bit; ``make_bit_source``, used by mic_node and the offline loop.
 * :mod:`.devices` — PortAudio devices: listing, choosing, formats, opening streams.
 * :mod:`.timeline` — window timing of a live capture (plain class, no threads).
 * :mod:`.capture` — MicrophoneStream; :mod:`.playback` — SpeakerOutput.

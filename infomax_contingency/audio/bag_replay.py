@@ -8,7 +8,9 @@ the microphone stream it heard (``/sound_step``, with ``/sound_energy`` beside t
 * with audio: the recorded samples windowed again (one window = ``window_s``), their
   energy and **no bit** — the caller binarizes them with its own threshold, so a
   replay can try another threshold; the bits equal the recorded ones for the threshold
-  the session used;
+  the session used. With ``samples=True`` each window's samples are kept as well
+  (:attr:`BagReplay.last_samples`), for a bit source that looks at the samples
+  (:mod:`~infomax_contingency.audio.bitsource`);
 * without audio: the recorded energy and the **recorded bit** of each step of the first
   stream heard, in step order.
 
@@ -26,7 +28,7 @@ import numpy as np
 
 from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.common import AudioError
-from infomax_contingency.audio.energy import WindowAssembler
+from infomax_contingency.audio.energy import WindowAssembler, frame_energies_db
 
 BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
 """Topics a bag replay reads."""
@@ -64,22 +66,37 @@ class BagReplay:
         directory: the bag.
         window_s: window length, seconds (the model's dt).
         audio_rate_hz: sample rate of the recorded ``audio`` topic, Hz.
+        samples: keep each window's samples (a bag with audio only; a bag without
+            audio has none to keep).
 
     Raises:
         BagReadError: the bag cannot be read.
         AudioError: it holds neither audio nor bits.
     """
 
-    def __init__(self, directory: Path, window_s: float, audio_rate_hz: int) -> None:
+    def __init__(
+        self, directory: Path, window_s: float, audio_rate_hz: int, samples: bool = False
+    ) -> None:
         self.directory = Path(directory)
         topics = read_topics(self.directory, BAG_TOPICS)
         self.has_audio = bool(topics["/audio"])
         self.windows: list[tuple[float, bool | None]]
+        self.window_samples: np.ndarray | None = None
+        """The windows' samples, one per row (``samples=True`` and audio), else None."""
         if self.has_audio:
             assembler = WindowAssembler(audio_rate_hz, window_s)
             energies: list[float] = []
+            rows: list[np.ndarray] = []
             for _, chunk in topics["/audio"]:
-                energies.extend(assembler.push(np.asarray(chunk.data, dtype=np.float32)))
+                chunk_samples = np.asarray(chunk.data, dtype=np.float32)
+                if samples:
+                    rows.extend(assembler.push_windows(chunk_samples))
+                else:
+                    energies.extend(assembler.push(chunk_samples))
+            if samples:
+                width = assembler.samples_per_window
+                self.window_samples = np.array(rows, dtype=np.float64).reshape(-1, width)
+                energies = list(frame_energies_db(self.window_samples))
             self.windows = [(float(e), None) for e in energies]
         else:
             stream, _ = _first_stream(self.directory, topics["/sound_step"])
@@ -107,7 +124,29 @@ class BagReplay:
         self.position += 1
         return self.windows[self.position - 1]
 
+    @property
+    def last_samples(self) -> np.ndarray | None:
+        """Samples of the window :meth:`next_window` served last (None without samples)."""
+        if self.window_samples is None or self.position == 0:
+            return None
+        return self.window_samples[self.position - 1]
+
     def calibration_energies(self, calibration_s: float, window_s: float) -> np.ndarray:
         """Energies of the first ``calibration_s`` seconds (for ``threshold_mode`` calibrate)."""
-        count = max(2, round(calibration_s / window_s))
+        count = _calibration_count(calibration_s, window_s)
         return np.array([energy for energy, _ in self.windows[:count]])
+
+    def calibration_windows(self, calibration_s: float, window_s: float) -> np.ndarray:
+        """Samples of the first ``calibration_s`` seconds' windows, one per row.
+
+        Raises:
+            AudioError: the replay keeps no samples (``samples=False`` or no audio).
+        """
+        if self.window_samples is None:
+            raise AudioError(f"the replay of {self.directory} keeps no samples of audio")
+        return self.window_samples[: _calibration_count(calibration_s, window_s)]
+
+
+def _calibration_count(calibration_s: float, window_s: float) -> int:
+    """Windows of the calibration read ahead: ``calibration_s`` seconds, at least 2."""
+    return max(2, round(calibration_s / window_s))

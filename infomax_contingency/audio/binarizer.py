@@ -8,6 +8,8 @@
   a threshold file, or calibrated by k-means on the first windows, optionally refreshed
   online on a rolling buffer. A calibration whose clusters lie closer than
   ``min_separation_db`` is refused (:attr:`Binarizer.state` ``"unseparated"``).
+* :class:`NoiseFloorBinarizer` — window level to bit with a threshold a margin above a
+  tracked noise floor (``threshold_mode noise_floor``).
 
 Energies are in dB (see :mod:`infomax_contingency.audio.energy`); durations in seconds.
 """
@@ -22,9 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
-from infomax_contingency.audio.energy import iter_wav_energies, wav_energies, wav_window_count
+from infomax_contingency.audio.energy import (
+    iter_wav_energies,
+    iter_wav_windows,
+    wav_energies,
+    wav_window_count,
+)
 from infomax_contingency.audio.threshold import (
     DEFAULT_MIN_SEPARATION_DB,
+    NoiseFloorTracker,
     OnlineThreshold,
     ThresholdFit,
     UnseparatedError,
@@ -67,6 +75,8 @@ class WavReplay:
         channel: ``None`` to mix all channels, or the 0-based channel to use.
         loop: start again from the first window after the last one.
         rate: processing rate the file is resampled to, Hz.
+        samples: serve each window's samples (:meth:`next_window`) instead of its
+            energy (:meth:`next_energy`), for bit sources that look at the samples.
 
     Raises:
         AudioError: the file cannot be read, the channel does not exist, or the file
@@ -80,8 +90,10 @@ class WavReplay:
         channel: int | None = None,
         loop: bool = False,
         rate: int = PROCESSING_RATE_HZ,
+        samples: bool = False,
     ) -> None:
         self.path = Path(path)
+        self.samples = samples
         self.loop = loop
         self.window_s = window_s
         self.channel = channel
@@ -113,12 +125,26 @@ class WavReplay:
 
     def next_energy(self) -> float | None:
         """Energy (dB) of the next window, or None at the end of a non-looping file."""
+        if self.samples:
+            raise AudioError("this replay serves samples (samples=True): use next_window()")
+        item = self._next_item()
+        return None if item is None else float(item)
+
+    def next_window(self) -> np.ndarray | None:
+        """Samples of the next window (float64, mono), or None at the end of a non-looping file."""
+        if not self.samples:
+            raise AudioError("this replay serves energies (samples=False): use next_energy()")
+        return self._next_item()
+
+    def _next_item(self) -> np.ndarray | float | None:
+        """The next window's energy or samples (as the replay serves), None at the end."""
         if self.finished:
             return None
         if self.position % self.n_windows == 0:
-            self._blocks = iter_wav_energies(self.path, self.window_s, self.channel, self.rate)
+            blocks = iter_wav_windows if self.samples else iter_wav_energies
+            self._blocks = blocks(self.path, self.window_s, self.channel, self.rate)
             self._block, self._in_block = np.empty(0), 0
-        while self._in_block >= self._block.size:
+        while self._in_block >= len(self._block):
             block = next(self._blocks, None)
             if block is None:
                 raise AudioError(
@@ -126,10 +152,10 @@ class WavReplay:
                     f" {self.n_windows} windows: the file changed while it was replayed"
                 )
             self._block, self._in_block = block, 0
-        energy = float(self._block[self._in_block])
+        item = self._block[self._in_block]
         self._in_block += 1
         self.position += 1
-        return energy
+        return item
 
     def calibration_energies(self, calibration_s: float, window_s: float) -> np.ndarray:
         """Energies of the first ``calibration_s`` seconds (the whole file if shorter).
@@ -138,6 +164,21 @@ class WavReplay:
         """
         count = calibration_window_count(calibration_s, window_s)
         return wav_energies(self.path, self.window_s, self.channel, self.rate, max_windows=count)
+
+    def calibration_windows(self, calibration_s: float, window_s: float) -> np.ndarray:
+        """Samples of the first ``calibration_s`` seconds, one window per row.
+
+        The whole file if shorter; reads only the start of the file, block by block.
+        """
+        count = calibration_window_count(calibration_s, window_s)
+        parts: list[np.ndarray] = []
+        rows = 0
+        for windows in iter_wav_windows(self.path, self.window_s, self.channel, self.rate):
+            parts.append(windows)
+            rows += len(windows)
+            if rows >= count:
+                break
+        return np.concatenate(parts)[:count]
 
 
 class Binarizer:
@@ -287,3 +328,81 @@ class Binarizer:
             return
         self.fit, self.threshold_db = fit, fit.threshold_db
         self.refits_accepted += 1
+
+
+class NoiseFloorBinarizer:
+    """Window level to bit against a tracked noise floor: ``y = level > floor + margin``.
+
+    The floor is a :class:`~infomax_contingency.audio.threshold.NoiseFloorTracker` (a low
+    percentile of the last ``floor_windows`` levels); the threshold is the floor plus
+    ``margin_db``, and each window's bit uses the threshold in force before the window
+    was added (the strict rule of
+    :func:`~infomax_contingency.audio.threshold.bits_from_energies`). The first
+    ``warmup_windows`` levels only start the floor: they yield no bit (``push`` returns
+    None, :attr:`state` ``"calibrating"``), as a calibration does.
+
+    It has the attributes of :class:`Binarizer` that a node reports (``threshold_db``,
+    ``state``, ``calibrating``, ``calibration_problem``, the refit and failure counts,
+    which stay 0); ``fit`` is always None.
+
+    Args:
+        margin_db: threshold above the floor, dB (>= 0).
+        floor_windows: windows the floor is taken over (>= 1).
+        percentile: the floor's percentile, 0 (minimum) .. 50.
+        warmup_windows: windows that only start the floor (>= 1).
+    """
+
+    def __init__(
+        self, margin_db: float, floor_windows: int, percentile: float, warmup_windows: int
+    ) -> None:
+        if (
+            isinstance(margin_db, bool)
+            or not isinstance(margin_db, int | float)
+            or not (math.isfinite(margin_db) and margin_db >= 0)
+        ):
+            raise AudioError(f"noise_margin_db must be a finite number >= 0 dB, got {margin_db!r}")
+        if (
+            isinstance(warmup_windows, bool)
+            or not isinstance(warmup_windows, int)
+            or warmup_windows < 1
+        ):
+            raise AudioError(f"warm-up must be a whole number >= 1, got {warmup_windows!r}")
+        self.margin_db = float(margin_db)
+        self.warmup_windows = warmup_windows
+        self.tracker = NoiseFloorTracker(floor_windows, percentile)
+        self.fit: ThresholdFit | None = None
+        self.calibration_problem = ""
+        self.refits_accepted = 0
+        self.refits_rejected = 0
+        self.calibration_failures = 0
+
+    @property
+    def floor_db(self) -> float | None:
+        """The noise floor now, dB; None before the first window."""
+        return self.tracker.floor_db
+
+    @property
+    def threshold_db(self) -> float | None:
+        """Floor plus margin, dB: the next window's threshold; None while warming up."""
+        floor = self.tracker.floor_db
+        return None if self.calibrating or floor is None else floor + self.margin_db
+
+    @property
+    def calibrating(self) -> bool:
+        """True while the first ``warmup_windows`` levels come in."""
+        return len(self.tracker) < self.warmup_windows
+
+    @property
+    def state(self) -> str:
+        """``"calibrating"`` during the warm-up, then ``"ready"``."""
+        return CALIBRATING if self.calibrating else READY
+
+    def push(self, level_db: float) -> bool | None:
+        """The bit of one window; None during the warm-up."""
+        if not math.isfinite(level_db):
+            raise AudioError(f"window level must be finite, got {level_db!r}")
+        threshold = self.threshold_db
+        self.tracker.add(level_db)
+        if threshold is None:
+            return None
+        return bool(bits_from_energies(level_db, threshold))

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from infomax_contingency.audio.bitsource import WindowLevels
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, check_positive
 from infomax_contingency.audio.devices import AudioBackend, AudioDeviceError, LogFunction
-from infomax_contingency.audio.energy import wav_energies
+from infomax_contingency.audio.energy import iter_wav_windows, wav_energies
 
 
 def energies_from_wav(
@@ -27,13 +28,27 @@ def energies_from_wav(
     channel: int | None = None,
     rate: int = PROCESSING_RATE_HZ,
     max_windows: int | None = None,
+    bit_source: str = "energy",
 ) -> NDArray[np.float64]:
     """Window energies (dB) of a WAV file, exactly as the wav source computes them.
 
     The file is read block by block (:func:`~infomax_contingency.audio.energy.wav_energies`),
     so memory does not grow with its length; ``max_windows`` stops after the first ones.
+    ``bit_source`` ``speech_band``: the speech-band levels instead
+    (:class:`~infomax_contingency.audio.bitsource.WindowLevels`).
     """
-    return wav_energies(path, window_s, channel, rate, max_windows=max_windows)
+    if bit_source == "energy":
+        return wav_energies(path, window_s, channel, rate, max_windows=max_windows)
+    levels = WindowLevels(bit_source, rate)
+    parts: list[NDArray[np.float64]] = []
+    count = 0
+    for windows in iter_wav_windows(path, window_s, channel, rate):
+        parts.append(levels.levels_db(windows))
+        count += windows.shape[0]
+        if max_windows is not None and count >= max_windows:
+            break
+    out = np.concatenate(parts) if parts else np.empty(0)
+    return out if max_windows is None else out[:max_windows]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,7 +56,7 @@ class Recording:
     """Window energies recorded from a live device.
 
     Attributes:
-        energies_db: one energy per window, dB.
+        energies_db: one energy per window (or the bit source's level: the speech band), dB.
         device: name of the device.
         device_rate: rate the device ran at, Hz.
         lost_samples: device-rate samples lost during the recording.
@@ -64,6 +79,7 @@ def record_energies(
     backend: AudioBackend | None = None,
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], None] | None = None,
+    bit_source: str = "energy",
 ) -> Recording:
     """Record ``seconds`` of live audio and return its window energies.
 
@@ -71,6 +87,7 @@ def record_energies(
     recording, so a slow reader loses nothing.
 
     ``clock`` and ``sleep`` go to the :class:`~infomax_contingency.audio.capture.MicrophoneStream`.
+    ``bit_source`` ``speech_band``: the windows' speech-band levels instead of their energies.
 
     Raises:
         AudioDeviceError: the device is missing, or delivers no audio for more than
@@ -88,6 +105,7 @@ def record_energies(
         clock=clock,
         sleep=sleep,
     )
+    levels = None if bit_source == "energy" else WindowLevels(bit_source, PROCESSING_RATE_HZ)
     energies: list[float] = []
     with mic:
         deadline = clock() + n * window_s + 5.0
@@ -97,7 +115,11 @@ def record_energies(
                     f"recorded only {len(energies)} of {n} windows from {mic.status().device}"
                     f" in {n * window_s + 5.0:g} s: {mic.status().last_error or 'no audio'}"
                 )
-            energies.extend(w.energy_db for w in mic.read_windows(0.1))
+            windows = mic.read_windows(0.1)
+            if levels is None:
+                energies.extend(w.energy_db for w in windows)
+            elif windows:
+                energies.extend(levels.levels_db([w.samples for w in windows]).tolist())
         status = mic.status()
     return Recording(
         energies_db=np.asarray(energies[:n]),

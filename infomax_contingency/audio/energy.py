@@ -50,8 +50,8 @@ def window_samples(rate: int, window_s: float) -> int:
     return n
 
 
-def _frame_energies_db(frames: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Energy in dB of each row of ``frames`` (one window per row)."""
+def frame_energies_db(frames: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Energy in dB of each row of ``frames`` (one window per row), as in the module docstring."""
     return 10.0 * np.log10(np.mean(frames * frames, axis=1) + ENERGY_FLOOR)
 
 
@@ -74,7 +74,7 @@ def window_energies_db(samples: ArrayLike, rate: int, window_s: float) -> NDArra
     n = window_samples(rate, window_s)
     x = as_mono(samples)
     n_windows = x.size // n
-    return _frame_energies_db(x[: n_windows * n].reshape(n_windows, n))
+    return frame_energies_db(x[: n_windows * n].reshape(n_windows, n))
 
 
 class WindowAssembler:
@@ -98,13 +98,20 @@ class WindowAssembler:
         """Number of samples in one window."""
         return self._n
 
-    def push_array(self, chunk: ArrayLike) -> NDArray[np.float64]:
-        """Add mono samples; return the energies (dB) of the windows they complete, as an array."""
+    def push_windows(self, chunk: ArrayLike) -> NDArray[np.float64]:
+        """Add mono samples; return the windows they complete, one per row.
+
+        Shaped ``(windows, samples_per_window)`` (no row when no window is complete).
+        """
         buf = np.concatenate((self._rest, as_mono(chunk, "chunk")))
         n_windows = buf.size // self._n
         end = n_windows * self._n
         self._rest = buf[end:].copy()
-        return _frame_energies_db(buf[:end].reshape(n_windows, self._n))
+        return buf[:end].reshape(n_windows, self._n)
+
+    def push_array(self, chunk: ArrayLike) -> NDArray[np.float64]:
+        """Add mono samples; return the energies (dB) of the windows they complete, as an array."""
+        return frame_energies_db(self.push_windows(chunk))
 
     def push(self, chunk: ArrayLike) -> list[float]:
         """Add mono samples; return the energies (dB) of the windows they complete, in order."""
@@ -121,19 +128,20 @@ def wav_window_count(info: WavInfo, window_s: float, rate: int = PROCESSING_RATE
     return frames // window_samples(rate, window_s)
 
 
-def iter_wav_energies(
+def iter_wav_windows(
     path: str | os.PathLike[str],
     window_s: float,
     channel: int | None = None,
     rate: int = PROCESSING_RATE_HZ,
     block_frames: int = DEFAULT_BLOCK_FRAMES,
 ) -> Iterator[NDArray[np.float64]]:
-    """Window energies (dB) of a WAV file, yielded block by block (each a non-empty array).
+    """The windows of a WAV file's samples, yielded block by block.
 
-    The file is read ``block_frames`` frames at a time, mixed down (mean of the channels,
-    or ``channel``), resampled to ``rate`` Hz and windowed as it goes; memory stays that of
-    one block whatever the file length. The concatenated arrays equal
-    ``window_energies_db(load_mono(path, rate, channel), rate, window_s)`` exactly.
+    Each yielded array is shaped ``(windows, samples_per_window)`` with at least one row:
+    the file read ``block_frames`` frames at a time, mixed down (mean of the channels, or
+    ``channel``), resampled to ``rate`` Hz and cut into windows as it goes; memory stays
+    that of one block whatever the file length. The concatenated rows equal the windows
+    of ``load_mono(path, rate, channel)`` exactly (a trailing partial window is dropped).
 
     Raises:
         AudioError: the file cannot be read, or ``channel`` does not exist in it (both
@@ -146,12 +154,33 @@ def iter_wav_energies(
         to_mono(np.empty((0, info.channels)), channel)  # a missing channel fails now
         resampler = StreamResampler(info.rate, rate)
         for block in reader.blocks(block_frames):
-            energies = assembler.push_array(resampler.push(to_mono(block, channel)))
-            if energies.size:
-                yield energies
-        energies = assembler.push_array(resampler.finish())
-        if energies.size:
-            yield energies
+            windows = assembler.push_windows(resampler.push(to_mono(block, channel)))
+            if windows.size:
+                yield windows
+        windows = assembler.push_windows(resampler.finish())
+        if windows.size:
+            yield windows
+
+
+def iter_wav_energies(
+    path: str | os.PathLike[str],
+    window_s: float,
+    channel: int | None = None,
+    rate: int = PROCESSING_RATE_HZ,
+    block_frames: int = DEFAULT_BLOCK_FRAMES,
+) -> Iterator[NDArray[np.float64]]:
+    """Window energies (dB) of a WAV file, yielded block by block (each a non-empty array).
+
+    The energies of :func:`iter_wav_windows`' blocks (:func:`frame_energies_db`): the
+    concatenated arrays equal
+    ``window_energies_db(load_mono(path, rate, channel), rate, window_s)`` exactly.
+
+    Raises:
+        AudioError: the file cannot be read, or ``channel`` does not exist in it (both
+            raised at the first ``next()``; use :class:`WavReader` first to check early).
+    """
+    for windows in iter_wav_windows(path, window_s, channel, rate, block_frames):
+        yield frame_energies_db(windows)
 
 
 def wav_energies(

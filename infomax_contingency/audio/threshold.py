@@ -5,10 +5,12 @@ k-means of calibration window energies (dB); the bit of a window is ``energy > t
 (:func:`bits_from_energies`, the one bit rule). A calibration whose cluster means lie
 closer than a least separation cannot tell sound from quiet (:func:`require_separation`).
 Threshold files are small YAML files (:func:`save_threshold`, :func:`load_threshold`).
+:class:`NoiseFloorTracker` follows the noise floor (a low percentile of recent levels).
 """
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import datetime
 import math
@@ -201,6 +203,7 @@ def save_threshold(
     window_s: float,
     rate: int,
     source: str,
+    level: str = "energy",
 ) -> None:
     """Write a calibrated threshold to a small YAML file (replaced atomically).
 
@@ -210,6 +213,9 @@ def save_threshold(
         window_s: window length used for the energies, seconds.
         rate: processing sample rate, Hz.
         source: where the calibration audio came from (file name, device, ...).
+        level: the window level the threshold applies to: ``energy`` (the window
+            energy; the field is then left out, as in files before levels existed) or
+            another bit source's level (``speech_band``), written as the field ``level``.
     """
     window_s = check_positive_seconds(window_s, "window_s")
     rate = check_rate(rate)
@@ -228,24 +234,32 @@ def save_threshold(
         "source": str(source),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }
+    if level != "energy":
+        record["level"] = str(level)
+    what = "energy" if level == "energy" else f"{level} level"
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(
-        "# Sound threshold: a window is 'sound' (y = 1) iff its energy > threshold_db.\n"
+        f"# Sound threshold: a window is 'sound' (y = 1) iff its {what} > threshold_db.\n"
         + yaml.safe_dump(record, sort_keys=False),
         encoding="utf-8",
     )
     tmp.replace(path)
 
 
-def load_threshold(path: str | os.PathLike[str]) -> float:
+def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:
     """Read the threshold (dB) from a file written by :func:`save_threshold`.
+
+    Args:
+        path: the threshold file.
+        level: the window level it must apply to (a file without the field ``level``
+            applies to ``energy``).
 
     Raises:
         AudioError: the file is missing, is not a YAML mapping, has another format
-            version, lacks ``format_version`` or ``threshold_db``, or the threshold is
-            not a finite number.
+            version, lacks ``format_version`` or ``threshold_db``, the threshold is
+            not a finite number, or it applies to another level.
     """
     path = Path(path)
     if not path.is_file():
@@ -274,9 +288,67 @@ def load_threshold(path: str | os.PathLike[str]) -> float:
             f"threshold file {path} has format_version {version!r}; this package reads "
             f"format_version {THRESHOLD_FORMAT_VERSION}. Recalibrate to rewrite it."
         )
+    file_level = record.get("level", "energy")
+    if file_level != level:
+        raise AudioError(
+            f"threshold file {path} holds a threshold of the {file_level} level, not of the"
+            f" {level} level: calibrate again with --bit-source {level}"
+        )
     value = record["threshold_db"]
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
     if not math.isfinite(value):
         raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
     return float(value)
+
+
+# --------------------------------------------------------------------------- noise floor
+
+
+class NoiseFloorTracker:
+    """A slow estimate of the noise floor: a low percentile of the last window levels.
+
+    The floor is the ``percentile``-th percentile (lower nearest rank: the
+    ``floor(percentile / 100 * (n - 1))``-th smallest, from 0) of the last ``capacity``
+    window levels (dB); ``percentile = 0`` is the minimum (minimum statistics). Sounds
+    shorter than a ``1 - percentile / 100`` share of the buffer do not move it, so a
+    partner's replies stay above it while a slowly louder room raises it.
+
+    Args:
+        capacity: number of most recent windows kept (at least 1).
+        percentile: 0 .. 50.
+    """
+
+    def __init__(self, capacity: int, percentile: float) -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
+            raise AudioError(f"noise-floor capacity must be an integer >= 1, got {capacity!r}")
+        if isinstance(percentile, bool) or not isinstance(percentile, int | float):
+            raise AudioError(f"noise_percentile must be a number in [0, 50], got {percentile!r}")
+        if not 0.0 <= percentile <= 50.0:
+            raise AudioError(f"noise_percentile must be in [0, 50], got {percentile!r}")
+        self.capacity = capacity
+        self.percentile = float(percentile)
+        self._order: deque[float] = deque()  # levels in arrival order
+        self._sorted: list[float] = []  # the same levels, sorted
+
+    def __len__(self) -> int:
+        return len(self._order)
+
+    def add(self, level_db: float) -> None:
+        """Append one window level (dB), dropping the oldest when full."""
+        if not math.isfinite(level_db):
+            raise AudioError(f"window level must be finite, got {level_db!r}")
+        level = float(level_db)
+        if len(self._order) == self.capacity:
+            oldest = self._order.popleft()
+            del self._sorted[bisect.bisect_left(self._sorted, oldest)]
+        self._order.append(level)
+        bisect.insort(self._sorted, level)
+
+    @property
+    def floor_db(self) -> float | None:
+        """The current floor estimate, dB; None before the first window."""
+        if not self._sorted:
+            return None
+        rank = math.floor(self.percentile / 100.0 * (len(self._sorted) - 1))
+        return self._sorted[rank]

@@ -25,7 +25,7 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from infomax_contingency.audio.energy import WindowAssembler, window_samples
+from infomax_contingency.audio.energy import WindowAssembler, frame_energies_db, window_samples
 from infomax_contingency.audio.resample import StreamResampler
 from infomax_contingency.audio.wav import to_mono
 
@@ -47,6 +47,8 @@ class Window:
         gap_s: missing audio right before this window, seconds: > 0 only for the first
             window after a gap (a reconnect, or a loss of a whole window or more). No
             window is made up for the missing time.
+        samples: the window's mono samples at the processing rate (for bit sources that
+            look at more than the energy); not compared or printed.
     """
 
     index: int
@@ -57,6 +59,9 @@ class Window:
     overflows: int = 0
     segment: int = 0
     gap_s: float = 0.0
+    samples: NDArray[np.float64] | None = dataclasses.field(
+        default=None, compare=False, repr=False
+    )
 
     @property
     def intact(self) -> bool:
@@ -189,9 +194,14 @@ class WindowTimeline:
         self._win_lost += chunk.lost_samples
         self._win_lost_s += chunk.lost_samples / self.device_rate
         self._win_overflows += chunk.overflows
-        return [self._window(energy) for energy in self._assembler.push(chunk.samples)]
+        windows = self._assembler.push_windows(chunk.samples)
+        energies = frame_energies_db(windows).tolist()
+        return [
+            self._window(energy, samples)
+            for energy, samples in zip(energies, windows, strict=True)
+        ]
 
-    def _window(self, energy: float) -> Window:
+    def _window(self, energy: float, samples: NDArray[np.float64]) -> Window:
         """The window just completed, with its times, losses and gap."""
         n = self.samples_per_window
         start = self._anchor + self._win_start / self.rate + self._win_lost_s_before
@@ -211,6 +221,7 @@ class WindowTimeline:
             overflows=self._win_overflows,
             segment=self.segment,
             gap_s=gap,
+            samples=samples,
         )
         self.windows += 1
         self._last_end = end

@@ -34,6 +34,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from infomax_contingency.audio.bitsource import BIT_SOURCES
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
@@ -83,6 +84,13 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         help="seconds of the wav file to calibrate the threshold on (default 10)",
     )
     parser.add_argument(
+        "--bit-source",
+        choices=tuple(BIT_SOURCES),
+        default="energy",
+        help="how mic_node turns a window into a bit (default energy; see README"
+        " 'Choosing a bit source')",
+    )
+    parser.add_argument(
         "--record",
         metavar="DIR",
         help="also record the session as a rosbag2 (MCAP) bag in DIR (must not exist)",
@@ -101,6 +109,12 @@ def isolate_dds() -> str:
     if not os.environ.get("ROS_DOMAIN_ID", "").strip():
         os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(100, 199))
     return os.environ["ROS_DOMAIN_ID"]
+
+
+def _choose_bit_source(mic: dict[str, Any], args: argparse.Namespace) -> None:
+    """Set mic_node's ``bit_source`` when ``--bit-source`` is not the default."""
+    if args.bit_source != "energy":
+        mic["bit_source"] = args.bit_source
 
 
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
@@ -132,6 +146,7 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
             "calibration_s": args.calibration_s,
             "wait_for_listeners": listeners,
         }
+        _choose_bit_source(nodes["mic_node"], args)
         return nodes, "mic_node"
     room: dict[str, Any] = {"room": args.room, "seed": args.seed, "max_windows": args.steps}
     room["wait_for_truth_listeners"] = 2 if args.record else 1  # this monitor (+ recorder)
@@ -142,6 +157,7 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     if args.room != "responsive":
         room["partner_arrive_s"] = -1.0
     nodes["mic_node"] = {"source": "topic", "wait_for_listeners": listeners}
+    _choose_bit_source(nodes["mic_node"], args)
     nodes["fake_audio_node"] = room
     return nodes, "fake_audio_node"
 

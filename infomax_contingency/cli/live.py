@@ -69,7 +69,9 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
     """
     if args.wav is not None:
         # read block by block: a 10-hour file costs the memory of a 10-second one
-        energies = energies_from_wav(args.wav, args.window_s, args.channel)
+        energies = energies_from_wav(
+            args.wav, args.window_s, args.channel, bit_source=args.bit_source
+        )
         return energies, f"wav:{args.wav}", str(args.wav)
     seconds = 10.0 if args.seconds is None else args.seconds
     print(
@@ -77,7 +79,12 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
         " sound (speech, claps) ..."
     )
     recording = record_energies(
-        args.device, seconds, args.window_s, channel=args.channel, log=_print_log
+        args.device,
+        seconds,
+        args.window_s,
+        channel=args.channel,
+        log=_print_log,
+        bit_source=args.bit_source,
     )
     if recording.lost_samples or recording.gaps:
         print(
@@ -116,7 +123,14 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             )
             return 1
         print(f"warning: {exc}; writing it anyway (--force)")
-    save_threshold(args.out, fit, window_s=args.window_s, rate=PROCESSING_RATE_HZ, source=source)
+    save_threshold(
+        args.out,
+        fit,
+        window_s=args.window_s,
+        rate=PROCESSING_RATE_HZ,
+        source=source,
+        level=args.bit_source,
+    )
     print(f"wrote {args.out}")
     return 0
 
@@ -184,6 +198,13 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="write the threshold even if the clusters lie closer than --min-separation-db"
         " (otherwise the command exits with status 1 and writes nothing)",
+    )
+    parser.add_argument(
+        "--bit-source",
+        choices=("energy", "speech_band"),
+        default="energy",
+        help="the level the threshold applies to: energy (the window energy, default) or"
+        " speech_band (the 300-3400 Hz band energy), as mic_node's bit_source",
     )
     parser.add_argument("--out", type=Path, required=True, help="threshold file to write (YAML)")
     parser.set_defaults(run=_run_calibrate)

@@ -177,8 +177,9 @@ class FakeAudioNode(GraphNode):
             self.pacer,
             self._on_timeout,
             "is controller_node running, and does mic_node decide on every window? In"
-            " lockstep mic_node needs threshold_mode fixed or file: calibrating on this"
-            " stream would wait for windows that only come after a decision",
+            " lockstep mic_node needs threshold_mode fixed or file (or bit_source vad):"
+            " calibrating, or warming up a noise floor, on this stream would wait for"
+            " windows that only come after a decision",
         )
         self.get_logger().info(
             f"room '{room}' (seed {seed}), {'lockstep' if lockstep else f'real time x{speed:g}'}"

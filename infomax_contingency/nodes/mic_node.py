@@ -11,8 +11,9 @@ Sources (parameter ``source``):
   [-1, 1], at ``audio_rate_hz``), windowed as they come. A gap in the stream (a missing
   publication sequence number) drops the incomplete window and is counted.
 * ``bag`` — a recorded session (``bag_dir``, a recorder_node bag), paced like ``wav``:
-  its recorded audio windowed again and binarized with this node's threshold, or, when
-  the bag holds no audio, its recorded bits (:mod:`~infomax_contingency.audio.bag_replay`).
+  its recorded audio windowed again and turned into bits by this node's bit source and
+  threshold, or, when the bag holds no audio, its recorded bits
+  (:mod:`~infomax_contingency.audio.bag_replay`).
   With controller_node's ``controller: recorded:BAG`` answering with the robot's
   recorded decisions, the graph replays the session faithfully (the belief is the
   recorded one when the bits are); with a policy it is a what-if on the same sound.
@@ -30,19 +31,36 @@ Sources (parameter ``source``):
   (``window_delay_s`` in the diagnostics: from a window's last sample to its bit). A
   device that is not there at start-up stops the node with the list of input devices.
 
-Threshold (``threshold_mode``): ``fixed`` (``threshold_db``), ``file`` (a threshold file
-written by calibration, ``threshold_file``), or ``calibrate``: the two-cluster k-means
-of the first ``calibration_s`` seconds. A wav file is calibrated by reading its first
-seconds ahead, so every window of the file gets a bit; a stream's calibration windows
-are consumed (their ``sound_energy`` is published, but no ``sound``: the step clock
-starts after calibration). ``refresh_s > 0`` refits the threshold online on the last
-``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db`` apart).
+Bit source (``bit_source``, :mod:`~infomax_contingency.audio.bitsource`): ``energy``
+(the window energy against the threshold; the default), ``speech_band`` (the energy of
+the 300-3400 Hz band against the threshold) or ``vad`` (WebRTC's voice-activity
+detector: a window is active with at least ``vad_min_voiced_s`` of voiced
+``vad_frame_ms`` frames; ``vad_aggressiveness`` 0-3; 8, 16, 32 or 48 kHz audio only; no
+threshold). ``sound_energy`` is the full-band window energy whatever the source. The
+source sees the audio at ``audio_rate_hz`` (topic and bag) or at 16 kHz (wav,
+sounddevice). A session bag with audio goes through the bit source like any audio; a
+bag without audio has only its recorded bits, which are replayed as they are whatever
+``bit_source`` and the threshold (logged at start-up; live threshold sets are refused).
+
+Threshold (``threshold_mode``, sources energy and speech_band): ``fixed``
+(``threshold_db``), ``file`` (a threshold file written by calibration,
+``threshold_file``), ``calibrate``: the two-cluster k-means of the first
+``calibration_s`` seconds, or ``noise_floor``: ``noise_margin_db`` above the
+``noise_percentile``-th percentile of the last ``noise_window_s`` seconds of levels (the
+first ``calibration_s`` seconds only start the floor). A wav file or a session bag is
+calibrated by reading its first seconds ahead, so every window gets a bit; a stream's
+calibration windows are consumed (their ``sound_energy`` is published, but no ``sound``:
+the step clock starts after calibration). ``refresh_s > 0`` refits the threshold online
+on the last ``refresh_s`` seconds (accepted when the clusters lie ``min_separation_db``
+apart; not with noise_floor, which follows the floor by itself).
 Live (``ros2 param set``, checked as at start-up): ``threshold_mode`` (fixed and file
 apply from the next window; a bad threshold file refuses the set with its error;
 calibrate starts a new calibration: a wav file's first seconds again, else the next
-``calibration_s`` seconds of windows, without bits), ``threshold_file``,
+``calibration_s`` seconds of windows, without bits; noise_floor starts a new floor on
+the next ``calibration_s`` seconds of windows, without bits), ``threshold_file``,
 ``threshold_db`` (mode fixed) and ``refresh_s`` (a new, empty buffer; the threshold in
-force stays).
+force stays). The bit source keeps its kind (``bit_source`` is read-only); with
+``bit_source`` vad, which has no threshold, these sets are refused.
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -80,14 +98,18 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.audio.bag_replay import BagReplay
-from infomax_contingency.audio.binarizer import (
-    UNSEPARATED,
-    Binarizer,
-    WavReplay,
-    calibration_window_count,
+from infomax_contingency.audio.binarizer import UNSEPARATED, WavReplay
+from infomax_contingency.audio.bitsource import (
+    BIT_SOURCES,
+    SPEECH_BAND_HZ,
+    THRESHOLD_MODES,
+    VAD_FRAMES_MS,
+    VAD_RATES_HZ,
+    BitSource,
+    make_bit_source,
 )
 from infomax_contingency.audio.capture import MicrophoneStream, Window
-from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
 from infomax_contingency.audio.energy import WindowAssembler
 from infomax_contingency.audio.threshold import load_threshold
@@ -108,7 +130,6 @@ from infomax_contingency.nodes.step_topics import (
 )
 
 SOURCES = ("wav", "topic", "sounddevice", "bag")
-THRESHOLD_MODES = ("calibrate", "fixed", "file")
 
 MICROPHONE_POLL_S = 0.02
 """Seconds between reads of the live microphone's finished windows."""
@@ -124,12 +145,19 @@ class MicConfig:
     params: ModelParams
     source: str
     window_s: float
+    bit_source: str
     threshold_mode: str
     threshold_db: float
     threshold_file: str
     calibration_s: float
     refresh_s: float
     min_separation_db: float
+    noise_margin_db: float
+    noise_window_s: float
+    noise_percentile: float
+    vad_aggressiveness: int
+    vad_frame_ms: int
+    vad_min_voiced_s: float
     wait_for_listeners: int
     start_delay_s: float
     max_windows: int
@@ -181,6 +209,39 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             "min_separation_db", 10.0,
             "Least gap between cluster means to accept a calibration or a refit",
             0.0, 100.0, "dB",
+        ),
+        "noise_margin_db": read.number(
+            "noise_margin_db", 10.0, "Threshold above the noise floor (threshold_mode noise_floor)",
+            0.0, 100.0, "dB",
+        ),
+        "noise_window_s": read.number(
+            "noise_window_s", 30.0,
+            "Recent audio the noise floor is taken over (threshold_mode noise_floor)",
+            0.01, 86400.0, "s",
+        ),
+        "noise_percentile": read.number(
+            "noise_percentile", 10.0,
+            "Percentile of recent levels that is the noise floor; 0 = the minimum"
+            " (threshold_mode noise_floor)", 0.0, 50.0, "%",
+        ),
+    }
+
+
+def _read_vad(read: ParameterReader) -> dict[str, Any]:
+    return {
+        "vad_aggressiveness": read.integer(
+            "vad_aggressiveness", 2,
+            "How readily the voice-activity detector calls a frame unvoiced (bit_source vad)",
+            0, 3,
+        ),
+        "vad_frame_ms": read.integer(
+            "vad_frame_ms", 30, "Voice-activity frame length: 10, 20 or 30 (bit_source vad)",
+            10, 30, "ms",
+        ),
+        "vad_min_voiced_s": read.number(
+            "vad_min_voiced_s", 0.1,
+            "Voiced time that makes a window active (bit_source vad; at most window_s)",
+            0.001, 10.0, "s",
         ),
     }
 
@@ -258,7 +319,14 @@ def read_config(node: GraphNode) -> MicConfig:
         window_s=read.number(
             "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
         ),
+        bit_source=read.text(
+            "bit_source", "energy",
+            "How a window becomes a bit: energy (window energy against the threshold),"
+            " speech_band (300-3400 Hz energy against the threshold), vad (voice-activity"
+            " detector)", tuple(BIT_SOURCES),
+        ),
         **_read_threshold(read),
+        **_read_vad(read),
         **_read_step_clock(read),
         **_read_sources(node, read),
     )
@@ -269,7 +337,9 @@ def read_config(node: GraphNode) -> MicConfig:
             " model"
         )
     check_refresh(config.refresh_s, config.window_s)
-    check_threshold_file(config.threshold_mode, config.threshold_file)
+    _check_bit_source(config)
+    if config.bit_source != "vad":
+        check_threshold_file(config.threshold_mode, config.threshold_file)
     if config.source == "wav" and not config.wav_file:
         raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")
     if config.source == "bag" and not config.bag_dir:
@@ -295,29 +365,82 @@ def check_threshold_file(threshold_mode: str, threshold_file: str) -> None:
         )
 
 
+def bit_rate_hz(config: MicConfig) -> int:
+    """Sample rate of the windows the bit source sees, Hz.
+
+    The topic's ``audio_rate_hz`` (also the rate of a session bag's recorded audio), else
+    16 kHz (wav and sounddevice are resampled to it).
+    """
+    return config.audio_rate_hz if config.source in ("topic", "bag") else PROCESSING_RATE_HZ
+
+
+def _check_bit_source(config: MicConfig) -> None:
+    """The checks of the bit-source parameters that a range cannot express."""
+    if config.bit_source == "vad":
+        rate = bit_rate_hz(config)
+        if rate not in VAD_RATES_HZ:
+            raise ConfigError(
+                f"parameter 'audio_rate_hz' = {rate}: bit_source vad takes audio at"
+                f" {', '.join(map(str, VAD_RATES_HZ))} Hz only (webrtcvad)"
+            )
+        if config.vad_frame_ms not in VAD_FRAMES_MS:
+            raise ConfigError(
+                f"parameter 'vad_frame_ms' = {config.vad_frame_ms}: must be 10, 20 or 30 ms"
+            )
+        if config.vad_min_voiced_s > config.window_s:
+            raise ConfigError(
+                f"parameter 'vad_min_voiced_s' = {config.vad_min_voiced_s:g} s is longer than"
+                f" a window (window_s = {config.window_s:g} s): no window could be active"
+            )
+    if config.bit_source == "speech_band" and not bit_rate_hz(config) > 2 * SPEECH_BAND_HZ[1]:
+        raise ConfigError(
+            f"parameter 'audio_rate_hz' = {bit_rate_hz(config)}: bit_source speech_band needs"
+            f" audio above {2 * SPEECH_BAND_HZ[1]:g} Hz (twice the band's upper edge,"
+            f" {SPEECH_BAND_HZ[1]:g} Hz)"
+        )
+    if config.threshold_mode == "noise_floor" and config.refresh_s > 0:
+        raise ConfigError(
+            f"parameter 'refresh_s' = {config.refresh_s:g}: refits a k-means threshold;"
+            " threshold_mode noise_floor follows the noise floor by itself: set it to 0"
+        )
+
+
 def make_binarizer(
     config: MicConfig,
     on_refused: Callable[[str], None] | None = None,
     keep_threshold_db: float | None = None,
-) -> Binarizer:
-    """The binarizer that ``threshold_mode`` asks for.
+) -> BitSource:
+    """The bit source that ``bit_source`` and ``threshold_mode`` ask for.
 
     ``on_refused`` is told (one line naming the gap in dB) when a calibration cannot
     separate sound from quiet; no bit comes from such a calibration.
     ``keep_threshold_db`` (dB), if given, is the threshold in force to keep whatever the
-    mode (a live change of ``refresh_s``).
+    mode (a live change of ``refresh_s``): a fixed threshold rule of the same source.
     """
-    refresh = round(config.refresh_s / config.window_s) if config.refresh_s > 0 else 0
-    separation = config.min_separation_db
-    if keep_threshold_db is not None:
-        return Binarizer(keep_threshold_db, 0, refresh, separation, on_refused)
-    if config.threshold_mode == "fixed":
-        return Binarizer(config.threshold_db, 0, refresh, separation, on_refused)
-    if config.threshold_mode == "file":
-        threshold = load_threshold(config.threshold_file)
-        return Binarizer(threshold, 0, refresh, separation, on_refused)
-    windows = calibration_window_count(config.calibration_s, config.window_s)
-    return Binarizer(None, windows, refresh, separation, on_refused)
+    if config.bit_source == "vad":
+        options: dict[str, Any] = {
+            "vad_aggressiveness": config.vad_aggressiveness,
+            "vad_frame_ms": config.vad_frame_ms,
+            "vad_min_voiced_s": config.vad_min_voiced_s,
+        }
+    else:
+        if keep_threshold_db is not None:
+            config = dataclasses.replace(
+                config, threshold_mode="fixed", threshold_db=keep_threshold_db
+            )
+        options = {
+            "threshold_mode": config.threshold_mode,
+            "threshold_db": config.threshold_db,
+            "threshold_file": config.threshold_file,
+            "calibration_s": config.calibration_s,
+            "refresh_s": config.refresh_s,
+            "min_separation_db": config.min_separation_db,
+            "noise_margin_db": config.noise_margin_db,
+            "noise_window_s": config.noise_window_s,
+            "noise_percentile": config.noise_percentile,
+            "on_calibration_refused": on_refused,
+        }
+    return make_bit_source(config.bit_source, bit_rate_hz(config), config.window_s, **options)
 
 
 class MicNode(GraphNode):
@@ -334,7 +457,11 @@ class MicNode(GraphNode):
         self.wait_for_listeners = config.wait_for_listeners
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
-        self.binarizer = make_binarizer(config, self._calibration_refused)
+        self.bits = make_binarizer(config, self._calibration_refused)
+        if config.bit_source != "energy":
+            self.get_logger().info(
+                f"bit source {config.bit_source}: {BIT_SOURCES[config.bit_source]}"
+            )
         self._live_threshold_parameters()
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
@@ -367,8 +494,7 @@ class MicNode(GraphNode):
         if self.source == "wav":
             self._setup_wav(config)
         elif self.source == "bag":
-            self.bag = open_bag_replay(self, config)
-            self.pacer = LockstepPacer(config.lockstep_timeout_s) if config.lockstep else None
+            self._setup_bag(config)
         elif self.source == "topic":
             self._setup_topic(config.audio_rate_hz)
         else:
@@ -384,6 +510,11 @@ class MicNode(GraphNode):
         self.get_logger().info(f"stream id {self.stream_id}")
         self.start_diagnostics()
 
+    @property
+    def binarizer(self) -> Any:
+        """The threshold rule of sources energy and speech_band (None for vad)."""
+        return self.bits.rule
+
     def _on_audio_message(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
         self.count_arrival("audio")
         self._on_audio(msg, info)
@@ -395,9 +526,11 @@ class MicNode(GraphNode):
 
     def _setup_wav(self, config: MicConfig) -> None:
         channel = None if config.channel < 0 else config.channel
-        self.replay = WavReplay(config.wav_file, self.window_s, channel, config.loop)
-        if config.threshold_mode == "calibrate":
-            self._calibrate_from_file(self.binarizer, config)
+        samples = self.bits.needs_samples
+        self.replay = WavReplay(config.wav_file, self.window_s, channel, config.loop,
+                                samples=samples)  # fmt: skip
+        if config.threshold_mode == "calibrate" and self.binarizer is not None:
+            self._calibrate_ahead(self.bits, config)
         if config.lockstep:
             self.pacer = LockstepPacer(config.lockstep_timeout_s)
         self.get_logger().info(
@@ -405,6 +538,24 @@ class MicNode(GraphNode):
             f" {'lockstep' if config.lockstep else 'real time'}"
             f"{', looping' if config.loop else ''}"
         )
+
+    def _setup_bag(self, config: MicConfig) -> None:
+        """Open the session bag of ``source: bag``; calibrate on its audio if asked."""
+        self.bag = open_bag_replay(config, self.bits.needs_samples)
+        if self.bag.has_audio:
+            what = "its audio, through the bit source"
+            if config.threshold_mode == "calibrate" and self.binarizer is not None:
+                self._calibrate_ahead(self.bits, config)
+        else:
+            what = "its recorded bits (no audio recorded)"
+            if config.bit_source != "energy":
+                self.get_logger().warning(
+                    f"bit_source {config.bit_source} is not applied: the session"
+                    f" {config.bag_dir} holds no audio, its recorded bits are replayed"
+                )
+        self.pacer = LockstepPacer(config.lockstep_timeout_s) if config.lockstep else None
+        self.get_logger().info(f"replaying the session {config.bag_dir}: {self.bag.n_windows}"
+                               f" windows of {config.window_s} s from {what}")  # fmt: skip
 
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
@@ -478,10 +629,27 @@ class MicNode(GraphNode):
     # ------------------------------------------------------------------ windows
 
     def _emit_from_file(self) -> None:
+        """Serve the next window of the file or bag (and more, while they yield no bit).
+
+        A window that yields no bit (a bit source warming up) is followed at once by the
+        next: no decision will come back for it.
+        """
+        while self._emit_window_from_file() is None and not self.ended:
+            pass
+
+    def _emit_window_from_file(self) -> bool | None:
+        """Serve the next window of the file or bag: its bit, or None (no bit, or the end)."""
+        samples: np.ndarray | None = None
+        recorded_bit: bool | None = None
         if self.bag is not None:
             energy, recorded_bit = self.bag.next_window() or (None, None)
+            if energy is not None and recorded_bit is None and self.bits.needs_samples:
+                samples = self.bag.last_samples
+        elif self.replay.samples:
+            samples = self.replay.next_window()
+            energy = None if samples is None else 0.0  # the bit source measures it
         else:
-            energy, recorded_bit = self.replay.next_energy(), None
+            energy = self.replay.next_energy()
         if energy is None:
             if not self.ended:
                 self.ended = True
@@ -491,10 +659,11 @@ class MicNode(GraphNode):
                 self.get_logger().info(f"end of {path} after {self.windows} windows")
                 if self.exit_at_end:
                     self._finish_publishing()
-            return
+            self.ended = True
+            return None
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
-        self._window(energy, recorded_bit)
+        return self._window(energy, samples, recorded_bit)
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -524,12 +693,20 @@ class MicNode(GraphNode):
                 self.losses.note(self.now_s())
                 self.assembler.reset()
             self._last_sequence = sequence
+        chunk = np.frombuffer(msg.data, dtype=np.float32)
         try:
-            energies = self.assembler.push(np.frombuffer(msg.data, dtype=np.float32))
+            if self.bits.needs_samples:
+                windows = self.assembler.push_windows(chunk)
+            else:
+                energies = self.assembler.push(chunk)
         except AudioError as error:
             self.bad_chunks += 1
             self.losses.note(self.now_s())
             self.get_logger().warning(f"audio chunk ignored: {error}", throttle_duration_sec=5.0)
+            return
+        if self.bits.needs_samples:
+            for samples in windows:
+                self._window(0.0, samples)
             return
         for energy in energies:
             self._window(float(energy))
@@ -539,7 +716,7 @@ class MicNode(GraphNode):
             if self.finished.done():
                 return
             self._note_window(window)
-            self._window(window.energy_db)
+            self._window(window.energy_db, window.samples if self.bits.needs_samples else None)
             self.window_delay_s = time.monotonic() - window.end_time
             self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
 
@@ -556,23 +733,33 @@ class MicNode(GraphNode):
             self.windows_with_loss += 1
             self.losses.note(self.now_s())
 
-    def _window(self, energy_db: float, recorded_bit: bool | None = None) -> None:
+    def _window(
+        self,
+        energy_db: float,
+        samples: np.ndarray | None = None,
+        recorded_bit: bool | None = None,
+    ) -> bool | None:
         """A window was made: its bit (after calibration) waits in the outbox to go out.
 
-        ``recorded_bit``: the bit a session bag recorded for it (no threshold applied).
+        ``samples``: the window's samples, for a bit source that needs them (then its
+        energy comes from the bit source and ``energy_db`` is not used).
+        ``recorded_bit``: the bit a session bag without audio recorded for it (the bit
+        source is not applied). Returns the bit (None for a calibration window).
         """
+        was_calibrating = self.bits.calibrating and recorded_bit is None
+        if recorded_bit is not None:
+            bit: bool | None = recorded_bit
+        elif samples is None:
+            bit = self.bits.push(energy_db)
+        else:
+            bit = self.bits.push_window(samples)
+            energy_db = self.bits.last_energy_db
         self.last_energy_db = energy_db
-        was_calibrating = self.binarizer.calibrating and recorded_bit is None
-        bit = self.binarizer.push(energy_db) if recorded_bit is None else recorded_bit
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))
-            return
+            return None
         if was_calibrating:
-            fit = self.binarizer.fit
-            self.get_logger().info(
-                f"calibrated: threshold {fit.threshold_db:.2f} dB (quiet {fit.low_mean_db:.1f}"
-                f" dB, sound {fit.high_mean_db:.1f} dB)"
-            )
+            self.get_logger().info(self.bits.ready_message())
         dropped = self.outbox.dropped
         self.outbox.push((energy_db, bit))
         if self.outbox.dropped > dropped:
@@ -583,6 +770,7 @@ class MicNode(GraphNode):
                 throttle_duration_sec=5.0,
             )
         self._release()
+        return bit
 
     def _release(self) -> None:
         """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
@@ -626,31 +814,66 @@ class MicNode(GraphNode):
         """Let threshold_db, threshold_mode, threshold_file and refresh_s change live."""
         live = self.parameters.live
         live("threshold_db", self._set_threshold, self._check_fixed_threshold)
-        live("threshold_mode", self._set_threshold_mode, self._threshold_binarizer)
+        live("threshold_mode", self._set_threshold_mode, self._check_threshold_mode)
         live("threshold_file", self._set_threshold_file, self._check_threshold_file)
         live("refresh_s", self._set_refresh, self._check_refresh)
 
-    def _calibrate_from_file(
-        self, binarizer: Binarizer, config: MicConfig, log: bool = True
-    ) -> None:
-        """Calibrate ``binarizer`` on the first ``calibration_s`` seconds of the wav file."""
-        fit = binarizer.calibrate(
-            self.replay.calibration_energies(config.calibration_s, self.window_s)
-        )
+    def _check_has_threshold(self, name: str, value: Any) -> None:
+        """A live threshold parameter needs a threshold that decides the bits."""
+        if self.config.bit_source == "vad":
+            raise ConfigError(
+                f"parameter {name!r} = {value!r} has no effect with bit_source vad (no"
+                " threshold)"
+            )
+        if self.bag is not None and not self.bag.has_audio:
+            raise ConfigError(
+                f"parameter {name!r} = {value!r} has no effect: the session"
+                f" {self.config.bag_dir} holds no audio, its recorded bits are replayed"
+            )
+
+    def _calibrate_ahead(self, bits: BitSource, config: MicConfig, log: bool = True) -> None:
+        """Calibrate ``bits`` on the first ``calibration_s`` seconds of the wav file or bag."""
+        reader = self.replay if self.replay is not None else self.bag
+        if bits.needs_samples:
+            fit = bits.calibrate_windows(
+                reader.calibration_windows(config.calibration_s, self.window_s)
+            )
+        else:
+            fit = bits.rule.calibrate(
+                reader.calibration_energies(config.calibration_s, self.window_s)
+            )
         if log:
+            path = config.wav_file if self.replay is not None else config.bag_dir
             self.get_logger().info(
                 f"threshold {fit.threshold_db:.2f} dB from the first"
-                f" {fit.n_low + fit.n_high} windows of {config.wav_file} (quiet"
+                f" {fit.n_low + fit.n_high} windows of {path} (quiet"
                 f" {fit.low_mean_db:.1f} dB, sound {fit.high_mean_db:.1f} dB)"
             )
 
-    def _threshold_binarizer(self, mode: str, log: bool = False) -> Binarizer:
-        """The binarizer of threshold_mode ``mode`` now; ConfigError if it cannot be made.
+    def _use_bits(self, bits: BitSource) -> None:
+        """Put ``bits`` (a new threshold rule, same kind) in force from the next window.
 
-        ``fixed`` takes the ``threshold_db`` parameter, ``file`` loads and checks
-        ``threshold_file`` (its error is the refusal), ``calibrate`` calibrates a wav file
-        on its first ``calibration_s`` seconds, any other source on its next windows.
+        The speech-band filter of the source in force carries over (its state is the
+        audio so far, not the threshold), so the next window's band level is unchanged.
         """
+        if getattr(self.bits, "band", None) is not None:
+            bits.band = self.bits.band
+        self.bits = bits
+
+    def _check_threshold_mode(self, mode: str) -> None:
+        """A live ``threshold_mode`` must make a bit source (else the set is refused)."""
+        self._threshold_bits(mode)
+
+    def _threshold_bits(self, mode: str, log: bool = False) -> BitSource:
+        """The bit source of threshold_mode ``mode`` now; ConfigError if it cannot be made.
+
+        The source keeps its kind (``bit_source``): it is made by ``make_bit_source``
+        again. ``fixed`` takes the ``threshold_db`` parameter, ``file`` loads and checks
+        ``threshold_file`` (its error is the refusal), ``calibrate`` calibrates a wav file
+        on its first ``calibration_s`` seconds, any other source on its next windows;
+        ``noise_floor`` starts a new floor on the next ``calibration_s`` seconds.
+        """
+        self._check_has_threshold("threshold_mode", mode)
         config = dataclasses.replace(
             self.config,
             threshold_mode=mode,
@@ -658,36 +881,41 @@ class MicNode(GraphNode):
             threshold_file=self.get_parameter("threshold_file").value,
         )
         check_threshold_file(mode, config.threshold_file)
+        _check_bit_source(config)
         try:
-            binarizer = make_binarizer(config, self._calibration_refused)
+            bits = make_binarizer(config, self._calibration_refused)
             if mode == "calibrate" and self.replay is not None:
-                self._calibrate_from_file(binarizer, config, log)
+                self._calibrate_ahead(bits, config, log)
         except AudioError as error:
             raise ConfigError(str(error)) from None
-        return binarizer
+        return bits
 
     def _set_threshold_mode(self, mode: str) -> None:
         """Switch to threshold_mode ``mode`` (setting the same mode again starts it anew)."""
-        self.binarizer = self._threshold_binarizer(mode, log=True)
+        self._use_bits(self._threshold_bits(mode, log=True))
         self.config = dataclasses.replace(self.config, threshold_mode=mode)
-        if self.binarizer.calibrating:
+        rule = self.binarizer
+        if rule.calibrating:
+            windows = rule.warmup_windows if mode == "noise_floor" else rule.calibration_windows
+            what = "starting the noise floor" if mode == "noise_floor" else "calibrating"
             self.get_logger().info(
-                f"calibrating on the next {self.binarizer.calibration_windows} windows: no bits"
-                " until then (their energies are published)"
+                f"{what} on the next {windows} windows: no bits until then (their energies"
+                " are published)"
             )
         else:
             self.get_logger().info(
-                f"threshold_mode {mode}: threshold {self.binarizer.threshold_db:.2f} dB from"
-                " the next window on"
+                f"threshold_mode {mode}: threshold {rule.threshold_db:.2f} dB from the next"
+                " window on"
             )
 
     def _check_threshold_file(self, path: str) -> None:
-        """In threshold_mode file, a new ``threshold_file`` must load."""
+        """In threshold_mode file, a new ``threshold_file`` must load (for this source's level)."""
+        self._check_has_threshold("threshold_file", path)
         if self.config.threshold_mode != "file":
             return  # kept for a later switch to threshold_mode file
         check_threshold_file("file", path)
         try:
-            load_threshold(path)
+            load_threshold(path, self.config.bit_source)
         except AudioError as error:
             raise ConfigError(str(error)) from None
 
@@ -695,25 +923,31 @@ class MicNode(GraphNode):
         """Use the threshold of ``path`` at once in threshold_mode file; else keep it for later."""
         self.config = dataclasses.replace(self.config, threshold_file=path)
         if self.config.threshold_mode == "file":
-            self.binarizer = make_binarizer(self.config, self._calibration_refused)
+            self._use_bits(make_binarizer(self.config, self._calibration_refused))
 
     def _check_refresh(self, refresh_s: float) -> None:
+        self._check_has_threshold("refresh_s", refresh_s)
         check_refresh(refresh_s, self.window_s)
+        _check_bit_source(dataclasses.replace(self.config, refresh_s=refresh_s))
 
     def _set_refresh(self, refresh_s: float) -> None:
         """A new refresh buffer (empty) of ``refresh_s`` seconds; the threshold in force stays.
 
-        During a calibration the calibration starts again with the new buffer.
+        During a calibration the calibration starts again with the new buffer. With
+        threshold_mode noise_floor (``refresh_s`` 0 only) the floor goes on as it is.
         """
         self.config = dataclasses.replace(self.config, refresh_s=refresh_s)
+        if self.config.threshold_mode == "noise_floor":
+            return
         keep = self.binarizer.threshold_db
         if keep is None:
-            self.binarizer = self._threshold_binarizer(self.config.threshold_mode)
+            self._use_bits(self._threshold_bits(self.config.threshold_mode))
         else:
-            self.binarizer = make_binarizer(self.config, self._calibration_refused, keep)
+            self._use_bits(make_binarizer(self.config, self._calibration_refused, keep))
 
     def _check_fixed_threshold(self, value: float) -> None:
         """A live ``threshold_db`` needs ``threshold_mode`` fixed (else it would be ignored)."""
+        self._check_has_threshold("threshold_db", value)
         mode = self.get_parameter("threshold_mode").value
         if mode != "fixed":
             raise ConfigError(
@@ -730,7 +964,7 @@ class MicNode(GraphNode):
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""
-        b = self.binarizer
+        b = self.bits
         now = self.now_s()
         values: dict[str, Any] = {
             "source": self.source,
@@ -739,14 +973,11 @@ class MicNode(GraphNode):
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
-            "threshold_db": b.threshold_db if b.threshold_db is not None else "calibrating",
+            "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
             "dropped_chunks": self.dropped_chunks,
             "bad_chunks": self.bad_chunks,
-            "refits_accepted": b.refits_accepted,
-            "refits_rejected": b.refits_rejected,
-            "calibration_failures": b.calibration_failures,
-            "calibration_state": b.state,
+            **b.diagnostic_values(),
         }
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
@@ -778,18 +1009,12 @@ class MicNode(GraphNode):
         return OK, f"{self.windows} windows", values
 
 
-def open_bag_replay(node: MicNode, config: MicConfig) -> BagReplay:
-    """The session bag of ``source: bag``; calibrates the threshold on its audio if asked."""
+def open_bag_replay(config: MicConfig, samples: bool = False) -> BagReplay:
+    """The session bag of ``source: bag`` (keeping its windows' samples if ``samples``)."""
     try:
-        bag = BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz)
+        return BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz, samples)
     except (OSError, AudioError) as error:
         raise ConfigError(f"parameter 'bag_dir' = {config.bag_dir!r}: {error}") from None
-    if bag.has_audio and config.threshold_mode == "calibrate":
-        node.binarizer.calibrate(bag.calibration_energies(config.calibration_s, config.window_s))
-    what = "its audio, binarized again" if bag.has_audio else "its recorded bits"
-    node.get_logger().info(f"replaying the session {config.bag_dir}: {bag.n_windows} windows"
-                           f" of {config.window_s} s from {what}")
-    return bag
 
 
 def main(args: list[str] | None = None) -> int:

@@ -36,6 +36,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.bitsource import BitSource
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ
 from infomax_contingency.audio.energy import window_energies_db, window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
@@ -344,10 +345,12 @@ class AudioWorld:
 
     Args:
         room: the simulated room.
-        binarizer: window energy to bit.
+        binarizer: window energy to bit (a :class:`Binarizer`), or a bit source of
+            :func:`~infomax_contingency.audio.bitsource.make_bit_source` (one that needs
+            the samples gets them; its ``last_energy_db`` is the window's energy).
     """
 
-    def __init__(self, room: FakeRoom, binarizer: Binarizer) -> None:
+    def __init__(self, room: FakeRoom, binarizer: Binarizer | BitSource) -> None:
         self.room = room
         self.binarizer = binarizer
 
@@ -355,8 +358,14 @@ class AudioWorld:
         """The next window's bit, energy and ground truth (None while calibrating)."""
         window = self.room.next_window()
         samples = as_transmitted(window.samples).astype(np.float64)
-        energy = float(window_energies_db(samples, self.room.rate, self.room.config.window_s)[0])
-        y = self.binarizer.push(energy)
+        if getattr(self.binarizer, "needs_samples", False):
+            y = self.binarizer.push_window(samples)
+            energy = self.binarizer.last_energy_db
+        else:
+            energy = float(
+                window_energies_db(samples, self.room.rate, self.room.config.window_s)[0]
+            )
+            y = self.binarizer.push(energy)
         if y is None:
             return None
         return AudioObservation(int(y), energy, window.partner_present)
@@ -391,7 +400,7 @@ class AudioStepRecord:
 def iter_audio_loop(
     controller: Controller,
     room: FakeRoom,
-    binarizer: Binarizer,
+    binarizer: Binarizer | BitSource,
     steps: int | None,
     memory: int = 0,
 ) -> Iterator[AudioStepRecord]:
@@ -412,7 +421,7 @@ def iter_audio_loop(
 def simulate_audio_loop(
     controller: Controller,
     room: FakeRoom,
-    binarizer: Binarizer,
+    binarizer: Binarizer | BitSource,
     steps: int,
     memory: int = 0,
 ) -> list[AudioStepRecord]:
