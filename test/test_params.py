@@ -311,6 +311,68 @@ def test_mic_speech_band_threshold_is_live_in_fixed_mode(graph: Callable) -> Non
     assert node.bits.threshold_db == -30.0
 
 
+def test_mic_noise_floor_mode_is_live_without_a_refresh(graph: Callable) -> None:
+    node, probe, executor = graph(
+        MicNode, source="topic", threshold_mode="fixed", threshold_db=-40.0,
+        calibration_s=1.0, noise_margin_db=10.0, wait_for_listeners=1, start_delay_s=0.0,
+    )  # fmt: skip
+    bits = probe.listen("sound", Bool)
+    probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
+    energies = probe.listen("sound_energy", Float32)
+    audio = probe.talk("audio", Float32MultiArray)
+    executor.connected(audio)
+    executor.run_until(lambda: node.started, "the mic's start gate")
+
+    def play(levels: list[float], bits_expected: int) -> list[bool]:
+        before, heard = len(bits), len(energies)
+        audio.publish(_audio(_windows(levels)))
+        executor.run_until(
+            lambda: len(energies) == heard + len(levels) and len(bits) == before + bits_expected,
+            f"{len(levels)} windows",
+        )
+        return [m.data for m in bits[before:]]
+
+    assert play([-35.0, -45.0], 2) == [True, False]  # fixed at -40 dB
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="noise_floor")
+    assert result.successful, result.reason
+    assert node.bits.name == "energy" and node.binarizer.calibrating
+    # calibration_s 1 s = 2 windows start the floor (-60 dB), then 10 dB above it
+    assert play([-60.0, -60.0, -45.0, -55.0], 2) == [True, False]
+    [result] = set_remotely(probe, executor, "mic_node", refresh_s=2.0)
+    assert not result.successful and "noise_floor" in result.reason
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="fixed")
+    assert result.successful, result.reason
+    [result] = set_remotely(probe, executor, "mic_node", refresh_s=2.0)
+    assert result.successful, result.reason
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="noise_floor")
+    assert not result.successful and result.reason.startswith("parameter 'refresh_s' = 2")
+    assert play([-35.0, -45.0], 2) == [True, False]  # still fixed at -40 dB
+
+
+def test_mic_vad_refuses_every_live_threshold_parameter(graph: Callable) -> None:
+    node, probe, executor = graph(MicNode, bit_source="vad")
+    for name, value in (("threshold_mode", "fixed"), ("threshold_file", "/x.yaml"),
+                        ("refresh_s", 2.0)):  # fmt: skip
+        [result] = set_remotely(probe, executor, "mic_node", **{name: value})
+        assert not result.successful and "no effect with bit_source vad" in result.reason, name
+    assert node.bits.name == "vad"
+
+
+def test_mic_speech_band_keeps_its_kind_and_filter_on_live_changes(
+    graph: Callable, tmp_path: Path
+) -> None:
+    node, probe, executor = graph(MicNode, bit_source="speech_band", threshold_mode="fixed")
+    band = node.bits.band
+    energy_file = _threshold_file(tmp_path / "energy.yaml", -10.0)  # level energy
+    [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(energy_file))
+    assert result.successful, result.reason  # kept: the mode is still fixed
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="file")
+    assert not result.successful and "speech_band" in result.reason
+    for values in ({"refresh_s": 2.0}, {"threshold_mode": "calibrate"}):
+        [result] = set_remotely(probe, executor, "mic_node", **values)
+        assert result.successful, result.reason
+        assert node.bits.name == "speech_band" and node.bits.band is band, values
+
 
 @pytest.mark.parametrize(
     "node_class",
