@@ -39,7 +39,7 @@ __all__ = [
 ]
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.simulation import simulate
-from infomax_contingency.sim.world import ROOM_NAMES, make_room
+from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
 
 def _int_list(text: str) -> list[int]:
@@ -708,7 +708,7 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--world",
         default="responsive",
-        help=f"room to simulate: {' | '.join(ROOM_NAMES)}[:key=value,...] (default responsive)",
+        help=f"room to simulate: {' | '.join(BIT_ROOM_NAMES)}[:key=value,...] (default responsive)",
     )
     parser.add_argument("--steps", type=int, default=120, help="steps to simulate (default 120)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

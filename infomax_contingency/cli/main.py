@@ -33,7 +33,7 @@ from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTabl
 from infomax_contingency.core.solver import SolveCost, solve, solve_cost
 from infomax_contingency.errors import USER_ERRORS
 from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
-from infomax_contingency.sim.world import ROOM_NAMES, make_room
+from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
 
 def _params_argument(parser: argparse.ArgumentParser, default: str = "robot") -> None:
@@ -308,7 +308,7 @@ def register_simulate(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--world",
         default="responsive",
-        help=f"{' | '.join(ROOM_NAMES)}, optionally NAME:key=value,... (default: responsive)",
+        help=f"{' | '.join(BIT_ROOM_NAMES)}, optionally NAME:key=value,... (default: responsive)",
     )
     parser.add_argument("--steps", type=int, default=40, help="number of windows (default 40)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
