@@ -26,6 +26,7 @@ from infomax_contingency.cli.live import (
     register_devices,
     register_measure_latency,
 )
+from infomax_contingency.cli.rooms import register_room_wav
 from infomax_contingency.cli.sessions import register_analyze, register_replay
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import ModelParams
@@ -377,6 +378,7 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_learn,
     register_plot,
     register_demo,
+    register_room_wav,
     register_replay,
     register_analyze,
 ]

@@ -233,8 +233,10 @@ def speech_excerpt(
     ``n`` longer than the voice repeats it (from a random offset).
     """
     offset = int(rng.integers(0, voice.size))
-    indices = (offset + np.arange(n)) % voice.size
-    x = voice[indices]
+    if offset + n <= voice.size:
+        x = voice[offset : offset + n].copy()
+    else:
+        x = voice[(offset + np.arange(n)) % voice.size]
     fade = min(round(_EXCERPT_FADE_S * rate), n // 2)
     if fade > 0:
         ramp = np.sin(0.5 * np.pi * (np.arange(fade) + 0.5) / fade) ** 2
