@@ -670,7 +670,7 @@ def render_room(
     actions = []
     try:
         for step in run_loop(world, chosen, None):
-            if step.u:
+            if step.u and recording.windows_made < windows:  # else played after the end
                 actions.append(recording.windows_made * config.window_s)
     except RoomTimeUpError:
         pass
