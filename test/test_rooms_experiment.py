@@ -92,6 +92,7 @@ def test_calibrating_binarizer_takes_room_time_without_steps() -> None:
         ({"backgrounds": ("kitchen",)}, "unknown room 'kitchen'"),
         ({"controllers": ("greedy",)}, "controllers"),
         ({"runs": 0}, "runs"),
+        ({"seed": -1}, "seed"),
         ({"seconds": 10.0}, "seconds"),
         ({"attentive_above": 0.1}, "attentive_above"),
         ({"curve_priors": (0.0,)}, "curve_priors"),

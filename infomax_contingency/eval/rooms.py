@@ -213,6 +213,8 @@ class RoomsConfig:
             fail("runs", ">= 1")
         if not (math.isfinite(self.seconds) and ROOM_CHANGE_S < self.seconds <= 3600):
             fail("seconds", f"more than the partner's change at {ROOM_CHANGE_S:g} s, at most 3600")
+        if self.seed < 0:
+            fail("seed", "a whole number >= 0")
         if self.memory < 0:
             fail("memory", ">= 0 steps (0: the whole history)")
         if not 0.0 <= self.bored_below < self.attentive_above <= 1.0:
@@ -658,6 +660,8 @@ def render_room(
     config = FakeRoomConfig.preset(room)
     if not (math.isfinite(seconds) and config.window_s <= seconds <= 24 * 3600):
         raise ValueError(f"seconds = {seconds!r}: must be at least one window, at most a day")
+    if not 0 <= seed < 2**31:
+        raise ValueError(f"seed = {seed!r}: must be a whole number in 0 .. 2**31 - 1")
     spec = (
         controller_specs(params, [controller], cache_dir)[0][1]
         if controller in CONTROLLER_NAMES
