@@ -260,8 +260,9 @@ def register_room_wav(subparsers: argparse._SubParsersAction) -> None:
     d = evaluation.RoomsConfig()
     parser.add_argument(
         "--binarizer",
-        default=d.binarizer,
-        help=f"{' | '.join(evaluation.BINARIZERS)} (default {d.binarizer})",
+        default=evaluation.LISTENING_BINARIZER,
+        help=f"{' | '.join(evaluation.BINARIZERS)} (default {evaluation.LISTENING_BINARIZER},"
+        " config/fake_room.yaml's threshold)",
     )
     parser.add_argument("--params", default=d.params_name, help=f"parameter set ({d.params_name})")
     parser.set_defaults(run=_run_room_wav)

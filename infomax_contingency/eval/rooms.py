@@ -120,6 +120,11 @@ def make_binarizer(spec: str, window_s: float) -> Any:
         raise
 
 
+LISTENING_BINARIZER = "fixed:-40"
+"""``room-wav``'s default: the fixed threshold config/fake_room.yaml gives mic_node against
+the fake room (a calibration on a room's own first 10 s is refused in the steadier rooms,
+and the robot would stay silent)."""
+
 CONTROLLER_NAMES = ("optimal", "rule", "fixed", "random")
 """The controllers of the experiment (see :func:`controller_specs`)."""
 
@@ -641,7 +646,7 @@ def render_room(
     seconds: float,
     seed: int,
     controller: str = "optimal",
-    binarizer: str = RoomsConfig.binarizer,
+    binarizer: str = LISTENING_BINARIZER,
     params_name: str = RoomsConfig.params_name,
     cache_dir: Path | None = None,
 ) -> tuple[np.ndarray, list[float], int]:
