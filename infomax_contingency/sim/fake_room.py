@@ -224,9 +224,12 @@ _NON_NUMBER_FIELDS = frozenset(
 PRESETS: dict[str, dict[str, Any]] = {
     name: dict(ROOMS[name].audio or {}) for name in AUDIO_ROOM_NAMES
 }
-"""Named rooms (the registry's rooms with an audio-level preset): a responsive partner in a
-fairly quiet room; nobody in a quiet room; nobody in a busy room (about half the windows
-hold a sound). See :data:`infomax_contingency.sim.rooms.ROOMS`."""
+"""Named rooms (the registry's rooms with an audio-level preset): ``responsive`` (a
+partner in a fairly quiet room), ``silent`` (nobody, a quiet room), ``noisy`` (nobody, a
+busy room: about half the windows hold a sound), and the rooms that sound like rooms,
+``quiet``, ``office``, ``poster-session`` and ``tv-on`` with the partner absent, present
+(``+partner``), arriving (``+arriving``) or leaving (``+leaving``). See
+:data:`infomax_contingency.sim.rooms.ROOMS`."""
 
 
 def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:

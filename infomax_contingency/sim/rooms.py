@@ -26,14 +26,14 @@ room; ``tv-on`` and the arriving and leaving rooms exist at the audio level only
 ``audio``). Their levels, dB FS (RMS over each sound's duration; floor, babble and TV
 over all time, pauses included):
 
-============== ===== ====== ======== ====== ====== ========== ====== =========
-room           floor babble TV       knocks doors  footsteps  chirp  echo/RT60
-============== ===== ====== ======== ====== ====== ========== ====== =========
-quiet          -60 p  —     —        -35    —      —          -20    -38/0.3 s
-office         -50 h  -45x2 —        -32    -22    -40        -20    -34/0.5 s
-poster-session -45 p  -30x12 —       -30    —      -36        -20    -32/0.6 s
-tv-on          -55 p  —     -33      -32    —      -40        -20    -36/0.4 s
-============== ===== ====== ======== ====== ====== ========== ====== =========
+============== ====== ======== ==== ====== ===== ========= ===== =========
+room           floor  babble   TV   knocks doors footsteps chirp echo/RT60
+============== ====== ======== ==== ====== ===== ========= ===== =========
+quiet          -60 p  --       --   -35    --    --        -20   -38/0.3 s
+office         -50 h  -45 x 2  --   -32    -22   -40       -20   -34/0.5 s
+poster-session -45 p  -30 x 12 --   -30    --    -36       -20   -32/0.6 s
+tv-on          -55 p  --       -33  -32    --    -40       -20   -36/0.4 s
+============== ====== ======== ==== ====== ===== ========= ===== =========
 
 (p: pink floor, h: hvac floor; babble: long-term level x talkers.) The partner's replies
 are speech-like (``reply_voice`` ``speech``) at -26 dB (-24 dB in the poster session,
