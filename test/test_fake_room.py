@@ -111,16 +111,23 @@ def test_bad_room_parameters_are_refused(field: str, value: float, message: str)
 
 
 def test_presets_are_the_registered_rooms_with_audio() -> None:
-    assert list(PRESETS) == ["responsive", "silent", "noisy"]
+    assert list(PRESETS)[:3] == ["responsive", "silent", "noisy"]
+    for background in ("quiet", "office", "poster-session", "tv-on"):
+        for state in ("", "+partner", "+arriving", "+leaving"):
+            assert background + state in PRESETS
     for name, fields in PRESETS.items():
         kind = ROOMS[name]
         assert fields == dict(kind.audio)
-        partner = FakeRoomConfig.preset(name).partner_present_at(1.0)
-        assert partner == kind.partner_present, name
+        config = FakeRoomConfig.preset(name)
+        if kind.partner_present is not None:
+            assert config.partner_present_at(1.0) == kind.partner_present, name
+            assert config.partner_present_at(50.0) == kind.partner_present, name
+        else:  # arriving or leaving: present at the start xor at the end
+            assert config.partner_present_at(1.0) != config.partner_present_at(50.0), name
 
 
 def test_unknown_preset() -> None:
-    with pytest.raises(ValueError, match="rooms: responsive, silent, noisy"):
+    with pytest.raises(ValueError, match="rooms: responsive, silent, noisy, quiet"):
         FakeRoomConfig.preset("party")
 
 

@@ -122,3 +122,38 @@ def test_separate_processes_give_the_offline_run(make_graph: Callable[[], Graph]
     rec = graph.recorder
     run = (rec.sound[:steps], rec.vocalize[:steps], rec.belief[:steps])
     _assert_equals_offline(run, _offline(seed, steps), steps)
+
+
+@pytest.mark.xdist_group("node_graphs")
+@pytest.mark.parametrize(("room", "run"), [("office+partner", 0), ("quiet+leaving", 3)])
+def test_rooms_experiment_runs_equal_the_graph(room: str, run: int) -> None:
+    """Runs of ``experiment rooms`` equal the graph's (the pattern of the test above).
+
+    A sample run (fixed threshold, optimal table, belief memory 60) gives the graph's
+    bits, decisions, beliefs and postures.
+    """
+    from infomax_contingency.eval.rooms import controller_specs, room_seed, run_room
+    from infomax_contingency.eval.rooms import postures as offline_postures
+
+    params = ModelParams.named("robot")
+    steps, seed, memory = 80, 0, 60
+    spec = controller_specs(params, ["optimal"])[0][1]
+    threshold = f"fixed:{FIXED_THRESHOLD['threshold_db']}"
+    offline = run_room(params, room, spec, threshold, steps * 0.5, seed, run, memory)
+    attentive = offline_postures(offline.belief, 0.9, 0.2)  # posture_node's defaults
+    expected = ["bored"]  # posture_node's initial posture, then every change
+    for now in attentive:
+        if ("attentive" if now else "bored") != expected[-1]:
+            expected.append("attentive" if now else "bored")
+    fake_room = {"room": room, "seed": room_seed(seed, room, run)}
+    with stepped_graph(room_nodes(fake_room, steps, memory_steps=memory),
+                       "fake_audio_node") as graph:  # fmt: skip
+        graph.run_steps(steps)
+        rec = graph.recorder
+        assert rec.sound[:steps] == [bool(y) for y in offline.y]
+        assert rec.vocalize[:steps] == [bool(u) for u in offline.u]
+        assert rec.belief[:steps] == list(offline.belief)
+        graph.run_until(lambda: len(rec.posture) >= len(expected), "every posture change")
+        assert postures(graph) == expected
+        assert 0 < sum(offline.u) < steps and 0 < sum(offline.y) < steps
+        assert "attentive" in expected, "the sample must exercise the posture rule"

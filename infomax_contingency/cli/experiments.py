@@ -1,7 +1,8 @@
 """Command-line sub-commands of the evaluation suite: ``experiment``, ``learn``, ``plot``.
 
 * ``experiment baby9 | rule | greedy | horizon | efficiency`` — the experiments of
-  :mod:`infomax_contingency.eval.experiments` (readable tables, or ``--json``).
+  :mod:`infomax_contingency.eval.experiments` (readable tables, or ``--json``);
+  ``experiment rooms`` — :mod:`infomax_contingency.eval.rooms` (:mod:`.rooms`).
 * ``learn`` — infomax TD learning curves (:mod:`infomax_contingency.core.learning`).
 * ``plot`` — the four-panel figure of a simulated or recorded session.
 
@@ -23,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from infomax_contingency.cli.rooms import add_experiment_rooms_arguments, run_experiment_rooms
 from infomax_contingency.core import learning
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
@@ -39,7 +41,7 @@ __all__ = [
 ]
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.simulation import simulate
-from infomax_contingency.sim.world import ROOM_NAMES, make_room
+from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
 
 def _int_list(text: str) -> list[int]:
@@ -538,6 +540,12 @@ EXPERIMENTS: tuple[ExperimentCommand, ...] = (
         _run_efficiency,
         _add_efficiency_arguments,
     ),
+    (
+        "rooms",
+        "from a room's sound to the posture: audio rooms, controllers, operating curves",
+        run_experiment_rooms,
+        add_experiment_rooms_arguments,
+    ),
 )
 """The experiment sub-commands, in the order of ``experiment --help``."""
 
@@ -545,7 +553,8 @@ EXPERIMENTS: tuple[ExperimentCommand, ...] = (
 def register_experiment(subparsers: argparse._SubParsersAction) -> None:
     """``experiment NAME``: the evaluation experiments (docs/RESULTS.md)."""
     parser = subparsers.add_parser(
-        "experiment", help="run an evaluation experiment (baby9, rule, greedy, horizon, efficiency)"
+        "experiment",
+        help="run an evaluation experiment (baby9, rule, greedy, horizon, efficiency, rooms)",
     )
     names = parser.add_subparsers(dest="experiment", required=True, metavar="NAME")
     for name, help_text, run, add_arguments in EXPERIMENTS:
@@ -718,7 +727,7 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--world",
         default="responsive",
-        help=f"room to simulate: {' | '.join(ROOM_NAMES)}[:key=value,...] (default responsive)",
+        help=f"room to simulate: {' | '.join(BIT_ROOM_NAMES)}[:key=value,...] (default responsive)",
     )
     parser.add_argument("--steps", type=int, default=120, help="steps to simulate (default 120)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

@@ -27,6 +27,7 @@ from infomax_contingency.cli.live import (
     register_devices,
     register_measure_latency,
 )
+from infomax_contingency.cli.rooms import register_room_wav
 from infomax_contingency.cli.sessions import register_analyze, register_replay
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import ModelParams
@@ -34,7 +35,7 @@ from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTabl
 from infomax_contingency.core.solver import SolveCost, solve, solve_cost
 from infomax_contingency.errors import USER_ERRORS
 from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
-from infomax_contingency.sim.world import ROOM_NAMES, make_room
+from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
 
 def _params_argument(parser: argparse.ArgumentParser, default: str = "robot") -> None:
@@ -309,7 +310,7 @@ def register_simulate(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--world",
         default="responsive",
-        help=f"{' | '.join(ROOM_NAMES)}, optionally NAME:key=value,... (default: responsive)",
+        help=f"{' | '.join(BIT_ROOM_NAMES)}, optionally NAME:key=value,... (default: responsive)",
     )
     parser.add_argument("--steps", type=int, default=40, help="number of windows (default 40)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -378,6 +379,7 @@ REGISTRARS: list[Callable[[argparse._SubParsersAction], None]] = [
     register_learn,
     register_plot,
     register_demo,
+    register_room_wav,
     register_replay,
     register_analyze,
     register_calibration_session,

@@ -390,3 +390,43 @@ def plot_efficiency(result: dict, path: str | Path) -> Path:
         fontsize=10,
     )
     return _save(figure, path)
+
+
+def plot_room_curves(result: dict, path: str | Path) -> Path:
+    """Operating curves of experiment_rooms: one panel per room sound.
+
+    x: share of runs in the empty room that ever turned attentive; y: median seconds
+    until the posture settled in the room with a partner (the run's length where the
+    median run never settled). One line per controller (the belief node's prior pi) and,
+    dashed, the optimal controller under the other belief priors; points are the upper
+    posture thresholds.
+    """
+    curves = result["operating_curves"]
+    labels = list(result["controllers"])
+    backgrounds = list(result["config"]["backgrounds"])
+    ceiling = result["config"]["seconds"]
+    base_pi = repr(result["params_pi"])
+    figure = _figure(3.2 * len(backgrounds) + 0.8, 3.6)
+    axes = np.atleast_1d(figure.subplots(1, len(backgrounds), sharey=True))
+    for axis, background in zip(axes, backgrounds, strict=True):
+        for index, label in enumerate(labels):
+            for pi, points in curves[label][background].items():
+                if pi != base_pi and index != 0:
+                    continue
+                x = [p["false_alarm"] for p in points]
+                y = [min(p["settled_s_median"], ceiling) for p in points]
+                style = "-" if pi == base_pi else "--"
+                text = label if pi == base_pi else f"{label.split()[0]}, belief pi={float(pi):g}"
+                axis.plot(x, y, style, marker="o", markersize=3, label=text, linewidth=1)
+        axis.axhline(ceiling, color="grey", linestyle=":", linewidth=1)
+        axis.set_title(background, fontsize=9)
+        axis.set_xlim(-0.03, 1.03)
+        axis.set_xlabel("false attentive (share of empty-room runs)", fontsize=8)
+    axes[0].set_ylabel(f"median s to a settled posture\n({ceiling:g}: not settled)", fontsize=8)
+    axes[-1].legend(fontsize=6, loc="center right")
+    figure.suptitle(
+        f"operating curves as the posture threshold varies (0.5 .. 0.99), binarizer"
+        f" {result['config']['binarizer']}, {result['config']['runs']} runs per room",
+        fontsize=9,
+    )
+    return _save(figure, path)

@@ -149,7 +149,7 @@ class FakeAudioNode(GraphNode):
             0.1, 3600.0, "s",
         )
         try:
-            config = FakeRoomConfig(**values)
+            config = FakeRoomConfig.preset(room, **values)  # the preset's other sources too
         except ValueError as error:
             raise ConfigError(str(error)) from None
         for warning in timing_warnings(config, params):

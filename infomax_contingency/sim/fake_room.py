@@ -2,35 +2,56 @@
 
 Where :mod:`infomax_contingency.sim.world` draws bits, this module makes the sound a
 microphone would pick up, so the whole audio path (energies, threshold, bits) runs as it
-would on a robot. The room holds:
+would on a robot. The room holds (the sounds themselves are made in
+:mod:`infomax_contingency.sim.room_sounds`):
 
-* a noise floor: white noise at ``noise_floor_db``;
+* a noise floor at ``noise_floor_db`` of spectrum ``floor_spectrum`` (white, pink or
+  hvac, see :data:`~infomax_contingency.sim.room_sounds.FLOOR_SPECTRA`);
 * background sound events (knocks, clatter): a Poisson process of ``event_rate_hz``,
   each a decaying noise burst of ``event_min_s`` .. ``event_max_s`` at ``event_level_db``;
+  door slams (``door_rate_hz``, at ``door_level_db``) and walks of 4 .. 10 footsteps
+  0.45 .. 0.6 s apart (``footsteps_rate_hz`` walks per second, each step at
+  ``footsteps_level_db``);
+* distant talkers (babble): ``babble_talkers`` people each talking in utterances of
+  1 .. 4 s with pauses of 1 s on average (exponential), speech-like sound low-passed at
+  ``babble_cutoff_hz``, together at a long-term level of ``babble_level_db``;
+* a TV (``tv_on``): a speech-like programme in stretches of 1.5 .. 6 s with pauses of
+  0.2 .. 1.2 s, low-passed at 4 kHz (a small loudspeaker), at a long-term level of
+  ``tv_level_db``;
 * the robot hearing itself: after each vocalization, its 200 ms chirp
   (:func:`~infomax_contingency.audio.synth.synthesize_chirp`) starts ``self_delay_s`` after the
-  start of the next window, at ``self_level_db``;
+  start of the next window, at ``self_level_db``; with ``reverb_rt60_s > 0`` followed by
+  the room's echo of it (:func:`~infomax_contingency.sim.room_sounds.reverb_tail`, 60 dB
+  decay in ``reverb_rt60_s``) at ``reverb_level_db``;
 * a partner, present from ``partner_arrive_s`` until ``partner_leave_s`` (room time),
-  who answers a vocalization with probability ``reply_probability``: a speech-like
-  reply (noise shaped into syllables at ``syllable_rate_hz``) at ``reply_level_db``,
-  starting ``reply_delay_min_s`` .. ``reply_delay_max_s`` after the vocalization and
-  lasting ``reply_min_s`` .. ``reply_max_s``.
+  who answers a vocalization with probability ``reply_probability``: a reply at
+  ``reply_level_db``, starting ``reply_delay_min_s`` .. ``reply_delay_max_s`` after the
+  vocalization and lasting ``reply_min_s`` .. ``reply_max_s``; with ``reply_voice``
+  ``noise``, noise shaped into syllables at ``syllable_rate_hz``, with ``speech`` a
+  speech-like voice (:func:`~infomax_contingency.sim.room_sounds.speech_like`: voiced
+  syllables at about ``syllable_rate_hz`` with 10-30 ms onsets, formants, one pitch).
 
-Conventions: levels are RMS in dB relative to full scale over the sound's duration (so
-a window entirely filled by a sound has about that energy); times are seconds of room
-time, 0 at the start of the first window; a vocalization decided after window k is
-played at the start of window k + 1. The defaults fit the ``robot`` model parameters
-(0.5 s windows, self-feedback in the two windows after a vocalization, agent period
-1.0 .. 2.5 s after it) and the mic node's fixed threshold of -40 dB
-(``config/fake_room.yaml``): a floor at -60 dB, and any window holding 10 ms or more of
-a reply, event or chirp above -40 dB. :func:`timing_warnings` checks other parameters.
+Conventions: levels are RMS in dB relative to full scale (dB FS): of a transient sound
+(event, door, footstep, chirp, echo, reply) over the sound's duration, so a window
+entirely filled by it has about that energy; of a continuous source (floor, babble, TV)
+over all time, pauses included (:meth:`FakeRoom.measured_levels_db` measures both);
+times are seconds of room time, 0 at the start of the first window; a vocalization
+decided after window k is played at the start of window k + 1. The defaults fit the
+``robot`` model parameters (0.5 s windows, self-feedback in the two windows after a
+vocalization, agent period 1.0 .. 2.5 s after it) and the mic node's fixed threshold of
+-40 dB (``config/fake_room.yaml``): a floor at -60 dB, and any window holding 10 ms or
+more of a reply, event or chirp above -40 dB. :func:`timing_warnings` checks other
+parameters. Every source beyond the white floor, knocks, chirp and noise replies is off
+by default, so a configuration that does not name one sounds as before, sample for
+sample. The presets and their levels: :data:`infomax_contingency.sim.rooms.ROOMS` and
+docs/RESULTS.md.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -42,11 +63,36 @@ from infomax_contingency.audio.energy import window_energies_db, window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.sim import room_sounds
 from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.room_sounds import FLOOR_SPECTRA, NoiseFloor, rms_scaled
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
+
+REPLY_VOICES = ("noise", "speech")
+"""How a partner's reply sounds (see the module docstring)."""
+
+BABBLE_UTTERANCE_S = (1.0, 4.0)
+"""Shortest and longest utterance of a distant talker, seconds (uniform)."""
+BABBLE_PAUSE_MEAN_S = 1.0
+"""Mean pause between a distant talker's utterances, seconds (exponential)."""
+TV_STRETCH_S = (1.5, 6.0)
+"""Shortest and longest stretch of TV speech, seconds (uniform)."""
+TV_PAUSE_S = (0.2, 1.2)
+"""Shortest and longest pause of the TV programme, seconds (uniform)."""
+TV_CUTOFF_HZ = 4000.0
+"""Low-pass of the TV's small loudspeaker, Hz."""
+FOOTSTEPS_PER_WALK = (4, 10)
+"""Fewest and most footsteps of a walk past the robot."""
+FOOTSTEP_INTERVAL_S = (0.45, 0.6)
+"""Shortest and longest time between two footsteps, seconds (uniform per walk)."""
+
+CONTINUOUS_SOURCES = ("floor", "babble", "tv")
+"""Sources whose level is their long-term RMS (pauses included)."""
+TRANSIENT_SOURCES = ("event", "door", "footstep", "self", "echo", "reply")
+"""Sources whose level is the RMS over each sound's duration."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +121,19 @@ class FakeRoomConfig:
     reply_min_s: float = 0.6
     reply_max_s: float = 1.0
     syllable_rate_hz: float = 4.0
+    floor_spectrum: str = "white"
+    reply_voice: str = "noise"
+    door_rate_hz: float = 0.0
+    door_level_db: float = -20.0
+    footsteps_rate_hz: float = 0.0
+    footsteps_level_db: float = -35.0
+    babble_talkers: int = 0
+    babble_level_db: float = -40.0
+    babble_cutoff_hz: float = 1000.0
+    tv_on: bool = False
+    tv_level_db: float = -35.0
+    reverb_rt60_s: float = 0.0
+    reverb_level_db: float = -35.0
 
     def __post_init__(self) -> None:
         def fail(name: str, allowed: str) -> None:
@@ -82,7 +141,21 @@ class FakeRoomConfig:
 
         if isinstance(self.rate_hz, bool) or not isinstance(self.rate_hz, int) or self.rate_hz < 1:
             fail("rate_hz", "a positive whole number of Hz")
+        if (
+            isinstance(self.babble_talkers, bool)
+            or not isinstance(self.babble_talkers, int)
+            or not 0 <= self.babble_talkers <= 100
+        ):
+            fail("babble_talkers", "a whole number of talkers in 0 .. 100")
+        if not isinstance(self.tv_on, bool):
+            fail("tv_on", "true or false")
+        if self.floor_spectrum not in FLOOR_SPECTRA:
+            fail("floor_spectrum", f"one of {', '.join(FLOOR_SPECTRA)}")
+        if self.reply_voice not in REPLY_VOICES:
+            fail("reply_voice", f"one of {', '.join(REPLY_VOICES)}")
         for name in dataclasses.asdict(self):
+            if name in _NON_NUMBER_FIELDS:
+                continue
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
                 fail(name, "a number")
@@ -91,10 +164,30 @@ class FakeRoomConfig:
         for name in ("window_s", "event_min_s", "reply_min_s", "syllable_rate_hz"):
             if getattr(self, name) <= 0:
                 fail(name, "> 0")
-        for name in ("event_rate_hz", "self_delay_s", "reply_delay_min_s"):
+        for name in (
+            "event_rate_hz",
+            "self_delay_s",
+            "reply_delay_min_s",
+            "door_rate_hz",
+            "footsteps_rate_hz",
+        ):
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
-        for name in ("noise_floor_db", "event_level_db", "self_level_db", "reply_level_db"):
+        if not 0.0 <= self.reverb_rt60_s <= 5.0:
+            fail("reverb_rt60_s", "a reverberation time in 0 .. 5 s (0: no echo)")
+        if not 0.0 < self.babble_cutoff_hz:
+            fail("babble_cutoff_hz", "> 0 Hz")
+        for name in (
+            "noise_floor_db",
+            "event_level_db",
+            "self_level_db",
+            "reply_level_db",
+            "door_level_db",
+            "footsteps_level_db",
+            "babble_level_db",
+            "tv_level_db",
+            "reverb_level_db",
+        ):
             if not -150.0 <= getattr(self, name) <= 0.0:
                 fail(name, "a level between -150 and 0 dB (full scale)")
         if not 0.0 <= self.reply_probability <= 1.0:
@@ -123,12 +216,21 @@ class FakeRoomConfig:
         return self.partner_leave_s < 0 or time_s < self.partner_leave_s
 
 
+_NON_NUMBER_FIELDS = frozenset(
+    {"rate_hz", "babble_talkers", "tv_on", "floor_spectrum", "reply_voice"}
+)
+"""Fields checked on their own in :meth:`FakeRoomConfig.__post_init__` (not plain numbers)."""
+
+
 PRESETS: dict[str, dict[str, Any]] = {
     name: dict(ROOMS[name].audio or {}) for name in AUDIO_ROOM_NAMES
 }
-"""Named rooms (the registry's rooms with an audio-level preset): a responsive partner in a
-fairly quiet room; nobody in a quiet room; nobody in a busy room (about half the windows
-hold a sound). See :data:`infomax_contingency.sim.rooms.ROOMS`."""
+"""Named rooms (the registry's rooms with an audio-level preset): ``responsive`` (a
+partner in a fairly quiet room), ``silent`` (nobody, a quiet room), ``noisy`` (nobody, a
+busy room: about half the windows hold a sound), and the rooms that sound like rooms,
+``quiet``, ``office``, ``poster-session`` and ``tv-on`` with the partner absent, present
+(``+partner``), arriving (``+arriving``) or leaving (``+leaving``). See
+:data:`infomax_contingency.sim.rooms.ROOMS`."""
 
 
 def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
@@ -144,6 +246,8 @@ def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
         )
     dt = config.window_s
     self_end = config.self_delay_s + ROBOT_SOUND_S
+    if config.reverb_rt60_s > 0:
+        self_end += config.reverb_rt60_s + 0.01  # the echo, to 60 dB down
     if self_end > (params.ts2 + 1) * dt:
         warnings.append(
             f"the robot's sound ends {self_end:.2f} s after the vocalization, after the"
@@ -163,12 +267,6 @@ def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
     return warnings
 
 
-def _rms_scaled(x: np.ndarray, level_db: float) -> np.ndarray:
-    """``x`` scaled to an RMS of ``level_db`` dB full scale."""
-    rms = math.sqrt(float(np.mean(x * x)))
-    return x * (10.0 ** (level_db / 20.0) / rms) if rms > 0 else x
-
-
 class RoomWindow(NamedTuple):
     """One window of the room's sound.
 
@@ -185,35 +283,94 @@ class RoomWindow(NamedTuple):
     partner_present: bool
 
 
+class _Sound(NamedTuple):
+    """A sound scheduled in the room: first sample (room samples), samples, its source."""
+
+    start: int
+    samples: np.ndarray
+    source: str
+
+
+class _SoundStream:
+    """A background source: sounds at random times from their own random stream.
+
+    ``first_gap()`` gives the start of the first sound (samples, may be negative: a
+    sound already under way at time 0); ``make()`` the next sound's parts as
+    ``(offset from its start in samples, samples)``; ``gap(parts)`` the samples from this
+    sound's start to the next one's.
+    """
+
+    def __init__(
+        self,
+        source: str,
+        first_gap: Callable[[], float],
+        make: Callable[[], list[tuple[int, np.ndarray]]],
+        gap: Callable[[list[tuple[int, np.ndarray]]], float],
+    ) -> None:
+        self.source = source
+        self.make = make
+        self.gap = gap
+        self.next_start = first_gap()
+        self.sounds = 0
+
+    def due(self, end: int) -> Iterator[_Sound]:
+        """The sounds that start before sample ``end`` and were not given out yet."""
+        while self.next_start < end:
+            parts = self.make()
+            start = int(self.next_start)
+            for offset, samples in parts:
+                yield _Sound(start + offset, samples, self.source)
+            self.sounds += 1
+            self.next_start += self.gap(parts)
+
+
 class FakeRoom:
     """The room's sound, window by window, reacting to the robot's vocalizations.
 
-    Deterministic for a given seed and sequence of vocalizations. The noise floor, the
-    background events and the partner's replies draw from separate random streams, so
-    the background is the same whatever the robot does.
+    Deterministic for a given seed and sequence of vocalizations. The noise floor, each
+    kind of background sound and the partner's replies draw from separate random
+    streams, so the background is the same whatever the robot does.
 
     Args:
         config: room parameters.
         seed: random seed.
+        meter: keep the energy of every source apart (:meth:`measured_levels_db`);
+            the room sounds the same with or without.
     """
 
-    def __init__(self, config: FakeRoomConfig, seed: int = 0) -> None:
+    def __init__(self, config: FakeRoomConfig, seed: int = 0, meter: bool = False) -> None:
         self.config = config
         self.rate = config.rate_hz
         self.window = window_samples(config.rate_hz, config.window_s)
-        noise, events, replies = np.random.SeedSequence(seed).spawn(3)
-        self._noise_rng = np.random.default_rng(noise)
-        self._event_rng = np.random.default_rng(events)
-        self._reply_rng = np.random.default_rng(replies)
+        streams = np.random.SeedSequence(seed).spawn(8)  # the first three: as ever
+        noise, events, replies, doors, steps, babble, tv, reverb = (
+            np.random.default_rng(stream) for stream in streams
+        )
+        self._event_rng = events
+        self._reply_rng = replies
         chirp = synthesize_chirp(self.rate, ROBOT_SOUND_S, amplitude=1.0)
-        self._chirp = _rms_scaled(chirp, config.self_level_db)
-        self._floor_rms = 10.0 ** (config.noise_floor_db / 20.0)
-        self._sounds: list[tuple[int, np.ndarray]] = []
-        self._next_event = self._event_gap()
+        self._chirp = rms_scaled(chirp, config.self_level_db)
+        self._echo = (
+            rms_scaled(
+                room_sounds.reverb_tail(chirp, config.reverb_rt60_s, self.rate, reverb),
+                config.reverb_level_db,
+            )
+            if config.reverb_rt60_s > 0
+            else None
+        )
+        self._partner_f0 = replies.uniform(100.0, 250.0) if config.reply_voice == "speech" else None
+        self._floor = NoiseFloor(config.floor_spectrum, config.noise_floor_db, noise)
+        self._sounds: list[_Sound] = []
+        self._streams = self._background_streams(events, doors, steps, babble, tv)
         self.windows_made = 0
         self.vocalizations = 0
         self.replies = 0
-        self.events = 0
+        self._meter: dict[str, list[float]] | None = {} if meter else None
+
+    @property
+    def events(self) -> int:
+        """Background events (knocks) so far."""
+        return self._streams[0].sounds
 
     def reconfigure(self, config: FakeRoomConfig) -> None:
         """Go on with new room parameters from the next window on.
@@ -247,17 +404,106 @@ class FakeRoom:
         """Room time of the start of the next window, seconds."""
         return self.windows_made * self.window / self.rate
 
-    def _event_gap(self) -> float:
-        """Samples until the next background event (inf when there are none)."""
-        if self.config.event_rate_hz == 0:
-            return math.inf
-        return self._event_rng.exponential(self.rate / self.config.event_rate_hz)
+    def _poisson_gap(self, rng: np.random.Generator, rate_hz: float) -> Callable[..., float]:
+        """Samples from one sound's start to the next one's: exponential, mean 1 / rate."""
+
+        def gap(*_: Any) -> float:
+            return math.inf if rate_hz == 0 else rng.exponential(self.rate / rate_hz)
+
+        return gap
+
+    def _background_streams(
+        self,
+        events: np.random.Generator,
+        doors: np.random.Generator,
+        steps: np.random.Generator,
+        babble: np.random.Generator,
+        tv: np.random.Generator,
+    ) -> list[_SoundStream]:
+        """Knocks (always first: :attr:`events`), doors, footsteps, each talker, the TV."""
+        config, rate = self.config, self.rate
+        knock_gap = self._poisson_gap(events, config.event_rate_hz)
+        streams = [_SoundStream("event", knock_gap, lambda: [(0, self._event())], knock_gap)]
+        if config.door_rate_hz > 0:
+            door_gap = self._poisson_gap(doors, config.door_rate_hz)
+
+            def door() -> list[tuple[int, np.ndarray]]:
+                return [(0, rms_scaled(room_sounds.door_slam(rate, doors), config.door_level_db))]
+
+            streams.append(_SoundStream("door", door_gap, door, door_gap))
+        if config.footsteps_rate_hz > 0:
+            walk_gap = self._poisson_gap(steps, config.footsteps_rate_hz)
+            streams.append(_SoundStream("footstep", walk_gap, lambda: self._walk(steps), walk_gap))
+        if config.babble_talkers > 0:
+            mean_on = 0.5 * sum(BABBLE_UTTERANCE_S)
+            duty = mean_on / (mean_on + BABBLE_PAUSE_MEAN_S)
+            level = config.babble_level_db - 10.0 * math.log10(config.babble_talkers * duty)
+            for _ in range(config.babble_talkers):
+                talker = np.random.default_rng(babble.integers(2**63))
+                streams.append(self._talker(talker, level))
+        if config.tv_on:
+            mean_on, mean_off = 0.5 * sum(TV_STRETCH_S), 0.5 * sum(TV_PAUSE_S)
+            duty = mean_on / (mean_on + mean_off)
+            streams.append(self._tv(tv, config.tv_level_db - 10.0 * math.log10(duty)))
+        return streams
+
+    def _excerpt(
+        self, rng: np.random.Generator, voice: np.ndarray, seconds: float, level: float
+    ) -> np.ndarray:
+        """``seconds`` of a voice of the speech bank at ``level`` dB FS."""
+        n = max(1, round(seconds * self.rate))
+        return rms_scaled(room_sounds.speech_excerpt(voice, n, self.rate, rng), level)
+
+    def _talker(self, rng: np.random.Generator, level: float) -> _SoundStream:
+        """A distant talker: utterances of :data:`BABBLE_UTTERANCE_S` with exponential pauses."""
+        bank = room_sounds.speech_bank(
+            self.rate, self.config.syllable_rate_hz, self.config.babble_cutoff_hz
+        )
+        voice = bank[int(rng.integers(len(bank)))]
+        low, high = BABBLE_UTTERANCE_S
+        cycle = (0.5 * (low + high) + BABBLE_PAUSE_MEAN_S) * self.rate
+
+        def utterance() -> list[tuple[int, np.ndarray]]:
+            return [(0, self._excerpt(rng, voice, rng.uniform(low, high), level))]
+
+        def gap(parts: list[tuple[int, np.ndarray]]) -> float:
+            return parts[0][1].size + rng.exponential(BABBLE_PAUSE_MEAN_S * self.rate)
+
+        return _SoundStream("babble", lambda: -rng.uniform(0.0, cycle), utterance, gap)
+
+    def _tv(self, rng: np.random.Generator, level: float) -> _SoundStream:
+        """The TV programme: stretches of :data:`TV_STRETCH_S`, pauses of :data:`TV_PAUSE_S`."""
+        bank = room_sounds.speech_bank(self.rate, self.config.syllable_rate_hz, TV_CUTOFF_HZ)
+        voice = bank[int(rng.integers(len(bank)))]
+
+        def stretch() -> list[tuple[int, np.ndarray]]:
+            return [(0, self._excerpt(rng, voice, rng.uniform(*TV_STRETCH_S), level))]
+
+        def gap(parts: list[tuple[int, np.ndarray]]) -> float:
+            return parts[0][1].size + rng.uniform(*TV_PAUSE_S) * self.rate
+
+        return _SoundStream(
+            "tv", lambda: -rng.uniform(0.0, TV_STRETCH_S[1] * self.rate), stretch, gap
+        )
+
+    def _walk(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
+        """Footsteps of one walk past the robot, each at ``footsteps_level_db``."""
+        count = int(rng.integers(FOOTSTEPS_PER_WALK[0], FOOTSTEPS_PER_WALK[1] + 1))
+        interval = rng.uniform(*FOOTSTEP_INTERVAL_S) * self.rate
+        level = self.config.footsteps_level_db
+        return [
+            (round(k * interval), rms_scaled(room_sounds.footstep(self.rate, rng), level))
+            for k in range(count)
+        ]
 
     def vocalize(self) -> bool:
         """The robot vocalizes at the start of the next window; True if the partner will reply."""
         start = self.windows_made * self.window
         self.vocalizations += 1
-        self._sounds.append((start + round(self.config.self_delay_s * self.rate), self._chirp))
+        sound_start = start + round(self.config.self_delay_s * self.rate)
+        self._sounds.append(_Sound(sound_start, self._chirp, "self"))
+        if self._echo is not None:
+            self._sounds.append(_Sound(sound_start, self._echo, "echo"))
         if not self.config.partner_present_at(self.now_s):
             return False
         if self._reply_rng.random() >= self.config.reply_probability:
@@ -266,21 +512,26 @@ class FakeRoom:
             self.config.reply_delay_min_s, self.config.reply_delay_max_s
         )
         length = self._reply_rng.uniform(self.config.reply_min_s, self.config.reply_max_s)
-        self._sounds.append((start + round(delay * self.rate), self._reply(length)))
+        self._sounds.append(_Sound(start + round(delay * self.rate), self._reply(length), "reply"))
         self.replies += 1
         return True
 
     def _reply(self, length_s: float) -> np.ndarray:
-        """Speech-like noise: syllables of raised-cosine envelope, with short gaps."""
+        """The partner's reply of ``length_s`` at ``reply_level_db`` (``reply_voice``)."""
+        if self._partner_f0 is not None:
+            n = max(1, round(length_s * self.rate))
+            voice = room_sounds.speech_like(
+                n, self.rate, self._reply_rng, self.config.syllable_rate_hz, self._partner_f0
+            )
+            return rms_scaled(voice, self.config.reply_level_db)
+        # noise: syllables of raised-cosine envelope, with short gaps
         n = max(1, round(length_s * self.rate))
         syllable = max(2, round(self.rate / self.config.syllable_rate_hz))
         t = np.arange(n) % syllable / syllable  # phase within the syllable, 0 .. 1
         envelope = np.where(t < 0.8, np.sin(np.pi * t / 0.8) ** 2, 0.0)
         loudness = self._reply_rng.uniform(0.6, 1.0, size=n // syllable + 1)
         envelope = envelope * np.repeat(loudness, syllable)[:n]
-        return _rms_scaled(
-            self._reply_rng.standard_normal(n) * envelope, self.config.reply_level_db
-        )
+        return rms_scaled(self._reply_rng.standard_normal(n) * envelope, self.config.reply_level_db)
 
     def _event(self) -> np.ndarray:
         """A background event: a noise burst with a fast attack and exponential decay."""
@@ -288,24 +539,32 @@ class FakeRoom:
         n = max(1, round(length * self.rate))
         envelope = np.exp(-np.arange(n) / (n / 3.0))
         burst = self._event_rng.standard_normal(n) * envelope
-        return _rms_scaled(burst, self.config.event_level_db)
+        return rms_scaled(burst, self.config.event_level_db)
 
     def next_window(self) -> RoomWindow:
         """The sound of the next window."""
         start = self.windows_made * self.window
         end = start + self.window
-        while self._next_event < end:
-            self._sounds.append((int(self._next_event), self._event()))
-            self.events += 1
-            self._next_event += self._event_gap()
-        x = self._noise_rng.standard_normal(self.window) * self._floor_rms
+        for stream in self._streams:
+            self._sounds.extend(stream.due(end))
+        x = self._floor.next(self.window)
+        if self._meter is not None:
+            self._measure("floor", x, self.window)
+            for source in ("babble", "tv"):  # continuous: every window counts
+                if self._has(source):
+                    self._measure(source, np.zeros(0), self.window)
         remaining = []
-        for sound_start, sound in self._sounds:
-            lo, hi = max(start, sound_start), min(end, sound_start + sound.size)
+        for sound in self._sounds:
+            sound_start, samples = sound.start, sound.samples
+            lo, hi = max(start, sound_start), min(end, sound_start + samples.size)
             if lo < hi:
-                x[lo - start : hi - start] += sound[lo - sound_start : hi - sound_start]
-            if sound_start + sound.size > end:
-                remaining.append((sound_start, sound))
+                part = samples[lo - sound_start : hi - sound_start]
+                x[lo - start : hi - start] += part
+                if self._meter is not None:
+                    continuous = sound.source in CONTINUOUS_SOURCES
+                    self._measure(sound.source, part, 0 if continuous else hi - lo)
+            if sound_start + samples.size > end:
+                remaining.append(sound)
         self._sounds = remaining
         window = RoomWindow(
             index=self.windows_made,
@@ -315,6 +574,32 @@ class FakeRoom:
         )
         self.windows_made += 1
         return window
+
+    def _has(self, source: str) -> bool:
+        """Does the room hold this continuous source."""
+        return self.config.babble_talkers > 0 if source == "babble" else self.config.tv_on
+
+    def _measure(self, source: str, part: np.ndarray, covered: int) -> None:
+        """Add a part of a source's sound (its energy) and the samples it covers."""
+        assert self._meter is not None
+        totals = self._meter.setdefault(source, [0.0, 0.0])
+        totals[0] += float(np.sum(part * part))
+        totals[1] += covered
+
+    def measured_levels_db(self) -> dict[str, float]:
+        """Level of every source heard so far, dB FS (needs ``meter=True``).
+
+        Transient sources: RMS over the samples their sounds covered (overlapping sounds
+        of one source count twice); continuous sources (floor, babble, TV): RMS over all
+        windows made.
+        """
+        if self._meter is None:
+            raise ValueError("the room keeps no levels: make it with meter=True")
+        return {
+            source: 10.0 * math.log10(energy / samples) if energy > 0 else -math.inf
+            for source, (energy, samples) in self._meter.items()
+            if samples > 0
+        }
 
 
 def as_transmitted(samples: np.ndarray) -> np.ndarray:

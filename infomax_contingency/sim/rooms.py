@@ -18,6 +18,28 @@ named backgrounds of the efficiency experiment: background activity
 partner makes an agent-period window active with :data:`PARTNER_REPLY` on top of the
 background.
 
+The same names, and ``tv-on``, are also rooms that sound like rooms
+(:data:`ROOM_SOUNDS`, the sources of :mod:`infomax_contingency.sim.fake_room`), each
+with the partner absent (``NAME``), present (``NAME+partner``), arriving
+(``NAME+arriving``) or leaving (``NAME+leaving``) :data:`ROOM_CHANGE_S` seconds into the
+room; ``tv-on`` and the arriving and leaving rooms exist at the audio level only (family
+``audio``). Their levels, dB FS (RMS over each sound's duration; floor, babble and TV
+over all time, pauses included):
+
+============== ====== ======== ==== ====== ===== ========= ===== =========
+room           floor  babble   TV   knocks doors footsteps chirp echo/RT60
+============== ====== ======== ==== ====== ===== ========= ===== =========
+quiet          -60 p  --       --   -35    --    --        -20   -38/0.3 s
+office         -50 h  -45 x 2  --   -32    -22   -40       -20   -34/0.5 s
+poster-session -45 p  -30 x 12 --   -30    --    -36       -20   -32/0.6 s
+tv-on          -55 p  --       -33  -32    --    -40       -20   -36/0.4 s
+============== ====== ======== ==== ====== ===== ========= ===== =========
+
+(p: pink floor, h: hvac floor; babble: long-term level x talkers.) The partner's replies
+are speech-like (``reply_voice`` ``speech``) at -26 dB (-24 dB in the poster session,
+where people speak up), answering 90 % of vocalizations 1.0 .. 1.4 s after them, for
+0.6 .. 1.0 s: inside the agent period of the ``robot`` parameters.
+
 This module holds data only (no I/O, no randomness).
 """
 
@@ -28,8 +50,9 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any, Literal
 
-RoomFamily = Literal["prior", "baby9", "rates"]
-"""How a room's bits are made: drawn from the priors, the baby-9 scenario, fixed rates."""
+RoomFamily = Literal["prior", "baby9", "rates", "audio"]
+"""How a room's bits are made: drawn from the priors, the baby-9 scenario, fixed rates;
+``audio``: a room that exists at the audio level only (its bits come from its sound)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +78,9 @@ class RoomKind:
         name: the name used on command lines and in parameters.
         summary: one line saying what the room is.
         family: how its bits are made (see :data:`RoomFamily`).
-        partner_present: the true S; ``None`` when drawn (``prior``).
+        partner_present: the true S; ``None`` when drawn (``prior``) or when it changes
+            during the run (a partner arriving or leaving: see the audio preset's
+            ``partner_arrive_s`` and ``partner_leave_s``).
         rates: default rates of a ``rates`` room (options ``k1``, ``k3`` and, with a
             partner, ``k2`` override them); ``None`` for the other families.
         audio: the :class:`~infomax_contingency.sim.fake_room.FakeRoomConfig` fields of
@@ -76,6 +101,8 @@ class RoomKind:
             return ("pi",)
         if self.family == "baby9":
             return ("reply",)
+        if self.family == "audio":
+            return ()
         return ("k1", "k2", "k3") if self.partner_present else ("k1", "k3")
 
 
@@ -113,6 +140,139 @@ def _named_background_rooms() -> list[RoomKind]:
             )
         )
     return kinds
+
+
+ROOM_CHANGE_S = 20.0
+"""Room time at which the partner of an ``+arriving`` room arrives, or of a ``+leaving``
+room leaves, seconds."""
+
+PARTNER_STATES = ("", "+partner", "+arriving", "+leaving")
+"""Suffixes of an audio room's name: partner absent, present, arriving, leaving."""
+
+_SPEECH_REPLY = {"reply_voice": "speech", "reply_level_db": -26.0}
+_NOTHING_ELSE = {"event_rate_hz": 0.0, "door_rate_hz": 0.0, "footsteps_rate_hz": 0.0}
+
+ROOM_SOUNDS: Mapping[str, Mapping[str, Any]] = MappingProxyType(
+    {
+        "quiet": MappingProxyType(
+            {
+                **_NOTHING_ELSE,
+                **_SPEECH_REPLY,
+                "floor_spectrum": "pink",
+                "noise_floor_db": -60.0,
+                "event_rate_hz": 0.02,
+                "event_level_db": -35.0,
+                "reverb_rt60_s": 0.3,
+                "reverb_level_db": -38.0,
+            }
+        ),
+        "office": MappingProxyType(
+            {
+                **_NOTHING_ELSE,
+                **_SPEECH_REPLY,
+                "floor_spectrum": "hvac",
+                "noise_floor_db": -50.0,
+                "babble_talkers": 2,
+                "babble_level_db": -45.0,
+                "babble_cutoff_hz": 1000.0,
+                "event_rate_hz": 0.05,
+                "event_level_db": -32.0,
+                "door_rate_hz": 0.01,
+                "door_level_db": -22.0,
+                "footsteps_rate_hz": 0.03,
+                "footsteps_level_db": -40.0,
+                "reverb_rt60_s": 0.5,
+                "reverb_level_db": -34.0,
+            }
+        ),
+        "poster-session": MappingProxyType(
+            {
+                **_NOTHING_ELSE,
+                **_SPEECH_REPLY,
+                "reply_level_db": -24.0,
+                "floor_spectrum": "pink",
+                "noise_floor_db": -45.0,
+                "babble_talkers": 12,
+                "babble_level_db": -30.0,
+                "babble_cutoff_hz": 1500.0,
+                "event_rate_hz": 0.1,
+                "event_level_db": -30.0,
+                "footsteps_rate_hz": 0.1,
+                "footsteps_level_db": -36.0,
+                "reverb_rt60_s": 0.6,
+                "reverb_level_db": -32.0,
+            }
+        ),
+        "tv-on": MappingProxyType(
+            {
+                **_NOTHING_ELSE,
+                **_SPEECH_REPLY,
+                "floor_spectrum": "pink",
+                "noise_floor_db": -55.0,
+                "tv_on": True,
+                "tv_level_db": -33.0,
+                "event_rate_hz": 0.03,
+                "event_level_db": -32.0,
+                "footsteps_rate_hz": 0.02,
+                "footsteps_level_db": -40.0,
+                "reverb_rt60_s": 0.4,
+                "reverb_level_db": -36.0,
+            }
+        ),
+    }
+)
+"""The sound of each audio room's background (fields of
+:class:`~infomax_contingency.sim.fake_room.FakeRoomConfig`; levels in the module
+docstring's table). The partner's presence is added per :data:`PARTNER_STATES`."""
+
+_PARTNER_TIMES = {
+    "": {"partner_arrive_s": -1.0, "partner_leave_s": -1.0},
+    "+partner": {"partner_arrive_s": 0.0, "partner_leave_s": -1.0},
+    "+arriving": {"partner_arrive_s": ROOM_CHANGE_S, "partner_leave_s": -1.0},
+    "+leaving": {"partner_arrive_s": 0.0, "partner_leave_s": ROOM_CHANGE_S},
+}
+
+
+def audio_preset(background: str, state: str) -> Mapping[str, Any]:
+    """The audio preset of ``background`` (a key of :data:`ROOM_SOUNDS`) in a partner state."""
+    return MappingProxyType({**ROOM_SOUNDS[background], **_PARTNER_TIMES[state]})
+
+
+def _with_sound(kind: RoomKind) -> RoomKind:
+    """A named-background room with its audio preset."""
+    background, plus, state = kind.name.partition("+")
+    return dataclasses.replace(kind, audio=audio_preset(background, plus + state))
+
+
+def _audio_only_rooms() -> list[RoomKind]:
+    """``tv-on`` (and ``+partner``) and every background's ``+arriving`` / ``+leaving``."""
+    what = {
+        "": "nobody answers",
+        "+partner": "a partner answers",
+        "+arriving": f"a partner arrives at {ROOM_CHANGE_S:g} s and answers",
+        "+leaving": f"a partner answers, then leaves at {ROOM_CHANGE_S:g} s",
+    }
+    kinds = []
+    for background in ROOM_SOUNDS:
+        for state in PARTNER_STATES:
+            if background in NAMED_BACKGROUNDS and state in ("", "+partner"):
+                continue  # a bit room too: _named_background_rooms
+            partner = {"": False, "+partner": True}.get(state)
+            kinds.append(
+                RoomKind(
+                    background + state,
+                    f"{what[state]}; audio only, the {background} sound",
+                    "audio",
+                    partner,
+                    audio=audio_preset(background, state),
+                )
+            )
+    return kinds
+
+
+def audio_room_names(background: str) -> tuple[str, ...]:
+    """The audio rooms of one background, in :data:`PARTNER_STATES` order."""
+    return tuple(background + state for state in PARTNER_STATES)
 
 
 def _registry(kinds: list[RoomKind]) -> Mapping[str, RoomKind]:
@@ -157,7 +317,8 @@ ROOMS: Mapping[str, RoomKind] = _registry(
             "baby9",
             True,
         ),
-        *_named_background_rooms(),
+        *(_with_sound(kind) for kind in _named_background_rooms()),
+        *_audio_only_rooms(),
     ]
 )
 """Every named room, in the order commands list them."""
@@ -167,6 +328,11 @@ ROOM_NAMES: tuple[str, ...] = tuple(ROOMS)
 
 AUDIO_ROOM_NAMES: tuple[str, ...] = tuple(name for name, kind in ROOMS.items() if kind.audio)
 """The rooms that have an audio-level preset."""
+
+BIT_ROOM_NAMES: tuple[str, ...] = tuple(
+    name for name, kind in ROOMS.items() if kind.family != "audio"
+)
+"""The rooms that exist at the bit level (``simulate``, the bit-level experiments)."""
 
 
 def room_kind(name: str) -> RoomKind:

@@ -15,6 +15,9 @@ command line as ``NAME`` or ``NAME:key=value,...`` with a name of the registry
 * ``quiet``, ``office``, ``poster-session`` (each also ``+partner``) — the named
   backgrounds of the efficiency experiment (``k1``, ``k3`` and with a partner ``k2``
   may be overridden).
+
+The registry's ``audio`` rooms (``tv-on``, the ``+arriving`` and ``+leaving`` rooms) have
+no bit-level form; :func:`make_room` refuses them, naming where they are used.
 """
 
 from __future__ import annotations
@@ -24,9 +27,15 @@ import dataclasses
 import numpy as np
 
 from infomax_contingency.core.model import AGENT, BACKGROUND, SELF, ModelParams, period_of
-from infomax_contingency.sim.rooms import NAMED_BACKGROUNDS, ROOM_NAMES, RoomKind, room_kind
+from infomax_contingency.sim.rooms import (
+    BIT_ROOM_NAMES,
+    NAMED_BACKGROUNDS,
+    ROOM_NAMES,
+    RoomKind,
+    room_kind,
+)
 
-__all__ = ["ROOM_NAMES", "Room", "make_room", "named_room", "room_from_rates"]
+__all__ = ["BIT_ROOM_NAMES", "ROOM_NAMES", "Room", "make_room", "named_room", "room_from_rates"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,6 +131,11 @@ def make_room(spec: str, params: ModelParams, rng: np.random.Generator) -> Room:
     """Parse a room specification (see the module docstring); draws from ``rng`` for prior."""
     name, options = _parse_options(spec)
     kind = room_kind(name)
+    if kind.family == "audio":
+        raise ValueError(
+            f"room {name!r} exists only as sound (fake_audio_node, experiment rooms, room-wav);"
+            f" bit-level rooms: {', '.join(BIT_ROOM_NAMES)}"
+        )
     unknown = sorted(set(options) - set(kind.options))
     if unknown:
         raise ValueError(f"room {spec!r}: unknown option(s) {unknown}")

@@ -1,0 +1,153 @@
+"""Experiment ``rooms`` (audio rooms to posture), ``room-wav`` and the actions file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from infomax_contingency.audio.wav import read_wav
+from infomax_contingency.cli.main import main
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.eval.rooms import (
+    RoomsConfig,
+    controller_specs,
+    experiment_rooms,
+    make_binarizer,
+    room_seed,
+    run_room,
+    settled_step,
+)
+from infomax_contingency.sim.actions import read_actions_csv, write_actions_csv
+
+ROBOT = ModelParams.named("robot")
+SMALL = {"backgrounds": ("quiet",), "binarizer": "fixed:-40", "seconds": 30.0, "jobs": 1}
+
+
+def test_settled_step_needs_a_correct_posture_to_the_end() -> None:
+    partner = np.array([True] * 6)
+    beliefs = np.array([0.01, 0.5, 0.95, 0.6, 0.95, 0.97])
+    attentive = np.array([False, False, True, False, True, True])
+    assert settled_step(attentive, partner, beliefs, 0.2, 0) == 4
+    assert settled_step(attentive[:4], partner[:4], beliefs[:4], 0.2, 0) is None
+    # nobody there: bored is correct, but only once the belief fell below bored_below
+    empty = np.zeros(5, dtype=bool)
+    assert settled_step(empty, empty, np.array([0.3, 0.25, 0.1, 0.3, 0.1]), 0.2, 0) == 2
+    assert settled_step(empty, empty, np.full(5, 0.3), 0.2, 0) is None
+    # counted from the change (a partner leaving at step 2)
+    left = np.array([True, True, False, False, False])
+    was_attentive = np.array([True, True, True, False, False])
+    beliefs = np.array([0.95, 0.95, 0.5, 0.1, 0.05])
+    assert settled_step(was_attentive, left, beliefs, 0.2, 2) == 3
+
+
+def test_experiment_detects_the_partner_and_measures_the_bits() -> None:
+    config = RoomsConfig(runs=2, controllers=("optimal", "fixed"), **SMALL)
+    result = experiment_rooms(config)
+    assert result["rooms"] == ["quiet", "quiet+partner", "quiet+arriving", "quiet+leaving"]
+    optimal = result["summaries"]["optimal receding H=24 M=60"]
+    with_partner = optimal["quiet+partner"]
+    assert with_partner["settled"] > 0 and with_partner["wrong_at_end"] < 1
+    bits = with_partner["p_active"]
+    assert bits["agent"]["p"] > 0.4 > 0.1 > bits["background"]["p"], bits
+    assert optimal["quiet"]["false_attentive"] == 0 and optimal["quiet"]["missed_partner"] == 0
+    assert optimal["quiet"]["p_active"]["agent"]["windows"] == 0, "no partner: no agent windows"
+    curve = result["operating_curves"]["fixed K=8"]["quiet"][repr(ROBOT.pi)]
+    assert [point["attentive_above"] for point in curve] == list(config.curve_thresholds)
+    # a lower threshold never settles later (the posture turns attentive no later)
+    medians = [point["settled_s_median"] for point in curve]
+    assert medians == sorted(medians)
+    json.dumps(result)  # plain data
+
+
+def test_every_controller_hears_the_same_room_and_runs_are_reproducible() -> None:
+    specs = dict(controller_specs(ROBOT, ["optimal", "random"]))
+    runs = {
+        label: run_room(ROBOT, "office+partner", spec, "fixed:-40", 10.0, 4, 2, 60)
+        for label, spec in specs.items()
+    }
+    first = [run.energy_db[0] for run in runs.values()]
+    assert first[0] == first[1], "the same room before the robot has done anything"
+    again = run_room(ROBOT, "office+partner", specs["random P=1/8"], "fixed:-40", 10.0, 4, 2, 60)
+    assert np.array_equal(again.belief, runs["random P=1/8"].belief)
+    assert room_seed(4, "office+partner", 2) != room_seed(4, "office+partner", 3)
+    assert room_seed(4, "office", 2) != room_seed(4, "office+partner", 2)
+
+
+def test_calibrating_binarizer_takes_room_time_without_steps() -> None:
+    spec = controller_specs(ROBOT, ["fixed"])[0][1]
+    run = run_room(ROBOT, "office+partner", spec, "calibrate:5", 20.0, 0, 0, 60)
+    assert run.window.size == 0 or run.window[0] >= 10  # 5 s of calibration: 10 windows
+    assert run.window.size <= 40 - 10
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"binarizer": "vad"}, "unknown binarizer 'vad'; binarizers: calibrate"),
+        ({"binarizer": "fixed"}, "fixed:DB"),
+        ({"binarizer": "fixed:loud"}, "bad number"),
+        ({"backgrounds": ("kitchen",)}, "unknown room 'kitchen'"),
+        ({"controllers": ("greedy",)}, "controllers"),
+        ({"runs": 0}, "runs"),
+        ({"seed": -1}, "seed"),
+        ({"seconds": 10.0}, "seconds"),
+        ({"attentive_above": 0.1}, "attentive_above"),
+        ({"curve_priors": (0.0,)}, "curve_priors"),
+    ],
+)
+def test_bad_settings_are_refused(changes: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        RoomsConfig(**{**SMALL, **changes})
+
+
+def test_binarizer_factory() -> None:
+    assert make_binarizer("fixed:-35", 0.5).threshold_db == -35.0
+    calibrating = make_binarizer("calibrate", 0.5)
+    assert calibrating.calibrating and calibrating.calibration_windows == 20
+
+
+def test_command_prints_json_and_refuses_bad_input(capsys, tmp_path: Path) -> None:
+    out = tmp_path / "rooms.json"
+    argv = ["experiment", "rooms", "--runs", "1", "--seconds", "25", "--rooms", "quiet"]
+    argv += ["--controllers", "fixed", "--binarizer", "fixed:-40", "--jobs", "1"]
+    assert main([*argv, "--json", "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["experiment"] == "rooms"
+    assert json.loads(out.read_text())["rooms"] == printed["rooms"]
+    assert main([*argv, "--binarizer", "vad"]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "unknown binarizer" in error
+
+
+def test_room_wav_writes_the_sound_and_its_actions(capsys, tmp_path: Path) -> None:
+    wav = tmp_path / "quiet.wav"
+    argv = ["room-wav", "quiet+partner", "--seconds", "6", "--seed", "3", "--out", str(wav)]
+    assert main([*argv, "--controller", "fixed:4", "--binarizer", "fixed:-40"]) == 0
+    samples, rate = read_wav(wav)
+    assert rate == 16000 and samples.size == 6 * 16000
+    # decisions after steps 4, 8 (and 12, played after the end): commanded at 2 s and 4 s
+    assert read_actions_csv(tmp_path / "quiet.csv") == [2.0, 4.0]
+    loud = np.abs(samples[round(2.15 * rate) : round(2.35 * rate)]).max()
+    assert loud > 10 * np.abs(samples[round(1.6 * rate) : round(1.9 * rate)]).max()
+    assert main([*argv[:-1], str(tmp_path / "quiet.mp3")]) == 2
+    assert "must end in .wav" in capsys.readouterr().err
+
+
+def test_actions_file_round_trip_and_bad_files(tmp_path: Path) -> None:
+    path = tmp_path / "a.csv"
+    write_actions_csv(path, [0.5, 3.0, 4.5])
+    assert read_actions_csv(path) == [0.5, 3.0, 4.5]
+    with pytest.raises(ValueError, match="increasing"):
+        write_actions_csv(path, [1.0, 1.0])
+    for text, message in [
+        ("t\n1.0\n", "header"),
+        ("time_s\n1.0\nsoon\n", "line 3"),
+        ("time_s\n2.0\n1.0\n", "later than"),
+        ("time_s\nnan\n", "finite"),
+    ]:
+        path.write_text(text)
+        with pytest.raises(ValueError, match=message):
+            read_actions_csv(path)
