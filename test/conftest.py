@@ -4,9 +4,10 @@ This runs before any test module is imported, so before anything imports rclpy. 
 processes started by tests inherit the environment set here.
 """
 
-import hashlib
+import fcntl
 import os
 import random
+import tempfile
 
 import pytest
 
@@ -14,22 +15,33 @@ import pytest
 #: 0 (the default every other ROS program uses) is left out.
 _DOMAIN_RANGE = (1, 200)
 
+_DOMAIN_LOCKS: list[int] = []
+"""Open lock files of the domain ids this process holds (kept open until it exits)."""
 
 
 def _run_domain_id() -> int:
-    """A fresh domain id per run, so that test runs in parallel do not hear each other.
+    """A domain id that no other test process on this machine holds.
 
-    Under pytest-xdist every worker process imports this file: the workers of one run
-    share a random base (from the run's id) and add their worker number to it, so two
-    workers of one run never share a domain.
+    Every test process (each pytest-xdist worker too) takes an exclusive lock on a file
+    per domain id, tried in random order; the lock lasts as long as the process. Two
+    test runs at once (two checkouts, two users) then never share a domain and never
+    hear each other's nodes.
     """
     low, high = _DOMAIN_RANGE
-    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID", "")
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
-    if not run_id or not worker.removeprefix("gw").isdigit():
-        return random.SystemRandom().randint(low, high)
-    base = int(hashlib.sha256(run_id.encode()).hexdigest(), 16)
-    return low + (base + int(worker.removeprefix("gw"))) % (high - low + 1)
+    ids = list(range(low, high + 1))
+    random.SystemRandom().shuffle(ids)
+    directory = os.path.join(tempfile.gettempdir(), "infomax_contingency-domains")
+    os.makedirs(directory, exist_ok=True)
+    for domain_id in ids:
+        fd = os.open(os.path.join(directory, f"{domain_id}.lock"), os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        _DOMAIN_LOCKS.append(fd)
+        return domain_id
+    raise pytest.UsageError(f"every ROS domain id {low}..{high} is held by another test run")
 
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

@@ -131,8 +131,18 @@ class FaultGraph:
                 if sent > published_after_ns]  # fmt: skip
 
 
+UDP_ONLY = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+"""Fast DDS over UDP loopback only, no shared memory: a process killed with SIGKILL can
+leave its peers' shared-memory transport stalled (eProsima/Fast-DDS#5469; seen here as a
+test process that stopped receiving /diagnostics after a kill). The restart test kills."""
+
+
 @pytest.fixture
-def graph(tmp_path: Path) -> Iterator[FaultGraph]:
+def graph(tmp_path: Path, request: pytest.FixtureRequest,
+          monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:  # fmt: skip
+    if request.node.get_closest_marker("kills_nodes"):
+        for name, value in UDP_ONLY.items():
+            monkeypatch.setenv(name, value)  # this process and the nodes it starts
     rclpy.init()
     recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
     probe = Probe()
@@ -284,7 +294,7 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGrap
     assert int(values["foreign_messages"]) > 2000
 
 
-@pytest.mark.unreliable  # under load the restarted belief sometimes lacks many steps
+@pytest.mark.kills_nodes
 def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     graph: FaultGraph,
 ) -> None:
