@@ -291,6 +291,19 @@ class _Sound(NamedTuple):
     source: str
 
 
+_LIVE_FIELDS = frozenset({
+    "noise_floor_db", "event_rate_hz", "event_level_db", "event_min_s", "event_max_s",
+    "self_delay_s", "self_level_db", "partner_arrive_s", "partner_leave_s",
+    "reply_probability", "reply_level_db", "reply_delay_min_s", "reply_delay_max_s",
+    "reply_min_s", "reply_max_s", "syllable_rate_hz",
+})
+"""Fields of :class:`FakeRoomConfig` that :meth:`FakeRoom.reconfigure` may change."""
+
+_FIXED_WHILE_RUNNING = tuple(
+    field.name for field in dataclasses.fields(FakeRoomConfig) if field.name not in _LIVE_FIELDS
+)
+
+
 class _SoundStream:
     """A background source: sounds at random times from their own random stream.
 
@@ -375,17 +388,19 @@ class FakeRoom:
     def reconfigure(self, config: FakeRoomConfig) -> None:
         """Go on with new room parameters from the next window on.
 
-        ``rate_hz`` and ``window_s`` must stay (the windows already made keep their
-        timing). Levels, the partner's schedule and reply parameters apply to what
-        happens from now on: sounds already playing or scheduled (a reply on its way)
-        play as they were made. A new ``event_rate_hz`` draws the next background event
-        afresh from the start of the next window (exact for a Poisson process).
-        Deterministic: the same changes at the same windows give the same room.
+        Live: the levels of the floor, the knocks, the robot's chirp and the partner's
+        replies, the knocks' rate and lengths, the partner's schedule and reply
+        parameters. They apply to what happens from now on: sounds already playing or
+        scheduled (a reply on its way) play as they were made. A new ``event_rate_hz``
+        draws the next knock afresh from the start of the next window (exact for a
+        Poisson process). Deterministic: the same changes at the same windows give the
+        same room. The other fields (timing, the floor's spectrum, the background
+        sources a preset sets up: talkers, TV, doors, footsteps, echo) must stay.
 
         Raises:
-            ValueError: ``rate_hz`` or ``window_s`` differs from the room's.
+            ValueError: a field that must stay differs from the room's.
         """
-        for name in ("rate_hz", "window_s"):
+        for name in _FIXED_WHILE_RUNNING:
             if getattr(config, name) != getattr(self.config, name):
                 raise ValueError(
                     f"room parameter {name} cannot change while the room runs"
@@ -394,10 +409,12 @@ class FakeRoom:
         old, self.config = self.config, config
         if config.self_level_db != old.self_level_db:
             chirp = synthesize_chirp(self.rate, ROBOT_SOUND_S, amplitude=1.0)
-            self._chirp = _rms_scaled(chirp, config.self_level_db)
-        self._floor_rms = 10.0 ** (config.noise_floor_db / 20.0)
+            self._chirp = rms_scaled(chirp, config.self_level_db)
+        self._floor.rms = 10.0 ** (config.noise_floor_db / 20.0)
         if config.event_rate_hz != old.event_rate_hz:
-            self._next_event = self.windows_made * self.window + self._event_gap()
+            knocks = self._streams[0]
+            knocks.gap = self._poisson_gap(self._event_rng, config.event_rate_hz)
+            knocks.next_start = self.windows_made * self.window + knocks.gap()
 
     @property
     def now_s(self) -> float:
