@@ -82,13 +82,14 @@ def _graph(args: argparse.Namespace, steps: int) -> tuple[argparse.Namespace,
     run = argparse.Namespace(
         steps=steps, seed=args.seed, room="responsive", leave_at=-1.0, memory=60, wav=None,
         calibration_s=args.calibration_s, record=args.out,
-        no_record_audio=args.no_record_audio,
+        no_record_audio=args.no_record_audio, bit_source="energy",
     )
     nodes, clock = demo._nodes(run)
-    nodes["controller_node"] = {
-        "controller": f"interval:{args.min_interval_s:g}-{args.max_interval_s:g}"}
+    controller = nodes["controller_node"]
+    controller["controller"] = f"interval:{args.min_interval_s:g}-{args.max_interval_s:g}"
     if not args.fake_room:
         del nodes["fake_audio_node"]
+        controller["wait_for_listeners"] -= 1  # no room hears the decisions
         threshold = ({"threshold_mode": "file", "threshold_file": args.threshold_file}
                      if args.threshold_file else
                      {"threshold_mode": "calibrate", "calibration_s": args.calibration_s})
