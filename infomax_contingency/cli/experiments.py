@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -24,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from infomax_contingency.cli.formatting import json_default, number
 from infomax_contingency.cli.rooms import add_experiment_rooms_arguments, run_experiment_rooms
 from infomax_contingency.core import learning
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
@@ -71,23 +71,7 @@ def _step_range(text: str) -> tuple[int, int]:
 
 
 def _dump(result: Any) -> None:
-    print(json.dumps(result, indent=1, default=_json_default))
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"cannot write {type(value).__name__} as JSON")
-
-
-def _number(value: float | None, digits: int = 3) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    if isinstance(value, float) and math.isinf(value):
-        return "never"
-    return f"{value:.{digits}g}"
+    print(json.dumps(result, indent=1, default=json_default))
 
 
 def _cache_dir(args: argparse.Namespace) -> Path | None:
@@ -136,7 +120,7 @@ def _run_baby9(args: argparse.Namespace) -> int:
             run["ratio_at_vocalization"],
             strict=True,
         ):
-            print(f"  {step:>4} {when:>7.1f} {belief:>10.6f} {_number(ratio, 4):>8}")
+            print(f"  {step:>4} {when:>7.1f} {belief:>10.6f} {number(ratio, 4):>8}")
         intervals = ", ".join(f"{i:g}" for i in run["intervals_s"])
         print(f"  intervals (s): {intervals}")
         print(f"  final P(S=1) = {run['final_belief']:.10f}")
@@ -244,7 +228,7 @@ def _run_horizon(args: argparse.Namespace) -> int:
         for item in entry["horizons"]:
             print(
                 f"  {item['horizon']:>4} {item['vocalizing_statistics']:>9}"
-                f" {_number(item['differs_from_previous'])!s:>8}"
+                f" {number(item['differs_from_previous'])!s:>8}"
                 f" {item['differs_from_largest_listed']:>8} {item['differs_from_longest']:>8}"
             )
         print(
@@ -281,7 +265,7 @@ def _run_efficiency(args: argparse.Namespace) -> int:
 
 
 def _ci(pair: Any, digits: int = 3) -> str:
-    return f"[{_number(pair[0], digits)}, {_number(pair[1], digits)}]"
+    return f"[{number(pair[0], digits)}, {number(pair[1], digits)}]"
 
 
 def _print_prior_rooms(result: dict) -> None:
@@ -336,8 +320,8 @@ def _print_named_rooms(result: dict) -> None:
         for room in rooms:
             r = summaries[label][room]
             cells.append(
-                f"{_number(r['detection_s_median'])} s {_ci(r['detection_s_ci'])}"
-                f" {_number(r['detection_vocalizations_median'])} voc"
+                f"{number(r['detection_s_median'])} s {_ci(r['detection_s_ci'])}"
+                f" {number(r['detection_vocalizations_median'])} voc"
             )
         print(f"{label:28}" + "".join(f" {cell:>30}" for cell in cells))
 
@@ -359,11 +343,11 @@ def _print_own_belief(result: dict) -> None:
     for label in result["receding_memories"]:
         s = summaries[label]
         cells = [
-            f"{_number(s[room]['own_detection_s_median'])} s ({s[room]['own_detected']:.0%})"
+            f"{number(s[room]['own_detection_s_median'])} s ({s[room]['own_detected']:.0%})"
             for room in rooms
         ]
         switches = [
-            f"{_number(s[g]['switch_response_s_median'])} s {_ci(s[g]['switch_response_s_ci'])}"
+            f"{number(s[g]['switch_response_s_median'])} s {_ci(s[g]['switch_response_s_ci'])}"
             for g in ("partner leaves", "partner arrives")
         ]
         print(

@@ -15,9 +15,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from infomax_contingency.audio.wav import write_wav_int16
+from infomax_contingency.cli.formatting import json_default, number
 from infomax_contingency.eval import plots
 from infomax_contingency.eval import rooms as evaluation
 from infomax_contingency.sim.actions import write_actions_csv
@@ -37,27 +36,11 @@ def _floats(text: str) -> tuple[float, ...]:
         ) from None
 
 
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"cannot write {type(value).__name__} as JSON")
-
-
-def _number(value: float | None, digits: int = 3) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    if isinstance(value, float) and math.isinf(value):
-        return "never"
-    return f"{value:.{digits}g}"
-
-
 def _median_ci(median: float, ci: Any, unit: str = "") -> str:
     if math.isinf(median):
         return "not settled"
-    high = "-" if math.isinf(ci[1]) else _number(ci[1])
-    return f"{_number(median)}{unit} [{_number(ci[0])}, {high}]"
+    high = "-" if math.isinf(ci[1]) else number(ci[1])
+    return f"{number(median)}{unit} [{number(ci[0])}, {high}]"
 
 
 def _percent(value: float) -> str:
@@ -116,7 +99,7 @@ def print_rooms(result: dict) -> None:
         for background, per_prior in result["operating_curves"][label].items():
             for pi, points in per_prior.items():
                 cells = "".join(
-                    f" {_number(p['settled_s_median']):>6}/{_percent(p['false_alarm']):>6}"
+                    f" {number(p['settled_s_median']):>6}/{_percent(p['false_alarm']):>6}"
                     for p in points
                 )
                 print(f"  {label[:22]:<22} {background:<15} pi={float(pi):<5g}{cells}")
@@ -146,7 +129,7 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
     runs = config.runs * len(result["rooms"]) * len(result["controllers"])
     result["seconds"] = elapsed
     result["runs_per_s"] = runs / elapsed
-    text = json.dumps(result, indent=1, default=_json_default)
+    text = json.dumps(result, indent=1, default=json_default)
     if args.out:
         try:
             Path(args.out).write_text(text + "\n")

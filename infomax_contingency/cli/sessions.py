@@ -33,12 +33,12 @@ from infomax_contingency.eval.sessions import (
     decisions_from_reference,
     decisions_from_times,
     load_session,
-    read_action_times,
     recorded_bits,
     replay_bits,
     replay_recorded,
     wav_bits,
 )
+from infomax_contingency.sim.actions import read_actions_csv
 from infomax_contingency.sim.simulation import RunSummary
 
 ACTION_KINDS = ("recorded", "policy:FILE", "rule[:C]", "FILE.csv", "channel:N")
@@ -149,7 +149,7 @@ def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams) -> tu
         what = f"controller {controller.name} deciding on the recorded bits (what-if)"
     else:
         if kind == "csv":
-            times = read_action_times(Path(args.actions))
+            times = read_actions_csv(Path(args.actions))
             decisions = decisions_from_times(times, len(bits), params.dt,
                                              f"actions file {args.actions}")
             what = f"actions from {args.actions}"

@@ -696,8 +696,11 @@ def _load_table(path: str, params: ModelParams) -> PolicyTable:
     return PolicyTable.load(path, expected_params=params)
 
 
-def _controller(spec: str, params: ModelParams, rng: np.random.Generator) -> Controller:
-    """A controller; policy tables are read once per process."""
+def experiment_controller(spec: str, params: ModelParams, rng: np.random.Generator) -> Controller:
+    """A controller from its spec (``make_controller``'s, or ``policy:FILE``).
+
+    Policy tables are read once per process.
+    """
     kind, _, argument = spec.partition(":")
     if kind == "policy":
         return PolicyController(_load_table(argument, params))
@@ -797,7 +800,8 @@ def _simulate_rooms(
         for entry in entries:
             room = efficiency_room(params, spec, np.random.default_rng([seed, 0, index]))
             rng = np.random.default_rng([seed, 1, index])
-            records = simulate(params, _controller(entry.spec, params, rng), room, steps, rng)
+            controller = experiment_controller(entry.spec, params, rng)
+            records = simulate(params, controller, room, steps, rng)
             metrics = run_metrics(params, records, room, entry.memory, checkpoints, confident)
             results.append(
                 {

@@ -56,8 +56,8 @@ from infomax_contingency.core.model import (
 from infomax_contingency.core.policy_table import RECEDING
 from infomax_contingency.core.posture import ATTENTIVE, PostureHysteresis
 from infomax_contingency.eval.experiments import (
-    _controller,
     bootstrap_median,
+    experiment_controller,
     obtain_table,
     wilson_interval,
 )
@@ -309,7 +309,8 @@ def run_room(
     """One run of ``controller_spec`` in ``room`` for ``seconds`` of room time."""
     config = FakeRoomConfig.preset(room)
     fake_room = FakeRoom(config, room_seed(seed, room, run))
-    controller = _controller(controller_spec, params, np.random.default_rng([seed, 1, run]))
+    rng = np.random.default_rng([seed, 1, run])
+    controller = experiment_controller(controller_spec, params, rng)
     world = TimedWorld(
         AudioWorld(fake_room, make_binarizer(binarizer, config.window_s)),
         round(seconds / config.window_s),
@@ -672,7 +673,7 @@ def render_room(
         if controller in CONTROLLER_NAMES
         else controller
     )
-    chosen = _controller(spec, params, np.random.default_rng([seed, 1]))
+    chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
     recording = _RecordingRoom(config, seed)
     windows = round(seconds / config.window_s)
     world = TimedWorld(AudioWorld(recording, make_binarizer(binarizer, config.window_s)), windows)

@@ -9,8 +9,9 @@ inputs). Steps are windows of ``params.dt`` seconds, numbered from 1 within a st
 
 Other actions (:func:`replay_bits`): a policy or rule deciding on the recorded bits (a
 what-if: the recording does not answer other decisions), or, for a plain wav file
-recorded elsewhere, decisions from an actions CSV file (:func:`read_action_times`,
-:func:`decisions_from_times`) or from a channel carrying the robot's own output
+recorded elsewhere, decisions from an actions CSV file
+(:func:`~infomax_contingency.sim.actions.read_actions_csv`, :func:`decisions_from_times`)
+or from a channel carrying the robot's own output
 (:func:`decisions_from_reference`), with the file's bits (:func:`wav_bits`).
 """
 
@@ -129,9 +130,6 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
 # --------------------------------------------------------------------------------------
 # What-if replays and plain wav files: actions from a policy, a CSV file or a channel.
 
-ACTIONS_CSV_HEADER = "time_s"
-"""The one column of an actions CSV file: when the robot's sound was commanded (s)."""
-
 
 class _GivenBits:
     """A loop world that hears given bits whatever is decided (a recording)."""
@@ -185,40 +183,6 @@ def wav_bits(path: Path, window_s: float, channel: int | None, threshold_db: flo
     while (energy := replay.next_energy()) is not None:
         bits.append(bool(binarizer.push(energy)))
     return bits, float(binarizer.threshold_db)
-
-
-def read_action_times(path: Path) -> list[float]:
-    """The ``time_s`` column of an actions CSV file (seconds, strictly increasing, >= 0).
-
-    Raises:
-        ValueError: unreadable file, a header other than ``time_s``, a value that is not
-            a finite number >= 0, or times that do not increase; the message names the
-            file and the line.
-    """
-    try:
-        lines = Path(path).read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"actions file {path}: cannot read it ({error})") from None
-    rows = [(number, line.strip()) for number, line in enumerate(lines, 1) if line.strip()]
-    if not rows or rows[0][1].lstrip("\ufeff") != ACTIONS_CSV_HEADER:
-        found = rows[0][1][:40] if rows else "an empty file"
-        raise ValueError(f"actions file {path}: the first line must be the header"
-                         f" '{ACTIONS_CSV_HEADER}' (one column), found {found!r}")
-    times: list[float] = []
-    for number, text in rows[1:]:
-        try:
-            value = float(text)
-        except ValueError:
-            raise ValueError(f"actions file {path} line {number}: {text[:40]!r} is not a"
-                             " time in seconds (one column, time_s)") from None
-        if not math.isfinite(value) or value < 0:
-            raise ValueError(f"actions file {path} line {number}: time_s must be a finite"
-                             f" number >= 0, got {text[:40]!r}")
-        if times and value <= times[-1]:
-            raise ValueError(f"actions file {path} line {number}: time_s {value:g} does not"
-                             f" come after the previous {times[-1]:g} (times must increase)")
-        times.append(value)
-    return times
 
 
 def decisions_from_times(times: Sequence[float], windows: int, dt: float, what: str

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable
+from pathlib import Path
 
 HEADER = "time_s"
 """The column's name (the file's first line)."""
@@ -32,29 +33,37 @@ def write_actions_csv(path: str | os.PathLike[str], times_s: Iterable[float]) ->
 
 
 def read_actions_csv(path: str | os.PathLike[str]) -> list[float]:
-    """The vocalization times of an actions file; ValueError naming the file and line."""
+    """The ``time_s`` column of an actions file (seconds, strictly increasing, >= 0).
+
+    Blank lines are skipped; a byte-order mark before the header is allowed.
+
+    Raises:
+        ValueError: unreadable file, a header other than ``time_s``, a value that is not
+            a finite number >= 0, or times that do not increase; the message names the
+            file and the line.
+    """
     try:
-        with open(path, encoding="ascii", errors="replace") as source:
-            lines = source.read().splitlines()
-    except OSError as error:
-        raise OSError(f"cannot read the actions file {path}: {error.strerror or error}") from None
-    if not lines or lines[0].strip() != HEADER:
-        raise ValueError(f"actions file {path}: the first line must be the header {HEADER!r}")
+        lines = Path(path).read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"actions file {path}: cannot read it ({error})") from None
+    rows = [(number, line.strip()) for number, line in enumerate(lines, 1) if line.strip()]
+    if not rows or rows[0][1].lstrip("\ufeff") != HEADER:
+        found = rows[0][1][:40] if rows else "an empty file"
+        raise ValueError(f"actions file {path}: the first line must be the header"
+                         f" '{HEADER}' (one column), found {found!r}")
     times: list[float] = []
-    for number, line in enumerate(lines[1:], start=2):
-        text = line.strip()
-        if not text:
-            continue
+    for number, text in rows[1:]:
         try:
             value = float(text)
         except ValueError:
-            raise ValueError(
-                f"actions file {path}, line {number}: {text!r} is not a number"
-            ) from None
-        if not math.isfinite(value) or value < 0 or (times and value <= times[-1]):
-            raise ValueError(
-                f"actions file {path}, line {number}: {text} must be a finite time >= 0 s,"
-                " later than the line before"
-            )
+            raise ValueError(f"actions file {path} line {number}: {text[:40]!r} is not a"
+                             f" time in seconds (one column, {HEADER})") from None
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"actions file {path} line {number}: {HEADER} must be a finite"
+                             f" number >= 0, got {text[:40]!r}")
+        if times and value <= times[-1]:
+            raise ValueError(f"actions file {path} line {number}: {HEADER} {value:g} does not"
+                             f" come after the previous {times[-1]:g} (times must increase,"
+                             " each later than the one before)")
         times.append(value)
     return times

@@ -1,0 +1,27 @@
+"""Small formatting helpers shared by the command lines (JSON output, numbers in tables)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def json_default(value: Any) -> Any:
+    """``json.dumps`` ``default=``: numpy scalars as Python numbers, paths as text."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+def number(value: float | None, digits: int = 3) -> str:
+    """``value`` to ``digits`` significant digits; ``-`` for none or NaN, ``never`` for inf."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, float) and math.isinf(value):
+        return "never"
+    return f"{value:.{digits}g}"
