@@ -171,7 +171,9 @@ def test_bad_binarizer_names_list_the_grammar(name: str, message: str) -> None:
     with pytest.raises(ValueError, match=message) as error:
         make_binarizer(name, 0.5)
     text = str(error.value)
-    assert "\n" not in text and text.endswith(", ".join(BINARIZERS)), text
+    assert "\n" not in text and text.endswith(
+        ", ".join(BINARIZERS) + " (SOURCE: energy or speech_band)"
+    ), text
 
 
 @pytest.mark.parametrize(

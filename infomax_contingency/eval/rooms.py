@@ -113,7 +113,10 @@ class BinarizerNameError(ValueError):
     """A binarizer name outside the grammar of :data:`BINARIZERS` (one line, lists it)."""
 
     def __init__(self, spec: str, reason: str) -> None:
-        super().__init__(f"binarizer {spec!r}: {reason}; binarizers: {', '.join(BINARIZERS)}")
+        super().__init__(
+            f"binarizer {spec!r}: {reason}; binarizers: {', '.join(BINARIZERS)}"
+            f" (SOURCE: {' or '.join(LEVEL_SOURCES)})"
+        )
 
 
 def _number(spec: str, text: str, what: str) -> float:
