@@ -12,7 +12,9 @@ from infomax_contingency.audio.wav import read_wav
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.rooms import (
+    BINARIZERS,
     RoomsConfig,
+    binarizer_options,
     controller_specs,
     experiment_rooms,
     make_binarizer,
@@ -86,11 +88,13 @@ def test_calibrating_binarizer_takes_room_time_without_steps() -> None:
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"binarizer": "vad"}, "unknown binarizer 'vad'; binarizers: calibrate"),
+        ({"binarizer": "loud"}, "binarizer 'loud': unknown binarizer; binarizers: calibrate"),
         ({"binarizer": "fixed"}, "fixed:DB"),
         ({"binarizer": "fixed:loud"}, "bad number"),
         ({"backgrounds": ("kitchen",)}, "unknown room 'kitchen'"),
         ({"controllers": ("greedy",)}, "controllers"),
+        ({"partner_states": ("gone",)}, "partner_states"),
+        ({"partner_states": ()}, "partner_states"),
         ({"runs": 0}, "runs"),
         ({"seed": -1}, "seed"),
         ({"seconds": 10.0}, "seconds"),
@@ -103,10 +107,86 @@ def test_bad_settings_are_refused(changes: dict, message: str) -> None:
         RoomsConfig(**{**SMALL, **changes})
 
 
+def test_partner_states_choose_the_rooms() -> None:
+    config = RoomsConfig(**{**SMALL, "partner_states": ("partner", "absent")})
+    assert config.room_names() == ["quiet", "quiet+partner"]
+
+
 def test_binarizer_factory() -> None:
     assert make_binarizer("fixed:-35", 0.5).threshold_db == -35.0
     calibrating = make_binarizer("calibrate", 0.5)
-    assert calibrating.calibrating and calibrating.calibration_windows == 20
+    assert calibrating.calibrating and calibrating.rule.calibration_windows == 20
+    assert make_binarizer("speech_band:noise_floor:6:3", 0.5).rule.warmup_windows == 6
+
+
+@pytest.mark.parametrize(
+    ("name", "source", "options"),
+    [
+        ("calibrate", "energy", {"threshold_mode": "calibrate"}),
+        ("calibrate:5", "energy", {"threshold_mode": "calibrate", "calibration_s": 5.0}),
+        ("fixed:-40", "energy", {"threshold_mode": "fixed", "threshold_db": -40.0}),
+        ("energy:fixed:-35", "energy", {"threshold_mode": "fixed", "threshold_db": -35.0}),
+        ("speech_band:calibrate", "speech_band", {"threshold_mode": "calibrate"}),
+        ("speech_band:noise_floor", "speech_band", {"threshold_mode": "noise_floor"}),
+        (
+            "energy:noise_floor:12",
+            "energy",
+            {"threshold_mode": "noise_floor", "noise_margin_db": 12.0},
+        ),
+        (
+            "speech_band:noise_floor:6:3",
+            "speech_band",
+            {"threshold_mode": "noise_floor", "noise_margin_db": 6.0, "calibration_s": 3.0},
+        ),
+        (
+            "energy:file:/a/b.json",
+            "energy",
+            {"threshold_mode": "file", "threshold_file": "/a/b.json"},
+        ),
+        ("vad", "vad", {}),
+        ("vad:3", "vad", {"vad_aggressiveness": 3}),
+        ("vad:0:0.25", "vad", {"vad_aggressiveness": 0, "vad_min_voiced_s": 0.25}),
+    ],
+)
+def test_binarizer_grammar(name: str, source: str, options: dict) -> None:
+    assert binarizer_options(name) == (source, options)
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("speech_band", "speech_band needs a threshold mode"),
+        ("energy:loudest", "unknown threshold mode 'loudest'"),
+        ("speech_band:fixed:x", "bad number 'x' for DB"),
+        ("energy:noise_floor:6:soon", "bad number 'soon' for WARMUP_S"),
+        ("fixed:nan", "DB must be finite"),
+        ("vad:4", "AGGRESSIVENESS must be 0, 1, 2 or 3"),
+        ("vad:2:0.1:9", "at most AGGRESSIVENESS and MIN_VOICED_S"),
+        ("vad:2:0.8", "longer than a window"),  # make_bit_source's own check
+        ("energy:noise_floor:-3", "noise_margin_db must be a finite number >= 0"),
+        ("energy:file:/nonexistent/threshold.json", "threshold"),
+    ],
+)
+def test_bad_binarizer_names_list_the_grammar(name: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message) as error:
+        make_binarizer(name, 0.5)
+    text = str(error.value)
+    assert "\n" not in text and text.endswith(
+        ", ".join(BINARIZERS) + " (SOURCE: energy or speech_band)"
+    ), text
+
+
+@pytest.mark.parametrize(
+    "name", ["speech_band:fixed:-40", "energy:noise_floor:6:2", "speech_band:noise_floor:6:2",
+             "vad:3", "vad:1:0.2"],
+)  # fmt: skip
+def test_every_bit_source_runs_in_the_loop(name: str) -> None:
+    spec = controller_specs(ROBOT, ["fixed"])[0][1]
+    run = run_room(ROBOT, "quiet+partner", spec, name, 12.0, 0, 0, 60)
+    warmup = 4 if "noise_floor" in name else 0  # 2 s of floor: 4 windows without a bit
+    assert run.window.size == 24 - warmup and run.window[0] == warmup
+    assert run.u.sum() >= 2 and set(np.unique(run.y)) <= {0, 1}
+    assert run.y.any(), "the partner's replies and the robot's own sound are heard"
 
 
 def test_command_prints_json_and_refuses_bad_input(capsys, tmp_path: Path) -> None:
@@ -117,7 +197,7 @@ def test_command_prints_json_and_refuses_bad_input(capsys, tmp_path: Path) -> No
     printed = json.loads(capsys.readouterr().out)
     assert printed["experiment"] == "rooms"
     assert json.loads(out.read_text())["rooms"] == printed["rooms"]
-    assert main([*argv, "--binarizer", "vad"]) == 2
+    assert main([*argv, "--binarizer", "whisper"]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "unknown binarizer" in error
 

@@ -104,6 +104,23 @@ def print_rooms(result: dict) -> None:
                 )
                 print(f"  {label[:22]:<22} {background:<15} pi={float(pi):<5g}{cells}")
         print(f"  {'':<22} {'':<15} {'threshold':<8}{header}")
+    print(
+        "\ninformation bound (known rates): per vocalization with the partner there,"
+        " agent windows x KL(Bern(P agent) || Bern(P background)) nats; vocalizations to"
+        f" P(S=1) = {config['attentive_above']:g} from the prior {result['params_pi']:g}"
+        " at least; P(agent) the bound needs for 3 / 4 / 8 vocalizations"
+    )
+    for label in result["controllers"]:
+        for background, bound in result.get("information_bound", {}).get(label, {}).items():
+            needed = " / ".join(
+                "none" if p is None else f"{p:.2f}" for p in bound["p_agent_needed"].values()
+            )
+            print(
+                f"  {label[:22]:<22} {background:<15} P {bound['p_agent']:.2f} /"
+                f" {bound['p_background']:.2f}: {bound['nats_per_vocalization']:.3f} nats,"
+                f" >= {number(bound['vocalizations_bound']).replace('never', 'inf')} vocalizations;"
+                f" needs {needed}"
+            )
 
 
 def run_experiment_rooms(args: argparse.Namespace) -> int:
@@ -111,6 +128,7 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
     config = evaluation.RoomsConfig(
         params_name=args.params,
         backgrounds=args.rooms,
+        partner_states=args.partner_states,
         controllers=args.controllers,
         binarizer=args.binarizer,
         runs=args.runs,
@@ -158,8 +176,15 @@ def add_experiment_rooms_arguments(sub: argparse.ArgumentParser) -> None:
         "--rooms",
         type=_names,
         default=d.backgrounds,
-        help=f"room sounds, each run with the partner absent, present, arriving and leaving"
+        help=f"room sounds, each run with the partner in each of --partner-states"
         f" (default {','.join(d.backgrounds)})",
+    )
+    sub.add_argument(
+        "--partner-states",
+        type=_names,
+        default=d.partner_states,
+        help=f"of {','.join(evaluation.PARTNER_STATE_NAMES)} (default all; the operating"
+        " curves need absent and partner)",
     )
     sub.add_argument(
         "--controllers",

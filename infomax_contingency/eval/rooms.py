@@ -27,8 +27,10 @@ Measures per run (times are seconds of room time at the end of a window; the clo
   (the controller keeps its table), the median settling time in the ``+partner`` room
   against the share of runs in the empty room that turned attentive at any time.
 
-Binarizers are made from a name by :func:`make_binarizer` (:data:`BINARIZERS`), so new
-bit rules are compared by adding a factory. Results are plain JSON-serialisable dicts.
+Binarizers are made from a name by :func:`make_binarizer` (:data:`BINARIZERS`): every bit
+source and threshold mode of mic_node, through the same
+:func:`~infomax_contingency.audio.bitsource.make_bit_source`. Results are plain
+JSON-serialisable dicts.
 """
 
 from __future__ import annotations
@@ -36,15 +38,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from infomax_contingency.audio.binarizer import Binarizer, calibration_window_count
-from infomax_contingency.audio.threshold import DEFAULT_MIN_SEPARATION_DB
+from infomax_contingency.audio.bitsource import BitSource, make_bit_source
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.core.model import (
     AGENT,
     BACKGROUND,
@@ -61,6 +63,7 @@ from infomax_contingency.eval.experiments import (
     obtain_table,
     wilson_interval,
 )
+from infomax_contingency.eval.information import information_bound
 from infomax_contingency.sim.fake_room import (
     AudioObservation,
     AudioWorld,
@@ -78,52 +81,137 @@ from infomax_contingency.sim.rooms import (
     room_kind,
 )
 
-BINARIZERS = ("calibrate[:S]", "fixed:DB")
-"""Binarizer names: k-means on the first S seconds (default 10, mic_node's
-``threshold_mode calibrate``), or a fixed threshold in dB (``threshold_mode fixed``)."""
+BINARIZERS = (
+    "calibrate[:S]",
+    "fixed:DB",
+    "SOURCE:calibrate[:S]",
+    "SOURCE:fixed:DB",
+    "SOURCE:noise_floor[:MARGIN_DB[:WARMUP_S]]",
+    "SOURCE:file:PATH",
+    "vad[:AGGRESSIVENESS[:MIN_VOICED_S]]",
+)
+"""Binarizer names (the grammar of :func:`binarizer_options`), each a bit source of
+:func:`~infomax_contingency.audio.bitsource.make_bit_source` with mic_node's parameters:
+
+* ``SOURCE`` is ``energy`` (the window energy, the paper's rule) or ``speech_band`` (the
+  300-3400 Hz band's energy); without it (``calibrate``, ``fixed:-40``, ...) the source is
+  ``energy``, so the older names keep their meaning.
+* ``calibrate[:S]``: k-means on the first S seconds (default 10; ``threshold_mode
+  calibrate``, ``calibration_s``); ``fixed:DB``: a fixed threshold, dB (``threshold_db``);
+  ``noise_floor[:MARGIN_DB[:WARMUP_S]]``: MARGIN_DB (default 10, ``noise_margin_db``)
+  above the tracked floor, which starts on the first WARMUP_S seconds (default 10,
+  ``calibration_s``); ``file:PATH``: a threshold file of the source's level.
+* ``vad[:AGGRESSIVENESS[:MIN_VOICED_S]]``: WebRTC's voice-activity detector,
+  aggressiveness 0-3 (default 2) and the voiced time a window needs, s (default 0.1).
+"""
+
+LEVEL_SOURCES = ("energy", "speech_band")
+"""Bit sources with a threshold: the ``SOURCE`` of :data:`BINARIZERS`."""
 
 
-def _calibrating_binarizer(argument: str, window_s: float) -> Binarizer:
-    seconds = float(argument) if argument else 10.0
-    if not seconds > 0:
-        raise ValueError(f"binarizer calibrate:{argument}: the seconds must be > 0")
-    return Binarizer(
-        None, calibration_window_count(seconds, window_s), 0, DEFAULT_MIN_SEPARATION_DB
-    )
+class BinarizerNameError(ValueError):
+    """A binarizer name outside the grammar of :data:`BINARIZERS` (one line, lists it)."""
+
+    def __init__(self, spec: str, reason: str) -> None:
+        super().__init__(
+            f"binarizer {spec!r}: {reason}; binarizers: {', '.join(BINARIZERS)}"
+            f" (SOURCE: {' or '.join(LEVEL_SOURCES)})"
+        )
 
 
-def _fixed_binarizer(argument: str, window_s: float) -> Binarizer:
-    if not argument:
-        raise ValueError("binarizer fixed needs a threshold: fixed:DB (e.g. fixed:-40)")
-    return Binarizer(float(argument))
-
-
-BINARIZER_FACTORIES: dict[str, Callable[[str, float], Any]] = {
-    "calibrate": _calibrating_binarizer,
-    "fixed": _fixed_binarizer,
-}
-"""Binarizer kind -> factory ``(argument after the colon, window seconds) -> binarizer``
-(anything with ``push(energy_db) -> bit | None``)."""
-
-
-def make_binarizer(spec: str, window_s: float) -> Any:
-    """A fresh binarizer from its name (:data:`BINARIZERS`); ValueError naming the choices."""
-    kind, _, argument = spec.partition(":")
-    factory = BINARIZER_FACTORIES.get(kind)
-    if factory is None:
-        raise ValueError(f"unknown binarizer {spec!r}; binarizers: {', '.join(BINARIZERS)}")
+def _number(spec: str, text: str, what: str) -> float:
     try:
-        return factory(argument, window_s)
-    except ValueError as error:
-        if "could not convert" in str(error):
-            raise ValueError(f"binarizer {spec!r}: bad number {argument!r}") from None
-        raise
+        value = float(text)
+    except ValueError:
+        raise BinarizerNameError(spec, f"bad number {text!r} for {what}") from None
+    if not math.isfinite(value):
+        raise BinarizerNameError(spec, f"{what} must be finite, got {text!r}")
+    return value
+
+
+def _threshold_options(spec: str, mode: str, argument: str) -> dict[str, Any]:
+    """make_bit_source options of one threshold part (``mode[:argument]``)."""
+    if mode == "calibrate":
+        options: dict[str, Any] = {"threshold_mode": "calibrate"}
+        if argument:
+            options["calibration_s"] = _number(spec, argument, "the calibration seconds S")
+        return options
+    if mode == "fixed":
+        if not argument:
+            raise BinarizerNameError(spec, "fixed needs a threshold: fixed:DB (e.g. fixed:-40)")
+        return {"threshold_mode": "fixed", "threshold_db": _number(spec, argument, "DB")}
+    if mode == "noise_floor":
+        options = {"threshold_mode": "noise_floor"}
+        margin, _, warmup = argument.partition(":")
+        if margin:
+            options["noise_margin_db"] = _number(spec, margin, "MARGIN_DB")
+        if warmup:
+            options["calibration_s"] = _number(spec, warmup, "WARMUP_S")
+        return options
+    if mode == "file":
+        if not argument:
+            raise BinarizerNameError(spec, "file needs a path: file:PATH")
+        return {"threshold_mode": "file", "threshold_file": argument}
+    raise BinarizerNameError(spec, f"unknown threshold mode {mode!r}")
+
+
+def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
+    """The bit source and the :func:`make_bit_source` options a binarizer name stands for.
+
+    Raises:
+        BinarizerNameError: the name is outside the grammar of :data:`BINARIZERS`.
+    """
+    head, _, rest = spec.partition(":")
+    if head == "vad":
+        parts = rest.split(":") if rest else []
+        if len(parts) > 2:
+            raise BinarizerNameError(spec, "vad takes at most AGGRESSIVENESS and MIN_VOICED_S")
+        options: dict[str, Any] = {}
+        if parts and parts[0]:
+            if parts[0] not in ("0", "1", "2", "3"):
+                raise BinarizerNameError(
+                    spec, f"AGGRESSIVENESS must be 0, 1, 2 or 3, got {parts[0]!r}"
+                )
+            options["vad_aggressiveness"] = int(parts[0])
+        if len(parts) == 2:
+            options["vad_min_voiced_s"] = _number(spec, parts[1], "MIN_VOICED_S")
+        return "vad", options
+    if head in LEVEL_SOURCES:
+        if not rest:
+            raise BinarizerNameError(spec, f"{head} needs a threshold mode, e.g. {head}:fixed:-40")
+        mode, _, argument = rest.partition(":")
+        return head, _threshold_options(spec, mode, argument)
+    if head in ("calibrate", "fixed", "noise_floor", "file"):
+        return "energy", _threshold_options(spec, head, rest)
+    raise BinarizerNameError(spec, "unknown binarizer")
+
+
+def make_binarizer(spec: str, window_s: float, rate_hz: int = PROCESSING_RATE_HZ) -> BitSource:
+    """A fresh bit source from its name (:data:`BINARIZERS`) for windows of ``window_s`` s.
+
+    One implementation: the name is parsed by :func:`binarizer_options` and the source
+    made by :func:`~infomax_contingency.audio.bitsource.make_bit_source`, as mic_node makes
+    it from its parameters. A bad name or value: ValueError, one line with the grammar.
+    """
+    source, options = binarizer_options(spec)
+    try:
+        return make_bit_source(source, rate_hz, window_s, **options)
+    except AudioError as error:
+        raise BinarizerNameError(spec, str(error)) from None
 
 
 LISTENING_BINARIZER = "fixed:-40"
 """``room-wav``'s default: the fixed threshold config/fake_room.yaml gives mic_node against
 the fake room (a calibration on a room's own first 10 s is refused in the steadier rooms,
 and the robot would stay silent)."""
+
+PARTNER_STATE_NAMES: dict[str, str] = {
+    "absent": PARTNER_STATES[0],
+    "partner": PARTNER_STATES[1],
+    "arriving": PARTNER_STATES[2],
+    "leaving": PARTNER_STATES[3],
+}
+"""Partner states of ``RoomsConfig.partner_states`` -> suffix of the room's name."""
 
 CONTROLLER_NAMES = ("optimal", "rule", "fixed", "random")
 """The controllers of the experiment (see :func:`controller_specs`)."""
@@ -167,7 +255,9 @@ class RoomsConfig:
     Attributes:
         params_name: model parameter set (the table's and the belief's).
         backgrounds: room sounds (keys of :data:`~infomax_contingency.sim.rooms.ROOM_SOUNDS`);
-            each is run with the partner absent, present, arriving and leaving.
+            each is run with the partner in each of ``partner_states``.
+        partner_states: names of :data:`PARTNER_STATE_NAMES` (default all four; the
+            operating curves need ``absent`` and ``partner``).
         controllers: names of :data:`CONTROLLER_NAMES`.
         binarizer: a name of :data:`BINARIZERS`.
         runs: runs per room and controller.
@@ -184,6 +274,7 @@ class RoomsConfig:
 
     params_name: str = "robot"
     backgrounds: tuple[str, ...] = tuple(ROOM_SOUNDS)
+    partner_states: tuple[str, ...] = tuple(PARTNER_STATE_NAMES)
     controllers: tuple[str, ...] = CONTROLLER_NAMES
     binarizer: str = "calibrate"
     runs: int = 100
@@ -208,6 +299,11 @@ class RoomsConfig:
                 raise ValueError(f"experiment rooms: unknown room {background!r}; rooms: {known}")
         if not self.backgrounds:
             fail("backgrounds", "at least one room")
+        for name in self.partner_states:
+            if name not in PARTNER_STATE_NAMES:
+                fail("partner_states", f"names among {', '.join(PARTNER_STATE_NAMES)}")
+        if not self.partner_states:
+            fail("partner_states", "at least one partner state")
         for name in self.controllers:
             if name not in CONTROLLER_NAMES:
                 fail("controllers", f"names among {', '.join(CONTROLLER_NAMES)}")
@@ -234,8 +330,14 @@ class RoomsConfig:
             fail("jobs", ">= 1")
 
     def room_names(self) -> list[str]:
-        """Every room of the experiment, each background in every partner state."""
-        return [name for background in self.backgrounds for name in audio_room_names(background)]
+        """Every room of the experiment, each background in each of its partner states."""
+        chosen = {PARTNER_STATE_NAMES[name] for name in self.partner_states}
+        return [
+            name
+            for background in self.backgrounds
+            for name, state in zip(audio_room_names(background), PARTNER_STATES, strict=True)
+            if state in chosen
+        ]
 
 
 def room_seed(seed: int, room: str, run: int) -> int:
@@ -312,7 +414,7 @@ def run_room(
     rng = np.random.default_rng([seed, 1, run])
     controller = experiment_controller(controller_spec, params, rng)
     world = TimedWorld(
-        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s)),
+        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz)),
         round(seconds / config.window_s),
     )
     steps: list[tuple[int, LoopStep[AudioObservation]]] = []
@@ -626,7 +728,33 @@ def experiment_rooms(config: RoomsConfig, cache_dir: Path | None = None) -> dict
         "operating_curves": {
             label: operating_curves(config, rows, label) for label, _ in controllers
         },
+        "information_bound": {
+            label: contrast_bounds(params, summaries[label], config) for label, _ in controllers
+        },
     }
+
+
+def contrast_bounds(
+    params: ModelParams, summaries: dict[str, dict[str, Any]], config: RoomsConfig
+) -> dict[str, Any]:
+    """Per background with a ``+partner`` room: the information bound of its bit contrast.
+
+    P(active) in agent-period and background windows of the ``+partner`` runs
+    (:func:`~infomax_contingency.eval.information.information_bound`, to the posture's
+    ``attentive_above`` from the model's prior).
+    """
+    out: dict[str, Any] = {}
+    for background in config.backgrounds:
+        summary = summaries.get(f"{background}+partner")
+        if summary is None:
+            continue
+        rates = summary["p_active"]
+        if not (rates["agent"]["windows"] and rates["background"]["windows"]):
+            continue
+        out[background] = information_bound(
+            rates["agent"]["p"], rates["background"]["p"], params, config.attentive_above
+        )
+    return out
 
 
 class _RecordingRoom(FakeRoom):
@@ -676,7 +804,8 @@ def render_room(
     chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
     recording = _RecordingRoom(config, seed)
     windows = round(seconds / config.window_s)
-    world = TimedWorld(AudioWorld(recording, make_binarizer(binarizer, config.window_s)), windows)
+    bits = make_binarizer(binarizer, config.window_s, config.rate_hz)
+    world = TimedWorld(AudioWorld(recording, bits), windows)
     actions = []
     try:
         for step in run_loop(world, chosen, None):
