@@ -58,7 +58,7 @@ MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, "start_delay_s": 0.2, **HOLD}  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, "start_delay_s": 0.2,
         "lockstep_timeout_s": 2.0, **HOLD}  # fmt: skip
-BELIEF = {"memory_steps": MEMORY, **HOLD}
+BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the recorder
 CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
 
 

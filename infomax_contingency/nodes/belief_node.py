@@ -23,10 +23,11 @@ timer uncertain unless that step is the stream's first. Each case is counted in 
 diagnostics and logged.
 
 Start: the node subscribes ``sound_step`` only once its ``vocalize_step`` subscription
-is matched with a publisher (a controller). mic_node's start gate counts the listeners
-of ``sound_step``, so the graph's first bit waits until this node also hears the
-controller: a belief_node whose processes connect slowly (a loaded machine) does not
-miss the first decisions and join the stream late.
+is matched with a publisher (a controller), and ``belief`` has ``wait_for_listeners``
+subscribers (default 0; a test that checks every belief counts its recorder).
+mic_node's start gate counts the listeners of ``sound_step``, so the graph's first bit
+waits until this node also hears the controller: a belief_node whose processes connect
+slowly (a loaded machine) does not miss the first decisions and join the stream late.
 
 Subscribes ``sound_step``, ``vocalize_step`` (std_msgs/Int64MultiArray, see
 :mod:`~infomax_contingency.nodes.step_topics`); publishes ``belief`` (Float64) and
@@ -106,6 +107,12 @@ class BeliefNode(GraphNode):
             "Steps that may wait for their decision; older ones are applied without it",
             1, 1_000_000,
         )
+        self.wait_for_listeners = read.integer(
+            "wait_for_listeners", 0,
+            "Subscribers of 'belief' (e.g. posture_node, a recorder) connected before the"
+            " node joins a stream, so that they receive every belief",
+            0, 100,
+        )
         self.window_us = window_us(self.params.dt)
         self.tracker = StatisticTracker(self.params, memory=memory)
         self.joiner = StepJoiner(self._apply, self.max_pending)
@@ -131,8 +138,10 @@ class BeliefNode(GraphNode):
         self.start_diagnostics()
 
     def _subscribe_bits_when_ready(self) -> None:
-        """Subscribe ``sound_step`` once a controller's ``vocalize_step`` is matched."""
+        """Subscribe ``sound_step`` once a controller and the belief's listeners are there."""
         if self._decisions_sub.get_publisher_count() == 0:
+            return
+        if self.belief_pub.get_subscription_count() < self.wait_for_listeners:
             return
         self._bits_gate.cancel()
         self.destroy_timer(self._bits_gate)
