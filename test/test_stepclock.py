@@ -301,3 +301,12 @@ def test_pacer_without_timeout_waits_forever() -> None:
 def test_pacer_refuses_a_non_positive_timeout() -> None:
     with pytest.raises(ValueError, match="timeout"):
         LockstepPacer(0.0)
+
+
+def test_source_lock_with_due_times_is_not_fooled_by_a_pause_of_the_graph() -> None:
+    lock = SourceLock(silence_s=3.0)
+    assert lock.accept(1, 10.0) is Arrival.FIRST
+    # The graph pauses (no bit is due after 10.5 s) while a rogue talks for 20 s: foreign.
+    assert all(lock.accept(2, t, due_since=10.5) is Arrival.FOREIGN for t in (14.0, 30.0))
+    # Bits keep coming and the followed source leaves them unanswered for 3 s: replaced.
+    assert lock.accept(2, 31.0, due_since=13.0) is Arrival.SWITCHED and lock.source == 2

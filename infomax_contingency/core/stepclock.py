@@ -82,15 +82,24 @@ class SourceLock:
         """Foreign source -> when it was last heard."""
         self._held: dict[int, deque[Any]] = {}
 
-    def accept(self, source: int, now: float) -> Arrival:
-        """Classify a message from ``source`` received at ``now``."""
+    def accept(self, source: int, now: float, due_since: float | None = None) -> Arrival:
+        """Classify a message from ``source`` sent (or received) at ``now``.
+
+        ``due_since``: for a listener that can tell when the followed source should have
+        spoken (e.g. the publication time of the newest bit its controller has not
+        answered), that time: the followed source counts as silent only for as long as
+        it left such messages unanswered, so a pause of the whole graph (a loaded machine)
+        is no silence, however long another source keeps talking meanwhile. Default:
+        ``now`` (silence is the time since the followed source was last heard).
+        """
         if self.source is None:
             self.source, self.last_seen = source, now
             return Arrival.FIRST
         if source == self.source:
             self.last_seen = now
             return Arrival.FOLLOWED
-        if now - self.last_seen >= self.silence_s:
+        reference = now if due_since is None else due_since
+        if reference - self.last_seen >= self.silence_s:
             self.previous, self.source, self.last_seen = self.source, source, now
             self.foreign_sources.pop(source, None)
             self.switches += 1

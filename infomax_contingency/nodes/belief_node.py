@@ -129,6 +129,8 @@ class BeliefNode(GraphNode):
         """The stream followed: the one the followed controller answers."""
         self._held: dict[int, deque[StepBit]] = {}
         self._joining = False
+        self._newest_bit_sent_s: float | None = None
+        """Publication time (s) of the newest bit of the followed stream."""
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS
@@ -167,6 +169,7 @@ class BeliefNode(GraphNode):
         if bit.stream != self.stream:
             self._hold(bit, now)
             return
+        self._newest_bit_sent_s = self.sent_s(stamp, now)
         if not self.joiner.bit(bit.step, bit.bit):
             self.warn_intrusion(
                 f"bit for step {bit.step} of stream {bit.stream} repeats or goes backwards"
@@ -195,7 +198,11 @@ class BeliefNode(GraphNode):
                 f"malformed '{VOCALIZE_STEP}' message ignored: {list(msg.data)}"
             )
             return
-        arrival = self.controllers.accept(decision.controller, self.sent_s(stamp, now))
+        # A decision on the followed stream from another controller replaces the followed
+        # one only if that one left the stream's bits unanswered for source_timeout_s: a
+        # pause of the whole graph, while a rogue keeps talking, is no silence.
+        due = self._newest_bit_sent_s if decision.stream == self.stream else None
+        arrival = self.controllers.accept(decision.controller, self.sent_s(stamp, now), due)
         if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(

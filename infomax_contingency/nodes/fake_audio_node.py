@@ -164,6 +164,8 @@ class FakeAudioNode(GraphNode):
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
         self.controllers = SourceLock(source_timeout_s)
+        self._window_sent_s: float | None = None
+        """When the newest window was published (s, system clock)."""
         self.timeouts = self.recent_events()
         self.foreign = self.recent_events()
         self._answered: tuple[int, int] = (0, 0)
@@ -222,7 +224,10 @@ class FakeAudioNode(GraphNode):
         if decision is None:
             return
         now = self.now_s()
-        if self.controllers.accept(decision.controller, self.sent_s(stamp, now)) is Arrival.FOREIGN:
+        # Another controller replaces the followed one only once the room's windows have
+        # gone unanswered for source_timeout_s (not while the whole graph is paused).
+        sent = self.sent_s(stamp, now)
+        if self.controllers.accept(decision.controller, sent, self._window_sent_s) is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(
                 f"ignoring decisions of controller {decision.controller} (a second"
@@ -247,6 +252,7 @@ class FakeAudioNode(GraphNode):
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
         self.audio_pub.publish(message)
+        self._window_sent_s = time.time()
         self.truth_pub.publish(Bool(data=window.partner_present))
 
     def _live_room_parameters(self) -> None:
