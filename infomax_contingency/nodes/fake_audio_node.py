@@ -226,8 +226,10 @@ class FakeAudioNode(GraphNode):
         now = self.now_s()
         # Another controller replaces the followed one only once the room's windows have
         # gone unanswered for source_timeout_s (not while the whole graph is paused).
-        sent = self.sent_s(stamp, now)
-        if self.controllers.accept(decision.controller, sent, self._window_sent_s) is Arrival.FOREIGN:
+        arrival = self.controllers.accept(
+            decision.controller, self.sent_s(stamp, now), self._window_sent_s
+        )
+        if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(
                 f"ignoring decisions of controller {decision.controller} (a second"
