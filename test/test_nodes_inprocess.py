@@ -44,7 +44,11 @@ from infomax_contingency.nodes.step_topics import (
 )
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
-from infomax_contingency.testing.stepped import Probe, SteppedExecutor
+from infomax_contingency.testing.stepped import (
+    Probe,
+    SteppedExecutor,
+    nodes_on_their_own_executors,
+)
 
 ROBOT = ModelParams.named("robot")
 WINDOW_US = 500_000
@@ -58,21 +62,8 @@ def params(**values: Any) -> list[Parameter]:
 @pytest.fixture
 def run() -> Iterator[Callable[..., tuple[Any, Probe, SteppedExecutor]]]:
     """``run(NodeClass, **parameters)`` -> (node, probe, stepped executor); cleaned up after."""
-    rclpy.init()
-    executors: list[SteppedExecutor] = []
-
-    def start(node_class: type, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor]:
-        node = node_class(parameter_overrides=params(**parameters))
-        probe = Probe()
-        executors.append(SteppedExecutor([node, probe]))
-        return node, probe, executors[-1]
-
-    try:
+    with nodes_on_their_own_executors() as start:
         yield start
-    finally:
-        for executor in executors:
-            executor.close()
-        rclpy.try_shutdown()
 
 
 def bits_of(stream: int, bits: Any, first_step: int = 1) -> list[Int64MultiArray]:

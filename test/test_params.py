@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import rclpy
 import yaml
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
@@ -38,7 +37,11 @@ from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import SpeakerNode
 from infomax_contingency.nodes.step_topics import parse_decision
-from infomax_contingency.testing.stepped import Probe, SteppedExecutor
+from infomax_contingency.testing.stepped import (
+    Probe,
+    SteppedExecutor,
+    nodes_on_their_own_executors,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -46,22 +49,8 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.fixture
 def graph() -> Iterator[Callable[..., tuple[Any, Probe, SteppedExecutor]]]:
     """``graph(NodeClass, **parameters)`` -> (node, probe, executor); cleaned up after."""
-    rclpy.init()
-    executors: list[SteppedExecutor] = []
-
-    def start(node_class: type, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor]:
-        overrides = [Parameter(name, value=value) for name, value in parameters.items()]
-        node = node_class(parameter_overrides=overrides)
-        probe = Probe()
-        executors.append(SteppedExecutor([node, probe]))
-        return node, probe, executors[-1]
-
-    try:
+    with nodes_on_their_own_executors() as start:
         yield start
-    finally:
-        for executor in executors:
-            executor.close()
-        rclpy.try_shutdown()
 
 
 def set_remotely(
@@ -170,10 +159,15 @@ def _threshold_file(path: Path, threshold_db: float) -> Path:
     return path
 
 
-def test_mic_threshold_mode_and_refresh_are_live(graph: Callable, tmp_path: Path) -> None:
+def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
+    """A mic_node on 'audio' at a fixed -40 dB (1 s calibration if asked), and ``play``.
+
+    ``play(levels_db, bits_expected)`` sends one 0.5 s noise window per level and returns
+    the bits that came back.
+    """
     node, probe, executor = graph(
         MicNode, source="topic", threshold_mode="fixed", threshold_db=-40.0,
-        calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0,
+        calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0, **parameters,
     )  # fmt: skip
     bits = probe.listen("sound", Bool)
     probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
@@ -191,6 +185,11 @@ def test_mic_threshold_mode_and_refresh_are_live(graph: Callable, tmp_path: Path
         )
         return [m.data for m in bits[before:]]
 
+    return node, probe, executor, play
+
+
+def test_mic_threshold_mode_and_refresh_are_live(graph: Callable, tmp_path: Path) -> None:
+    node, probe, executor, play = _live_mic(graph)
     assert play([-20.0, -60.0], 2) == [True, False]  # fixed at -40 dB
     threshold = _threshold_file(tmp_path / "threshold.yaml", -10.0)
     [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(threshold))
@@ -312,26 +311,7 @@ def test_mic_speech_band_threshold_is_live_in_fixed_mode(graph: Callable) -> Non
 
 
 def test_mic_noise_floor_mode_is_live_without_a_refresh(graph: Callable) -> None:
-    node, probe, executor = graph(
-        MicNode, source="topic", threshold_mode="fixed", threshold_db=-40.0,
-        calibration_s=1.0, noise_margin_db=10.0, wait_for_listeners=1, start_delay_s=0.0,
-    )  # fmt: skip
-    bits = probe.listen("sound", Bool)
-    probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
-    energies = probe.listen("sound_energy", Float32)
-    audio = probe.talk("audio", Float32MultiArray)
-    executor.connected(audio)
-    executor.run_until(lambda: node.started, "the mic's start gate")
-
-    def play(levels: list[float], bits_expected: int) -> list[bool]:
-        before, heard = len(bits), len(energies)
-        audio.publish(_audio(_windows(levels)))
-        executor.run_until(
-            lambda: len(energies) == heard + len(levels) and len(bits) == before + bits_expected,
-            f"{len(levels)} windows",
-        )
-        return [m.data for m in bits[before:]]
-
+    node, probe, executor, play = _live_mic(graph, noise_margin_db=10.0)
     assert play([-35.0, -45.0], 2) == [True, False]  # fixed at -40 dB
     [result] = set_remotely(probe, executor, "mic_node", threshold_mode="noise_floor")
     assert result.successful, result.reason

@@ -14,11 +14,14 @@ and records what that node publishes.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
+import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 
 from infomax_contingency.nodes.qos import STREAM_QOS
@@ -124,3 +127,28 @@ class SteppedExecutor:
             self.executor.remove_node(node)
             node.destroy_node()
         self.executor.shutdown(timeout_sec=1.0)
+
+
+@contextmanager
+def nodes_on_their_own_executors() -> Iterator[Callable[..., tuple[Any, Probe, SteppedExecutor]]]:
+    """``start(NodeClass, **parameters)`` -> (node, its probe, their stepped executor).
+
+    Initialises rclpy; on leaving, closes every executor started and shuts rclpy down.
+    The parameters are given to the node as overrides (as ``-p name:=value`` would).
+    """
+    rclpy.init()
+    executors: list[SteppedExecutor] = []
+
+    def start(node_class: type, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor]:
+        overrides = [Parameter(name, value=value) for name, value in parameters.items()]
+        node = node_class(parameter_overrides=overrides)
+        probe = Probe()
+        executors.append(SteppedExecutor([node, probe]))
+        return node, probe, executors[-1]
+
+    try:
+        yield start
+    finally:
+        for executor in executors:
+            executor.close()
+        rclpy.try_shutdown()
