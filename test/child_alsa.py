@@ -28,10 +28,6 @@ DEADLINE_S = 30.0
 """Seconds a scenario may wait for windows before it gives up (a guard, not a pace)."""
 
 
-SETTLE_S = 0.02
-"""Seconds the speaker scenario lets the output stream run before and after the chirp."""
-
-
 def _log_into(lines: list[str]) -> Callable[[Any, str], None]:
     return lambda level, message: lines.append(message)
 
@@ -90,18 +86,33 @@ def missing(devices: list[list[Any]]) -> dict:
     return {"messages": messages}
 
 
+def _wait(condition: Callable[[], bool], what: str) -> None:
+    """Poll ``condition`` until it holds; RuntimeError after :data:`DEADLINE_S`."""
+    end = time.monotonic() + DEADLINE_S
+    while not condition():
+        if time.monotonic() > end:
+            raise RuntimeError(f"{what}: not within {DEADLINE_S:g} s")
+        time.sleep(0.001)  # polls the callback's counters; the deadline bounds it
+
+
 def speaker(play: bool) -> dict:
-    """Open ``fakespeaker``; play the chirp once if ``play``; its events and status."""
+    """Open ``fakespeaker``; play the chirp once if ``play``; its events and status.
+
+    The chirp is asked for once the stream has filled a block of silence (so silence
+    precedes it in the device's output), and the speaker is closed once the chirp has
+    gone to the device (closing lets the blocks handed over play out).
+    """
     from infomax_contingency.audio.playback import SpeakerOutput
 
     output = SpeakerOutput("fakespeaker", volume=0.5).start()
     events = []
-    # SETTLE_S: not yet replaced by a condition (a truncated chirp otherwise, under load)
+    _wait(lambda: output.blocks_served > 0, "the output stream's first block")
     if play:
-        time.sleep(SETTLE_S)
         output.play()
-        events = [dataclasses.asdict(e) for e in output.events(5.0)]
-    time.sleep(SETTLE_S)
+        events = [dataclasses.asdict(e) for e in output.events(DEADLINE_S)]
+        _wait(output.drained, "the chirp handed to the device")
+    blocks = output.blocks_served
+    _wait(lambda: output.blocks_served > blocks, "a block of silence after it")
     status = output.status().as_dict()
     output.close()
     return {"events": events, "status": status}

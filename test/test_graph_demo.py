@@ -19,6 +19,7 @@ import pytest
 from graph_harness import Graph, graph_fixture
 from infomax_contingency.cli import demo as demo_module
 from infomax_contingency.testing.graph import wait_until
+from processes import readline_within
 from stepped_graph import stepped_graph
 
 # The graph tests that start many node processes run one at a time (on one pytest-xdist
@@ -181,7 +182,7 @@ def test_a_signal_stops_the_demo_and_every_node(how: str, status: int, name: str
     try:
         lines = []
         while not lines or not lines[-1].startswith("# demo: the graph is up"):
-            line = process.stdout.readline()
+            line = readline_within(process)
             assert line, f"the demo ended before its graph was up: {lines} {process.stderr.read()}"
             lines.append(line)
         nodes = children_of(process.pid)

@@ -28,6 +28,7 @@ from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.speaker_node import SpeakerNode
 from infomax_contingency.resources import resource_path
+from processes import readline_within
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -278,7 +279,7 @@ def test_a_running_node_stops_cleanly(sig: signal.Signals) -> None:
         text=True,
     )
     try:
-        first_line = process.stdout.readline()  # the node logs its table once it is up
+        first_line = readline_within(process)  # the node logs its table once it is up
         assert "receding, horizon 24, memory 60" in first_line, first_line
         assert process.poll() is None
         process.send_signal(sig)

@@ -16,6 +16,9 @@ from pathlib import Path
 
 import pytest
 
+from domains import lock_domain_ids
+from processes import read_until, readline_within
+
 # The graph tests that start many node processes run one at a time (on one pytest-xdist
 # worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
 pytestmark = pytest.mark.xdist_group("node_graphs")
@@ -40,24 +43,14 @@ def _bringup(domain: int) -> subprocess.Popen:
                             text=True, env=env)  # fmt: skip
 
 
-def _read_until(process: subprocess.Popen, marker: str) -> str:
-    """Lines of the process's output up to the one holding ``marker`` (or its end)."""
-    seen = []
-    for line in process.stdout:
-        seen.append(line)
-        if marker in line:
-            break
-    return "".join(seen)
-
-
 @pytest.mark.slow
 def test_a_stepping_graph_ends_cleanly_on_every_signal() -> None:
-    base = int(os.environ["ROS_DOMAIN_ID"])
-    processes = {name: _bringup((base + i) % 200 + 1) for i, name in enumerate(ENDINGS, 1)}
+    domains = lock_domain_ids(len(ENDINGS))  # a graph each, heard by no other test
+    processes = {name: _bringup(domain) for name, domain in zip(ENDINGS, domains, strict=True)}
     outputs = {}
     try:
         for name, process in processes.items():
-            outputs[name] = _read_until(process, STARTED)
+            outputs[name] = read_until(process, STARTED)
             assert STARTED in outputs[name] and process.poll() is None, outputs[name]
         for name, process in processes.items():
             for sig in ENDINGS[name]:
@@ -81,7 +74,7 @@ def test_a_node_stopped_with_ctrl_c_twice_says_nothing_more() -> None:
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                text=True)  # fmt: skip
     try:
-        first = process.stdout.readline()  # the node logs its table once it is up
+        first = readline_within(process)  # the node logs its table once it is up
         assert "receding, horizon 24" in first, first
         process.send_signal(signal.SIGINT)
         process.send_signal(signal.SIGINT)

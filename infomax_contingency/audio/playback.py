@@ -207,6 +207,7 @@ class SpeakerOutput:
         self._request_time = 0.0
         self._served = 0
         self._pos = -1  # sample of the sound to play next; -1 = silent
+        self._blocks_served = 0
         self._finished = False
         self._requests = 0
         self._played = 0
@@ -242,16 +243,21 @@ class SpeakerOutput:
         return self
 
     def close(self) -> None:
-        """Stop the stream and release the device (safe to call twice)."""
-        self._state = CLOSED
-        self._drop_stream()
+        """Stop the stream and release the device (safe to call twice).
 
-    def _drop_stream(self) -> None:
+        What the callback already handed to the device plays out first (PortAudio's stop,
+        at most ``CLOSE_WAIT_S``); a sound still being played is cut there. To let the
+        sound end first, wait until :meth:`drained`.
+        """
+        self._state = CLOSED
+        self._drop_stream(drain=True)
+
+    def _drop_stream(self, drain: bool = False) -> None:
         self._generation += 1
         stream, self._stream = self._stream, None
         unregister_stream(self)
         if stream is not None:
-            close_stream(stream, wait_s=CLOSE_WAIT_S)
+            close_stream(stream, wait_s=CLOSE_WAIT_S, drain=drain)
 
     def __enter__(self) -> SpeakerOutput:
         return self.start()
@@ -278,6 +284,18 @@ class SpeakerOutput:
     def volume(self, value: float) -> None:
         self._volume = self._check_volume(value)
         self._sound = (self._source * self._volume).astype(np.float32)
+
+    @property
+    def blocks_served(self) -> int:
+        """Blocks the PortAudio callback has filled (sound or silence) since :meth:`start`."""
+        return self._blocks_served
+
+    def drained(self) -> bool:
+        """True when every command so far has been served and its sound handed to the device.
+
+        The last blocks may still be in the device's buffer; :meth:`close` lets them play.
+        """
+        return self._served == self._requested and self._pos < 0
 
     def status(self) -> SpeakerStatus:
         """A snapshot of the counters."""
@@ -408,6 +426,7 @@ class SpeakerOutput:
         self, generation: int, outdata: np.ndarray, frames: int, time_info: Any, status: Any
     ) -> None:
         """PortAudio callback: copy the next part of the sound (or silence) into the block."""
+        self._blocks_served += 1
         if status.output_underflow:
             self._underflows += 1
         requested = self._requested

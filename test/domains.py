@@ -1,0 +1,52 @@
+"""DDS domain ids for test processes: each one held by exactly one process on this machine.
+
+A test process (each pytest-xdist worker too) takes an exclusive lock on a file per
+domain id, tried in random order; the lock lasts as long as the process. Two test runs
+at once (two checkouts, two users), two workers of one run, and a test that needs extra
+graphs of its own then never share a domain and never hear each other's nodes.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import random
+import tempfile
+
+DOMAIN_RANGE = (1, 200)
+"""Domain ids handed out. ROS 2 allows 0-232 on Linux; 0 (every other program's default) is
+left out."""
+
+_held: list[int] = []
+"""Open lock files of the domain ids this process holds (kept open until it exits)."""
+
+
+class NoFreeDomainError(RuntimeError):
+    """Every domain id of :data:`DOMAIN_RANGE` is held by other processes."""
+
+
+def lock_domain_ids(count: int) -> list[int]:
+    """``count`` domain ids that no other process of any test run holds, now held by this one."""
+    low, high = DOMAIN_RANGE
+    candidates = list(range(low, high + 1))
+    random.SystemRandom().shuffle(candidates)
+    directory = os.path.join(tempfile.gettempdir(), "infomax_contingency-domains")
+    os.makedirs(directory, exist_ok=True)
+    taken: list[int] = []
+    for domain_id in candidates:
+        if len(taken) == count:
+            break
+        fd = os.open(os.path.join(directory, f"{domain_id}.lock"), os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        _held.append(fd)
+        taken.append(domain_id)
+    if len(taken) < count:
+        raise NoFreeDomainError(
+            f"only {len(taken)} of {count} ROS domain ids in {low}..{high} are free:"
+            " the others are held by other test runs"
+        )
+    return taken
