@@ -25,18 +25,22 @@ class NoFreeDomainError(RuntimeError):
     """Every domain id of :data:`DOMAIN_RANGE` is held by other processes."""
 
 
+def lock_path(domain_id: int) -> str:
+    """The lock file of ``domain_id`` (in the temporary directory, shared by every run)."""
+    return os.path.join(tempfile.gettempdir(), "infomax_contingency-domains", f"{domain_id}.lock")
+
+
 def lock_domain_ids(count: int) -> list[int]:
     """``count`` domain ids that no other process of any test run holds, now held by this one."""
     low, high = DOMAIN_RANGE
     candidates = list(range(low, high + 1))
     random.SystemRandom().shuffle(candidates)
-    directory = os.path.join(tempfile.gettempdir(), "infomax_contingency-domains")
-    os.makedirs(directory, exist_ok=True)
+    os.makedirs(os.path.dirname(lock_path(low)), exist_ok=True)
     taken: list[int] = []
     for domain_id in candidates:
         if len(taken) == count:
             break
-        fd = os.open(os.path.join(directory, f"{domain_id}.lock"), os.O_CREAT | os.O_RDWR, 0o666)
+        fd = os.open(lock_path(domain_id), os.O_CREAT | os.O_RDWR, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

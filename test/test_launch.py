@@ -15,7 +15,7 @@ import shutil
 import signal
 import subprocess
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -56,7 +56,11 @@ def shell(workspace: Path, command: str) -> list[str]:
 
 
 def ros2(workspace: Path, arguments: str, timeout_s: float = 60.0) -> str:
-    """Run ``ros2 ARGUMENTS`` to its end; its output (stdout and stderr)."""
+    """Run ``ros2 ARGUMENTS`` to its end; its output (stdout and stderr).
+
+    The tests give ``--no-daemon`` to every verb that has it: the CLI's daemon, spawned
+    otherwise, would outlive the test (one per domain) and answer from its cached graph.
+    """
     result = subprocess.run(
         shell(workspace, "ros2 " + arguments),
         capture_output=True,
@@ -148,14 +152,19 @@ def launch(workspace: Path) -> Iterator:
 def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path, launch) -> None:
     graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true")
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
-    graph.wait_for("real time x1")  # realtime:=true is the default
-    assert "data:" in ros2(workspace, "topic echo --once /robot7/belief std_msgs/msg/Float64")
-    answer = ros2_once_known(workspace, "param set /robot7/posture_node attentive_above 0.5")
+    graph.wait_for("[robot7.fake_audio_node]: room 'responsive' (seed 1), real time x1")
+    answer = ros2_once_known(workspace, "param get --no-daemon /robot7/fake_audio_node lockstep")
+    assert "Boolean value is: False" in answer, answer  # realtime:=true is the default
+    echo = "topic echo --once --no-daemon /robot7/belief std_msgs/msg/Float64"
+    assert "data:" in ros2(workspace, echo)
+    answer = ros2_once_known(
+        workspace, "param set --no-daemon /robot7/posture_node attentive_above 0.5"
+    )
     assert "Set parameter successful" in answer
     graph.wait_for("parameter 'attentive_above' set to 0.5")
-    answer = ros2(workspace, "param set /robot7/mic_node source wav")
+    answer = ros2(workspace, "param set --no-daemon /robot7/mic_node source wav")
     assert "read-only" in answer
-    answer = ros2(workspace, "param set /robot7/posture_node bored_below 0.99")
+    answer = ros2(workspace, "param set --no-daemon /robot7/posture_node bored_below 0.99")
     assert "must be below 'attentive_above'" in answer
     answer = ros2(workspace, "service call /robot7/belief_node/reset std_srvs/srv/Trigger")
     assert "statistic reset after" in answer
@@ -189,19 +198,6 @@ def robot_params(tmp_path: Path, name: str, **sections: dict) -> Path:
     path = tmp_path / name
     path.write_text(yaml.safe_dump(config))
     return path
-
-
-@pytest.mark.slow
-def test_realtime_chooses_the_pacing_of_the_fake_room(workspace: Path, launch) -> None:
-    """The pacing each node reports (its log line and its parameter), not a measured rate."""
-    for realtime, lockstep, line in (("false", "True", "(seed 1), lockstep"),
-                                     ("true", "False", "(seed 1), real time x1")):  # fmt: skip
-        graph = launch(f"contingency.launch.py use_fake_room:=true realtime:={realtime}")
-        graph.wait_for(f"[fake_audio_node]: room 'responsive' {line}")
-        answer = ros2_once_known(workspace, "param get /fake_audio_node lockstep")
-        assert f"Boolean value is: {lockstep}" in answer, answer
-        assert graph.stop() == 0
-        assert "Traceback" not in graph.output()
 
 
 @pytest.mark.slow
@@ -264,15 +260,20 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
             while "Double value is" not in answer:  # until the node's services answer
                 assert process.poll() is None, log.read_text()
                 assert time.monotonic() < deadline, answer + log.read_text()
-                answer = ros2(workspace, f"param get {node} threshold_db")
+                answer = ros2(workspace, f"param get --no-daemon {node} threshold_db")
             assert f"Double value is: {expected}" in answer, (namespace, arguments, answer)
         finally:
             os.killpg(process.pid, signal.SIGINT)
             assert process.wait(timeout=30) == 0, log.read_text()
 
 
-def record_robot2(graph_launcher, arguments: str, steps: int) -> tuple[list, list]:
-    """Launch ``arguments`` with a recorder on /robot2 from the start: (bits, beliefs)."""
+def record_robot2(
+    graph_launcher, arguments: str, steps: int, while_running: Callable[[Launch], None]
+) -> tuple[list, list]:
+    """Launch ``arguments`` with a recorder on /robot2 from the start: (bits, beliefs).
+
+    ``while_running(graph)`` checks the running graph once the steps are recorded.
+    """
     rclpy.init()
     keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
     recorder = StepRecorder(
@@ -296,6 +297,7 @@ def record_robot2(graph_launcher, arguments: str, steps: int) -> tuple[list, lis
             with recorder.lock:
                 bits = [(step, bit) for _stream, step, bit, _us in recorder.sound_step[:steps]]
                 beliefs = recorder.belief[:steps]
+            while_running(graph)
             assert graph.stop() == 0
             assert "Traceback" not in graph.output()
     finally:
@@ -304,35 +306,15 @@ def record_robot2(graph_launcher, arguments: str, steps: int) -> tuple[list, lis
     return bits, beliefs
 
 
-@pytest.mark.slow
-def test_two_robots_do_not_cross_talk(workspace: Path, launch, tmp_path: Path) -> None:
-    """The belief of robot2 alone equals that of robot2 beside robot1, step for step."""
-    steps = 40
-    # mic_node waits for this test's recorder too (a third listener of 'sound').
-    config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())
-    config["/**/mic_node"]["ros__parameters"]["wait_for_listeners"] = 3
-    params = tmp_path / "robot.yaml"
-    params.write_text(yaml.safe_dump(config))
-    lockstep = f"realtime:=false params_file:={params}"
-    beside = record_robot2(launch, f"multi_robot.launch.py robots:=2 {lockstep}", steps)
-    alone = record_robot2(
-        launch,
-        f"contingency.launch.py namespace:=robot2 use_fake_room:=true room_seed:=2 {lockstep}",
-        steps,
-    )
-    assert beside[0] == alone[0] and [step for step, _ in alone[0]] == list(range(1, steps + 1))
-    assert beside[1] == alone[1]
-
-
-@pytest.mark.slow
-def test_robots_in_namespaces_have_their_own_topics(workspace: Path, launch) -> None:
-    graph = launch("multi_robot.launch.py robots:=2 realtime:=false")
+def each_robot_has_its_own_topics_and_a_lockstep_room(workspace: Path, graph: Launch) -> None:
+    """Two robots beside each other: each one's room, pacing and sound_step, in its namespace."""
     for robot, seed in (("robot1", 1), ("robot2", 2)):
-        graph.wait_for(f"[{robot}.mic_node]: listeners connected: starting the step clock")
         # fake_audio_node logs its room when it is set up, which may come after the mic's
         # start (the mic does not wait for the room): wait for the line, do not expect it.
         graph.wait_for(f"[{robot}.fake_audio_node]: room 'responsive' (seed {seed}), lockstep")
-    for robot in ("robot1", "robot2"):
+        lockstep = f"param get --no-daemon /{robot}/fake_audio_node lockstep"
+        answer = ros2_once_known(workspace, lockstep)
+        assert "Boolean value is: True" in answer, answer
         deadline = time.monotonic() + 120.0
         while True:  # node names reach the CLI's discovery some time after the topics
             info = ros2(workspace, f"topic info --no-daemon --spin-time 3 /{robot}/sound_step -v")
@@ -340,4 +322,37 @@ def test_robots_in_namespaces_have_their_own_topics(workspace: Path, launch) -> 
                 break
             assert time.monotonic() < deadline, info
         assert info.count("Node name: mic_node") == 1 and f"/{robot}" in info, info
-    assert graph.stop() == 0
+
+
+@pytest.mark.slow
+def test_two_robots_in_namespaces_have_their_own_topics_and_do_not_cross_talk(
+    workspace: Path, launch, tmp_path: Path
+) -> None:
+    """The belief of robot2 alone equals that of robot2 beside robot1, step for step.
+
+    Beside robot1, each robot's topics and parameters are in its own namespace; alone,
+    ``realtime:=false`` makes the single-robot launch's room lockstep.
+    """
+    steps = 40
+    # mic_node waits for this test's recorder too (a third listener of 'sound').
+    config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())
+    config["/**/mic_node"]["ros__parameters"]["wait_for_listeners"] = 3
+    params = tmp_path / "robot.yaml"
+    params.write_text(yaml.safe_dump(config))
+    lockstep = f"realtime:=false params_file:={params}"
+    beside = record_robot2(
+        launch,
+        f"multi_robot.launch.py robots:=2 {lockstep}",
+        steps,
+        lambda graph: each_robot_has_its_own_topics_and_a_lockstep_room(workspace, graph),
+    )
+    alone = record_robot2(
+        launch,
+        f"contingency.launch.py namespace:=robot2 use_fake_room:=true room_seed:=2 {lockstep}",
+        steps,
+        lambda graph: graph.wait_for(
+            "[robot2.fake_audio_node]: room 'responsive' (seed 2), lockstep"
+        ),
+    )
+    assert beside[0] == alone[0] and [step for step, _ in alone[0]] == list(range(1, steps + 1))
+    assert beside[1] == alone[1]

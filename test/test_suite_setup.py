@@ -1,0 +1,42 @@
+"""The test suite's own setup: what `make test` relies on to run the graph tests safely."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+
+import pytest
+
+from domains import lock_domain_ids, lock_path
+
+
+@pytest.mark.xdist_group("node_graphs")
+def test_the_node_graph_group_reaches_the_scheduler(request: pytest.FixtureRequest) -> None:
+    """With ``--dist loadgroup`` the tests marked ``node_graphs`` share one worker.
+
+    pytest-xdist puts the group into the test's node id; a pytest that ignores it (pytest
+    9 with xdist 3.8) runs two node graphs at once, each starving the other of CPU.
+    """
+    if not getattr(request.config.option, "loadgroup", False):
+        pytest.skip("not run with --dist loadgroup (make test runs with it)")
+    assert request.node.nodeid.endswith("@node_graphs"), request.node.nodeid
+
+
+def test_every_test_process_has_a_domain_of_its_own() -> None:
+    """The worker's domain and extra ones locked for a test are all different, and held.
+
+    (A domain forced with INFOMAX_TEST_DOMAIN_ID is the caller's choice, and not locked.)
+    """
+    own = int(os.environ["ROS_DOMAIN_ID"])
+    extra = lock_domain_ids(3)
+    assert len({own, *extra}) == 4
+    forced = bool(os.environ.get("INFOMAX_TEST_DOMAIN_ID", "").strip())
+    # another process (another open file) cannot take them
+    for domain_id in extra if forced else (own, *extra):
+        fd = os.open(lock_path(domain_id), os.O_RDWR)
+        try:
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        finally:
+            os.close(fd)
+    assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
