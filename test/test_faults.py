@@ -137,12 +137,34 @@ leave its peers' shared-memory transport stalled (eProsima/Fast-DDS#5469; seen h
 test process that stopped receiving /diagnostics after a kill). The restart test kills."""
 
 
+SHORT_LEASE_PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="short_lease" is_default_profile="true">
+    <rtps>
+      <builtin>
+        <discovery_config>
+          <leaseDuration><sec>2</sec><nanosec>0</nanosec></leaseDuration>
+          <leaseAnnouncement><sec>0</sec><nanosec>500000000</nanosec></leaseAnnouncement>
+        </discovery_config>
+      </builtin>
+    </rtps>
+  </participant>
+</profiles>
+"""
+"""Fast DDS participants that count a silent peer as gone after 2 s (the default: 20 s),
+for the restart test: a node killed with SIGKILL says no goodbye, and the room names
+what is not running only once its peers' discovery dropped the dead node."""
+
+
 @pytest.fixture
 def graph(tmp_path: Path, request: pytest.FixtureRequest,
           monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:  # fmt: skip
     if request.node.get_closest_marker("kills_nodes"):
         for name, value in UDP_ONLY.items():
             monkeypatch.setenv(name, value)  # this process and the nodes it starts
+        profiles = tmp_path / "short_lease.xml"
+        profiles.write_text(SHORT_LEASE_PROFILES)
+        monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(profiles))
     rclpy.init()
     recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
     probe = Probe()

@@ -13,7 +13,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from infomax_contingency.audio.bag import BagWriter, encode, read_topics
 from infomax_contingency.audio.bag_replay import BagReplay, recorded_decisions
@@ -24,8 +23,6 @@ from stepped_graph import stepped_graph
 SESSION = Path(__file__).parent / "data" / "session_demo"
 STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief",
                "/partner_present")
-
-pytestmark = pytest.mark.xdist_group("node_graphs")
 
 
 def _graph(controller: dict, bag: Path = SESSION, **mic_parameters: object) -> dict:

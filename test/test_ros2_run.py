@@ -32,10 +32,6 @@ from infomax_contingency.testing.graph import (
     wait_until,
 )
 
-# The graph tests that start many node processes run one at a time (on one pytest-xdist
-# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
-pytestmark = pytest.mark.xdist_group("node_graphs")
-
 ROOT = Path(__file__).resolve().parent.parent
 PKG = "infomax_contingency"
 WAV = ROOT / "test" / "data" / "interaction.wav"
