@@ -265,11 +265,14 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
 
 
 def record_robot2(
-    graph_launcher, arguments: str, steps: int, while_running: Callable[[Launch], None]
+    graph_launcher,
+    arguments: str,
+    steps: int,
+    while_running: Callable[[Launch, StepRecorder], None],
 ) -> tuple[list, list]:
     """Launch ``arguments`` with a recorder on /robot2 from the start: (bits, beliefs).
 
-    ``while_running(graph)`` checks the running graph once the steps are recorded.
+    ``while_running(graph, recorder)`` checks the running graph once the steps are recorded.
     """
     rclpy.init()
     keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -294,7 +297,7 @@ def record_robot2(
             with recorder.lock:
                 bits = [(step, bit) for _stream, step, bit, _us in recorder.sound_step[:steps]]
                 beliefs = recorder.belief[:steps]
-            while_running(graph)
+            while_running(graph, recorder)
             assert graph.stop() == 0
             assert "Traceback" not in graph.output()
     finally:
@@ -303,28 +306,32 @@ def record_robot2(
     return bits, beliefs
 
 
-def each_robot_has_its_own_topics_and_a_lockstep_room(workspace: Path, graph: Launch) -> None:
-    """Two robots beside each other: each one's room, pacing and sound_step, in its namespace."""
+def each_robot_has_its_own_topics_and_a_lockstep_room(
+    workspace: Path, graph: Launch, recorder: StepRecorder
+) -> None:
+    """Two robots beside each other: each one's room, pacing and sound_step, in its namespace.
+
+    Who publishes a topic is read from this process's DDS graph, the data ``ros2 topic
+    info -v`` prints (the CLI is driven by the other tests).
+    """
     for robot, seed in (("robot1", 1), ("robot2", 2)):
         # fake_audio_node logs its room when it is set up, which may come after the mic's
         # start (the mic does not wait for the room): wait for the line, do not expect it.
         graph.wait_for(f"[{robot}.fake_audio_node]: room 'responsive' (seed {seed}), lockstep")
-        if robot == "robot1":  # the parameter says so too
-            lockstep = f"param get --no-daemon /{robot}/fake_audio_node lockstep"
-            answer = ros2_once_known(workspace, lockstep)
-            assert "Boolean value is: True" in answer, answer
-        deadline = time.monotonic() + 120.0
-        while True:  # node names reach the CLI's discovery some time after the topics
-            info = ros2(workspace, f"topic info --no-daemon --spin-time 3 /{robot}/sound_step -v")
-            if "_NODE_NAME_UNKNOWN_" not in info and "Node name: mic_node" in info:
-                break
-            assert time.monotonic() < deadline, info
-        assert info.count("Node name: mic_node") == 1 and f"/{robot}" in info, info
+
+        def publishers(robot: str = robot) -> list[tuple[str, str]]:
+            found = recorder.get_publishers_info_by_topic(f"/{robot}/sound_step")
+            return [(info.node_namespace, info.node_name) for info in found]
+
+        deadline = time.monotonic() + 60.0
+        while any(name == "_NODE_NAME_UNKNOWN_" for _, name in publishers()) or not publishers():
+            assert time.monotonic() < deadline, publishers()
+            time.sleep(0.1)  # names come after the endpoints; the deadline bounds it
+        assert publishers() == [(f"/{robot}", "mic_node")], publishers()
+    answer = ros2_once_known(workspace, "param get --no-daemon /robot1/fake_audio_node lockstep")
+    assert "Boolean value is: True" in answer, answer
 
 
-# Two graphs stepping as fast as they can: with the other tests that do so, one at a time
-# (on one pytest-xdist worker, with `--dist loadgroup`), so that they do not starve each
-# other of CPU. The other launches here run in real time, or for a few steps only.
 @pytest.mark.slow
 @pytest.mark.xdist_group("node_graphs")
 def test_two_robots_in_namespaces_have_their_own_topics_and_do_not_cross_talk(
@@ -346,13 +353,15 @@ def test_two_robots_in_namespaces_have_their_own_topics_and_do_not_cross_talk(
         launch,
         f"multi_robot.launch.py robots:=2 {lockstep}",
         steps,
-        lambda graph: each_robot_has_its_own_topics_and_a_lockstep_room(workspace, graph),
+        lambda graph, recorder: each_robot_has_its_own_topics_and_a_lockstep_room(
+            workspace, graph, recorder
+        ),
     )
     alone = record_robot2(
         launch,
         f"contingency.launch.py namespace:=robot2 use_fake_room:=true room_seed:=2 {lockstep}",
         steps,
-        lambda graph: graph.wait_for(
+        lambda graph, _: graph.wait_for(
             "[robot2.fake_audio_node]: room 'responsive' (seed 2), lockstep"
         ),
     )
