@@ -17,6 +17,7 @@ from infomax_contingency.core.model import (
 from infomax_contingency.core.stepclock import (
     Arrival,
     LockstepPacer,
+    PublicationTimes,
     RecentEvents,
     SourceLock,
     StepJoiner,
@@ -310,3 +311,47 @@ def test_source_lock_with_due_times_is_not_fooled_by_a_pause_of_the_graph() -> N
     assert all(lock.accept(2, t, due_since=10.5) is Arrival.FOREIGN for t in (14.0, 30.0))
     # Bits keep coming and the followed source leaves them unanswered for 3 s: replaced.
     assert lock.accept(2, 31.0, due_since=13.0) is Arrival.SWITCHED and lock.source == 2
+
+
+def test_publication_times_answer_what_was_sent_by_a_moment() -> None:
+    times = PublicationTimes(horizon_s=10.0, max_kept=100)
+    assert times.newest_until(5.0) == -math.inf  # nothing sent yet
+    for sent in (1.0, 1.5, 2.0, 1.9, 30.0):  # 1.9 after 2.0: counts as 2.0 (in order)
+        times.note(sent)
+    assert times.newest_until(1.7) == -math.inf  # forgotten: older than 30 - 10 s
+    assert times.newest_until(29.9) == -math.inf and times.newest_until(30.0) == 30.0
+    assert len(times) == 1
+    for sent in np.arange(31.0, 400.0, 0.5):
+        times.note(float(sent))
+    assert len(times) == 21  # the last 10 s
+    assert times.newest_until(395.2) == 395.0 and times.newest_until(1e9) == 399.5
+    with pytest.raises(ValueError, match="horizon_s"):
+        PublicationTimes(0.0)
+    with pytest.raises(ValueError, match="max_kept"):
+        PublicationTimes(1.0, max_kept=0)
+
+
+def test_a_backlog_of_bits_does_not_make_a_controller_look_silent() -> None:
+    """The belief node's rule: due = the newest bit published by the foreign decision's time.
+
+    A flood (a rogue answering the followed stream at 1 kHz) delays the decisions' queue:
+    the bits up to 20 s have been processed, the decisions only up to 10 s. The rogue's
+    decision published at 10.2 s finds the followed controller answered at 10.0 s, and
+    the bit then due was published at 10.0 s: not silent. Judged against the newest bit
+    processed (20 s) it would have replaced the followed controller.
+    """
+    bits = PublicationTimes(horizon_s=30.0)
+    lock = SourceLock(silence_s=3.0)
+    assert lock.accept(1, 0.0) is Arrival.FIRST
+    for t in np.arange(0.0, 10.01, 0.5):  # bits and their answers, in step
+        bits.note(float(t))
+        assert lock.accept(1, float(t), bits.newest_until(float(t))) is Arrival.FOLLOWED
+    for t in np.arange(10.5, 20.01, 0.5):  # bits processed ahead of the decisions
+        bits.note(float(t))
+    assert lock.accept(99, 10.2, bits.newest_until(10.2)) is Arrival.FOREIGN
+    assert lock.accept(99, 10.2, due_since=20.0) is Arrival.SWITCHED  # the old rule
+    # A controller that really died: bits went on for 3 s unanswered, then another one
+    # answers; it replaces the dead one.
+    lock = SourceLock(silence_s=3.0)
+    assert lock.accept(1, 10.0) is Arrival.FIRST
+    assert lock.accept(2, 13.6, bits.newest_until(13.6)) is Arrival.SWITCHED

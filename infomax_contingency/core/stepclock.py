@@ -8,6 +8,9 @@ listener joins ``y_t`` with ``u_t`` exactly, whatever order and rate they arrive
 * :class:`SourceLock` follows one source (a stream, or a controller) among those that
   publish on a topic: an intruder is counted and ignored; a followed source that has
   been silent for a while is replaced by the next one (a restarted node).
+* :class:`PublicationTimes` remembers when a source's recent messages were published,
+  so that a listener can ask which of them had been sent by a given moment (the due
+  times a :class:`SourceLock` judges silence by, whatever its queues hold back).
 * :class:`StepJoiner` applies the steps of one stream in order, each once both of its
   messages are in, and resolves steps whose bit or decision can no longer arrive (a
   later one from the same in-order source did) as *missing*: never guessed (see
@@ -87,9 +90,10 @@ class SourceLock:
 
         ``due_since``: for a listener that can tell when the followed source should have
         spoken (e.g. the publication time of the newest bit its controller has not
-        answered), that time: the followed source counts as silent only for as long as
-        it left such messages unanswered, so a pause of the whole graph (a loaded machine)
-        is no silence, however long another source keeps talking meanwhile. Default:
+        answered, as of ``now``: see :class:`PublicationTimes`), that time: the followed
+        source counts as silent only for as long as it left such messages unanswered, so
+        a pause of the whole graph (a loaded machine) is no silence, however long another
+        source keeps talking meanwhile; ``-inf``: nothing was due, never silent. Default:
         ``now`` (silence is the time since the followed source was last heard).
         """
         if self.source is None:
@@ -125,6 +129,46 @@ class SourceLock:
     def intruders(self, now: float) -> list[int]:
         """Foreign sources heard within the last ``silence_s`` seconds."""
         return sorted(s for s, t in self.foreign_sources.items() if now - t < self.silence_s)
+
+
+class PublicationTimes:
+    """Publication times of one in-order source's recent messages (seconds, non-decreasing).
+
+    A listener that reads two topics processes each one's queue on its own: under a
+    flood, the bits of one topic may be processed seconds ahead of the decisions on the
+    other. Judging a decision published at ``t`` against the newest bit processed would
+    then find its controller "silent" for the length of the backlog. :meth:`newest_until`
+    answers what was really due by ``t``: the newest bit published at or before it.
+
+    Args:
+        horizon_s: times older than the newest by more than this are forgotten (seconds).
+        max_kept: at most this many times are kept (the newest).
+    """
+
+    def __init__(self, horizon_s: float, max_kept: int = 10_000) -> None:
+        if not horizon_s > 0:
+            raise ValueError(f"horizon_s must be > 0 seconds, got {horizon_s}")
+        if max_kept < 1:
+            raise ValueError(f"max_kept must be >= 1, got {max_kept}")
+        self.horizon_s = horizon_s
+        self._times: deque[float] = deque(maxlen=max_kept)
+
+    def note(self, sent_s: float) -> None:
+        """A message published at ``sent_s`` (a time before the newest counts as the newest)."""
+        newest = max(sent_s, self._times[-1]) if self._times else sent_s
+        self._times.append(newest)
+        while self._times[0] < newest - self.horizon_s:
+            self._times.popleft()
+
+    def newest_until(self, t: float) -> float:
+        """The newest publication time at or before ``t``; ``-inf`` if none kept is that old."""
+        for sent_s in reversed(self._times):  # a backlog is short: start from the newest
+            if sent_s <= t:
+                return sent_s
+        return -math.inf
+
+    def __len__(self) -> int:
+        return len(self._times)
 
 
 @dataclass

@@ -45,7 +45,12 @@ from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.core.model import StatisticTracker
-from infomax_contingency.core.stepclock import Arrival, SourceLock, StepJoiner
+from infomax_contingency.core.stepclock import (
+    Arrival,
+    PublicationTimes,
+    SourceLock,
+    StepJoiner,
+)
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -129,8 +134,8 @@ class BeliefNode(GraphNode):
         """The stream followed: the one the followed controller answers."""
         self._held: dict[int, deque[StepBit]] = {}
         self._joining = False
-        self._newest_bit_sent_s: float | None = None
-        """Publication time (s) of the newest bit of the followed stream."""
+        self._bit_times = PublicationTimes(horizon_s=max(10.0, 4 * self.controllers.silence_s))
+        """Publication times (s) of the followed stream's recent bits."""
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS
@@ -169,7 +174,7 @@ class BeliefNode(GraphNode):
         if bit.stream != self.stream:
             self._hold(bit, now)
             return
-        self._newest_bit_sent_s = self.sent_s(stamp, now)
+        self._bit_times.note(self.sent_s(stamp, now))
         if not self.joiner.bit(bit.step, bit.bit):
             self.warn_intrusion(
                 f"bit for step {bit.step} of stream {bit.stream} repeats or goes backwards"
@@ -200,9 +205,12 @@ class BeliefNode(GraphNode):
             return
         # A decision on the followed stream from another controller replaces the followed
         # one only if that one left the stream's bits unanswered for source_timeout_s: a
-        # pause of the whole graph, while a rogue keeps talking, is no silence.
-        due = self._newest_bit_sent_s if decision.stream == self.stream else None
-        arrival = self.controllers.accept(decision.controller, self.sent_s(stamp, now), due)
+        # pause of the whole graph, while a rogue keeps talking, is no silence. The bits
+        # due are those published by the time the decision was, not the newest processed:
+        # under a flood the bits' queue may be processed seconds ahead of the decisions'.
+        sent = self.sent_s(stamp, now)
+        due = self._bit_times.newest_until(sent) if decision.stream == self.stream else None
+        arrival = self.controllers.accept(decision.controller, sent, due)
         if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(
