@@ -24,7 +24,8 @@ SETUP_INPUTS := requirements.txt requirements-colcon.txt setup.py setup.cfg pack
 APT_PACKAGES := libportaudio2 sox espeak-ng alsa-utils
 
 # The suite runs on both cores (pytest-xdist); every worker has a DDS domain of its own.
-PYTEST_XDIST ?= -n 2 --dist loadgroup
+# A worker that crashes ends the run (no restarted worker reruns its group).
+PYTEST_XDIST ?= -n 2 --dist loadgroup --max-worker-restart 0
 PYTEST_ARGS ?=
 # The demo: the whole node graph (mic, controller, belief, posture, speaker, fake room) as
 # separate processes over DDS, in lockstep: a partner answers for 60 s, then leaves.

@@ -100,7 +100,8 @@ def speaker(play: bool) -> dict:
 
     The chirp is asked for once the stream has filled a block of silence (so silence
     precedes it in the device's output), and the speaker is closed once the chirp has
-    gone to the device (closing lets the blocks handed over play out).
+    gone to the device and the callback has filled two blocks after it (each block is
+    written to ALSA before the next is asked for).
     """
     from infomax_contingency.audio.playback import SpeakerOutput
 
@@ -112,7 +113,7 @@ def speaker(play: bool) -> dict:
         events = [dataclasses.asdict(e) for e in output.events(DEADLINE_S)]
         _wait(output.drained, "the chirp handed to the device")
     blocks = output.blocks_served
-    _wait(lambda: output.blocks_served > blocks, "a block of silence after it")
+    _wait(lambda: output.blocks_served > blocks + 1, "two blocks of silence after it")
     status = output.status().as_dict()
     output.close()
     return {"events": events, "status": status}

@@ -17,8 +17,8 @@ DOMAIN_RANGE = (1, 200)
 """Domain ids handed out. ROS 2 allows 0-232 on Linux; 0 (every other program's default) is
 left out."""
 
-_held: list[int] = []
-"""Open lock files of the domain ids this process holds (kept open until it exits)."""
+_held: dict[int, int] = {}
+"""Domain id -> open lock file, for the ids this process holds (until it exits or releases)."""
 
 
 class NoFreeDomainError(RuntimeError):
@@ -31,22 +31,39 @@ def lock_path(domain_id: int) -> str:
 
 
 def lock_domain_ids(count: int) -> list[int]:
-    """``count`` domain ids that no other process of any test run holds, now held by this one."""
+    """``count`` domain ids that no other process of any test run holds, now held by this one.
+
+    The domain this process is on (``ROS_DOMAIN_ID``, locked or forced) is never one of them.
+    """
     low, high = DOMAIN_RANGE
-    candidates = list(range(low, high + 1))
+    current = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    candidates = [d for d in range(low, high + 1) if str(d) != current]
     random.SystemRandom().shuffle(candidates)
-    os.makedirs(os.path.dirname(lock_path(low)), exist_ok=True)
+    directory = os.path.dirname(lock_path(low))
+    if not os.path.isdir(directory):
+        os.makedirs(directory, exist_ok=True)
+        try:  # shared by every user's runs, like /tmp itself
+            os.chmod(directory, 0o1777)
+        except OSError:
+            pass
     taken: list[int] = []
     for domain_id in candidates:
         if len(taken) == count:
             break
-        fd = os.open(lock_path(domain_id), os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fd = os.open(lock_path(domain_id), os.O_CREAT | os.O_RDWR, 0o666)
+        except OSError:  # another user's file, not writable here: theirs
+            continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             os.close(fd)
             continue
-        _held.append(fd)
+        try:
+            os.fchmod(fd, 0o666)  # for other users' runs, whatever the umask
+        except OSError:
+            pass
+        _held[domain_id] = fd
         taken.append(domain_id)
     if len(taken) < count:
         raise NoFreeDomainError(
@@ -54,3 +71,11 @@ def lock_domain_ids(count: int) -> list[int]:
             " the others are held by other test runs"
         )
     return taken
+
+
+def release_domain_ids(domain_ids: list[int]) -> None:
+    """Give back ids taken with :func:`lock_domain_ids` (once nothing uses them any more)."""
+    for domain_id in domain_ids:
+        fd = _held.pop(domain_id, None)
+        if fd is not None:
+            os.close(fd)  # closing the file releases its lock

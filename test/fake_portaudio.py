@@ -129,11 +129,6 @@ class FakeStream:
         if clock is not None and self in clock.timers:
             clock.timers.remove(self)
 
-    def stop(self, ignore_errors: bool = True) -> None:
-        """PortAudio's stop: the blocks already delivered count as played (none are pending)."""
-        self.started = False
-        self._stop_timer()
-
     def close(self, ignore_errors: bool = True) -> None:
         self.closed = True
         self._stop_timer()

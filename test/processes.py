@@ -19,17 +19,37 @@ LINE_TIMEOUT_S = 120.0
 def readline_within(process: subprocess.Popen, timeout_s: float = LINE_TIMEOUT_S) -> str:
     """The next line of ``process.stdout`` ("" at its end); AssertionError after ``timeout_s``.
 
-    On the timeout the process is killed (its pipe then ends, and the reader with it).
+    On the timeout the process gets SIGTERM (a command that started nodes stops them),
+    then SIGKILL after 10 s; its pipe then ends, and the reader with it.
     """
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.append(process.stdout.readline()), daemon=True)
+    result: list[str] = []
+    failure: list[BaseException] = []
+
+    def read() -> None:
+        try:
+            result.append(process.stdout.readline())
+        except BaseException as error:  # noqa: BLE001 - handed to the caller below
+            failure.append(error)
+
+    reader = threading.Thread(target=read, daemon=True)
     reader.start()
     reader.join(timeout_s)
     if reader.is_alive():
-        process.kill()
+        _stop(process)
         reader.join(10.0)
         raise AssertionError(f"pid {process.pid} wrote no line within {timeout_s:g} s")
-    return lines[0]
+    if failure:
+        raise failure[0]
+    return result[0]
+
+
+def _stop(process: subprocess.Popen) -> None:
+    """SIGTERM, then SIGKILL if it is still running 10 s later."""
+    process.terminate()
+    try:
+        process.wait(10.0)
+    except subprocess.TimeoutExpired:
+        process.kill()
 
 
 def read_until(process: subprocess.Popen, marker: str, timeout_s: float = LINE_TIMEOUT_S) -> str:
@@ -42,7 +62,7 @@ def read_until(process: subprocess.Popen, marker: str, timeout_s: float = LINE_T
     while True:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
-            process.kill()
+            _stop(process)
             raise AssertionError(f"no {marker!r} within {timeout_s:g} s in:\n{''.join(seen)}")
         line = readline_within(process, remaining)
         seen.append(line)

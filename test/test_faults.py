@@ -13,6 +13,7 @@ condition on what was received (with a deadline as a guard), never a sleep.
 from __future__ import annotations
 
 import array
+import os
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -159,18 +160,22 @@ what is not running only once its peers' discovery dropped the dead node."""
 @pytest.fixture
 def graph(tmp_path: Path, request: pytest.FixtureRequest,
           monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:  # fmt: skip
+    node_env = dict(os.environ)
     if request.node.get_closest_marker("kills_nodes"):
         for name, value in UDP_ONLY.items():
             monkeypatch.setenv(name, value)  # this process and the nodes it starts
+        node_env.update(UDP_ONLY)
         profiles = tmp_path / "short_lease.xml"
         profiles.write_text(SHORT_LEASE_PROFILES)
-        monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(profiles))
+        # The nodes only: Fast DDS reads the profile once per process, and this one runs
+        # other tests after this one.
+        node_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
     rclpy.init()
     recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
     probe = Probe()
     diagnostics = probe.listen("/diagnostics", DiagnosticArray, 100)
     steps = SteppedExecutor([recorder, probe])
-    processes = GraphProcesses(tmp_path)
+    processes = GraphProcesses(tmp_path, env=node_env)
     try:
         yield FaultGraph(processes, recorder, probe, diagnostics, steps)
     finally:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from domains import lock_domain_ids
+from domains import lock_domain_ids, release_domain_ids
 from processes import read_until, readline_within
 
 # The graph tests that start many node processes run one at a time (on one pytest-xdist
@@ -63,6 +63,7 @@ def test_a_stepping_graph_ends_cleanly_on_every_signal() -> None:
             if process.poll() is None:
                 process.kill()
                 process.communicate()
+        release_domain_ids(domains)
     for name, process in processes.items():
         assert process.returncode == 0, f"{name}: {outputs[name]}"
         assert "Traceback" not in outputs[name], f"{name}: {outputs[name]}"

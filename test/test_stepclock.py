@@ -331,27 +331,40 @@ def test_publication_times_answer_what_was_sent_by_a_moment() -> None:
         PublicationTimes(1.0, max_kept=0)
 
 
-def test_a_backlog_of_bits_does_not_make_a_controller_look_silent() -> None:
-    """The belief node's rule: due = the newest bit published by the foreign decision's time.
+def test_a_backlog_or_a_pause_does_not_make_a_controller_look_silent() -> None:
+    """The belief node's rule: the bits left unanswered by the foreign decision's time.
 
-    A flood (a rogue answering the followed stream at 1 kHz) delays the decisions' queue:
-    the bits up to 20 s have been processed, the decisions only up to 10 s. The rogue's
-    decision published at 10.2 s finds the followed controller answered at 10.0 s, and
-    the bit then due was published at 10.0 s: not silent. Judged against the newest bit
-    processed (20 s) it would have replaced the followed controller.
+    A flood (a rogue answering the followed stream) delays the decisions' queue: the bits
+    up to 20 s have been processed, the decisions only up to 10 s. The rogue's decision
+    published at 10.2 s finds no bit unanswered for long; judged against the newest bit
+    processed (the rule for one queue, ``due_since``) it would replace the followed one.
     """
     bits = PublicationTimes(horizon_s=30.0)
     lock = SourceLock(silence_s=3.0)
     assert lock.accept(1, 0.0) is Arrival.FIRST
     for t in np.arange(0.0, 10.01, 0.5):  # bits and their answers, in step
         bits.note(float(t))
-        assert lock.accept(1, float(t), bits.newest_until(float(t))) is Arrival.FOLLOWED
+        assert lock.accept(1, float(t)) is Arrival.FOLLOWED
     for t in np.arange(10.5, 20.01, 0.5):  # bits processed ahead of the decisions
         bits.note(float(t))
-    assert lock.accept(99, 10.2, bits.newest_until(10.2)) is Arrival.FOREIGN
-    assert lock.accept(99, 10.2, due_since=20.0) is Arrival.SWITCHED  # the old rule
-    # A controller that really died: bits went on for 3 s unanswered, then another one
-    # answers; it replaces the dead one.
+    assert bits.unanswered_s(lock.last_seen, 10.2) == -math.inf  # none due yet
+    assert lock.accept(99, 10.2, unanswered_s=bits.unanswered_s(lock.last_seen, 10.2)) \
+        is Arrival.FOREIGN
+    assert lock.accept(99, 10.2, due_since=20.0) is Arrival.SWITCHED  # the one-queue rule
+    # The whole graph pauses 10 s after the bit of 10 s was answered; on resume a bit at
+    # 20 s, and a rogue's decision 1 ms later, before the followed controller's answer:
+    # one bit is due, for 0 s. Not silent.
     lock = SourceLock(silence_s=3.0)
     assert lock.accept(1, 10.0) is Arrival.FIRST
-    assert lock.accept(2, 13.6, bits.newest_until(13.6)) is Arrival.SWITCHED
+    paused = PublicationTimes(horizon_s=30.0)
+    for t in (9.5, 10.0, 20.0):
+        paused.note(t)
+    assert paused.unanswered_s(10.0, 20.001) == 0.0
+    assert lock.accept(99, 20.001, unanswered_s=0.0) is Arrival.FOREIGN
+    assert lock.accept(99, 20.001, due_since=20.0) is Arrival.SWITCHED  # the one-queue rule
+    # A controller that really died at 10 s: bits went on (lockstep timeouts) for 4 s
+    # unanswered, then another one answers; it replaces the dead one.
+    lock = SourceLock(silence_s=3.0)
+    assert lock.accept(1, 10.0) is Arrival.FIRST
+    assert bits.unanswered_s(10.0, 14.6) == 4.0  # bits of 10.5 .. 14.5 s
+    assert lock.accept(2, 14.6, unanswered_s=4.0) is Arrival.SWITCHED and lock.source == 2

@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from domains import lock_domain_ids, lock_path
+from domains import lock_domain_ids, lock_path, release_domain_ids
 
 
 @pytest.mark.xdist_group("node_graphs")
@@ -28,15 +28,24 @@ def test_every_test_process_has_a_domain_of_its_own() -> None:
     (A domain forced with INFOMAX_TEST_DOMAIN_ID is the caller's choice, and not locked.)
     """
     own = int(os.environ["ROS_DOMAIN_ID"])
-    extra = lock_domain_ids(3)
-    assert len({own, *extra}) == 4
     forced = bool(os.environ.get("INFOMAX_TEST_DOMAIN_ID", "").strip())
-    # another process (another open file) cannot take them
-    for domain_id in extra if forced else (own, *extra):
+    extra = lock_domain_ids(3)
+    try:
+        assert len(set(extra)) == 3 and own not in extra
+        # another process (another open file) cannot take them
+        for domain_id in extra if forced else (own, *extra):
+            fd = os.open(lock_path(domain_id), os.O_RDWR)
+            try:
+                with pytest.raises(BlockingIOError):
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            finally:
+                os.close(fd)
+    finally:
+        release_domain_ids(extra)
+    for domain_id in extra:  # given back: free for others again
         fd = os.open(lock_path(domain_id), os.O_RDWR)
         try:
-            with pytest.raises(BlockingIOError):
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         finally:
             os.close(fd)
     assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"

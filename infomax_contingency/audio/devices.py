@@ -117,9 +117,8 @@ class DeviceInfo:
 class AudioBackend(Protocol):
     """What capture and playback need from PortAudio; :class:`SoundDeviceBackend` is the real one.
 
-    Streams returned by :meth:`open` have ``start()``, ``stop(ignore_errors=True)`` (returns
-    once the blocks already handed to the device have played), ``close(ignore_errors=True)``
-    (discards them), the properties ``active`` and ``time`` (the stream clock, seconds), and call
+    Streams returned by :meth:`open` have ``start()``, ``close(ignore_errors=True)``, the
+    properties ``active`` and ``time`` (the stream clock, seconds), and call
     ``callback(data, frames, time_info, status)`` like sounddevice's callback streams.
     """
 
@@ -416,19 +415,15 @@ def open_and_start(
     return stream, offset
 
 
-def close_stream(stream: Any, wait_s: float, drain: bool = False) -> threading.Thread | None:
+def close_stream(stream: Any, wait_s: float) -> threading.Thread | None:
     """Close a stream in a helper thread; return the thread if it is still busy after ``wait_s``.
 
-    ``drain``: stop the stream first, which lets the blocks already handed to the device
-    play out (an output stream's last sound is not cut); otherwise they are discarded.
     A stream whose device hangs (a blocked read) can take long to close; the caller then
     goes on and the helper finishes (or stays blocked) on its own.
     """
 
     def close() -> None:
         try:
-            if drain:
-                stream.stop(ignore_errors=True)
             stream.close(ignore_errors=True)
         except Exception as exc:  # closing a dead device: nothing more to do
             _log.debug("closing an audio stream failed: %s", exc)

@@ -245,19 +245,20 @@ class SpeakerOutput:
     def close(self) -> None:
         """Stop the stream and release the device (safe to call twice).
 
-        What the callback already handed to the device plays out first (PortAudio's stop,
-        at most ``CLOSE_WAIT_S``); a sound still being played is cut there. To let the
-        sound end first, wait until :meth:`drained`.
+        A sound still playing is cut, and so are the blocks still in the device's buffer
+        (PortAudio's close aborts: draining a dead or shared ALSA device can block). To
+        let a sound end first, wait until :meth:`drained`, then for a block or two more.
         """
         self._state = CLOSED
-        self._drop_stream(drain=True)
+        self._drop_stream()
 
-    def _drop_stream(self, drain: bool = False) -> None:
+    def _drop_stream(self) -> None:
         self._generation += 1
+        self._pos = -1  # a sound cut by a dead stream is not resumed on the next one
         stream, self._stream = self._stream, None
         unregister_stream(self)
         if stream is not None:
-            close_stream(stream, wait_s=CLOSE_WAIT_S, drain=drain)
+            close_stream(stream, wait_s=CLOSE_WAIT_S)
 
     def __enter__(self) -> SpeakerOutput:
         return self.start()
@@ -293,7 +294,8 @@ class SpeakerOutput:
     def drained(self) -> bool:
         """True when every command so far has been served and its sound handed to the device.
 
-        The last blocks may still be in the device's buffer; :meth:`close` lets them play.
+        The last blocks may still be in the device's buffer (:attr:`blocks_served` tells
+        when the callback has filled more after them).
         """
         return self._served == self._requested and self._pos < 0
 

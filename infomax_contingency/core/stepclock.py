@@ -29,6 +29,7 @@ or reads a clock.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Callable
@@ -85,16 +86,27 @@ class SourceLock:
         """Foreign source -> when it was last heard."""
         self._held: dict[int, deque[Any]] = {}
 
-    def accept(self, source: int, now: float, due_since: float | None = None) -> Arrival:
+    def accept(
+        self,
+        source: int,
+        now: float,
+        due_since: float | None = None,
+        unanswered_s: float | None = None,
+    ) -> Arrival:
         """Classify a message from ``source`` sent (or received) at ``now``.
 
-        ``due_since``: for a listener that can tell when the followed source should have
-        spoken (e.g. the publication time of the newest bit its controller has not
-        answered, as of ``now``: see :class:`PublicationTimes`), that time: the followed
-        source counts as silent only for as long as it left such messages unanswered, so
-        a pause of the whole graph (a loaded machine) is no silence, however long another
-        source keeps talking meanwhile; ``-inf``: nothing was due, never silent. Default:
-        ``now`` (silence is the time since the followed source was last heard).
+        The followed source is silent, and ``source`` replaces it, when:
+
+        * ``unanswered_s`` is given: it is at least ``silence_s``. For a listener that
+          measures how long the followed source left messages unanswered by ``now``
+          (:meth:`PublicationTimes.unanswered_s` from :attr:`last_seen`); ``-inf``:
+          nothing was due.
+        * else ``due_since`` is given: it lies ``silence_s`` or more after the followed
+          source was last heard. For a listener that knows when the followed source
+          should have spoken (the publication time of the newest message it has not
+          answered), so a pause of the whole graph (a loaded machine) is no silence,
+          however long another source keeps talking meanwhile.
+        * else ``now`` does (silence is the time since the followed source was last heard).
         """
         if self.source is None:
             self.source, self.last_seen = source, now
@@ -102,8 +114,12 @@ class SourceLock:
         if source == self.source:
             self.last_seen = now
             return Arrival.FOLLOWED
-        reference = now if due_since is None else due_since
-        if reference - self.last_seen >= self.silence_s:
+        if unanswered_s is not None:
+            silent = unanswered_s >= self.silence_s
+        else:
+            reference = now if due_since is None else due_since
+            silent = reference - self.last_seen >= self.silence_s
+        if silent:
             self.previous, self.source, self.last_seen = self.source, source, now
             self.foreign_sources.pop(source, None)
             self.switches += 1
@@ -137,8 +153,10 @@ class PublicationTimes:
     A listener that reads two topics processes each one's queue on its own: under a
     flood, the bits of one topic may be processed seconds ahead of the decisions on the
     other. Judging a decision published at ``t`` against the newest bit processed would
-    then find its controller "silent" for the length of the backlog. :meth:`newest_until`
-    answers what was really due by ``t``: the newest bit published at or before it.
+    then find its controller "silent" for the length of the backlog. :meth:`unanswered_s`
+    answers what was really due by ``t``: for how long bits published after the followed
+    controller's last answer, and at or before ``t``, had been waiting. A pause of the
+    whole graph leaves no bits unanswered (the first bit after it is answered at once).
 
     Args:
         horizon_s: times older than the newest by more than this are forgotten (seconds).
@@ -162,10 +180,20 @@ class PublicationTimes:
 
     def newest_until(self, t: float) -> float:
         """The newest publication time at or before ``t``; ``-inf`` if none kept is that old."""
-        for sent_s in reversed(self._times):  # a backlog is short: start from the newest
-            if sent_s <= t:
-                return sent_s
-        return -math.inf
+        index = bisect.bisect_right(self._times, t)
+        return self._times[index - 1] if index else -math.inf
+
+    def unanswered_s(self, answered_s: float, t: float) -> float:
+        """Seconds from the first time after ``answered_s`` to the newest at or before ``t``.
+
+        That is how long messages had gone unanswered by ``t`` if the last answer came at
+        ``answered_s``; ``-inf`` if none was published in between (nothing was due).
+        """
+        first = bisect.bisect_right(self._times, answered_s)
+        last = bisect.bisect_right(self._times, t) - 1
+        if first > last:
+            return -math.inf
+        return self._times[last] - self._times[first]
 
     def __len__(self) -> int:
         return len(self._times)

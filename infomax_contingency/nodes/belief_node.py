@@ -206,11 +206,14 @@ class BeliefNode(GraphNode):
         # A decision on the followed stream from another controller replaces the followed
         # one only if that one left the stream's bits unanswered for source_timeout_s: a
         # pause of the whole graph, while a rogue keeps talking, is no silence. The bits
-        # due are those published by the time the decision was, not the newest processed:
-        # under a flood the bits' queue may be processed seconds ahead of the decisions'.
+        # counted are those published by the time the decision was, not the newest
+        # processed: under a flood the bits' queue may run seconds ahead of the decisions'.
         sent = self.sent_s(stamp, now)
-        due = self._bit_times.newest_until(sent) if decision.stream == self.stream else None
-        arrival = self.controllers.accept(decision.controller, sent, due)
+        unanswered = None
+        foreign = decision.controller != self.controllers.source
+        if foreign and decision.stream == self.stream:
+            unanswered = self._bit_times.unanswered_s(self.controllers.last_seen, sent)
+        arrival = self.controllers.accept(decision.controller, sent, unanswered_s=unanswered)
         if arrival is Arrival.FOREIGN:
             self.foreign.note(now)
             self.warn_intrusion(
