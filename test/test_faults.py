@@ -52,6 +52,10 @@ RESTART_TIMEOUT_S = 1.0
 """source_timeout_s in the restart test: a silent stream or controller is replaced after
 this (the other tests keep the default, 3 s)."""
 
+ROGUE_BELIEF_LAG = 20
+"""The intruder test's rogue talks only while the belief node is at most this many steps
+behind the microphone's bits (as this process receives them)."""
+
 HOLD = {"fault_hold_s": 2.0}
 """A fault shows in the diagnostics for 2 s after it last happened (10 s by default)."""
 
@@ -294,14 +298,18 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGrap
     sent = [0]
 
     def rogue() -> None:
+        # Only while the belief node keeps up with the bits: a rogue that outpaces a node
+        # (a loaded machine) pushes true messages out of its queue (depth 1000). The node
+        # then applies those steps as missing and says so, but the recorder here has them,
+        # and this test's comparison is exact.
+        if len(rec.sound) - len(rec.belief) > ROGUE_BELIEF_LAG:
+            return
         sent[0] += 1
         bits.publish(bit_message(StepBit(424242, sent[0], bool(sent[0] % 2), 500_000)))
         decisions.publish(decision_message(StepDecision(stream, sent[0], True, 99)))
 
     # A 1 ms timer on the test's executor: as fast as the test process can publish (a few
-    # hundred a second here). A rogue that outpaces the nodes' reading makes them lose true
-    # messages from their queues (depth 1000): they then report those steps as missing,
-    # not guessed, but this test's exact comparison assumes they lost none.
+    # hundred a second here), whenever the belief node keeps up.
     timer = graph.probe.create_timer(0.001, rogue)
     graph.run_until(lambda: sent[0] >= 3000, "3000 rogue messages of each kind")
     graph.probe.destroy_timer(timer)
