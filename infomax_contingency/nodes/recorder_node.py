@@ -217,6 +217,10 @@ class RecorderNode(GraphNode):
             return ERROR, f"not recording: {self.failure}", values
         return OK, f"recording to {self.directory}", values
 
+    def messages_taken(self) -> int:
+        """Messages received on the recorded topics so far (the runtime drains by it)."""
+        return sum(self.counts.values())
+
     def destroy_node(self) -> None:
         """Close the bag (writes ``metadata.yaml``) and destroy the node."""
         if self.writer is not None:

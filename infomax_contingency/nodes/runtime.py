@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -111,6 +112,36 @@ def spin_until_done(executor: Executor, done: Future, stop: StopSignals | None =
         executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
 
 
+DRAIN_BUDGET_S = 2.0
+"""At most this long, after a stop, for nodes that keep a record to take what is queued."""
+
+DRAIN_IDLE_SPINS = 3
+"""The queues count as empty after this many spins in a row that took no message."""
+
+
+def drain_queued_messages(executor: Executor, nodes: Sequence[Node],
+                          budget_s: float = DRAIN_BUDGET_S) -> None:  # fmt: skip
+    """Spin until the nodes that keep a record have taken every message queued for them.
+
+    Such nodes (the recorder) have ``messages_taken() -> int``. On a stop, their DDS
+    queues may still hold messages that arrived in a burst (a lockstep graph makes 40
+    steps in 0.1 s; the executor serves one subscription at a time): without this they
+    would be lost, the later topics' most. Bounded by ``budget_s`` seconds.
+    """
+    keepers = [node for node in nodes if callable(getattr(node, "messages_taken", None))]
+    if not keepers:
+        return
+    for node in nodes:  # the others stop acting now (a room in lockstep would go on)
+        if node not in keepers:
+            executor.remove_node(node)
+    deadline = time.monotonic() + budget_s
+    idle = 0
+    while idle < DRAIN_IDLE_SPINS and time.monotonic() < deadline and rclpy.ok():
+        before = sum(node.messages_taken() for node in keepers)
+        executor.spin_once(timeout_sec=0.02)
+        idle = idle + 1 if sum(node.messages_taken() for node in keepers) == before else 0
+
+
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
@@ -140,6 +171,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                     lambda f: any_finished.done() or any_finished.set_result(f.result())
                 )
         spin_until_done(executor, any_finished, stop)
+        drain_queued_messages(executor, nodes)
         return int(any_finished.result()) if any_finished.done() else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
