@@ -21,7 +21,11 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, Float64, Int64MultiArray
 
 from infomax_contingency.audio.bag import BagWriteError, BagWriter
-from infomax_contingency.nodes.recorder_node import RECORDED_TOPICS, RecorderNode
+from infomax_contingency.nodes.recorder_node import (
+    RECORDED_TOPICS,
+    SUBSCRIBED_ONCE_PUBLISHED,
+    RecorderNode,
+)
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
 
@@ -112,13 +116,25 @@ def test_the_recorder_subscribes_every_topic_with_its_publishers_type(ros: None,
                                                                       tmp_path: Path) -> None:
     """A type other than the publisher's never matches: the topic would stay empty."""
     recorder = RecorderNode(parameter_overrides=[Parameter("directory", value=str(tmp_path / "s"))])
+    room = rclpy.create_node("room")
     try:
         types = {s.topic_name: s.msg_type for s in recorder.subscriptions}
-        assert {f"/{t}" if not t.startswith("/") else t for t in RECORDED_TOPICS} <= set(types)
+        at_once = set(RECORDED_TOPICS) - SUBSCRIBED_ONCE_PUBLISHED
+        assert {f"/{t}" if not t.startswith("/") else t for t in at_once} <= set(types)
+        assert "/partner_present" not in types  # until it has a publisher
         assert types["/speaker_started"] is TimeMsg  # builtin_interfaces/Time
-        assert types["/partner_present"] is Bool and types["/belief"] is Float64
+        assert types["/belief"] is Float64
         assert any(p.topic_name == "/session_info" for p in recorder.publishers)
+        room.create_publisher(Bool, "partner_present", 10)
+        deadline = time.monotonic() + 30.0
+        while recorder.count_publishers("/partner_present") == 0:
+            assert time.monotonic() < deadline, "the recorder never saw the publisher"
+            time.sleep(0.05)  # polls the graph; the deadline bounds it
+        recorder._discover()
+        types = {s.topic_name: s.msg_type for s in recorder.subscriptions}
+        assert types["/partner_present"] is Bool
     finally:
+        room.destroy_node()
         recorder.destroy_node()
 
 

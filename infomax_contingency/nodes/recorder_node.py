@@ -56,7 +56,8 @@ SESSION_TOPIC = "session_info"
 """Topic of the session description (std_msgs/String holding YAML)."""
 
 _DISCOVERY_PERIOD_S = 0.5
-"""Seconds between looks for topics that have no subscription yet (``audio``)."""
+"""Seconds between looks for topics that have no subscription yet (``audio``, and
+:data:`SUBSCRIBED_ONCE_PUBLISHED`)."""
 
 
 RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
@@ -74,6 +75,15 @@ RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
 }
 """Topic -> (message type, QoS of the recorder's subscription); ``audio`` is added when
 it has a publisher (its type is the publisher's)."""
+
+SUBSCRIBED_ONCE_PUBLISHED = frozenset({"partner_present"})
+"""Topics of the node that starts last (the fake room, the clock of a lockstep graph),
+subscribed only once they have a publisher. A subscription that exists before the
+publisher appears can be matched by the publisher before it has matched the publisher
+itself: the room, which waits for its listeners, then starts, and the first messages
+(all 40 of a short run, once) are dropped by the recorder's side. A subscription made
+once the publisher is known is matched on the recorder's side first. In the bag the
+topic is there from the start."""
 
 
 def qos_values(profile: QoSProfile) -> dict[str, int]:
@@ -128,6 +138,8 @@ class RecorderNode(GraphNode):
         self.failure = ""
         self.counts: dict[str, int] = {}
         self.subscribed: set[str] = set()
+        self._waiting: dict[str, tuple[type, QoSProfile]] = {}
+        """Topics to subscribe to once they have a publisher (see SUBSCRIBED_ONCE_PUBLISHED)."""
         description = session_description([f.strip() for f in files.split(",") if f.strip()])
         self.writer: BagWriter | None = None
         try:
@@ -142,7 +154,7 @@ class RecorderNode(GraphNode):
         self._session_pub = self.create_publisher(String, SESSION_TOPIC, LATCHED_QOS)
         self._write_own(SESSION_TOPIC, String(data=description))
         self._session_pub.publish(String(data=description))
-        self.create_timer(_DISCOVERY_PERIOD_S, self._discover_audio)
+        self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
         self.create_timer(flush_period_s, self._flush)
         self.start_diagnostics()
 
@@ -156,7 +168,15 @@ class RecorderNode(GraphNode):
             self.writer = None
 
     def _add_topic(self, topic: str, kind: type, qos: QoSProfile) -> None:
-        """Add ``topic`` to the bag and subscribe to it raw."""
+        """Add ``topic`` to the bag and subscribe to it raw (some once published)."""
+        name = self.resolve_topic_name(topic)
+        self.counts[name] = 0
+        if topic in SUBSCRIBED_ONCE_PUBLISHED:
+            self._waiting[topic] = (kind, qos)
+        else:
+            self._subscribe(topic, kind, qos)
+
+    def _subscribe(self, topic: str, kind: type, qos: QoSProfile) -> None:
         name = self.resolve_topic_name(topic)
         if self.writer is not None:
             offered = [qos_values(info.qos_profile)
@@ -173,7 +193,6 @@ class RecorderNode(GraphNode):
         if topic != SESSION_TOPIC:
             self.create_subscription(kind, topic, receive, qos, raw=True)
         self.subscribed.add(topic)
-        self.counts[name] = 0
 
     def _write_own(self, topic: str, msg: Any) -> None:
         """Write a message this node makes itself (the session description)."""
@@ -192,8 +211,12 @@ class RecorderNode(GraphNode):
         except BagWriteError as error:
             self._fail(str(error))
 
-    def _discover_audio(self) -> None:
-        """Subscribe to ``audio`` once it has a publisher (its type is the publisher's)."""
+    def _discover(self) -> None:
+        """Subscribe to the waiting topics and ``audio`` once they have a publisher."""
+        for topic, (kind, qos) in list(self._waiting.items()):
+            if self.count_publishers(self.resolve_topic_name(topic)) > 0:
+                del self._waiting[topic]
+                self._subscribe(topic, kind, qos)
         if "audio" in self.subscribed or not self.record_audio:
             return
         for name, types in self.get_topic_names_and_types():

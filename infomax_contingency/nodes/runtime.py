@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
@@ -142,6 +143,30 @@ def drain_queued_messages(executor: Executor, nodes: Sequence[Node],
         idle = idle + 1 if sum(node.messages_taken() for node in keepers) == before else 0
 
 
+ACK_BUDGET_S = 1.0
+"""At most this long, on a stop, for the readers to acknowledge what was published."""
+
+
+def await_acknowledgments(nodes: Sequence[Node], budget_s: float = ACK_BUDGET_S) -> None:
+    """Wait until every reliable publisher's messages are acknowledged (at most ``budget_s``).
+
+    A reliable writer that is destroyed before its readers acknowledged its last messages
+    takes them with it: a reader that had dropped a packet in a burst (a recorder busy
+    with 20 windows of audio) can no longer have it repaired. Each writer is waited for
+    in turn, within one budget.
+    """
+    deadline = time.monotonic() + budget_s
+    for node in nodes:
+        for publisher in list(node.publishers):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            try:
+                publisher.wait_for_all_acked(Duration(nanoseconds=int(remaining * 1e9)))
+            except Exception:  # a publisher already destroyed, or the context gone
+                continue
+
+
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
@@ -171,6 +196,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                     lambda f: any_finished.done() or any_finished.set_result(f.result())
                 )
         spin_until_done(executor, any_finished, stop)
+        await_acknowledgments(nodes)
         drain_queued_messages(executor, nodes)
         return int(any_finished.result()) if any_finished.done() else 0
     except (KeyboardInterrupt, ExternalShutdownException):
