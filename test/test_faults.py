@@ -222,15 +222,25 @@ def _offline(segments: list[tuple[list, bool]]) -> list[float]:
     return beliefs
 
 
-def _assert_same_beliefs(got: list[float], expected: list[float], log: str = "") -> None:
-    """Equal to 1e-12, step for step; otherwise name the first step that differs."""
+def _assert_same_beliefs(got: list[float], expected: list[float], log: str = "",
+                         pairs: list[tuple] | None = None) -> None:  # fmt: skip
+    """Equal to 1e-12, step for step; otherwise name the first step that differs.
+
+    ``pairs``: the ``(y, u)`` the expected beliefs were computed from, shown around it.
+    """
     assert len(got) == len(expected), f"{len(got)} beliefs, expected {len(expected)}\n{log}"
     differ = np.flatnonzero(np.abs(np.array(got) - np.array(expected)) > 1e-12)
-    assert differ.size == 0, (
-        f"{differ.size} beliefs differ, the first at index {differ[0]}:"
-        f" {got[max(0, differ[0] - 2):differ[0] + 3]} vs"
-        f" {expected[max(0, differ[0] - 2):differ[0] + 3]}"
-    )
+    if differ.size:
+        first = int(differ[0])
+        around = ""
+        if pairs is not None:
+            start = max(0, first - 5)
+            around = f"; (y, u) from index {start}: {pairs[start:first + 5]}"
+        assert differ.size == 0, (
+            f"{differ.size} beliefs differ, the first at index {first}:"
+            f" {got[max(0, first - 2):first + 3]} vs {expected[max(0, first - 2):first + 3]}"
+            f"{around}\n{log}"
+        )
 
 
 def _pairs(recorder: StepRecorder, stream: int, controllers: set[int], first: int,
@@ -401,7 +411,11 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     # Exact through all three restarts: zero counts at the belief node's, the timer
     # unknown after the controller's, counts kept across the mic_node's new stream.
     expected = _offline([(pairs_a, "joined"), (pairs_b, "new stream")])
-    _assert_same_beliefs(got, expected, graph.processes.log("belief_node")[-3000:])
+    log = graph.processes.log("belief_node")
+    pattern = re.compile(r"joined|never arrived|silent|instead of|ignoring")
+    notable = "\n".join(line for line in log.splitlines() if pattern.search(line))
+    _assert_same_beliefs(got, expected, f"join step {join_step}\n{notable[-6000:]}",
+                         pairs_a + pairs_b)  # fmt: skip
     missing = sum(u is None for _, u in pairs_a)
     assert missing >= 1, "the controller's death leaves steps without a decision"
     values = {v.key: v.value for v in belief_status.values}
