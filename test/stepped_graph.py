@@ -20,6 +20,7 @@ from typing import Any
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
@@ -28,7 +29,7 @@ from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.recorder_node import RecorderNode
 from infomax_contingency.testing.graph import StepRecorder
-from infomax_contingency.testing.stepped import SteppedExecutor
+from infomax_contingency.testing.stepped import DEFAULT_DEADLINE_S, SteppedExecutor
 
 NODE_CLASSES: dict[str, type[Node]] = {
     "mic_node": MicNode,
@@ -52,12 +53,30 @@ class SteppedGraph:
     recorder: StepRecorder
     executor: SteppedExecutor
 
-    def run_until(self, condition: Callable[[], bool], what: str) -> None:
+    def run_until(
+        self, condition: Callable[[], bool], what: str, deadline_s: float = DEFAULT_DEADLINE_S
+    ) -> None:
         """Step the graph until ``condition`` holds (fails with the counts received)."""
         try:
-            self.executor.run_until(condition, what)
+            self.executor.run_until(condition, what, deadline_s)
         except AssertionError as error:
             raise AssertionError(f"{error}; received {self.recorder.counts()}") from None
+
+    def add(self, node: str, parameters: dict[str, Any], name: str | None = None) -> Node:
+        """Start one more ``node`` (a node name of :data:`NODE_CLASSES`), as ``name``.
+
+        E.g. a second mic_node into the running graph; ``name`` remaps the node name
+        (``-r __node:=name``) and is its key in :attr:`nodes`.
+        """
+        name = name or node
+        remap = ["--ros-args", "-r", f"__node:={name}"] if name != node else None
+        self.nodes[name] = self.executor.add(
+            NODE_CLASSES[node](cli_args=remap, parameter_overrides=_parameters(parameters)))
+        return self.nodes[name]
+
+    def remove(self, name: str) -> None:
+        """Stop the node ``name``: off the executor and destroyed."""
+        self.executor.remove(self.nodes.pop(name))
 
     def run_steps(self, steps: int) -> None:
         """Step until ``steps`` bits, decisions and beliefs have been recorded."""
@@ -74,19 +93,25 @@ def _parameters(values: dict[str, Any]) -> list[Parameter]:
 
 @contextmanager
 def stepped_graph(
-    nodes: dict[str, dict[str, Any]], clock: str, parameter_files: tuple[str, ...] = ()
+    nodes: dict[str, dict[str, Any]],
+    clock: str | None,
+    parameter_files: tuple[str, ...] = (),
+    recorder_qos: QoSProfile | None = None,
 ) -> Iterator[SteppedGraph]:
     """The graph of ``nodes`` (name -> parameters) in this process, ``clock`` added last.
 
+    ``clock`` None: no node of the graph paces it (the test publishes its ``audio``).
+
     ``parameter_files``: ROS parameter files every node reads first (``--params-file``);
-    the parameters in ``nodes`` override them. Initialises rclpy and shuts it down
+    the parameters in ``nodes`` override them. ``recorder_qos``: the recorder's
+    step-topic QoS (default: the graph's). Initialises rclpy and shuts it down
     afterwards, whatever happens.
     """
     files = [arg for path in parameter_files for arg in ("--params-file", str(path))]
     rclpy.init(args=["--ros-args", *files] if files else None)
     executor = None
     try:
-        recorder = StepRecorder()
+        recorder = StepRecorder(stream_qos=recorder_qos)
         executor = SteppedExecutor([recorder])
         built: dict[str, Node] = {}
         others = [name for name in nodes if name != clock]
@@ -94,9 +119,9 @@ def stepped_graph(
             built[name] = executor.add(NODE_CLASSES[name](parameter_overrides=_parameters(
                 {**NO_START_DELAY, **nodes[name]} if name == "mic_node" else nodes[name])))
         executor.run_until(lambda: recorder.sees(others), f"the nodes {others} to connect")
-        built[clock] = executor.add(
-            NODE_CLASSES[clock](parameter_overrides=_parameters({**NO_START_DELAY, **nodes[clock]}))
-        )
+        if clock is not None:
+            built[clock] = executor.add(NODE_CLASSES[clock](
+                parameter_overrides=_parameters({**NO_START_DELAY, **nodes[clock]})))
         yield SteppedGraph(built, recorder, executor)
     finally:
         if executor is not None:

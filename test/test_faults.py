@@ -1,18 +1,19 @@
-"""Fault injection: the node graph as separate processes over DDS, attacked as in real use.
+"""Nodes killed with SIGKILL and restarted: the graph as separate processes over DDS.
 
-Stray and intruding publishers, a second microphone or controller, a 1 kHz rogue,
-audio in any chunking, nodes killed with SIGKILL and restarted. After each fault the
-belief stream must equal an offline recomputation from the true bits and decisions (the
-followed microphone stream and controller, as recorded), step for step, and the
-diagnostics must name the fault while it lasts and return to OK once it is over.
+The belief node, the controller and the microphone die in turn and come back. After
+each restart the belief stream must equal an offline recomputation from the true bits
+and decisions (as recorded), step for step: zero counts from the step a restarted
+belief node joins at, the timer unknown after the controller's death, counts kept
+across the new microphone's stream; the diagnostics name what is not running.
 
-The test process records the topics on a hand-stepped executor: every wait is a
-condition on what was received (with a deadline as a guard), never a sleep.
+The other faults of real traffic (intruders, a rogue, any chunking) need no processes:
+test_intruders.py, on the in-process graph. The test process records the topics on a
+hand-stepped executor: every wait is a condition on what was received (with a deadline
+as a guard), never a sleep.
 """
 
 from __future__ import annotations
 
-import array
 import os
 import re
 from collections.abc import Iterator
@@ -20,25 +21,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.audio.energy import window_energies_db
-from infomax_contingency.core.controllers import PolicyController
-from infomax_contingency.core.model import ModelParams, StatisticTracker
-from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
-from infomax_contingency.nodes.step_topics import (
-    StepBit,
-    StepDecision,
-    bit_message,
-    decision_message,
+from exact_beliefs import (
+    MEMORY,
+    assert_same_beliefs,
+    last_status,
+    offline_beliefs,
+    status_reported,
+    step_pairs,
 )
-from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
 from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
@@ -46,17 +41,9 @@ from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 # worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("node_graphs")]
 
-ROBOT = ModelParams.named("robot")
-MEMORY = 60
 RESTART_TIMEOUT_S = 1.0
-"""source_timeout_s in the restart test: a silent stream or controller is replaced after
-this (the other tests keep the default, 3 s)."""
-
-ROGUE_BURST, ROGUE_PER_BELIEF, ROGUE_BELIEF_LAG = 200, 2, 200
-"""The intruder test's rogue: at most ``ROGUE_BURST`` messages of each kind, plus
-``ROGUE_PER_BELIEF`` per belief published since it began, and none while the belief
-node is more than ``ROGUE_BELIEF_LAG`` steps behind the microphone's bits (as this
-process receives them): the node's queues then hold at most a few hundred messages."""
+"""source_timeout_s here: a silent stream or controller is replaced after this (the
+default is 3 s)."""
 
 HOLD = {"fault_hold_s": 2.0}
 """A fault shows in the diagnostics for 2 s after it last happened (10 s by default)."""
@@ -107,28 +94,14 @@ class FaultGraph:
                         f"\n{logs}")
 
     def status(self, node: str) -> DiagnosticStatus | None:
-        """The last diagnostics of ``node`` (its status name starts with it)."""
-        for array_message in reversed(self.diagnostics):
-            for status in array_message.status:
-                if status.name.startswith(f"{node}:"):
-                    return status
-        return None
+        """The last diagnostics of ``node``."""
+        return last_status(self.diagnostics, node)
 
     def wait_status(self, node: str, level: bytes, text: str = "") -> DiagnosticStatus:
         """Step until ``node`` reports ``level`` with ``text`` in its message or values."""
         found: list[DiagnosticStatus] = []
-
-        def reported() -> bool:
-            status = self.status(node)
-            if status is None or status.level != level:
-                return False
-            words = status.message + " ".join(f"{v.key}={v.value}" for v in status.values)
-            if text not in words:
-                return False
-            found.append(status)
-            return True
-
-        self.run_until(reported, f"{node} to report level {level!r} with {text!r}")
+        self.run_until(status_reported(self.diagnostics, node, level, text, found),
+                       f"{node} to report level {level!r} with {text!r}")  # fmt: skip
         return found[-1]
 
     def beliefs_since(self, published_after_ns: int) -> list[float]:
@@ -164,18 +137,16 @@ what is not running only once its peers' discovery dropped the dead node."""
 
 
 @pytest.fixture
-def graph(tmp_path: Path, request: pytest.FixtureRequest,
-          monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:  # fmt: skip
+def graph(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:
+    """Node processes over UDP loopback with a 2 s discovery lease, and the recorder."""
+    for name, value in UDP_ONLY.items():
+        monkeypatch.setenv(name, value)  # this process and the nodes it starts
     node_env = dict(os.environ)
-    if request.node.get_closest_marker("kills_nodes"):
-        for name, value in UDP_ONLY.items():
-            monkeypatch.setenv(name, value)  # this process and the nodes it starts
-        node_env.update(UDP_ONLY)
-        profiles = tmp_path / "short_lease.xml"
-        profiles.write_text(SHORT_LEASE_PROFILES)
-        # The nodes only: Fast DDS reads the profile once per process, and this one runs
-        # other tests after this one.
-        node_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
+    profiles = tmp_path / "short_lease.xml"
+    profiles.write_text(SHORT_LEASE_PROFILES)
+    # The nodes only: Fast DDS reads the profile once per process, and this one runs
+    # other tests after this one.
+    node_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
     rclpy.init()
     recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
     probe = Probe()
@@ -194,61 +165,6 @@ def _room_graph(**extra: Any) -> dict[str, dict[str, Any]]:
     """The lockstep graph; ``extra`` parameters go to controller, belief and room."""
     return {"mic_node": MIC, "controller_node": {**CONTROLLER, **extra},
             "belief_node": {**BELIEF, **extra}, "fake_audio_node": {**ROOM, **extra}}  # fmt: skip
-
-
-def _true_sources(recorder: StepRecorder) -> tuple[int, int]:
-    """The first stream and the first controller recorded: the true ones."""
-    return recorder.sound_step[0][0], recorder.vocalize_step[0][3]
-
-
-def _offline(segments: list[tuple[list, bool]]) -> list[float]:
-    """Beliefs from ``(steps, how)`` segments of ``(y, u)`` pairs (None: missing).
-
-    ``how`` is ``"start"`` (a fresh statistic at a stream's first step), ``"joined"``
-    (zero counts in the middle of a stream: timer unknown) or ``"new stream"`` (counts
-    kept across a gap of unknown length).
-    """
-    tracker = StatisticTracker(ROBOT, memory=MEMORY)
-    beliefs = []
-    for pairs, how in segments:
-        if how == "joined":
-            tracker.forget_timer_completely()
-        elif how == "new stream":
-            tracker.forget_timer()
-        for y, u in pairs:
-            tracker.skip_observation() if y is None else tracker.observe(y)
-            beliefs.append(tracker.statistic.belief(ROBOT))
-            tracker.act_unknown() if u is None else tracker.act(u)
-    return beliefs
-
-
-def _assert_same_beliefs(got: list[float], expected: list[float], log: str = "",
-                         pairs: list[tuple] | None = None) -> None:  # fmt: skip
-    """Equal to 1e-12, step for step; otherwise name the first step that differs.
-
-    ``pairs``: the ``(y, u)`` the expected beliefs were computed from, shown around it.
-    """
-    assert len(got) == len(expected), f"{len(got)} beliefs, expected {len(expected)}\n{log}"
-    differ = np.flatnonzero(np.abs(np.array(got) - np.array(expected)) > 1e-12)
-    if differ.size:
-        first = int(differ[0])
-        around = ""
-        if pairs is not None:
-            start = max(0, first - 5)
-            around = f"; (y, u) from index {start}: {pairs[start:first + 5]}"
-        assert differ.size == 0, (
-            f"{differ.size} beliefs differ, the first at index {first}:"
-            f" {got[max(0, first - 2):first + 3]} vs {expected[max(0, first - 2):first + 3]}"
-            f"{around}\n{log}"
-        )
-
-
-def _pairs(recorder: StepRecorder, stream: int, controllers: set[int], first: int,
-           last: int) -> list[tuple]:  # fmt: skip
-    bits = {s: bool(y) for st, s, y, _ in recorder.sound_step if st == stream}
-    decisions = {s: bool(u) for st, s, u, c in recorder.vocalize_step
-                 if st == stream and c in controllers}  # fmt: skip
-    return [(bits.get(s), decisions.get(s)) for s in range(first, last + 1)]
 
 
 def _settled(graph: FaultGraph, stream: int, since_ns: int) -> DiagnosticStatus:
@@ -275,81 +191,6 @@ def _settled(graph: FaultGraph, stream: int, since_ns: int) -> DiagnosticStatus:
     return found[0]
 
 
-def test_intruders_are_named_ignored_and_the_belief_stays_exact(graph: FaultGraph) -> None:
-    rec = graph.recorder
-    graph.start(_room_graph(), clock="fake_audio_node")
-    graph.run_until(lambda: len(rec.belief) >= 100, "100 steps")
-    graph.wait_status("belief_node", DiagnosticStatus.OK)
-
-    # 1. one stray message on the plain command topic (`ros2 topic pub --once /vocalize`)
-    stray = graph.probe.talk("vocalize", Bool)
-    graph.run_until(lambda: rec.count_publishers("vocalize") == 2, "the stray publisher")
-    stray.publish(Bool(data=False))
-    graph.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
-    graph.probe.destroy_publisher(stray)
-    graph.wait_status("belief_node", DiagnosticStatus.OK)
-
-    # 2. a second mic_node and 3. a second controller_node, each started and stopped
-    for node, name, parameters, topic in (
-        ("mic_node", "mic_node_2", {**MIC, "wait_for_listeners": 0}, "sound_step"),
-        ("controller_node", "controller_node_2", CONTROLLER, "vocalize_step"),
-    ):
-        graph.processes.start(node, parameters, name=name)
-        graph.wait_status("belief_node", DiagnosticStatus.ERROR, f"/{name}")
-        assert topic in graph.status("belief_node").message
-        steps_before = len(rec.belief)
-        graph.run_until(lambda n=steps_before: len(rec.belief) > n + 50, "50 steps meanwhile")
-        graph.processes.stop(name)
-        graph.wait_status("belief_node", DiagnosticStatus.OK)
-
-    # 4. a rogue at 1 kHz on both stamped topics (a stream and a controller of its own)
-    bits, decisions = graph.probe.talk("sound_step", Int64MultiArray), graph.probe.talk(
-        "vocalize_step", Int64MultiArray)  # fmt: skip
-    graph.run_until(lambda: bits.get_subscription_count() >= 3, "the rogue connected")
-    stream, controller = _true_sources(rec)
-    sent = [0]
-
-    beliefs_before = len(rec.belief)
-
-    def rogue() -> None:
-        # Paced by the belief node: a rogue that outpaces a node (a loaded machine) pushes
-        # true messages out of its queue (depth 1000). The node then applies those steps
-        # as missing and says so, but the recorder here has them, and this test's
-        # comparison is exact. So: at most ROGUE_PER_BELIEF of each kind per belief the
-        # node has published since the rogue began, and none while it lags far behind.
-        budget = ROGUE_BURST + ROGUE_PER_BELIEF * (len(rec.belief) - beliefs_before)
-        if sent[0] >= budget or len(rec.sound) - len(rec.belief) > ROGUE_BELIEF_LAG:
-            return
-        sent[0] += 1
-        bits.publish(bit_message(StepBit(424242, sent[0], bool(sent[0] % 2), 500_000)))
-        decisions.publish(decision_message(StepDecision(stream, sent[0], True, 99)))
-
-    # A 1 ms timer on the test's executor: as fast as the test process can publish (a few
-    # hundred a second here), within the pace above.
-    timer = graph.probe.create_timer(0.001, rogue)
-    graph.run_until(lambda: sent[0] >= 3000, "3000 rogue messages of each kind", deadline_s=240)
-    graph.probe.destroy_timer(timer)
-    status = graph.wait_status("belief_node", DiagnosticStatus.ERROR, "publishers_sound_step")
-    assert "/probe" in status.message + str([v.value for v in status.values])
-    values = {v.key: v.value for v in status.values}
-    assert int(values["pending_bits"]) < 50 and int(values["pending_decisions"]) < 50
-    graph.probe.destroy_publisher(bits)
-    graph.probe.destroy_publisher(decisions)
-    graph.wait_status("belief_node", DiagnosticStatus.OK)
-
-    # the run ends: every step of the true stream is in the belief, exactly
-    graph.processes.stop("fake_audio_node")
-    status = _settled(graph, stream, 0)
-    last = max(s for st, s, *_ in rec.sound_step if st == stream)
-    expected = _offline([(_pairs(rec, stream, {controller}, 1, last), "start")])
-    _assert_same_beliefs(rec.belief, expected)
-    values = {v.key: v.value for v in status.values}
-    log = graph.processes.log("belief_node")
-    assert values["missing_bits"] == values["missing_decisions"] == "0", (values, log[-3000:])
-    assert int(values["foreign_messages"]) > 2000
-
-
-@pytest.mark.kills_nodes
 def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     graph: FaultGraph,
 ) -> None:
@@ -396,8 +237,8 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     # a decision for (none can come once the controller answers stream B) without one.
     last_a = max(s for st, s, *_ in rec.sound_step if st == first_stream)
     first_b = min(s for st, s, *_ in rec.vocalize_step if st == second_stream)
-    pairs_a = _pairs(rec, first_stream, controllers, join_step, last_a)
-    pairs_b = _pairs(rec, second_stream, controllers, first_b, last_b)
+    pairs_a = step_pairs(rec, first_stream, controllers, join_step, last_a)
+    pairs_b = step_pairs(rec, second_stream, controllers, first_b, last_b)
     got = graph.beliefs_since(restarted_ns)
     # The last bits a killed mic_node published may reach some listeners and not others
     # (it cannot resend them): the belief node may lack the last step or two of stream A.
@@ -410,11 +251,13 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     pairs_a = pairs_a[: len(pairs_a) - lost_at_kill]
     # Exact through all three restarts: zero counts at the belief node's, the timer
     # unknown after the controller's, counts kept across the mic_node's new stream.
-    expected = _offline([(pairs_a, "joined"), (pairs_b, "new stream")])
+    expected = offline_beliefs([(pairs_a, "joined"), (pairs_b, "new stream")])
     log = graph.processes.log("belief_node")
     pattern = re.compile(r"joined|never arrived|silent|instead of|ignoring")
     notable = "\n".join(line for line in log.splitlines() if pattern.search(line))
-    _assert_same_beliefs(got, expected, f"join step {join_step}\n{notable[-6000:]}",
+    context = (f"join step {join_step}; A {join_step}..{last_a}, B {first_b}..{last_b};"
+               f" messages the recorder lost: {rec.lost}\n{notable[-6000:]}")
+    assert_same_beliefs(got, expected, context,
                          pairs_a + pairs_b)  # fmt: skip
     missing = sum(u is None for _, u in pairs_a)
     assert missing >= 1, "the controller's death leaves steps without a decision"
@@ -422,55 +265,3 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     assert int(values["missing_decisions"]) >= missing and values["stream_changes"] == "1", values
     controller_values = {v.key: v.value for v in graph.status("controller_node").values}
     assert int(controller_values["missed_steps"]) > 0
-
-
-CHUNKS_S = (0.01, 0.5, 1.0, 10.0, 30.0)
-"""Chunk lengths of the audio driver (seconds per message); then one of 10^7 samples."""
-
-
-def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs(
-    graph: FaultGraph,
-) -> None:
-    rec = graph.recorder
-    nodes = {"mic_node": {**MIC, "wait_for_listeners": 3},
-             "controller_node": {**CONTROLLER, "wait_for_listeners": 3},
-             "belief_node": BELIEF}  # fmt: skip
-    for name, parameters in nodes.items():
-        graph.processes.start(name, parameters)
-    audio = graph.probe.talk("audio", Float32MultiArray)
-    graph.run_until(lambda: rec.sees(list(nodes)) and audio.get_subscription_count() >= 1,
-                    "the graph")  # fmt: skip
-    graph.wait_status("mic_node", DiagnosticStatus.OK)
-
-    room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=1.0), seed=8)
-    segments = [np.concatenate([as_transmitted(room.next_window().samples) for _ in range(60)])
-                for _ in CHUNKS_S]  # fmt: skip
-    segments.append(np.concatenate([as_transmitted(room.next_window().samples)
-                                    for _ in range(1250)]))  # one message of 10^7 samples
-    sent = 0
-    for chunk_s, samples in zip((*CHUNKS_S, None), segments, strict=True):
-        size = len(samples) if chunk_s is None else round(chunk_s * 16000)
-        for index, start in enumerate(range(0, len(samples), size)):
-            message = Float32MultiArray()
-            message.data = array.array("f", samples[start:start + size].tobytes())
-            audio.publish(message)
-            sent += len(message.data)
-            # A driver keeps pace with its reader: it never has more messages out than its
-            # queue holds (100), as one that publishes in real time does not.
-            if index % 25 == 24 or size >= 8000:
-                graph.run_until(lambda n=sent // 8000: len(rec.belief) >= n, "the mic to keep up")
-    samples = np.concatenate(segments).astype(np.float64)
-    energies = window_energies_db(samples, 16000, 0.5)
-    graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))
-                    >= len(energies), f"{len(energies)} steps", deadline_s=300)  # fmt: skip
-
-    bits = [bool(e > -40.0) for e in energies]
-    assert [y for _, _, y, _ in rec.sound_step] == bits
-    controller = PolicyController(PolicyTable.load(resource_path(
-        "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
-    decisions = [bool(controller.step(int(y))) for y in bits]
-    assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
-    expected = _offline([(list(zip(bits, decisions, strict=True)), "start")])
-    _assert_same_beliefs(rec.belief, expected)
-    values = {v.key: v.value for v in graph.status("mic_node").values}
-    assert values["windows_dropped"] == "0" and values["dropped_chunks"] == "0"

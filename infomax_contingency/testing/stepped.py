@@ -89,6 +89,12 @@ class SteppedExecutor:
         self.nodes.append(node)
         return node
 
+    def remove(self, node: Node) -> None:
+        """Take ``node`` off the executor and destroy it (as if its process stopped)."""
+        self.executor.remove_node(node)
+        self.nodes.remove(node)
+        node.destroy_node()
+
     def run_until(
         self,
         condition: Callable[[], bool],

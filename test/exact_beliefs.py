@@ -1,0 +1,115 @@
+"""The fault tests' yardstick: beliefs recomputed offline from the recorded steps.
+
+After a fault, the belief stream a graph published must equal, step for step, the
+beliefs of a fresh :class:`~infomax_contingency.core.model.StatisticTracker` fed the true
+bits and decisions as recorded (the followed microphone stream and controller). Also the
+diagnostics helpers those tests share: the last status of a node on ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.testing.graph import StepRecorder
+
+ROBOT = ModelParams.named("robot")
+MEMORY = 60
+"""The belief node's memory in the fault tests (counted observations)."""
+
+
+def true_sources(recorder: StepRecorder) -> tuple[int, int]:
+    """The first stream and the first controller recorded: the true ones."""
+    return recorder.sound_step[0][0], recorder.vocalize_step[0][3]
+
+
+def step_pairs(recorder: StepRecorder, stream: int, controllers: set[int], first: int,
+               last: int) -> list[tuple]:  # fmt: skip
+    """``(y, u)`` of steps ``first..last`` of ``stream`` as recorded (None: not recorded).
+
+    Decisions count only from ``controllers``; a rogue's are left out.
+    """
+    bits = {s: bool(y) for st, s, y, _ in recorder.sound_step if st == stream}
+    decisions = {s: bool(u) for st, s, u, c in recorder.vocalize_step
+                 if st == stream and c in controllers}  # fmt: skip
+    return [(bits.get(s), decisions.get(s)) for s in range(first, last + 1)]
+
+
+def offline_beliefs(segments: list[tuple[list, str]]) -> list[float]:
+    """Beliefs from ``(steps, how)`` segments of ``(y, u)`` pairs (None: missing).
+
+    ``how`` is ``"start"`` (a fresh statistic at a stream's first step), ``"joined"``
+    (zero counts in the middle of a stream: timer unknown) or ``"new stream"`` (counts
+    kept across a gap of unknown length).
+    """
+    tracker = StatisticTracker(ROBOT, memory=MEMORY)
+    beliefs = []
+    for pairs, how in segments:
+        if how == "joined":
+            tracker.forget_timer_completely()
+        elif how == "new stream":
+            tracker.forget_timer()
+        for y, u in pairs:
+            tracker.skip_observation() if y is None else tracker.observe(y)
+            beliefs.append(tracker.statistic.belief(ROBOT))
+            tracker.act_unknown() if u is None else tracker.act(u)
+    return beliefs
+
+
+def assert_same_beliefs(got: list[float], expected: list[float], log: str = "",
+                        pairs: list[tuple] | None = None) -> None:  # fmt: skip
+    """Equal to 1e-12, step for step; otherwise name the first step that differs.
+
+    ``pairs``: the ``(y, u)`` the expected beliefs were computed from, shown around it.
+    """
+    assert len(got) == len(expected), f"{len(got)} beliefs, expected {len(expected)}\n{log}"
+    differ = np.flatnonzero(np.abs(np.array(got) - np.array(expected)) > 1e-12)
+    if differ.size:
+        first = int(differ[0])
+        around = ""
+        if pairs is not None:
+            start = max(0, first - 5)
+            around = f"; (y, u) from index {start}: {pairs[start:first + 5]}"
+        assert differ.size == 0, (
+            f"{differ.size} beliefs differ, the first at index {first}:"
+            f" {got[max(0, first - 2):first + 3]} vs {expected[max(0, first - 2):first + 3]}"
+            f"{around}\n{log}"
+        )
+
+
+def last_status(diagnostics: list[DiagnosticArray], node: str) -> DiagnosticStatus | None:
+    """The last status of ``node`` received (its status name starts with the node name)."""
+    for array_message in reversed(diagnostics):
+        for status in array_message.status:
+            if status.name.startswith(f"{node}:"):
+                return status
+    return None
+
+
+def status_reported(diagnostics: list[DiagnosticArray], node: str, level: bytes, text: str,
+                    found: list[DiagnosticStatus]) -> Callable[[], bool]:  # fmt: skip
+    """A condition: ``node``'s last status has ``level`` and ``text``.
+
+    ``text`` is looked for in the message and the key values; the status that matched is
+    appended to ``found``.
+    """
+
+    def reported() -> bool:
+        status = last_status(diagnostics, node)
+        if status is None or status.level != level:
+            return False
+        words = status.message + " ".join(f"{v.key}={v.value}" for v in status.values)
+        if text not in words:
+            return False
+        found.append(status)
+        return True
+
+    return reported
+
+
+def values(status: DiagnosticStatus) -> dict[str, str]:
+    """A status's key values."""
+    return {v.key: v.value for v in status.values}

@@ -1,0 +1,234 @@
+"""Faults of real ROS traffic, on the lockstep graph in the test process.
+
+Stray and intruding publishers, a second microphone or controller started into the
+running graph, a rogue flooding both step topics, and audio in any chunking. After each
+fault the belief stream must equal an offline recomputation from the true bits and
+decisions (the followed microphone stream and controller, as recorded), step for step,
+and the diagnostics must name the fault while it lasts and return to OK once it is over.
+
+The nodes run on one hand-stepped executor (real DDS between them): every wait is a
+condition on what was received, with a deadline as a guard, never a sleep. Killing and
+restarting nodes needs processes: test_faults.py.
+"""
+
+from __future__ import annotations
+
+import array
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
+
+from exact_beliefs import (
+    MEMORY,
+    assert_same_beliefs,
+    last_status,
+    offline_beliefs,
+    status_reported,
+    step_pairs,
+    true_sources,
+    values,
+)
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
+from infomax_contingency.nodes.step_topics import (
+    StepBit,
+    StepDecision,
+    bit_message,
+    decision_message,
+)
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.testing.stepped import Probe
+from stepped_graph import SteppedGraph, stepped_graph
+
+HOLD = {"fault_hold_s": 1.0}
+"""A fault shows in the diagnostics for 1 s after it last happened (10 s by default)."""
+
+MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
+       "wait_for_listeners": 3, **HOLD}  # controller, belief, recorder  # fmt: skip
+ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, **HOLD}
+BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the recorder
+CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
+
+ROGUE_MESSAGES = 3000
+"""Messages of each kind the rogue publishes: ten times the belief node's queue depth."""
+
+ROGUE_BURST, ROGUE_PER_BELIEF = 200, 4
+"""The rogue's pace: a burst of ``ROGUE_BURST`` messages of each kind, then up to
+``ROGUE_PER_BELIEF`` per belief the node publishes. Faster, it would push true messages
+out of the node's queue (depth 1000): the node then applies those steps as missing and
+says so, but the recorder has them and the comparison here is exact."""
+
+
+class FaultWatch:
+    """A stepped graph, with a probe on it that listens to ``/diagnostics`` and talks."""
+
+    def __init__(self, graph: SteppedGraph) -> None:
+        self.graph = graph
+        self.probe = graph.executor.add(Probe())
+        self.diagnostics: list[DiagnosticArray] = self.probe.listen(
+            "/diagnostics", DiagnosticArray, 100)  # fmt: skip
+
+    def status(self, node: str) -> DiagnosticStatus | None:
+        """The last diagnostics of ``node``."""
+        return last_status(self.diagnostics, node)
+
+    def wait_status(self, node: str, level: bytes, text: str = "") -> DiagnosticStatus:
+        """Step until ``node`` reports ``level`` with ``text`` in its message or values."""
+        found: list[DiagnosticStatus] = []
+        self.graph.run_until(status_reported(self.diagnostics, node, level, text, found),
+                             f"{node} to report level {level!r} with {text!r}")  # fmt: skip
+        return found[-1]
+
+    def settled(self, stream: int) -> DiagnosticStatus:
+        """Once the clock has stopped: step until the belief node reports every step applied.
+
+        That is, as many steps as beliefs recorded, the last one the last bit of
+        ``stream`` recorded, and no fault lately.
+        """
+        rec = self.graph.recorder
+        last_bit = max(s for st, s, *_ in rec.sound_step if st == stream)
+
+        def applied() -> bool:
+            status = self.status("belief_node")
+            if status is None or status.level != DiagnosticStatus.OK:
+                return False
+            got = values(status)
+            return (got["stream"] == str(stream) and got["last_step"] == str(last_bit)
+                    and got["steps"] == str(len(rec.belief)))  # fmt: skip
+
+        self.graph.run_until(applied, "the belief node to apply every step")
+        return self.status("belief_node")
+
+
+@pytest.fixture
+def room_graph() -> Iterator[FaultWatch]:
+    """The lockstep graph against the fake room, with a lossless recorder."""
+    nodes = {"mic_node": MIC, "controller_node": CONTROLLER, "belief_node": BELIEF,
+             "fake_audio_node": ROOM}  # fmt: skip
+    with stepped_graph(nodes, "fake_audio_node", recorder_qos=LOSSLESS_READER_QOS) as graph:
+        yield FaultWatch(graph)
+
+
+def test_intruders_are_named_ignored_and_the_belief_stays_exact(room_graph: FaultWatch) -> None:
+    watch, graph = room_graph, room_graph.graph
+    rec = graph.recorder
+    graph.run_until(lambda: len(rec.belief) >= 100, "100 steps")
+    watch.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # 1. one stray message on the plain command topic (`ros2 topic pub --once /vocalize`)
+    stray = watch.probe.talk("vocalize", Bool)
+    graph.run_until(lambda: rec.count_publishers("vocalize") == 2, "the stray publisher")
+    stray.publish(Bool(data=False))
+    watch.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
+    watch.probe.destroy_publisher(stray)
+    watch.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # 2. a second mic_node and 3. a second controller_node, each started and stopped
+    for node, name, parameters, topic in (
+        ("mic_node", "mic_node_2", {**MIC, "wait_for_listeners": 0, "start_delay_s": 0.0},
+         "sound_step"),
+        ("controller_node", "controller_node_2", CONTROLLER, "vocalize_step"),
+    ):  # fmt: skip
+        graph.add(node, parameters, name=name)
+        watch.wait_status("belief_node", DiagnosticStatus.ERROR, f"/{name}")
+        assert topic in watch.status("belief_node").message
+        steps_before = len(rec.belief)
+        graph.run_until(lambda n=steps_before: len(rec.belief) > n + 50, "50 steps meanwhile")
+        graph.remove(name)
+        watch.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # 4. a rogue flooding both stamped topics (a stream and a controller of its own)
+    bits = watch.probe.talk("sound_step", Int64MultiArray)
+    decisions = watch.probe.talk("vocalize_step", Int64MultiArray)
+    graph.run_until(lambda: bits.get_subscription_count() >= 3, "the rogue connected")
+    stream, controller = true_sources(rec)
+    sent = [0]
+    beliefs_before = len(rec.belief)
+
+    def rogue() -> None:
+        budget = ROGUE_BURST + ROGUE_PER_BELIEF * (len(rec.belief) - beliefs_before)
+        if sent[0] >= min(budget, ROGUE_MESSAGES):
+            return
+        sent[0] += 1
+        bits.publish(bit_message(StepBit(424242, sent[0], bool(sent[0] % 2), 500_000)))
+        decisions.publish(decision_message(StepDecision(stream, sent[0], True, 99)))
+
+    # A 1 ms timer on the graph's executor: one rogue message of each kind per turn of
+    # the executor when it is due, within the pace above.
+    timer = watch.probe.create_timer(0.001, rogue)
+    graph.run_until(lambda: sent[0] >= ROGUE_MESSAGES,
+                    f"{ROGUE_MESSAGES} rogue messages of each kind", deadline_s=180)  # fmt: skip
+    watch.probe.destroy_timer(timer)
+    status = watch.wait_status("belief_node", DiagnosticStatus.ERROR, "publishers_sound_step")
+    assert "/probe" in status.message + str(list(values(status).values()))
+    assert int(values(status)["pending_bits"]) < 50
+    assert int(values(status)["pending_decisions"]) < 50
+    watch.probe.destroy_publisher(bits)
+    watch.probe.destroy_publisher(decisions)
+    watch.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # the run ends: every step of the true stream is in the belief, exactly
+    graph.remove("fake_audio_node")
+    status = watch.settled(stream)
+    last = max(s for st, s, *_ in rec.sound_step if st == stream)
+    pairs = step_pairs(rec, stream, {controller}, 1, last)
+    assert_same_beliefs(rec.belief, offline_beliefs([(pairs, "start")]), pairs=pairs)
+    got = values(status)
+    assert got["missing_bits"] == got["missing_decisions"] == "0", got
+    assert int(got["foreign_messages"]) >= 2 * ROGUE_MESSAGES
+
+
+CHUNKS_S = (0.01, 0.5, 1.0, 10.0, 30.0)
+"""Chunk lengths of the audio driver (seconds per message); then one of 10^7 samples."""
+
+
+def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs() -> None:
+    nodes = {"mic_node": MIC, "controller_node": {**CONTROLLER, "wait_for_listeners": 3},
+             "belief_node": BELIEF}  # fmt: skip
+    with stepped_graph(nodes, None, recorder_qos=LOSSLESS_READER_QOS) as graph:
+        watch = FaultWatch(graph)
+        rec = graph.recorder
+        audio = watch.probe.talk("audio", Float32MultiArray)
+        graph.run_until(lambda: audio.get_subscription_count() >= 1, "the mic on 'audio'")
+        watch.wait_status("mic_node", DiagnosticStatus.OK)
+
+        room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=1.0), seed=8)
+        segments = [np.concatenate([as_transmitted(room.next_window().samples)
+                                    for _ in range(60)]) for _ in CHUNKS_S]  # fmt: skip
+        segments.append(np.concatenate([as_transmitted(room.next_window().samples)
+                                        for _ in range(1250)]))  # one message of 10^7 samples
+        sent = 0
+        for chunk_s, samples in zip((*CHUNKS_S, None), segments, strict=True):
+            size = len(samples) if chunk_s is None else round(chunk_s * 16000)
+            for index, start in enumerate(range(0, len(samples), size)):
+                message = Float32MultiArray()
+                message.data = array.array("f", samples[start:start + size].tobytes())
+                audio.publish(message)
+                sent += len(message.data)
+                # A driver keeps pace with its reader: it never has more messages out than
+                # the mic's queue holds (100), as one that publishes in real time does not.
+                if index % 25 == 24 or size >= 8000:
+                    graph.run_until(lambda n=sent // 8000: len(rec.belief) >= n,
+                                    "the mic to keep up")  # fmt: skip
+        samples = np.concatenate(segments).astype(np.float64)
+        energies = window_energies_db(samples, 16000, 0.5)
+        graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))
+                        >= len(energies), f"{len(energies)} steps", deadline_s=180)  # fmt: skip
+
+        bits = [bool(e > -40.0) for e in energies]
+        assert [y for _, _, y, _ in rec.sound_step] == bits
+        controller = PolicyController(PolicyTable.load(resource_path(
+            "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
+        decisions = [bool(controller.step(int(y))) for y in bits]
+        assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
+        expected = offline_beliefs([(list(zip(bits, decisions, strict=True)), "start")])
+        assert_same_beliefs(rec.belief, expected)
+        mic = values(watch.wait_status("mic_node", DiagnosticStatus.OK))
+        assert mic["windows_dropped"] == "0" and mic["dropped_chunks"] == "0", mic
