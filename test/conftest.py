@@ -5,9 +5,11 @@ processes started by tests inherit the environment set here.
 """
 
 import os
+from pathlib import Path
 
 import pytest
 
+from colcon_workspace import shared_workspace
 from domains import NoFreeDomainError, lock_domain_ids
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -38,3 +40,9 @@ def pytest_report_header(config: pytest.Config) -> str:
         f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} "
         f"ROS_AUTOMATIC_DISCOVERY_RANGE={os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}"
     )
+
+
+@pytest.fixture(scope="session")
+def colcon_workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A colcon build of the package, one per run (see ``colcon_workspace.py``)."""
+    return shared_workspace(tmp_path_factory)

@@ -3,7 +3,7 @@
 These tests run where ``ros2`` (ros2cli, launch, launch_ros) is on PATH: a real ROS 2
 install, or the venv that ``../shared/tools/ros2cli/setup.sh`` builds (``make test`` puts
 it on PATH when ``.ci/run`` built it). Elsewhere they skip with a one-line reason. The
-package is built with colcon once per module; each command runs as a user's shell would,
+package is built with colcon once per run; each command runs as a user's shell would,
 after ``. install/setup.sh``.
 """
 
@@ -21,10 +21,10 @@ from pathlib import Path
 import pytest
 import rclpy
 import yaml
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from infomax_contingency.testing.graph import SpinThread, StepRecorder
-from test_ros2_run import colcon_build
 
 ROOT = Path(__file__).resolve().parent.parent
 ROS2 = shutil.which("ros2")
@@ -33,12 +33,10 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-@pytest.fixture(scope="module")
-def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A colcon build of the package; returns the workspace."""
-    workspace = tmp_path_factory.mktemp("ws")
-    colcon_build(workspace)
-    return workspace
+@pytest.fixture
+def workspace(colcon_workspace: Path) -> Path:
+    """The run's colcon build of the package (shared, read only); returns the workspace."""
+    return colcon_workspace
 
 
 def shell(workspace: Path, command: str) -> list[str]:
@@ -232,35 +230,43 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
     config = config / "config" / "robot.yaml"
     override = tmp_path / "override.yaml"
     override.write_text("/**/mic_node:\n  ros__parameters:\n    threshold_db: -35.0\n")
-    for namespace, arguments, expected in (
-        ("/robot1", f"--params-file {override}", "-35.0"),
-        ("/robot1", "-p mic_node:threshold_db:=-35.0", "-40.0"),
-        ("/robot1", "-p threshold_db:=-35.0", "-40.0"),
-        ("/", "-p mic_node:threshold_db:=-35.0", "-35.0"),
-    ):
-        log = workspace / f"run-{time.monotonic_ns()}.log"
+    cases = (  # namespace, arguments after the installed robot.yaml, threshold_db then
+        ("/robot1", f"--params-file {override}", -35.0),
+        ("/robot2", "-p mic_node:threshold_db:=-35.0", -40.0),
+        ("/robot3", "-p threshold_db:=-35.0", -40.0),
+        ("/", "-p mic_node:threshold_db:=-35.0", -35.0),
+    )
+    # The four nodes run at once, each in its own namespace; their parameters are read
+    # through their parameter services (what `ros2 param get` asks).
+    processes = []
+    for namespace, arguments, _ in cases:
+        log = tmp_path / f"mic{len(processes)}.log"
         with log.open("w") as output:
-            process = subprocess.Popen(
-                shell(
-                    workspace,
-                    f"ros2 run infomax_contingency mic_node --ros-args -r __ns:={namespace}"
-                    f" --params-file {config} {arguments}",
-                ),
-                stdout=output,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-            )
-        try:
-            node = f"{namespace.rstrip('/')}/mic_node"
-            answer = ""
+            processes.append((log, subprocess.Popen(
+                shell(workspace,
+                      f"ros2 run infomax_contingency mic_node --ros-args -r __ns:={namespace}"
+                      f" --params-file {config} {arguments}"),
+                stdout=output, stderr=subprocess.STDOUT, start_new_session=True)))  # fmt: skip
+    rclpy.init()
+    asker = rclpy.create_node("parameter_asker")
+    try:
+        for (namespace, arguments, expected), (log, process) in zip(cases, processes, strict=True):
+            client = AsyncParameterClient(asker, f"{namespace.rstrip('/')}/mic_node")
             deadline = time.monotonic() + 60.0
-            while "Double value is" not in answer:  # until the node's services answer
+            while not client.wait_for_services(timeout_sec=0.5):
                 assert process.poll() is None, log.read_text()
-                assert time.monotonic() < deadline, answer + log.read_text()
-                answer = ros2(workspace, f"param get --no-daemon {node} threshold_db")
-            assert f"Double value is: {expected}" in answer, (namespace, arguments, answer)
-        finally:
+                assert time.monotonic() < deadline, log.read_text()
+            answer = client.get_parameters(["threshold_db"])
+            rclpy.spin_until_future_complete(asker, answer, timeout_sec=30.0)
+            assert answer.done(), (namespace, arguments, log.read_text())
+            value = answer.result().values[0].double_value
+            assert value == expected, (namespace, arguments, value)
+    finally:
+        asker.destroy_node()
+        rclpy.try_shutdown()
+        for _log, process in processes:
             os.killpg(process.pid, signal.SIGINT)
+        for log, process in processes:
             assert process.wait(timeout=30) == 0, log.read_text()
 
 

@@ -14,7 +14,6 @@ import pytest
 
 import infomax_contingency
 from infomax_contingency import resources
-from test_ros2_run import colcon_build
 
 ROOT = Path(__file__).resolve().parent.parent
 HERE = Path(__file__).resolve().parent
@@ -230,8 +229,8 @@ def test_resources_module_does_not_import_rclpy() -> None:
 
 
 @pytest.mark.slow
-def test_colcon_build_layout(tmp_path: Path) -> None:
-    prefix = colcon_build(tmp_path)
+def test_colcon_build_layout(colcon_workspace: Path) -> None:
+    prefix = colcon_workspace / "install" / PKG
     for executable in EXECUTABLES:
         path = prefix / "lib" / PKG / executable
         assert path.is_file() and os.access(path, os.X_OK), f"missing executable {path}"
