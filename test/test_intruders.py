@@ -97,21 +97,23 @@ class FaultWatch:
         ``stream`` recorded, and no fault lately.
         """
         rec = self.graph.recorder
-        last_bit = max(s for st, s, *_ in rec.sound_step if st == stream)
+        last_bit = [0]
 
         def applied() -> bool:
+            # The last bits may still be on their way to the recorder: read it each time.
+            last_bit[0] = max(s for st, s, *_ in rec.sound_step if st == stream)
             status = self.status("belief_node")
             if status is None or status.level != DiagnosticStatus.OK:
                 return False
             got = values(status)
-            return (got["stream"] == str(stream) and got["last_step"] == str(last_bit)
+            return (got["stream"] == str(stream) and got["last_step"] == str(last_bit[0])
                     and got["steps"] == str(len(rec.belief)))  # fmt: skip
 
         try:
             self.graph.run_until(applied, "the belief node to apply every step")
         except AssertionError as error:
             status = self.status("belief_node")
-            raise AssertionError(f"{error}; the last bit of stream {stream}: step {last_bit};"
+            raise AssertionError(f"{error}; the last bit of stream {stream}: step {last_bit[0]};"
                                  f" its last status: {status and status.level!r}"
                                  f" {status and status.message!r}"
                                  f" {status and values(status)}") from None  # fmt: skip
