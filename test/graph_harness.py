@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 import rclpy
 
+from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.testing.graph import (
     GraphProcesses,
     SpinThread,
@@ -107,3 +108,17 @@ def graph_fixture() -> Callable:
             rclpy.try_shutdown()
 
     return make_graph
+
+
+STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief",
+               "/partner_present")
+
+
+def assert_every_step_recorded(bag: Path, steps: int) -> dict[str, list]:
+    """The bag holds ``steps`` messages of every step topic, from step 1; its topics."""
+    topics = read_topics(bag, (*STEP_TOPICS, "/session_info"))
+    for topic in STEP_TOPICS:
+        assert len(topics[topic]) == steps, (topic, len(topics[topic]))
+    assert [int(m.data[1]) for _, m in topics["/sound_step"]] == list(range(1, steps + 1))
+    assert len(topics["/session_info"]) == 1
+    return topics

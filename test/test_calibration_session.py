@@ -1,7 +1,8 @@
-"""``calibration-session`` (the random-interval protocol, recorded) and ``demo --record``.
+"""``calibration-session``: the random-interval protocol, recorded.
 
-The graph runs as node processes against the simulated room; the bags they leave are
-read back: every step of every topic from step 1, and ``analyze`` reads the session.
+The graph runs as node processes against the simulated room; the bag it leaves is read
+back: every step of every topic from step 1, and ``analyze`` reads the session
+(test_graph_demo.py reads the bag of ``demo --record`` the same way).
 """
 
 from __future__ import annotations
@@ -13,28 +14,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from infomax_contingency.audio.bag import read_topics
-from infomax_contingency.audio.bag_replay import BagReplay
+from graph_harness import assert_every_step_recorded
 from infomax_contingency.cli.main import main
 from infomax_contingency.eval.sessions import load_session
 
 ROOT = Path(__file__).resolve().parent.parent
-STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief",
-               "/partner_present")
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "infomax_contingency.cli", *args], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
-
-
-def _assert_every_step_recorded(bag: Path, steps: int) -> dict[str, list]:
-    topics = read_topics(bag, (*STEP_TOPICS, "/session_info"))
-    for topic in STEP_TOPICS:
-        assert len(topics[topic]) == steps, (topic, len(topics[topic]))
-    assert [int(m.data[1]) for _, m in topics["/sound_step"]] == list(range(1, steps + 1))
-    assert len(topics["/session_info"]) == 1
-    return topics
 
 
 @pytest.mark.slow
@@ -48,7 +37,7 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
                   "--no-record-audio")
     assert result.returncode == 0, result.stdout + result.stderr
     assert "recorded 180 steps" in result.stdout
-    _assert_every_step_recorded(bag, 180)
+    assert_every_step_recorded(bag, 180)
     session = load_session(bag)
     sounds = [step for step, u in session.decisions if u]
     gaps = np.diff(sounds)
@@ -61,23 +50,6 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
     text = capsys.readouterr().out
     assert "self-feedback period (ts1, ts2): (0, 0)" in text  # the room's 150 ms chirp
     assert "reply period (ta1, ta2): (2," in text
-
-
-@pytest.mark.slow
-@pytest.mark.xdist_group("node_graphs")
-def test_a_recorded_demo_holds_every_step_of_every_topic(tmp_path: Path) -> None:
-    """The recorder is up before the graph starts: nothing of the first steps is lost."""
-    bag = tmp_path / "demo"
-    result = _cli("demo", "--steps", "40", "--seed", "3", "--record", str(bag))
-    assert result.returncode == 0, result.stdout + result.stderr
-    topics = _assert_every_step_recorded(bag, 40)
-    assert all(m.data for _, m in topics["/partner_present"])  # the partner stays 60 s
-    # mic_node's source bag windows the recorded audio again: with the room's threshold
-    # (config/fake_room.yaml: fixed, -40 dB) its bits are the recorded ones.
-    replay = BagReplay(bag, 0.5, 16000)
-    assert replay.has_audio and replay.n_windows == 40
-    energies = [replay.next_window()[0] for _ in range(40)]
-    assert [bool(e > -40.0) for e in energies] == [bool(m.data) for _, m in topics["/sound"]]
 
 
 @pytest.mark.parametrize("arguments, message", [

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graph_harness import Graph, graph_fixture
+from graph_harness import Graph, assert_every_step_recorded, graph_fixture
+from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.cli import demo as demo_module
 from infomax_contingency.testing.graph import wait_until
 from processes import readline_within
@@ -44,8 +45,13 @@ def demo(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-def test_demo_finds_the_partner_and_notices_they_left() -> None:
-    result = demo("--steps", "200", "--seed", "1", "--leave-at", "50")
+def test_demo_finds_the_partner_notices_they_left_and_records_every_step(tmp_path: Path) -> None:
+    """The README's demo, with ``--record``: its verdict, and a bag with every step.
+
+    The recorder is up before the graph starts: nothing of the first steps is lost.
+    """
+    bag = tmp_path / "demo"
+    result = demo("--steps", "200", "--seed", "1", "--leave-at", "50", "--record", str(bag))
     assert result.returncode == 0, result.stdout + result.stderr
     lines = [STEP_LINE.match(line) for line in result.stdout.splitlines()]
     steps = [m for m in lines if m]
@@ -60,6 +66,15 @@ def test_demo_finds_the_partner_and_notices_they_left() -> None:
     verdict = result.stdout.splitlines()[-1]
     assert verdict.startswith("# verdict: found the partner")
     assert "noticed they left" in verdict and "final answer correct" in verdict
+
+    topics = assert_every_step_recorded(bag, 200)
+    assert [m.data for _, m in topics["/partner_present"]] == truth
+    # mic_node's source bag windows the recorded audio again: with the room's threshold
+    # (config/fake_room.yaml: fixed, -40 dB) its bits are the recorded ones.
+    replay = BagReplay(bag, 0.5, 16000)
+    assert replay.has_audio and replay.n_windows == 200
+    energies = [replay.next_window()[0] for _ in range(200)]
+    assert [bool(e > -40.0) for e in energies] == [bool(m.data) for _, m in topics["/sound"]]
 
 
 @pytest.mark.slow
