@@ -311,7 +311,9 @@ def record_robot2(
     return bits, beliefs
 
 
-def each_robot_has_its_own_topics_and_a_lockstep_room(graph: Launch, recorder: StepRecorder) -> None:
+def each_robot_has_its_own_topics_and_a_lockstep_room(
+    graph: Launch, recorder: StepRecorder
+) -> None:
     """Two robots beside each other: each one's room, pacing and sound_step, in its namespace.
 
     Who publishes a topic is read from this process's DDS graph, the data ``ros2 topic
