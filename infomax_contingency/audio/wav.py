@@ -24,7 +24,6 @@ from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.io import wavfile
 
 from infomax_contingency.audio.common import AudioError, check_rate, float_samples
 
@@ -313,6 +312,8 @@ def write_wav_int16(path: str | os.PathLike[str], samples: ArrayLike, rate: int)
     if x.ndim not in (1, 2):
         raise AudioError(f"samples must be shaped (frames,) or (frames, channels), got {x.shape}")
     data = np.round(np.clip(x, -1.0, 1.0) * 32767.0).astype(np.int16)
+    from scipy.io import wavfile  # here: scipy.io takes ~0.3 s to load, and nodes never write
+
     try:
         wavfile.write(path, rate, data)
     except OSError as exc:

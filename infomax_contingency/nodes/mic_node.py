@@ -91,13 +91,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.audio.binarizer import UNSEPARATED, WavReplay
 from infomax_contingency.audio.bitsource import (
     BIT_SOURCES,
@@ -136,6 +135,9 @@ MICROPHONE_POLL_S = 0.02
 
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
+
+if TYPE_CHECKING:
+    from infomax_contingency.audio.bag_replay import BagReplay
 
 
 @dataclass(frozen=True)
@@ -1011,6 +1013,9 @@ class MicNode(GraphNode):
 
 def open_bag_replay(config: MicConfig, samples: bool = False) -> BagReplay:
     """The session bag of ``source: bag`` (keeping its windows' samples if ``samples``)."""
+    # Imported here: the bag library takes ~0.5 s to load, and only this source needs it.
+    from infomax_contingency.audio.bag_replay import BagReplay
+
     try:
         return BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz, samples)
     except (OSError, AudioError) as error:
