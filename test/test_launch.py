@@ -102,22 +102,13 @@ class Launch:
             assert time.monotonic() < deadline, f"no {text!r} in:\n{self.output()[-3000:]}"
             time.sleep(0.2)  # polls the log file; the deadline above bounds it
 
-    def interrupt(self) -> int:
-        """Ctrl-C in a terminal: SIGINT to the whole process group, twice; the exit status."""
-        for _ in range(2):
-            os.killpg(self.process.pid, signal.SIGINT)
-            try:
-                return self.process.wait(timeout=1.0)
-            except subprocess.TimeoutExpired:
-                pass
-        return self.process.wait(timeout=30.0)
-
     def stop(self) -> int:
-        """Ctrl-C once: SIGINT to the whole process group; the exit status.
+        """Ctrl-C in a terminal: SIGINT to the whole process group, once; the exit status.
 
-        Tests that only need the graph gone use this: a second SIGINT that lands while
-        ``ros2 launch`` itself finishes (after every node ended, its handlers already
-        uninstalled) ends it by the signal (status -2), which says nothing about the nodes.
+        Each node gets it twice (from the terminal and from ``ros2 launch``, which passes
+        it on). A second Ctrl-C is not sent: landing while ``ros2 launch`` itself
+        finishes (after every node ended, its handlers already uninstalled), it would end
+        it by the signal (status -2), which says nothing about the nodes.
         """
         os.killpg(self.process.pid, signal.SIGINT)
         return self.process.wait(timeout=60.0)
@@ -162,7 +153,7 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
     # (read-only parameters give theirs the same way: test_params.py, through the services)
     answer = ros2(workspace, "service call /robot7/belief_node/reset std_srvs/srv/Trigger")
     assert "statistic reset after" in answer
-    assert graph.interrupt() == 0
+    assert graph.stop() == 0
     assert "Traceback" not in graph.output()
 
 

@@ -113,8 +113,17 @@ def spin_until_done(executor: Executor, done: Future, stop: StopSignals | None =
         executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
 
 
-DRAIN_BUDGET_S = 2.0
-"""At most this long, after a stop, for nodes that keep a record to take what is queued."""
+REPAIR_WAIT_S = 3.5
+"""Seconds a reliable sample lost on the way may take to be resent. Fast DDS (Jazzy)
+resends a sample a reader missed (a busy recorder's transport queue overflowed) when
+the reader answers the writer's heartbeat, and a writer of small messages (a Bool per
+step) sends one only every 3 s; a reader holds every later sample of that writer until
+the repair (delivery is in order). So a stop that ends sooner can lose the last seconds
+of a topic, however reliable."""
+
+DRAIN_BUDGET_S = REPAIR_WAIT_S + 1.5
+"""At most this long, after a stop, for nodes that keep a record to take what is queued:
+while other nodes still publish the recorded topics, a repair may still come."""
 
 DRAIN_IDLE_SPINS = 3
 """The queues count as empty after this many spins in a row that took no message."""
@@ -122,12 +131,16 @@ DRAIN_IDLE_SPINS = 3
 
 def drain_queued_messages(executor: Executor, nodes: Sequence[Node],
                           budget_s: float = DRAIN_BUDGET_S) -> None:  # fmt: skip
-    """Spin until the nodes that keep a record have taken every message queued for them.
+    """Spin until the nodes that keep a record have taken every message sent to them.
 
     Such nodes (the recorder) have ``messages_taken() -> int``. On a stop, their DDS
     queues may still hold messages that arrived in a burst (a lockstep graph makes 40
-    steps in 0.1 s; the executor serves one subscription at a time): without this they
-    would be lost, the later topics' most. Bounded by ``budget_s`` seconds.
+    steps in 0.1 s; the executor serves one subscription at a time), and a sample lost
+    on the way comes only with its writer's next heartbeat (:data:`REPAIR_WAIT_S`):
+    without this they would be lost. So the spin goes on until the queues are empty and
+    no other node publishes a recorded topic any more (the graph stopped too: each of
+    its nodes first waits until its readers acknowledged everything,
+    :func:`await_acknowledgments`), or ``budget_s`` seconds passed.
     """
     keepers = [node for node in nodes if callable(getattr(node, "messages_taken", None))]
     if not keepers:
@@ -137,13 +150,22 @@ def drain_queued_messages(executor: Executor, nodes: Sequence[Node],
             executor.remove_node(node)
     deadline = time.monotonic() + budget_s
     idle = 0
-    while idle < DRAIN_IDLE_SPINS and time.monotonic() < deadline and rclpy.ok():
+    while time.monotonic() < deadline and rclpy.ok():
+        if idle >= DRAIN_IDLE_SPINS and not any(_others_publish(node) for node in keepers):
+            return
         before = sum(node.messages_taken() for node in keepers)
         executor.spin_once(timeout_sec=0.02)
         idle = idle + 1 if sum(node.messages_taken() for node in keepers) == before else 0
 
 
-ACK_BUDGET_S = 1.0
+def _others_publish(node: Node) -> bool:
+    """True while another node publishes a topic ``node`` subscribes to."""
+    own = {publisher.topic_name for publisher in node.publishers}
+    return any(subscription.get_publisher_count() > (subscription.topic_name in own)
+               for subscription in node.subscriptions)  # fmt: skip
+
+
+ACK_BUDGET_S = REPAIR_WAIT_S + 0.5
 """At most this long, on a stop, for the readers to acknowledge what was published."""
 
 
@@ -152,8 +174,9 @@ def await_acknowledgments(nodes: Sequence[Node], budget_s: float = ACK_BUDGET_S)
 
     A reliable writer that is destroyed before its readers acknowledged its last messages
     takes them with it: a reader that had dropped a packet in a burst (a recorder busy
-    with 20 windows of audio) can no longer have it repaired. Each writer is waited for
-    in turn, within one budget.
+    with 20 windows of audio) can no longer have it repaired, and the repair comes only
+    with the writer's next heartbeat (:data:`REPAIR_WAIT_S`). Each writer is waited for
+    in turn, within one budget; with everything acknowledged this returns at once.
     """
     deadline = time.monotonic() + budget_s
     for node in nodes:

@@ -180,7 +180,7 @@ class GraphProcesses:
                 continue
         return process.returncode
 
-    def stop_all(self, timeout_s: float = 4.0) -> dict[str, int | None]:
+    def stop_all(self, timeout_s: float = 12.0) -> dict[str, int | None]:
         """Stop every node within about ``timeout_s``; returns their exit statuses.
 
         All running nodes get SIGINT at once; those still running after half of
