@@ -23,9 +23,10 @@ from infomax_contingency.testing.graph import wait_until
 from processes import readline_within
 from stepped_graph import stepped_graph
 
-# The graph tests that start many node processes run one at a time (on one pytest-xdist
-# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
-pytestmark = pytest.mark.xdist_group("node_graphs")
+# The graph tests that start many node processes running at full speed run one at a
+# time (on one pytest-xdist worker, with `--dist loadgroup`), so that they do not starve
+# each other of CPU: NODE_GRAPHS below. The in-process and start-up tests run anywhere.
+NODE_GRAPHS = pytest.mark.xdist_group("node_graphs")
 
 ROOT = Path(__file__).resolve().parent.parent
 WAV = ROOT / "test" / "data" / "interaction.wav"
@@ -44,6 +45,7 @@ def demo(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@NODE_GRAPHS
 @pytest.mark.slow
 def test_demo_finds_the_partner_notices_they_left_and_records_every_step(tmp_path: Path) -> None:
     """The README's demo, with ``--record``: its verdict, and a bag with every step.
@@ -77,6 +79,7 @@ def test_demo_finds_the_partner_notices_they_left_and_records_every_step(tmp_pat
     assert [bool(e > -40.0) for e in energies] == [bool(m.data) for _, m in topics["/sound"]]
 
 
+@NODE_GRAPHS
 @pytest.mark.slow
 def test_demo_replays_a_wav_file() -> None:
     result = demo("--wav", str(WAV))
@@ -118,6 +121,7 @@ def test_the_shipped_configs_find_the_partner_and_notice_they_left() -> None:
         assert [posture for _, posture in rec.posture][:3] == ["bored", "attentive", "bored"]
 
 
+@NODE_GRAPHS
 @pytest.mark.slow
 def test_bringup_runs_the_graph_in_one_process_and_stops_on_sigint(
     make_graph: Callable[[], Graph], tmp_path: Path
@@ -176,6 +180,7 @@ def alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
+@NODE_GRAPHS
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("how", "status", "name"),

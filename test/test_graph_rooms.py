@@ -124,7 +124,6 @@ def test_separate_processes_give_the_offline_run(make_graph: Callable[[], Graph]
     _assert_equals_offline(run, _offline(seed, steps), steps)
 
 
-@pytest.mark.xdist_group("node_graphs")
 @pytest.mark.parametrize(("room", "run"), [("office+partner", 0), ("quiet+leaving", 3)])
 def test_rooms_experiment_runs_equal_the_graph(room: str, run: int) -> None:
     """Runs of ``experiment rooms`` equal the graph's (the pattern of the test above).
