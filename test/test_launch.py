@@ -16,6 +16,7 @@ import signal
 import subprocess
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -139,20 +140,26 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
     # realtime:=true is the default: the room runs at the speed of the room, not lockstep.
     graph.wait_for("[robot7.fake_audio_node]: room 'responsive' (seed 1), real time x1")
-    echo = "topic echo --once --no-daemon /robot7/belief std_msgs/msg/Float64"
-    assert "data:" in ros2(workspace, echo)
-    answer = ros2_once_known(
-        workspace, "param set --no-daemon /robot7/posture_node attentive_above 0.5"
-    )
-    assert "Set parameter successful" in answer
+    # The four commands are independent: they run at once, as from four terminals.
+    commands = {
+        "echo": (ros2, "topic echo --once --no-daemon /robot7/belief std_msgs/msg/Float64"),
+        "set": (ros2_once_known,
+                "param set --no-daemon /robot7/posture_node attentive_above 0.5"),
+        "refused": (ros2_once_known,
+                    "param set --no-daemon /robot7/posture_node bored_below 0.99"),
+        "reset": (ros2, "service call /robot7/belief_node/reset std_srvs/srv/Trigger"),
+    }  # fmt: skip
+    with ThreadPoolExecutor(len(commands)) as pool:
+        running = {key: pool.submit(run, workspace, arguments)
+                   for key, (run, arguments) in commands.items()}  # fmt: skip
+        answers = {key: future.result() for key, future in running.items()}
+    assert "data:" in answers["echo"], answers["echo"]
+    assert "Set parameter successful" in answers["set"], answers["set"]
     graph.wait_for("parameter 'attentive_above' set to 0.5")
-    answer = ros2_once_known(
-        workspace, "param set --no-daemon /robot7/posture_node bored_below 0.99"
-    )
-    assert "must be below 'attentive_above'" in answer  # the reason, as the node gives it
-    # (read-only parameters give theirs the same way: test_params.py, through the services)
-    answer = ros2(workspace, "service call /robot7/belief_node/reset std_srvs/srv/Trigger")
-    assert "statistic reset after" in answer
+    # the reason, as the node gives it (bored_below must stay below attentive_above, 0.9
+    # or 0.5); read-only parameters give theirs the same way (test_params.py)
+    assert "must be below 'attentive_above'" in answers["refused"], answers["refused"]
+    assert "statistic reset after" in answers["reset"], answers["reset"]
     assert graph.stop() == 0
     assert "Traceback" not in graph.output()
 
@@ -164,15 +171,15 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
     graph = launch(f"contingency.launch.py params_file:={bad}")
+    missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
     assert graph.process.wait(timeout=60) is not None
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
     assert lines[-1].endswith(
         "launch stopped: mic_node-1 exited with status 2 (its error is above)"
     )
-    graph = launch("contingency.launch.py params_file:=/nonexistent.yaml")
-    assert graph.process.wait(timeout=60) is not None
-    assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in graph.output()
+    assert missing.process.wait(timeout=60) is not None
+    assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in missing.output()
 
 
 def robot_params(tmp_path: Path, name: str, **sections: dict) -> Path:
