@@ -1,19 +1,22 @@
-"""Nodes killed with SIGKILL and restarted: the graph as separate processes over DDS.
+"""Faults between node processes over DDS: restarts, and a smoke test of the others.
 
-The belief node, the controller and the microphone die in turn and come back. After
-each restart the belief stream must equal an offline recomputation from the true bits
-and decisions (as recorded), step for step: zero counts from the step a restarted
-belief node joins at, the timer unknown after the controller's death, counts kept
-across the new microphone's stream; the diagnostics name what is not running.
+The belief node, the controller and the microphone are killed with SIGKILL in turn and
+come back. After each restart the belief stream must equal an offline recomputation
+from the true bits and decisions (as recorded), step for step: zero counts from the
+step a restarted belief node joins at, the timer unknown after the controller's death,
+counts kept across the new microphone's stream; the diagnostics name what is not
+running. Then one smoke test each of intruding processes (a stray command, a second
+mic_node and controller_node) and of big audio messages between processes.
 
-The other faults of real traffic (intruders, a rogue, any chunking) need no processes:
-test_intruders.py, on the in-process graph. The test process records the topics on a
+Every fault of real traffic (intruders, a rogue flood, every chunking) is tested on the
+in-process graph in test_intruders.py. The test process records the topics on a
 hand-stepped executor: every wait is a condition on what was received (with a deadline
 as a guard), never a sleep.
 """
 
 from __future__ import annotations
 
+import array
 import os
 import re
 from collections.abc import Iterator
@@ -21,9 +24,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from std_msgs.msg import Bool, Float32MultiArray
 
 from exact_beliefs import (
     MEMORY,
@@ -33,7 +38,12 @@ from exact_beliefs import (
     status_reported,
     step_pairs,
 )
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
 from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
@@ -137,16 +147,22 @@ what is not running only once its peers' discovery dropped the dead node."""
 
 
 @pytest.fixture
-def graph(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:
-    """Node processes over UDP loopback with a 2 s discovery lease, and the recorder."""
-    for name, value in UDP_ONLY.items():
-        monkeypatch.setenv(name, value)  # this process and the nodes it starts
+def graph(tmp_path: Path, request: pytest.FixtureRequest,
+          monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:  # fmt: skip
+    """Node processes and the recorder on the test's hand-stepped executor.
+
+    The nodes of a ``kills_nodes`` test talk over UDP loopback with a 2 s discovery lease.
+    """
     node_env = dict(os.environ)
-    profiles = tmp_path / "short_lease.xml"
-    profiles.write_text(SHORT_LEASE_PROFILES)
-    # The nodes only: Fast DDS reads the profile once per process, and this one runs
-    # other tests after this one.
-    node_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
+    if request.node.get_closest_marker("kills_nodes"):
+        for name, value in UDP_ONLY.items():
+            monkeypatch.setenv(name, value)  # this process and the nodes it starts
+        node_env.update(UDP_ONLY)
+        profiles = tmp_path / "short_lease.xml"
+        profiles.write_text(SHORT_LEASE_PROFILES)
+        # The nodes only: Fast DDS reads the profile once per process, and this one runs
+        # other tests after this one.
+        node_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
     rclpy.init()
     recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
     probe = Probe()
@@ -179,8 +195,9 @@ def _contiguous(steps: list[int]) -> bool:
 def _recorded_whole(recorder: StepRecorder, bits: bool, controllers: bool) -> bool:
     """True when the recorder has no hole in the first stream's steps so far.
 
-    No bit missing between the first and the last received (``bits``), and no decision
-    of each controller (``controllers``; else of the newest) between its first and last.
+    No bit missing between the first and the last received (``bits``), no decision of
+    each controller (``controllers``; else of the newest) between its first and last,
+    and the newest one's decisions up to the last bit but one.
     Checked before a node is killed: a sample this process lost on the way (its UDP
     buffer overflowed on a loaded machine) is resent only while its writer lives, and
     the belief node may have it. A record with a hole would then make the recomputation
@@ -188,12 +205,15 @@ def _recorded_whole(recorder: StepRecorder, bits: bool, controllers: bool) -> bo
     that stayed at the prior where the belief node counted, ten steps after its join).
     """
     stream = recorder.sound_step[0][0]
-    if bits and not _contiguous([s for st, s, *_ in recorder.sound_step if st == stream]):
+    bit_steps = [s for st, s, *_ in recorder.sound_step if st == stream]
+    if bits and not _contiguous(bit_steps):
         return False
     ids = list(dict.fromkeys(c for *_, c in recorder.vocalize_step))
     for controller in ids if controllers else ids[-1:]:
-        if not _contiguous([s for st, s, _, c in recorder.vocalize_step
-                            if st == stream and c == controller]):  # fmt: skip
+        steps = [s for st, s, _, c in recorder.vocalize_step if st == stream and c == controller]
+        # In lockstep the next bit waits for this decision: all but the last bit answered.
+        if not _contiguous(steps) or (controller == ids[-1] and steps
+                                      and max(steps) < max(bit_steps) - 1):  # fmt: skip
             return False
     return True
 
@@ -222,6 +242,7 @@ def _settled(graph: FaultGraph, stream: int, since_ns: int) -> DiagnosticStatus:
     return found[0]
 
 
+@pytest.mark.kills_nodes
 def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     graph: FaultGraph,
 ) -> None:
@@ -300,3 +321,88 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     assert int(values["missing_decisions"]) >= missing and values["stream_changes"] == "1", values
     controller_values = {v.key: v.value for v in graph.status("controller_node").values}
     assert int(controller_values["missed_steps"]) > 0
+
+
+def test_intruding_processes_are_named_ignored_and_the_belief_stays_exact(
+    graph: FaultGraph,
+) -> None:
+    """Smoke test between processes: a stray command, a second mic_node and controller.
+
+    test_intruders.py runs these (and a rogue flood) on the in-process graph.
+    """
+    rec = graph.recorder
+    graph.start(_room_graph(), clock="fake_audio_node")
+    graph.run_until(lambda: len(rec.belief) >= 50, "50 steps")
+    graph.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # one stray message on the plain command topic (`ros2 topic pub --once /vocalize`)
+    stray = graph.probe.talk("vocalize", Bool)
+    graph.run_until(lambda: rec.count_publishers("vocalize") == 2, "the stray publisher")
+    stray.publish(Bool(data=False))
+    graph.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
+    graph.probe.destroy_publisher(stray)
+
+    # a second mic_node and a second controller_node, each started and stopped
+    for node, name, parameters, topic in (
+        ("mic_node", "mic_node_2", {**MIC, "wait_for_listeners": 0}, "sound_step"),
+        ("controller_node", "controller_node_2", CONTROLLER, "vocalize_step"),
+    ):
+        graph.processes.start(node, parameters, name=name)
+        graph.wait_status("belief_node", DiagnosticStatus.ERROR, f"/{name}")
+        assert topic in graph.status("belief_node").message
+        steps_before = len(rec.belief)
+        graph.run_until(lambda n=steps_before: len(rec.belief) > n + 30, "30 steps meanwhile")
+        graph.processes.stop(name)
+    graph.wait_status("belief_node", DiagnosticStatus.OK)
+
+    # the run ends: every step of the true stream is in the belief, exactly
+    graph.processes.stop("fake_audio_node")
+    stream, controller = rec.sound_step[0][0], rec.vocalize_step[0][3]
+    status = _settled(graph, stream, 0)
+    last = max(s for st, s, *_ in rec.sound_step if st == stream)
+    # The belief node has them all; the last decisions may still be on their way here.
+    graph.run_until(lambda: None not in [u for _, u in step_pairs(rec, stream, {controller},
+                                                                   1, last)],
+                    "every decision here", deadline_s=REPAIR_DEADLINE_S)  # fmt: skip
+    pairs = step_pairs(rec, stream, {controller}, 1, last)
+    assert_same_beliefs(rec.belief, offline_beliefs([(pairs, "start")]), pairs=pairs)
+    values = {v.key: v.value for v in status.values}
+    assert values["missing_bits"] == values["missing_decisions"] == "0", values
+    assert int(values["foreign_messages"]) > 0
+
+
+def test_audio_in_big_chunks_between_processes_gives_the_offline_beliefs(
+    graph: FaultGraph,
+) -> None:
+    """Smoke test between processes: 30 s of audio in one message, then 10^7 samples.
+
+    test_intruders.py runs every chunking (0.01 s to 10^7 samples) on the in-process graph.
+    """
+    rec = graph.recorder
+    nodes = {"mic_node": MIC, "controller_node": {**CONTROLLER, "wait_for_listeners": 3},
+             "belief_node": BELIEF}  # fmt: skip
+    for name, parameters in nodes.items():
+        graph.processes.start(name, parameters)
+    audio = graph.probe.talk("audio", Float32MultiArray)
+    graph.run_until(lambda: rec.sees(list(nodes)) and audio.get_subscription_count() >= 1,
+                    "the graph")  # fmt: skip
+    graph.wait_status("mic_node", DiagnosticStatus.OK)
+    room = FakeRoom(FakeRoomConfig.preset("noisy", event_rate_hz=1.0), seed=8)
+    segments = [np.concatenate([as_transmitted(room.next_window().samples)
+                                for _ in range(windows)]) for windows in (60, 1250)]  # fmt: skip
+    for samples in segments:
+        message = Float32MultiArray()
+        message.data = array.array("f", samples.tobytes())
+        audio.publish(message)
+    samples = np.concatenate(segments).astype(np.float64)
+    energies = window_energies_db(samples, 16000, 0.5)
+    graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))
+                    >= len(energies), f"{len(energies)} steps", deadline_s=300)  # fmt: skip
+    bits = [bool(e > -40.0) for e in energies]
+    assert [y for _, _, y, _ in rec.sound_step] == bits
+    controller = PolicyController(PolicyTable.load(resource_path(
+        "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
+    decisions = [bool(controller.step(int(y))) for y in bits]
+    assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
+    expected = offline_beliefs([(list(zip(bits, decisions, strict=True)), "start")])
+    assert_same_beliefs(rec.belief, expected)

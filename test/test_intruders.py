@@ -195,6 +195,10 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(room_graph: Faul
     graph.remove("fake_audio_node")
     status = watch.settled(stream)
     last = max(s for st, s, *_ in rec.sound_step if st == stream)
+    # The belief node has them all; the last decisions may still be on their way here.
+    graph.run_until(lambda: None not in [u for _, u in step_pairs(rec, stream, {controller},
+                                                                   1, last)],
+                    "every decision in the recorder")  # fmt: skip
     pairs = step_pairs(rec, stream, {controller}, 1, last)
     assert_same_beliefs(rec.belief, offline_beliefs([(pairs, "start")]), pairs=pairs)
     got = values(status)
