@@ -47,9 +47,11 @@ from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_trans
 from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
-# The graph tests that start many node processes run one at a time (on one pytest-xdist
-# worker, with `--dist loadgroup`), so that they do not starve each other of CPU.
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("node_graphs")]
+# The graphs that step a room at full speed and rely on timeouts (a silent source is
+# replaced after source_timeout_s) run one at a time (on one pytest-xdist worker, with
+# `--dist loadgroup`), so that they do not starve each other of CPU.
+pytestmark = pytest.mark.slow
+NODE_GRAPHS = pytest.mark.xdist_group("node_graphs")
 
 RESTART_TIMEOUT_S = 1.0
 """source_timeout_s here: a silent stream or controller is replaced after this (the
@@ -242,6 +244,7 @@ def _settled(graph: FaultGraph, stream: int, since_ns: int) -> DiagnosticStatus:
     return found[0]
 
 
+@NODE_GRAPHS
 @pytest.mark.kills_nodes
 def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     graph: FaultGraph,
@@ -323,6 +326,7 @@ def test_killed_nodes_rejoin_at_the_current_step_and_nothing_is_guessed(
     assert int(controller_values["missed_steps"]) > 0
 
 
+@NODE_GRAPHS
 def test_intruding_processes_are_named_ignored_and_the_belief_stays_exact(
     graph: FaultGraph,
 ) -> None:
