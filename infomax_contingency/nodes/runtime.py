@@ -138,9 +138,10 @@ def drain_queued_messages(executor: Executor, nodes: Sequence[Node],
     steps in 0.1 s; the executor serves one subscription at a time), and a sample lost
     on the way comes only with its writer's next heartbeat (:data:`REPAIR_WAIT_S`):
     without this they would be lost. So the spin goes on until the queues are empty and
-    no other node publishes a recorded topic any more (the graph stopped too: each of
-    its nodes first waits until its readers acknowledged everything,
-    :func:`await_acknowledgments`), or ``budget_s`` seconds passed.
+    no node of another process publishes a recorded topic any more (the graph stopped
+    too: each of its nodes first waits until its readers acknowledged everything,
+    :func:`await_acknowledgments`), or ``budget_s`` seconds passed. The nodes of this
+    process (``bringup``) deliver in-process: nothing of theirs is waited for.
     """
     keepers = [node for node in nodes if callable(getattr(node, "messages_taken", None))]
     if not keepers:
@@ -148,21 +149,28 @@ def drain_queued_messages(executor: Executor, nodes: Sequence[Node],
     for node in nodes:  # the others stop acting now (a room in lockstep would go on)
         if node not in keepers:
             executor.remove_node(node)
+    local = {node.get_fully_qualified_name() for node in nodes}
     deadline = time.monotonic() + budget_s
     idle = 0
     while time.monotonic() < deadline and rclpy.ok():
-        if idle >= DRAIN_IDLE_SPINS and not any(_others_publish(node) for node in keepers):
+        if idle >= DRAIN_IDLE_SPINS and not any(_others_publish(node, local) for node in keepers):
             return
         before = sum(node.messages_taken() for node in keepers)
         executor.spin_once(timeout_sec=0.02)
         idle = idle + 1 if sum(node.messages_taken() for node in keepers) == before else 0
 
 
-def _others_publish(node: Node) -> bool:
-    """True while another node publishes a topic ``node`` subscribes to."""
-    own = {publisher.topic_name for publisher in node.publishers}
-    return any(subscription.get_publisher_count() > (subscription.topic_name in own)
-               for subscription in node.subscriptions)  # fmt: skip
+def _others_publish(node: Node, local: set[str]) -> bool:
+    """True while a node of another process publishes a topic ``node`` subscribes to.
+
+    ``local``: the fully qualified names of this process's nodes (they are stopping).
+    """
+    for subscription in node.subscriptions:
+        for info in node.get_publishers_info_by_topic(subscription.topic_name):
+            name = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            if name not in local:
+                return True
+    return False
 
 
 ACK_BUDGET_S = REPAIR_WAIT_S + 0.5
