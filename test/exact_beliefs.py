@@ -30,20 +30,25 @@ def step_pairs(recorder: StepRecorder, stream: int, controllers: set[int], first
                last: int) -> list[tuple]:  # fmt: skip
     """``(y, u)`` of steps ``first..last`` of ``stream`` as recorded (None: not recorded).
 
-    Decisions count only from ``controllers``; a rogue's are left out.
+    Decisions count only from ``controllers``; a rogue's are left out. Fails if a step
+    has two bits, or two decisions of those controllers.
     """
-    bits = {s: bool(y) for st, s, y, _ in recorder.sound_step if st == stream}
-    decisions = {s: bool(u) for st, s, u, c in recorder.vocalize_step
-                 if st == stream and c in controllers}  # fmt: skip
+    bit_steps = [(s, bool(y)) for st, s, y, _ in recorder.sound_step if st == stream]
+    decision_steps = [(s, bool(u)) for st, s, u, c in recorder.vocalize_step
+                      if st == stream and c in controllers]  # fmt: skip
+    bits, decisions = dict(bit_steps), dict(decision_steps)
+    assert len(bits) == len(bit_steps), "a step of the stream has two bits"
+    assert len(decisions) == len(decision_steps), "a step has two decisions of these controllers"
     return [(bits.get(s), decisions.get(s)) for s in range(first, last + 1)]
 
 
 def offline_beliefs(segments: list[tuple[list, str]]) -> list[float]:
     """Beliefs from ``(steps, how)`` segments of ``(y, u)`` pairs (None: missing).
 
-    ``how`` is ``"start"`` (a fresh statistic at a stream's first step), ``"joined"``
-    (zero counts in the middle of a stream: timer unknown) or ``"new stream"`` (counts
-    kept across a gap of unknown length).
+    ``how`` is ``"start"`` (a stream's first step), ``"joined"`` (in the middle of a
+    stream: the timer unknown until the next vocalization) or ``"new stream"`` (counts
+    kept across a gap of unknown length, the timer uncertain). The statistic starts from
+    zero counts at the first segment; a "joined" later on keeps the counts.
     """
     tracker = StatisticTracker(ROBOT, memory=MEMORY)
     beliefs = []
@@ -66,7 +71,8 @@ def assert_same_beliefs(got: list[float], expected: list[float], log: str = "",
     ``pairs``: the ``(y, u)`` the expected beliefs were computed from, shown around it.
     """
     assert len(got) == len(expected), f"{len(got)} beliefs, expected {len(expected)}\n{log}"
-    differ = np.flatnonzero(np.abs(np.array(got) - np.array(expected)) > 1e-12)
+    assert np.isfinite(got).all(), f"a belief is not a number: {got}"
+    differ = np.flatnonzero(~np.isclose(got, expected, rtol=0.0, atol=1e-12))
     if differ.size:
         first = int(differ[0])
         around = ""

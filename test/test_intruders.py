@@ -160,7 +160,9 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(room_graph: Faul
     # 4. a rogue flooding both stamped topics (a stream and a controller of its own)
     bits = watch.probe.talk("sound_step", Int64MultiArray)
     decisions = watch.probe.talk("vocalize_step", Int64MultiArray)
-    graph.run_until(lambda: bits.get_subscription_count() >= 3, "the rogue connected")
+    graph.run_until(lambda: bits.get_subscription_count() >= 3  # controller, belief, recorder
+                    and decisions.get_subscription_count() >= 4,  # + mic and room
+                    "the rogue connected")  # fmt: skip
     stream, controller = true_sources(rec)
     sent = [0]
     taken_before = {name: graph.nodes[name].foreign.count for name in ROGUE_READERS}
@@ -237,7 +239,7 @@ def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs() ->
                 # the mic's queue holds (100), as one that publishes in real time does not.
                 if index % 25 == 24 or size >= 8000:
                     graph.run_until(lambda n=sent // 8000: len(rec.belief) >= n,
-                                    "the mic to keep up")  # fmt: skip
+                                    "the mic to keep up", deadline_s=180)  # fmt: skip
         samples = np.concatenate(segments).astype(np.float64)
         energies = window_energies_db(samples, 16000, 0.5)
         graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))

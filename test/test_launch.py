@@ -82,8 +82,8 @@ def ros2_once_known(workspace: Path, arguments: str, timeout_s: float = 60.0) ->
 class Launch:
     """``ros2 launch`` in its own process group, its output collected in a file."""
 
-    def __init__(self, workspace: Path, arguments: str) -> None:
-        self.log = workspace / f"launch-{time.monotonic_ns()}.log"
+    def __init__(self, workspace: Path, arguments: str, log_dir: Path) -> None:
+        self.log = log_dir / f"launch-{time.monotonic_ns()}.log"
         self._file = self.log.open("w")
         self.process = subprocess.Popen(
             shell(workspace, "ros2 launch infomax_contingency " + arguments),
@@ -122,11 +122,11 @@ class Launch:
 
 
 @pytest.fixture
-def launch(workspace: Path) -> Iterator:
+def launch(workspace: Path, tmp_path: Path) -> Iterator:
     started: list[Launch] = []
 
     def start(arguments: str) -> Launch:
-        started.append(Launch(workspace, arguments))
+        started.append(Launch(workspace, arguments, tmp_path))
         return started[-1]
 
     yield start
@@ -262,9 +262,11 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
         asker.destroy_node()
         rclpy.try_shutdown()
         for _log, process in processes:
-            os.killpg(process.pid, signal.SIGINT)
-        for log, process in processes:
-            assert process.wait(timeout=30) == 0, log.read_text()
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGINT)
+        statuses = [(process.wait(timeout=30), log) for log, process in processes]
+    for status, log in statuses:
+        assert status == 0, log.read_text()
 
 
 def record_robot2(

@@ -1,8 +1,8 @@
 """The layout a real ROS 2 install uses: colcon build, ``ros2 run``, ``ros2 launch``.
 
 ``ros2 run PKG EXE`` is: find the package prefix in the ament index, then exec
-``<prefix>/lib/PKG/EXE``. The test builds the package with colcon into a temporary
-workspace, resolves three executables exactly that way, starts them with the install's
+``<prefix>/lib/PKG/EXE``. The test takes the run's colcon build of the package
+(``colcon_workspace``), resolves three executables exactly that way, starts them with the install's
 Python path (as ``. install/setup.sh`` would), and reads ``belief`` from this process,
 as ``ros2 topic echo /belief`` would. Where ``ros2`` is not on PATH, it then starts two
 graphs in namespaces /robot1 and /robot2 from the installed config/robot.yaml side by

@@ -121,9 +121,18 @@ step) sends one only every 3 s; a reader holds every later sample of that writer
 the repair (delivery is in order). So a stop that ends sooner can lose the last seconds
 of a topic, however reliable."""
 
-DRAIN_BUDGET_S = REPAIR_WAIT_S + 1.5
-"""At most this long, after a stop, for nodes that keep a record to take what is queued:
-while other nodes still publish the recorded topics, a repair may still come."""
+STOP_BUDGET_S = REPAIR_WAIT_S + 1.5
+"""At most this long, after a stop, for a process's acknowledgment wait and drain together
+(:func:`await_acknowledgments`, then :func:`drain_queued_messages`); the process then
+ends within about a second more (well before a launcher's SIGKILL)."""
+
+DRAIN_BUDGET_S = STOP_BUDGET_S
+"""At most this long for nodes that keep a record to take what is queued: while other
+nodes still publish the recorded topics, a repair may still come."""
+
+SHARED_TOPICS = frozenset({"/diagnostics"})
+"""Topics every node on the domain publishes (other robots' too, outside any namespace):
+a drain does not wait for their publishers to go."""
 
 DRAIN_IDLE_SPINS = 3
 """The queues count as empty after this many spins in a row that took no message."""
@@ -164,8 +173,11 @@ def _others_publish(node: Node, local: set[str]) -> bool:
     """True while a node of another process publishes a topic ``node`` subscribes to.
 
     ``local``: the fully qualified names of this process's nodes (they are stopping).
+    Topics of :data:`SHARED_TOPICS` do not count.
     """
     for subscription in node.subscriptions:
+        if subscription.topic_name in SHARED_TOPICS:
+            continue
         for info in node.get_publishers_info_by_topic(subscription.topic_name):
             name = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
             if name not in local:
@@ -227,8 +239,9 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                     lambda f: any_finished.done() or any_finished.set_result(f.result())
                 )
         spin_until_done(executor, any_finished, stop)
-        await_acknowledgments(nodes)
-        drain_queued_messages(executor, nodes)
+        stop_by = time.monotonic() + STOP_BUDGET_S
+        await_acknowledgments(nodes, min(ACK_BUDGET_S, STOP_BUDGET_S))
+        drain_queued_messages(executor, nodes, max(0.0, stop_by - time.monotonic()))
         return int(any_finished.result()) if any_finished.done() else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0

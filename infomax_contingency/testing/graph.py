@@ -319,10 +319,11 @@ class StepRecorder(Node):
         """True once ``nodes`` are in the graph and their topics reach this recorder."""
         if not set(nodes) <= set(self.get_node_names()):
             return False
-        recorded = {sub.topic_name.lstrip("/"): sub for sub in self.subscriptions}
+        recorded = {sub.topic_name: sub for sub in self.subscriptions}
         for node in nodes:
             for topic in PUBLISHES[node]:
-                if topic in recorded and recorded[topic].get_publisher_count() == 0:
+                subscription = recorded.get(self.resolve_topic_name(topic))
+                if subscription is not None and subscription.get_publisher_count() == 0:
                     return False
         return True
 
