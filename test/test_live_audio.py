@@ -777,8 +777,9 @@ def test_alsa_device_that_stalls_and_vanishes_is_reopened_when_back(tmp_path) ->
     status = result["status"]
     segments = [w[0] for w in result["windows"]]
     energies = np.array([w[1] for w in result["windows"]])
-    assert status["disconnects"] == 1 and status["reconnects"] == 1
-    assert status["reconnect_attempts"] >= 2 and status["state"] == "connected"
+    story = f"{status}\n" + "\n".join(result["logs"])  # what the stream went through
+    assert status["disconnects"] == 1 and status["reconnects"] == 1, story
+    assert status["reconnect_attempts"] >= 2 and status["state"] == "connected", story
     assert segments == [0] * 8 + [1] * (len(segments) - 8)
     assert np.array_equal(energies[:8], window_energies_db(a.astype(float), 16000, 0.25))
     expected_b = window_energies_db(b.astype(float), 16000, 0.25)

@@ -49,7 +49,12 @@ from trajectory_msgs.msg import JointTrajectory
 from infomax_contingency.audio.bag import BagWriteError, BagWriter
 from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import AUDIO_QOS, LATCHED_QOS, LATCHED_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import (
+    LATCHED_QOS,
+    LATCHED_READER_QOS,
+    LOSSLESS_READER_QOS,
+    STREAM_QOS,
+)
 from infomax_contingency.nodes.runtime import run_node
 
 SESSION_TOPIC = "session_info"
@@ -60,17 +65,24 @@ _DISCOVERY_PERIOD_S = 0.5
 :data:`SUBSCRIBED_ONCE_PUBLISHED`)."""
 
 
+RECORDER_QOS = LOSSLESS_READER_QOS
+"""QoS of the recorder's stream subscriptions (``audio`` too): keep-all. The recorder is
+not in the lockstep loop, so in a run at full speed (200 steps in under a second) it
+falls behind the graph by hundreds of messages while it writes; a keep-last queue of
+100 ``audio`` chunks dropped 4 of 200 for good in such a demo. At real time it keeps up
+(about 0.2 % of a core), so the queue stays short."""
+
 RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
-    "sound": (Bool, STREAM_QOS),
-    "sound_step": (Int64MultiArray, STREAM_QOS),
-    "sound_energy": (Float32, STREAM_QOS),
-    "vocalize": (Bool, STREAM_QOS),
-    "vocalize_step": (Int64MultiArray, STREAM_QOS),
-    "belief": (Float64, STREAM_QOS),
+    "sound": (Bool, RECORDER_QOS),
+    "sound_step": (Int64MultiArray, RECORDER_QOS),
+    "sound_energy": (Float32, RECORDER_QOS),
+    "vocalize": (Bool, RECORDER_QOS),
+    "vocalize_step": (Int64MultiArray, RECORDER_QOS),
+    "belief": (Float64, RECORDER_QOS),
     "posture": (String, LATCHED_READER_QOS),
     "joint_targets": (JointTrajectory, LATCHED_READER_QOS),
-    "speaker_started": (TimeMsg, STREAM_QOS),
-    "partner_present": (Bool, STREAM_QOS),
+    "speaker_started": (TimeMsg, RECORDER_QOS),
+    "partner_present": (Bool, RECORDER_QOS),
     "/diagnostics": (DiagnosticArray, QoSProfile(depth=100)),
 }
 """Topic -> (message type, QoS of the recorder's subscription); ``audio`` is added when
@@ -223,7 +235,7 @@ class RecorderNode(GraphNode):
             if name == self.resolve_topic_name("audio") and types:
                 kind = _message_class(types[0])
                 if kind is not None:
-                    self._add_topic("audio", kind, AUDIO_QOS)
+                    self._add_topic("audio", kind, RECORDER_QOS)
 
     def _flush(self) -> None:
         if self.writer is not None:
