@@ -59,12 +59,17 @@ CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, r
 ROGUE_MESSAGES = 3000
 """Messages of each kind the rogue publishes: ten times the belief node's queue depth."""
 
-ROGUE_IN_FLIGHT = 100
+ROGUE_IN_FLIGHT = 10
 """Rogue messages a node may have waiting at once: the rogue publishes as fast as the
 executor turns, as long as each node that reads its topics has taken all but this many
-(the node's ``foreign`` count). Faster, it would push true messages out of the node's
-queue (depth 1000): the node then applies those steps as missing and says so, but the
-recorder has them and the comparison here is exact."""
+(the node's ``foreign`` count). The executor serves a subscription one message per turn,
+so a true message waits behind at most this many rogue ones. With 100, on a loaded
+machine a true bit waited more than the room's 2 s lockstep timeout, the room went on
+without its decision, and after 3 s it took the rogue for a restarted controller (as it
+must: the two cannot be told apart; see docs/ARCHITECTURE.md). A faster rogue would also
+push true messages out of a node's queue (depth 1000): the node would apply those steps
+as missing and say so, but the recorder has them and the comparison here is exact."""
+
 
 ROGUE_READERS = {"belief_node": 2, "controller_node": 1, "fake_audio_node": 1}
 """The nodes that read the rogue's topics -> rogue messages each takes per message pair."""
