@@ -9,11 +9,17 @@ diagnostics helpers those tests share: the last status of a node on ``/diagnosti
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from std_msgs.msg import Bool
 
+from infomax_contingency.audio.energy import window_energies_db
+from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.resources import resource_path
 from infomax_contingency.testing.graph import StepRecorder
 
 ROBOT = ModelParams.named("robot")
@@ -86,6 +92,29 @@ def assert_same_beliefs(got: list[float], expected: list[float], log: str = "",
         )
 
 
+def offline_steps(samples: np.ndarray) -> int:
+    """The 0.5 s windows of ``samples`` (16 kHz): the steps the graph makes of them."""
+    return len(window_energies_db(samples.astype(np.float64), 16000, 0.5))
+
+
+def assert_offline_run(recorder: StepRecorder, samples: np.ndarray,
+                       threshold_db: float = -40.0) -> None:  # fmt: skip
+    """The recorded bits, decisions and beliefs are the offline ones of ``samples``.
+
+    Offline: the window energies (16 kHz, 0.5 s), a fixed threshold, the robot's
+    receding table (robot_receding_H24_M60.npz) and the belief with memory 60.
+    """
+    energies = window_energies_db(samples.astype(np.float64), 16000, 0.5)
+    bits = [bool(e > threshold_db) for e in energies]
+    assert [y for _, _, y, _ in recorder.sound_step] == bits
+    controller = PolicyController(PolicyTable.load(resource_path(
+        "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
+    decisions = [bool(controller.step(int(y))) for y in bits]
+    assert [bool(u) for _, _, u, _ in recorder.vocalize_step] == decisions
+    expected = offline_beliefs([(list(zip(bits, decisions, strict=True)), "start")])
+    assert_same_beliefs(recorder.belief, expected)
+
+
 def last_status(diagnostics: list[DiagnosticArray], node: str) -> DiagnosticStatus | None:
     """The last status of ``node`` received (its status name starts with the node name)."""
     for array_message in reversed(diagnostics):
@@ -119,3 +148,17 @@ def status_reported(diagnostics: list[DiagnosticArray], node: str, level: bytes,
 def values(status: DiagnosticStatus) -> dict[str, str]:
     """A status's key values."""
     return {v.key: v.value for v in status.values}
+
+
+def a_stray_command_is_named(harness: Any) -> None:
+    """One stray message on the plain command topic, as ``ros2 topic pub --once /vocalize``.
+
+    The belief node must name its publisher (the probe) in an ERROR. ``harness``: a fault
+    test's graph (``probe``, ``recorder``, ``run_until``, ``wait_status``).
+    """
+    stray = harness.probe.talk("vocalize", Bool)
+    harness.run_until(lambda: harness.recorder.count_publishers("vocalize") == 2,
+                      "the stray publisher")  # fmt: skip
+    stray.publish(Bool(data=False))
+    harness.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
+    harness.probe.destroy_publisher(stray)

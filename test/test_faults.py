@@ -29,21 +29,20 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from std_msgs.msg import Bool, Float32MultiArray
+from std_msgs.msg import Float32MultiArray
 
 from exact_beliefs import (
     MEMORY,
+    a_stray_command_is_named,
+    assert_offline_run,
     assert_same_beliefs,
     last_status,
     offline_beliefs,
+    offline_steps,
     status_reported,
     step_pairs,
 )
-from infomax_contingency.audio.energy import window_energies_db
-from infomax_contingency.core.controllers import PolicyController
-from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
-from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
 from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
@@ -399,12 +398,7 @@ def test_intruding_processes_are_named_ignored_and_the_belief_stays_exact(
     graph.run_until(lambda: len(rec.belief) >= 50, "50 steps")
     graph.wait_status("belief_node", DiagnosticStatus.OK)
 
-    # one stray message on the plain command topic (`ros2 topic pub --once /vocalize`)
-    stray = graph.probe.talk("vocalize", Bool)
-    graph.run_until(lambda: rec.count_publishers("vocalize") == 2, "the stray publisher")
-    stray.publish(Bool(data=False))
-    graph.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
-    graph.probe.destroy_publisher(stray)
+    a_stray_command_is_named(graph)
 
     # a second mic_node and a second controller_node, each started and stopped
     for node, name, parameters, topic in (
@@ -461,15 +455,8 @@ def test_audio_in_big_chunks_between_processes_gives_the_offline_beliefs(
         message = Float32MultiArray()
         message.data = array.array("f", samples.tobytes())
         audio.publish(message)
-    samples = np.concatenate(segments).astype(np.float64)
-    energies = window_energies_db(samples, 16000, 0.5)
+    samples = np.concatenate(segments)
+    steps = offline_steps(samples)
     graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))
-                    >= len(energies), f"{len(energies)} steps", deadline_s=300)  # fmt: skip
-    bits = [bool(e > -40.0) for e in energies]
-    assert [y for _, _, y, _ in rec.sound_step] == bits
-    controller = PolicyController(PolicyTable.load(resource_path(
-        "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
-    decisions = [bool(controller.step(int(y))) for y in bits]
-    assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
-    expected = offline_beliefs([(list(zip(bits, decisions, strict=True)), "start")])
-    assert_same_beliefs(rec.belief, expected)
+                    >= steps, f"{steps} steps", deadline_s=300)  # fmt: skip
+    assert_offline_run(rec, samples)

@@ -14,27 +14,27 @@ restarting nodes needs processes: test_faults.py.
 from __future__ import annotations
 
 import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
+from std_msgs.msg import Float32MultiArray, Int64MultiArray
 
 from exact_beliefs import (
     MEMORY,
+    a_stray_command_is_named,
+    assert_offline_run,
     assert_same_beliefs,
     last_status,
     offline_beliefs,
+    offline_steps,
     status_reported,
     step_pairs,
     true_sources,
     values,
 )
-from infomax_contingency.audio.energy import window_energies_db
-from infomax_contingency.core.controllers import PolicyController
-from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
 from infomax_contingency.nodes.step_topics import (
     StepBit,
@@ -42,9 +42,9 @@ from infomax_contingency.nodes.step_topics import (
     bit_message,
     decision_message,
 )
-from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
-from infomax_contingency.testing.stepped import Probe
+from infomax_contingency.testing.graph import StepRecorder
+from infomax_contingency.testing.stepped import DEFAULT_DEADLINE_S, Probe
 from stepped_graph import SteppedGraph, stepped_graph
 
 HOLD = {"fault_hold_s": 1.0}
@@ -83,6 +83,16 @@ class FaultWatch:
         self.probe = graph.executor.add(Probe())
         self.diagnostics: list[DiagnosticArray] = self.probe.listen(
             "/diagnostics", DiagnosticArray, 100)  # fmt: skip
+
+    @property
+    def recorder(self) -> StepRecorder:
+        """The graph's recorder."""
+        return self.graph.recorder
+
+    def run_until(self, condition: Callable[[], bool], what: str,
+                  deadline_s: float = DEFAULT_DEADLINE_S) -> None:  # fmt: skip
+        """Step the graph until ``condition`` holds."""
+        self.graph.run_until(condition, what, deadline_s)
 
     def status(self, node: str) -> DiagnosticStatus | None:
         """The last diagnostics of ``node``."""
@@ -140,12 +150,8 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(room_graph: Faul
     graph.run_until(lambda: len(rec.belief) >= 100, "100 steps")
     watch.wait_status("belief_node", DiagnosticStatus.OK)
 
-    # 1. one stray message on the plain command topic (`ros2 topic pub --once /vocalize`)
-    stray = watch.probe.talk("vocalize", Bool)
-    graph.run_until(lambda: rec.count_publishers("vocalize") == 2, "the stray publisher")
-    stray.publish(Bool(data=False))
-    watch.wait_status("belief_node", DiagnosticStatus.ERROR, "/probe")
-    watch.probe.destroy_publisher(stray)
+    # 1. one stray message on the plain command topic
+    a_stray_command_is_named(watch)
     watch.wait_status("belief_node", DiagnosticStatus.OK)
 
     # 2. a second mic_node and 3. a second controller_node, each started and stopped
@@ -245,18 +251,10 @@ def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs() ->
                 if index % 25 == 24 or size >= 8000:
                     graph.run_until(lambda n=sent // 8000: len(rec.belief) >= n,
                                     "the mic to keep up", deadline_s=180)  # fmt: skip
-        samples = np.concatenate(segments).astype(np.float64)
-        energies = window_energies_db(samples, 16000, 0.5)
+        samples = np.concatenate(segments)
+        steps = offline_steps(samples)
         graph.run_until(lambda: min(len(rec.sound_step), len(rec.vocalize_step), len(rec.belief))
-                        >= len(energies), f"{len(energies)} steps", deadline_s=180)  # fmt: skip
-
-        bits = [bool(e > -40.0) for e in energies]
-        assert [y for _, _, y, _ in rec.sound_step] == bits
-        controller = PolicyController(PolicyTable.load(resource_path(
-            "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
-        decisions = [bool(controller.step(int(y))) for y in bits]
-        assert [bool(u) for _, _, u, _ in rec.vocalize_step] == decisions
-        expected = offline_beliefs([(list(zip(bits, decisions, strict=True)), "start")])
-        assert_same_beliefs(rec.belief, expected)
+                        >= steps, f"{steps} steps", deadline_s=180)  # fmt: skip
+        assert_offline_run(rec, samples)
         mic = values(watch.wait_status("mic_node", DiagnosticStatus.OK))
         assert mic["windows_dropped"] == "0" and mic["dropped_chunks"] == "0", mic
