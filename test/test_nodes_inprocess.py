@@ -20,6 +20,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.threshold import kmeans_split
 from infomax_contingency.core.controllers import PolicyController
@@ -162,6 +163,36 @@ def test_a_window_other_than_the_model_dt_is_refused(node_class: type) -> None:
     try:
         with pytest.raises(ConfigError, match=r"'window_s' = 0.25 s differs from the model's dt"):
             node_class(parameter_overrides=params(window_s=0.25))
+    finally:
+        rclpy.try_shutdown()
+
+
+@pytest.mark.parametrize(
+    ("node_class", "parameters", "topic", "error", "refusal"),
+    [
+        (MicNode, {"source": "wav", "wav_file": "/nonexistent/a.wav"}, "/sound", AudioError,
+         "does not exist"),
+        (SpeakerNode, {"dry_run": False, "device": "no such loudspeaker"}, "/speaker_started",
+         ConfigError, "parameter 'device'"),
+    ],
+)  # fmt: skip
+def test_a_node_refused_after_it_made_its_publishers_leaves_none_behind(
+    node_class: type, parameters: dict, topic: str, error: type, refusal: str
+) -> None:
+    """A refusal late in ``__init__`` leaves no publisher of the half-built node.
+
+    A process that goes on (a test, a composed bringup) sees none, as if it never started.
+    """
+    rclpy.init()
+    try:
+        with pytest.raises(error, match=refusal):
+            node_class(parameter_overrides=params(**parameters))
+        witness = rclpy.create_node("witness")
+        try:
+            assert witness.get_publishers_info_by_topic(topic) == []
+            assert node_class.NODE_NAME not in witness.get_node_names()
+        finally:
+            witness.destroy_node()
     finally:
         rclpy.try_shutdown()
 

@@ -13,12 +13,19 @@ Intruders: a node that listens to a topic with one rightful publisher (``sound``
 ``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
 the publishers on it (:meth:`GraphNode.extra_publishers`) and reports a second one by
 name, in a throttled WARN and an ERROR diagnostic while it lasts.
+
+A refused node leaves nothing behind: when a subclass's ``__init__`` raises (a bad
+parameter, a missing file or device), the half-built node is destroyed before the error
+goes on, so its publishers and services do not outlive it in a process that carries on
+(an in-process test, a composed bringup that reports the refusal).
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
+from contextlib import suppress
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -55,6 +62,26 @@ WAITING_NOTICE_S = 5.0
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
+def _destroyed_if_refused(init: Callable[..., None]) -> Callable[..., None]:
+    """``init``, destroying the half-built node (once) when it raises, then re-raising."""
+
+    @functools.wraps(init)
+    def build(self: GraphNode, *args: Any, **kwargs: Any) -> None:
+        try:
+            init(self, *args, **kwargs)
+        except BaseException:
+            if not getattr(self, "_refusal_cleaned", False):
+                self._refusal_cleaned = True
+                try:
+                    self.destroy_node()  # the subclass's: releases a device it opened
+                except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
+                    with suppress(Exception):
+                        Node.destroy_node(self)
+            raise
+
+    return build
+
+
 
 class GraphNode(Node):
     """Base of the graph's nodes: parameters, diagnostics and a completion future.
@@ -66,6 +93,11 @@ class GraphNode(Node):
 
     WATCHED_TOPICS: tuple[str, ...] = ()
     """Topics with one rightful publisher that this node watches for a second one."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "__init__" in cls.__dict__:
+            cls.__init__ = _destroyed_if_refused(cls.__dict__["__init__"])  # type: ignore[method-assign]
 
     def __init__(self, node_name: str, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
