@@ -48,6 +48,15 @@ STALL_TIMEOUT_S = 30.0
 ATTENTIVE_ABOVE, BORED_BELOW = 0.9, 0.2
 """The posture node's thresholds in the demo (as in config/robot.yaml)."""
 
+LOCKSTEP_TIMEOUT_S = 10.0
+"""Seconds the demo's clock node (room, or mic replaying a file) waits for a window's
+decision before it releases the next window anyway (config/robot.yaml: 2 s, for a robot
+that must go on). The demo is a reproducible run: a loaded machine may pause a node for
+seconds, and a released window is a different run. A release is still reported."""
+
+RELEASED_WINDOW = "window anyway"
+"""What the clock node's warning says when it released a window without its decision."""
+
 
 def register_demo(subparsers: argparse._SubParsersAction) -> None:
     """``demo``: the node graph against the simulated room (or a wav file), in lockstep."""
@@ -145,10 +154,16 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
             "threshold_mode": "calibrate",
             "calibration_s": args.calibration_s,
             "wait_for_listeners": listeners,
+            "lockstep_timeout_s": LOCKSTEP_TIMEOUT_S,
         }
         _choose_bit_source(nodes["mic_node"], args)
         return nodes, "mic_node"
-    room: dict[str, Any] = {"room": args.room, "seed": args.seed, "max_windows": args.steps}
+    room: dict[str, Any] = {
+        "room": args.room,
+        "seed": args.seed,
+        "max_windows": args.steps,
+        "lockstep_timeout_s": LOCKSTEP_TIMEOUT_S,
+    }
     room["wait_for_truth_listeners"] = 2 if args.record else 1  # this monitor (+ recorder)
     if args.record and not args.no_record_audio:
         room["wait_for_listeners"] = 2  # mic_node and the recorder, which subscribes to
@@ -233,8 +248,13 @@ def run_demo(args: argparse.Namespace) -> int:
     if isinstance(outcome, str):
         print(f"infomax-contingency demo: error: {outcome}", file=sys.stderr)
         return 1
-    recorder, steps, elapsed = outcome
+    recorder, steps, elapsed, released = outcome
     _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
+    if released:
+        print(
+            f"# note: {clock} released {released} window(s) without their decision after"
+            f" {LOCKSTEP_TIMEOUT_S:g} s (a node was that slow): not the reproducible run"
+        )
     _print_verdict(recorder, steps, WINDOW_S, args, elapsed)
     return 0
 
@@ -245,8 +265,11 @@ WINDOW_S = 0.5
 
 def _run_graph(
     args: argparse.Namespace, nodes: dict[str, dict[str, Any]], clock: str
-) -> tuple[Any, int, float] | str:
-    """Start the graph, wait for the run, stop every node: (recorder, steps, seconds) or why not.
+) -> tuple[Any, int, float, int] | str:
+    """Start the graph, wait for the run, stop every node; or why not.
+
+    Returns (recorder, steps, seconds from the first start to the last step, windows the
+    clock node released without their decision).
 
     The nodes are stopped whatever happens (an error, :class:`Interrupted`).
     """
@@ -284,7 +307,7 @@ def _run_graph(
                     return failure
                 elapsed = time.monotonic() - start
                 _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
-            return recorder, steps, elapsed
+            return recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
         finally:
             # A signal now must not cut the stopping short: it waits until every node is
             # stopped, then interrupts (and the demo still exits 130 / 143).
