@@ -28,6 +28,7 @@ from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.devices import (
     AudioDeviceError,
     LogFunction,
+    clock_offset,
     import_sounddevice,
     negotiate_format,
     resolve_device,
@@ -511,6 +512,26 @@ def test_speaker_plays_on_command_only_and_reports_dac_start() -> None:
     ].duration_s == pytest.approx(0.2)
     assert not events[0].interrupted
     assert speaker.status().played == 1 and speaker.status().requests == 1
+
+
+def test_the_stream_clock_offset_comes_from_the_tightest_reading() -> None:
+    """A thread preempted between two clock readings does not shift the stream's times."""
+    true_offset = 100.0
+    now = [5.0]
+    pauses = iter([0.02, 0.0, 0.03, 0.0, 0.0])  # preempted twice in five readings
+
+    def clock() -> float:
+        now[0] += 1e-6
+        return now[0]
+
+    def stream_time() -> float:
+        now[0] += next(pauses)  # preempted before the stream clock is read
+        return now[0] - true_offset
+
+    assert clock_offset(clock, stream_time) == pytest.approx(true_offset, abs=1e-6)
+    # one reading (the offset as it was read before) would have been 20 ms off
+    now[0], pauses = 5.0, iter([0.02])
+    assert clock() - stream_time() == pytest.approx(true_offset - 0.02)
 
 
 def test_speaker_restart_policy_and_skip_policy() -> None:

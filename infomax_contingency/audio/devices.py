@@ -379,6 +379,28 @@ def other_streams_open(owner: object) -> bool:
         return bool(_open_owners - {id(owner)})
 
 
+OFFSET_READINGS = 5
+"""Readings of the stream clock between two readings of the caller's clock, per offset."""
+
+
+def clock_offset(clock: Callable[[], float], stream_time: Callable[[], float]) -> float:
+    """``clock()`` minus ``stream_time()`` (seconds), from the tightest of a few readings.
+
+    Each reading of the stream clock is bracketed by two of ``clock``, and the midpoint is
+    taken: the error is at most half the bracket. Of :data:`OFFSET_READINGS` the one with
+    the smallest bracket counts, so a thread preempted between two readings (a loaded
+    machine: milliseconds) does not shift every time stamp of the stream.
+    """
+    best_bracket, offset = float("inf"), 0.0
+    for _ in range(OFFSET_READINGS):
+        before = clock()
+        stream_s = stream_time()
+        after = clock()
+        if after - before < best_bracket:
+            best_bracket, offset = after - before, (before + after) / 2 - stream_s
+    return offset
+
+
 def open_and_start(
     backend: AudioBackend,
     kind: str,
@@ -402,7 +424,7 @@ def open_and_start(
     """
     try:
         stream = backend.open(kind, device.index, rate, channels, blocksize, callback, finished)
-        offset = clock() - float(stream.time)
+        offset = clock_offset(clock, lambda: float(stream.time))
     except Exception as exc:  # PortAudioError and friends
         raise AudioDeviceError(f"cannot open {kind} device {device.describe(kind)}: {exc}") from exc
     try:
