@@ -29,7 +29,24 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.special import betaln, expit
+
+
+def betaln(a: Any, b: Any) -> Any:
+    """``scipy.special.betaln``, loaded on first use.
+
+    scipy.special takes about 0.25 s to import, and most node processes (mic, posture,
+    speaker, recorder) never compute a belief: they load this module for its parameters.
+    """
+    from scipy.special import betaln as scipy_betaln
+
+    return scipy_betaln(a, b)
+
+
+def expit(x: Any) -> Any:
+    """``scipy.special.expit`` (the logistic function), loaded on first use (see betaln)."""
+    from scipy.special import expit as scipy_expit
+
+    return scipy_expit(x)
 
 SELF, AGENT, BACKGROUND = 1, 2, 3
 """Period labels, numbered as in MODEL.md."""
