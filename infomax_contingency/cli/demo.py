@@ -250,17 +250,22 @@ def run_demo(args: argparse.Namespace) -> int:
         return 1
     recorder, steps, elapsed, released = outcome
     _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
-    if released:
-        print(
-            f"# note: {clock} released {released} window(s) without their decision after"
-            f" {LOCKSTEP_TIMEOUT_S:g} s (a node was that slow): not the reproducible run"
-        )
+    print_released(clock, released)
     _print_verdict(recorder, steps, WINDOW_S, args, elapsed)
     return 0
 
 
 WINDOW_S = 0.5
 """Window length of config/robot.yaml, seconds."""
+
+
+def print_released(clock: str, released: int) -> None:
+    """A ``# note:`` line when the clock node released windows without their decision."""
+    if released:
+        print(
+            f"# note: {clock} released {released} window(s) without their decision after"
+            f" {LOCKSTEP_TIMEOUT_S:g} s (a node was that slow): not the reproducible run"
+        )
 
 
 def _run_graph(
