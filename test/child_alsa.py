@@ -139,6 +139,15 @@ def _drain(fd: int) -> None:
     os.set_blocking(fd, True)
 
 
+def _pipe_bytes(fd: int) -> int:
+    """Bytes waiting in a pipe."""
+    import fcntl
+    import struct
+    import termios
+
+    return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4))[0]
+
+
 def vanish(fifo: str, a: str, b: str, missing_conf: str, full_conf: str, conf: str,
            nb: int) -> dict:  # fmt: skip
     """A FIFO microphone stalls, vanishes from the configuration and comes back.
@@ -153,6 +162,7 @@ def vanish(fifo: str, a: str, b: str, missing_conf: str, full_conf: str, conf: s
 
     from infomax_contingency.audio.capture import MicrophoneStream
 
+    ZEROS = np.zeros(16000, "<f4")  # noqa: N806 - a constant of the scenario
     fd = FIFO_FDS[fifo]
     fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, 1 << 20)  # room for a whole part: no short reads
     logs: list[str] = []
@@ -171,9 +181,13 @@ def vanish(fifo: str, a: str, b: str, missing_conf: str, full_conf: str, conf: s
                     target.write(source.read())  # the device vanishes
                 # The stalled stream is being closed; its blocked reads return once the
                 # FIFO has data, and what they return belongs to no window.
-                os.write(fd, np.zeros(16000, "<f4").tobytes())
+                os.write(fd, ZEROS.tobytes())
                 phase = "gone"
-            elif phase == "gone" and "contains 'fifomic'" in status.last_error:
+            elif phase == "gone" and _pipe_bytes(fd) < ZEROS.nbytes:
+                # A read of the closing stream that came back for more would block its
+                # close, and no rescan comes while a close hangs: keep the reads fed.
+                os.write(fd, ZEROS.tobytes())
+            if phase == "gone" and "contains 'fifomic'" in status.last_error:
                 # a rescan ran, so the old stream is closed: empty the pipe, queue what
                 # the device will say when it is back, and bring it back
                 _drain(fd)
