@@ -135,6 +135,7 @@ def launch(workspace: Path, tmp_path: Path) -> Iterator:
 
 
 @pytest.mark.slow
+@pytest.mark.dds_defaults  # as a robot's user runs it
 def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path, launch) -> None:
     graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true")
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
