@@ -29,7 +29,7 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
-from infomax_contingency.nodes.graph_node import ERROR, OK
+from infomax_contingency.nodes.graph_node import ERROR, OK, THROTTLE_S
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
@@ -195,6 +195,25 @@ def test_a_node_refused_after_it_made_its_publishers_leaves_none_behind(
             witness.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+def test_a_repeated_fault_is_logged_once_per_period_and_each_kind_apart(
+    run: Callable, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    node, _, _ = run(PostureNode)
+    now = [100.0]
+    lines: list[tuple[str, str]] = []
+    monkeypatch.setattr(node, "now_s", lambda: now[0])
+    monkeypatch.setattr(node, "log_at", lambda level, message: lines.append((level, message)))
+    for step in range(1000):  # a flood: one line, and rclpy is not asked 999 times
+        node.log_throttled("gap", "warning", f"step {step}")
+    node.log_throttled("refused", "error", "another kind")
+    now[0] += THROTTLE_S - 0.01
+    node.log_throttled("gap", "warning", "still quiet")
+    now[0] += 0.01
+    node.log_throttled("gap", "warning", "the next period")
+    assert lines == [("warning", "step 0"), ("error", "another kind"),
+                     ("warning", "the next period")]  # fmt: skip
 
 
 # ---------------------------------------------------------------------- belief

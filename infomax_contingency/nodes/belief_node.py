@@ -165,10 +165,11 @@ class BeliefNode(GraphNode):
             return
         if bit.window_us != self.window_us:
             self.wrong_window.note(now)
-            self.get_logger().error(
+            self.log_throttled(
+                "wrong window",
+                "error",
                 f"stream {bit.stream} has windows of {bit.window_us / 1e6:g} s but the model's"
                 f" dt is {self.params.dt:g} s: its bits are ignored",
-                throttle_duration_sec=5.0,
             )
             return
         if bit.stream != self.stream:
@@ -283,9 +284,8 @@ class BeliefNode(GraphNode):
             self.gaps.note(self.now_s())
             missing = "bit" if y is None else "decision"
             missing = "bit and decision" if y is None and u is None else missing
-            self.get_logger().warning(
-                f"step {step}: the {missing} never arrived; not guessed",
-                throttle_duration_sec=5.0,
+            self.log_throttled(
+                "gap", "warning", f"step {step}: the {missing} never arrived; not guessed"
             )
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:

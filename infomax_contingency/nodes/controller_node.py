@@ -203,10 +203,11 @@ class ControllerNode(GraphNode):
         now = self.now_s()
         if bit is None or bit.window_us != self.window_us:
             self.bad.note(now)
-            self.get_logger().error(
+            self.log_throttled(
+                "refused bit",
+                "error",
                 f"'{SOUND_STEP}' message refused: {list(msg.data)} (expected [stream, step,"
                 f" bit, window_us] with window_us = {self.window_us}, the model's dt)",
-                throttle_duration_sec=5.0,
             )
             return
         arrival = self.streams.accept(bit.stream, self.sent_s(stamp, now))

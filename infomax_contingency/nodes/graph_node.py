@@ -23,6 +23,7 @@ goes on, so its publishers and services do not outlive it in a process that carr
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Callable
 from contextlib import suppress
@@ -55,6 +56,9 @@ _STALLED_WARNING_S = 5.0
 
 _INTRUDER_WARNING_S = 5.0
 """Seconds between warnings about the same kind of intrusion."""
+
+THROTTLE_S = 5.0
+"""Seconds between two log lines of one kind about a repeated fault (see log_throttled)."""
 
 WAITING_NOTICE_S = 5.0
 """Seconds without an awaited input before a node says what it waits for."""
@@ -117,6 +121,8 @@ class GraphNode(Node):
             "s",
         )
         self.finished: Future = Future()
+        self._quiet_until: dict[str, float] = {}
+        """Throttled log kind -> monotonic second until which it stays quiet."""
         self.arrivals: dict[str, int] = {}
         """Messages received per topic (as subscribed, relative names)."""
         self.waiting_for = ""
@@ -175,10 +181,12 @@ class GraphNode(Node):
             if pacer.timed_out(now):
                 on_timeout()
             elif pacer.answers == 0 and pacer.waited_s(now) > _STALLED_WARNING_S:
-                self.get_logger().warning(
+                self.log_throttled(
+                    "stalled",
+                    "warning",
                     f"no 'vocalize' for the first window after {pacer.waited_s(now):.0f} s:"
                     f" {stalled_hint}",
-                    throttle_duration_sec=_STALLED_WARNING_S,
+                    _STALLED_WARNING_S,
                 )
 
         def poll() -> None:
@@ -267,8 +275,24 @@ class GraphNode(Node):
         return found
 
     def warn_intrusion(self, message: str) -> None:
-        """A throttled WARN about an intruder (one call site: one throttle)."""
-        self.get_logger().warning(message, throttle_duration_sec=_INTRUDER_WARNING_S)
+        """A throttled WARN about an intruder (every kind of intrusion: one throttle)."""
+        self.log_throttled("intrusion", "warning", message, _INTRUDER_WARNING_S)
+
+    def log_throttled(
+        self, kind: str, level: str, message: str, period_s: float = THROTTLE_S
+    ) -> None:
+        """Log ``message`` at ``level`` unless a ``kind`` line came in the last ``period_s`` s.
+
+        The throttle is checked here, before rclpy: rclpy's own ``throttle_duration_sec``
+        looks up the caller's source line on every call, throttled or not (about 80 us),
+        and a node that warns about each message of a flood spent a quarter of its time
+        there.
+        """
+        now = self.now_s()
+        if now < self._quiet_until.get(kind, -math.inf):
+            return
+        self._quiet_until[kind] = now + period_s
+        self.log_at(level, message)
 
     def log_at(self, level: str, message: str) -> None:
         """Log at ``level`` (``error``, ``warning``, else info): the core's log callback.

@@ -704,7 +704,7 @@ class MicNode(GraphNode):
         except AudioError as error:
             self.bad_chunks += 1
             self.losses.note(self.now_s())
-            self.get_logger().warning(f"audio chunk ignored: {error}", throttle_duration_sec=5.0)
+            self.log_throttled("bad chunk", "warning", f"audio chunk ignored: {error}")
             return
         if self.bits.needs_samples:
             for samples in windows:
@@ -766,10 +766,11 @@ class MicNode(GraphNode):
         self.outbox.push((energy_db, bit))
         if self.outbox.dropped > dropped:
             self.losses.note(self.now_s())
-            self.get_logger().warning(
+            self.log_throttled(
+                "windows dropped",
+                "warning",
                 f"{self.outbox.dropped} windows dropped: more than"
                 f" {self.config.max_backlog_s:g} s waited for the controller",
-                throttle_duration_sec=5.0,
             )
         self._release()
         return bit

@@ -129,7 +129,7 @@ class PostureNode(GraphNode):
         try:
             changed = self.hysteresis.update(msg.data)
         except ValueError as error:
-            self.get_logger().warning(f"belief ignored: {error}", throttle_duration_sec=5.0)
+            self.log_throttled("bad belief", "warning", f"belief ignored: {error}")
             return
         if changed is not None:
             self.changes += 1

@@ -109,8 +109,8 @@ class SpeakerNode(GraphNode):
             self.get_logger().debug("vocalize (dry run)")
             return
         if self.speaker.play() is None:
-            self.get_logger().error(
-                f"cannot play: {self.speaker.status().last_error}", throttle_duration_sec=5.0
+            self.log_throttled(
+                "cannot play", "error", f"cannot play: {self.speaker.status().last_error}"
             )
 
     def _open_speaker(self) -> SpeakerOutput:
