@@ -183,7 +183,8 @@ def vanish(fifo: str, a: str, b: str, missing_conf: str, full_conf: str, conf: s
                 # FIFO has data, and what they return belongs to no window.
                 os.write(fd, ZEROS.tobytes())
                 phase = "gone"
-            elif phase == "gone" and _pipe_bytes(fd) < ZEROS.nbytes:
+                continue  # the status above is from before the device vanished
+            if phase == "gone" and _pipe_bytes(fd) < ZEROS.nbytes:
                 # A read of the closing stream that came back for more would block its
                 # close, and no rescan comes while a close hangs: keep the reads fed.
                 os.write(fd, ZEROS.tobytes())

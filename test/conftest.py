@@ -34,15 +34,17 @@ else:
         raise pytest.UsageError(str(error)) from None
 
 
-PROFILES_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
-"""Where Fast DDS (2.14 in Jazzy) looks for a profiles file; either name is read."""
+PROFILES_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
+"""Where Fast DDS 2.14 (Jazzy) looks for a profiles file (FASTDDS_... is the 3.x name)."""
 
 SUITE_PROFILES = Path(__file__).with_name("fastdds_quick.xml")
 """The suite's Fast DDS profile (see the module docstring)."""
 
-SUITE_CHOSE_PROFILES = not any(os.environ.get(name) for name in PROFILES_VARIABLES)
+# The xdist workers inherit the controller's environment: the suite's own file there is
+# still the suite's choice, so that dds_defaults tests leave it out in the workers too.
+SUITE_CHOSE_PROFILES = os.environ.get(PROFILES_VARIABLE, "") in ("", str(SUITE_PROFILES))
 if SUITE_CHOSE_PROFILES:
-    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(SUITE_PROFILES)
+    os.environ[PROFILES_VARIABLE] = str(SUITE_PROFILES)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -56,16 +58,15 @@ def pytest_configure(config: pytest.Config) -> None:
 def dds_defaults(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
     """A ``dds_defaults`` test starts its processes with Fast DDS's own defaults."""
     if SUITE_CHOSE_PROFILES and request.node.get_closest_marker("dds_defaults"):
-        monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE")
+        monkeypatch.delenv(PROFILES_VARIABLE)
 
 
 def pytest_report_header(config: pytest.Config) -> str:
     """Show the DDS isolation settings at the top of the run."""
-    profiles = [os.environ[name] for name in PROFILES_VARIABLES if os.environ.get(name)]
     return (
         f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} "
         f"ROS_AUTOMATIC_DISCOVERY_RANGE={os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']} "
-        f"Fast DDS profiles: {', '.join(profiles) or 'defaults'}"
+        f"{PROFILES_VARIABLE}={os.environ.get(PROFILES_VARIABLE, '')}"
     )
 
 

@@ -49,3 +49,29 @@ def test_every_test_process_has_a_domain_of_its_own() -> None:
         finally:
             os.close(fd)
     assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+
+
+SUITE_PROFILES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_quick.xml")
+
+
+def _caller_chose_profiles() -> bool:
+    """A profile other than the suite's is set (the suite then leaves DDS as it is)."""
+    import conftest
+
+    return not conftest.SUITE_CHOSE_PROFILES and os.environ.get(
+        "FASTRTPS_DEFAULT_PROFILES_FILE", ""
+    ) not in ("", SUITE_PROFILES)
+
+
+def test_processes_run_with_the_suite_profile_unless_the_caller_chose_one() -> None:
+    """In every worker too (they inherit the controller's environment)."""
+    if _caller_chose_profiles():
+        pytest.skip("the caller chose a Fast DDS profile; the suite leaves it as it is")
+    assert os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] == SUITE_PROFILES
+
+
+@pytest.mark.dds_defaults
+def test_a_dds_defaults_test_starts_its_processes_with_fast_dds_defaults() -> None:
+    if _caller_chose_profiles():
+        pytest.skip("the caller chose a Fast DDS profile; the suite leaves it as it is")
+    assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in os.environ

@@ -274,9 +274,9 @@ class GraphNode(Node):
                 )
         return found
 
-    def warn_intrusion(self, message: str) -> None:
-        """A throttled WARN about an intruder (every kind of intrusion: one throttle)."""
-        self.log_throttled("intrusion", "warning", message, _INTRUDER_WARNING_S)
+    def warn_intrusion(self, message: str, kind: str = "intrusion") -> None:
+        """A WARN about an intruder, throttled per ``kind`` (by default one for all)."""
+        self.log_throttled(kind, "warning", message, _INTRUDER_WARNING_S)
 
     def log_throttled(
         self, kind: str, level: str, message: str, period_s: float = THROTTLE_S
@@ -319,7 +319,9 @@ class GraphNode(Node):
         """Check the watched topics for intruders, then publish this node's status."""
         self.intruders = self.extra_publishers(self.WATCHED_TOPICS)
         for topic, names in self.intruders.items():
-            self.warn_intrusion(f"{len(names)} publishers on '{topic}': {', '.join(names)}")
+            self.warn_intrusion(
+                f"{len(names)} publishers on '{topic}': {', '.join(names)}", f"publishers {topic}"
+            )
         level, message, values = self.diagnostic_status()
         if self.waiting_for and level == OK:
             level, message = WARN, self.waiting_for
