@@ -41,14 +41,14 @@ setup(
     entry_points={
         "console_scripts": [
             "infomax-contingency = infomax_contingency.cli.main:main",
-            "mic_node = infomax_contingency.nodes.mic_node:main",
-            "controller_node = infomax_contingency.nodes.controller_node:main",
-            "belief_node = infomax_contingency.nodes.belief_node:main",
-            "posture_node = infomax_contingency.nodes.posture_node:main",
-            "fake_audio_node = infomax_contingency.nodes.fake_audio_node:main",
-            "speaker_node = infomax_contingency.nodes.speaker_node:main",
-            "recorder_node = infomax_contingency.nodes.recorder_node:main",
-            "bringup = infomax_contingency.nodes.bringup:main",
+            "mic_node = infomax_contingency.nodes.entry:mic_node",
+            "controller_node = infomax_contingency.nodes.entry:controller_node",
+            "belief_node = infomax_contingency.nodes.entry:belief_node",
+            "posture_node = infomax_contingency.nodes.entry:posture_node",
+            "fake_audio_node = infomax_contingency.nodes.entry:fake_audio_node",
+            "speaker_node = infomax_contingency.nodes.entry:speaker_node",
+            "recorder_node = infomax_contingency.nodes.entry:recorder_node",
+            "bringup = infomax_contingency.nodes.entry:bringup",
         ],
     },
 )

@@ -1,11 +1,19 @@
-"""Malformed --ros-args end a node with one line and status 2, not a traceback."""
+"""Command lines of the nodes: bad arguments, and a stop while a node loads.
+
+Malformed --ros-args end a node with one line and status 2, not a traceback; a stop signal
+while a node is still loading ends it quietly.
+"""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+from infomax_contingency.nodes import entry
 
 
 @pytest.mark.parametrize("module", ["belief_node", "bringup"])
@@ -19,4 +27,31 @@ def test_malformed_ros_arguments(module: str) -> None:
     assert result.returncode == 2
     assert f"{module}: invalid ROS arguments" in result.stderr
     assert "x:=" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_while_a_node_loads_ends_it_with_status_0_and_no_traceback(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, signum: int
+) -> None:
+    """The console scripts' entry: the signal comes while the node's module is imported."""
+    (tmp_path / "loading_node.py").write_text(
+        "import os, signal\n"
+        f"os.kill(os.getpid(), {int(signum)})  # stopped while loading\n"
+        "def main():\n    raise AssertionError('main() must not run')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = {s: signal.getsignal(s) for s in entry.STOP_SIGNALS}
+    with pytest.raises(SystemExit) as stop:
+        entry.run_module("loading_node")
+    assert stop.value.code == 0
+    assert {s: signal.getsignal(s) for s in entry.STOP_SIGNALS} == before  # given back
+
+
+def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "infomax_contingency.nodes.entry", "no_such_node"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2 and "mic_node" in result.stderr
     assert "Traceback" not in result.stderr

@@ -14,6 +14,7 @@ import pytest
 
 import infomax_contingency
 from infomax_contingency import resources
+from infomax_contingency.nodes import entry
 
 ROOT = Path(__file__).resolve().parent.parent
 HERE = Path(__file__).resolve().parent
@@ -108,7 +109,8 @@ def test_setup_py_entry_points_and_name() -> None:
     assert set(parsed) == EXECUTABLES
     assert parsed["infomax-contingency"] == f"{PKG}.cli.main:main"
     for node in EXECUTABLES - {"infomax-contingency"}:
-        assert parsed[node] == f"{PKG}.nodes.{node}:main"
+        assert parsed[node] == f"{PKG}.nodes.entry:{node}"  # quiet when stopped starting
+    assert set(entry.NODE_MODULES) == EXECUTABLES - {"infomax-contingency"}
 
 
 def test_setup_cfg_puts_executables_where_ros2_run_looks() -> None:

@@ -141,6 +141,6 @@ def test_launch_file_starts_the_installed_executables_with_installed_config() ->
     assert started - {"recorder_node"} == graph | {"speaker_node"}
     setup = (ROOT / "setup.py").read_text()
     for executable in started - {"recorder_node"}:  # recorder_node: only with record:=true
-        assert f'"{executable} = {PKG}.nodes.{executable}:main"' in setup
+        assert f'"{executable} = {PKG}.nodes.entry:{executable}"' in setup
     for config in ("robot.yaml", "fake_room.yaml"):
         assert config in strings and (ROOT / "config" / config).is_file()

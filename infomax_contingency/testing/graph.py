@@ -68,7 +68,8 @@ class GraphProcesses:
         workdir: where the parameter files and the nodes' log files go.
         env: environment of the children (default: this process's).
         executable: the command that runs a node, given its name (default:
-            ``python -m infomax_contingency.nodes.<node>`` with this interpreter).
+            ``python -m infomax_contingency.nodes.entry <node>`` with this interpreter, as
+            the console scripts run it: quiet when stopped while it starts).
         parameter_files: ROS parameter files every node reads first (e.g.
             ``config/robot.yaml``); the parameters given to :meth:`start` override them.
         own_process_group: start every node in a process group of its own, so a Ctrl-C
@@ -87,7 +88,7 @@ class GraphProcesses:
         self.own_process_group = own_process_group
         self.parameter_files = [str(path) for path in parameter_files or []]
         self.executable = executable or (
-            lambda node: [sys.executable, "-m", f"infomax_contingency.nodes.{node}"]
+            lambda node: [sys.executable, "-m", "infomax_contingency.nodes.entry", node]
         )
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,85 @@
+"""The nodes' console scripts: a stop signal while a node is still starting ends it quietly.
+
+A node's module loads rclpy, numpy and the core before its ``main()`` takes over SIGINT
+and SIGTERM (:class:`~infomax_contingency.nodes.runtime.StopSignals`): 0.3 s on a quiet
+machine, seconds on a loaded one. A launch that stops in that time (another node refused
+its parameters) used to get a KeyboardInterrupt traceback from each node still loading.
+These entry points catch both signals from their first line: such a node exits with
+status 0 and says nothing, as a node stopped later does.
+
+``python -m infomax_contingency.nodes.entry NODE ARGS...`` runs ``NODE`` the same way (the
+test harness and the demo start their node processes so).
+"""
+
+from __future__ import annotations
+
+import importlib
+import signal
+import sys
+from typing import Any
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+NODE_MODULES = (
+    "mic_node",
+    "controller_node",
+    "belief_node",
+    "posture_node",
+    "fake_audio_node",
+    "speaker_node",
+    "recorder_node",
+    "bringup",
+)
+"""The executables under ``infomax_contingency.nodes`` that these entry points run."""
+
+
+def _stopped_while_starting(signum: int, frame: Any) -> None:
+    raise SystemExit(0)
+
+
+def run_module(module: str) -> int:
+    """Import ``module`` and return what its ``main()`` returns (the exit status).
+
+    A stop signal before ``main()`` takes the signals over raises ``SystemExit(0)``.
+    """
+    previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
+    try:
+        main = importlib.import_module(module).main
+        return main()
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _entry(node: str) -> Any:
+    def entry() -> int:
+        return run_module(f"infomax_contingency.nodes.{node}")
+
+    entry.__name__ = entry.__qualname__ = node
+    entry.__doc__ = f"The ``{node}`` executable."
+    return entry
+
+
+mic_node = _entry("mic_node")
+controller_node = _entry("controller_node")
+belief_node = _entry("belief_node")
+posture_node = _entry("posture_node")
+fake_audio_node = _entry("fake_audio_node")
+speaker_node = _entry("speaker_node")
+recorder_node = _entry("recorder_node")
+bringup = _entry("bringup")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m infomax_contingency.nodes.entry NODE ARGS...``."""
+    argv = list(sys.argv if argv is None else argv)
+    if len(argv) < 2 or argv[1] not in NODE_MODULES:
+        print(f"usage: python -m infomax_contingency.nodes.entry {{{','.join(NODE_MODULES)}}}"
+              " [ARGS...]", file=sys.stderr)  # fmt: skip
+        return 2
+    sys.argv = [argv[0], *argv[2:]]  # what the node's own parser and rclpy expect
+    return run_module(f"infomax_contingency.nodes.{argv[1]}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
