@@ -212,6 +212,10 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
     assert "Traceback" not in output
 
 
+REQUEST_RETRY_S = 5.0
+"""Seconds a parameter request waits for its answer before it is sent again."""
+
+
 @pytest.mark.slow
 def test_overrides_of_a_namespaced_node_in_the_documented_form(
     workspace: Path, tmp_path: Path
@@ -254,9 +258,16 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
             while not client.wait_for_services(timeout_sec=0.5):
                 assert process.poll() is None, log.read_text()
                 assert time.monotonic() < deadline, log.read_text()
+            # A request sent just after the services were discovered can be lost for good:
+            # the node may not have matched this client's reader yet (a volatile request,
+            # seen once under load). A get changes nothing: ask again until answered.
             answer = client.get_parameters(["threshold_db"])
-            rclpy.spin_until_future_complete(asker, answer, timeout_sec=30.0)
-            assert answer.done(), (namespace, arguments, log.read_text())
+            rclpy.spin_until_future_complete(asker, answer, timeout_sec=REQUEST_RETRY_S)
+            while not answer.done():
+                assert process.poll() is None, log.read_text()
+                assert time.monotonic() < deadline, (namespace, arguments, log.read_text())
+                answer = client.get_parameters(["threshold_db"])
+                rclpy.spin_until_future_complete(asker, answer, timeout_sec=REQUEST_RETRY_S)
             value = answer.result().values[0].double_value
             assert value == expected, (namespace, arguments, value)
     finally:
