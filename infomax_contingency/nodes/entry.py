@@ -20,7 +20,7 @@ from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-NODE_MODULES = (
+NODES = (
     "mic_node",
     "controller_node",
     "belief_node",
@@ -28,9 +28,11 @@ NODE_MODULES = (
     "fake_audio_node",
     "speaker_node",
     "recorder_node",
-    "bringup",
 )
-"""The executables under ``infomax_contingency.nodes`` that these entry points run."""
+"""The node executables (module names under ``infomax_contingency.nodes``)."""
+
+NODE_MODULES = (*NODES, "bringup")
+"""Every executable under ``infomax_contingency.nodes`` that these entry points run."""
 
 
 def _stopped_while_starting(signum: int, frame: Any) -> None:

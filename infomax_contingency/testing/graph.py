@@ -32,18 +32,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 
+from infomax_contingency.nodes.entry import NODES
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
-
-NODES = (
-    "mic_node",
-    "controller_node",
-    "belief_node",
-    "posture_node",
-    "fake_audio_node",
-    "speaker_node",
-    "recorder_node",
-)
-"""Node executables (module names under ``infomax_contingency.nodes``)."""
 
 PUBLISHES: dict[str, tuple[str, ...]] = {
     "mic_node": ("sound", "sound_step", "sound_energy"),
