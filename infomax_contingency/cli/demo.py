@@ -54,9 +54,6 @@ decision before it releases the next window anyway (config/robot.yaml: 2 s, for 
 that must go on). The demo is a reproducible run: a loaded machine may pause a node for
 seconds, and a released window is a different run. A release is still reported."""
 
-RELEASED_WINDOW = "window anyway"
-"""What the clock node's warning says when it released a window without its decision."""
-
 
 def register_demo(subparsers: argparse._SubParsersAction) -> None:
     """``demo``: the node graph against the simulated room (or a wav file), in lockstep."""
@@ -281,6 +278,7 @@ def _run_graph(
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
+    from infomax_contingency.nodes.graph_node import RELEASED_WINDOW
     from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
     from infomax_contingency.testing.graph import (
         GraphError,

@@ -41,7 +41,7 @@ from typing import Any
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -205,7 +205,7 @@ class FakeAudioNode(GraphNode):
         self.timeouts.note(self.now_s())
         self.get_logger().warning(
             f"no decision within {self.pacer.timeout_s} s of window {self.room.windows_made}:"
-            f" {self._who_is_missing()}; publishing the next window anyway"
+            f" {self._who_is_missing()}; publishing {RELEASED_WINDOW}"
         )
         self._publish_window()
 

@@ -60,6 +60,10 @@ _INTRUDER_WARNING_S = 5.0
 THROTTLE_S = 5.0
 """Seconds between two log lines of one kind about a repeated fault (see log_throttled)."""
 
+RELEASED_WINDOW = "the next window anyway"
+"""How a lockstep clock node's warning ends when it released a window without its decision
+(the demo counts these lines in the clock node's log)."""
+
 WAITING_NOTICE_S = 5.0
 """Seconds without an awaited input before a node says what it waits for."""
 

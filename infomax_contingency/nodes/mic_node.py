@@ -114,7 +114,7 @@ from infomax_contingency.audio.energy import WindowAssembler
 from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -614,7 +614,7 @@ class MicNode(GraphNode):
         self.timeouts.note(self.now_s())
         self.get_logger().warning(
             f"no 'vocalize' within {self.pacer.timeout_s} s of window {self.windows}:"
-            f" {self._who_is_missing()}; releasing the next window anyway"
+            f" {self._who_is_missing()}; releasing {RELEASED_WINDOW}"
         )
         self._emit_from_file()
 
