@@ -48,6 +48,32 @@ def test_a_stop_signal_while_a_node_loads_ends_it_with_status_0_and_no_traceback
     assert {s: signal.getsignal(s) for s in entry.STOP_SIGNALS} == before  # given back
 
 
+def test_a_node_that_ends_ignoring_stop_signals_keeps_ignoring_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A node's ``main()`` ends ignoring SIGINT and SIGTERM; the entry must not undo that.
+
+    ``ros2 launch`` and a terminal's Ctrl-C both send SIGINT: the second one can land
+    while the interpreter shuts down, and the default handler would raise a
+    KeyboardInterrupt traceback there.
+    """
+    (tmp_path / "ending_node.py").write_text(
+        "import signal\n"
+        "def main():\n"
+        "    for signum in (signal.SIGINT, signal.SIGTERM):\n"
+        "        signal.signal(signum, signal.SIG_IGN)  # as StopSignals.ignore_from_now_on\n"
+        "    return 0\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = {s: signal.getsignal(s) for s in entry.STOP_SIGNALS}
+    try:
+        assert entry.run_module("ending_node") == 0
+        assert all(signal.getsignal(s) == signal.SIG_IGN for s in entry.STOP_SIGNALS)
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler)
+
+
 def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:
     result = subprocess.run(
         [sys.executable, "-m", "infomax_contingency.nodes.entry", "no_such_node"],

@@ -43,6 +43,9 @@ def run_module(module: str) -> int:
     """Import ``module`` and return what its ``main()`` returns (the exit status).
 
     A stop signal before ``main()`` takes the signals over raises ``SystemExit(0)``.
+    Afterwards each signal goes back to its previous handler, unless ``main()`` left it
+    with another one: a node that ends ignores both (``StopSignals.ignore_from_now_on``),
+    so a second Ctrl-C while the interpreter shuts down raises nothing.
     """
     previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
     try:
@@ -50,7 +53,8 @@ def run_module(module: str) -> int:
         return main()
     finally:
         for signum, handler in previous.items():
-            signal.signal(signum, handler)
+            if signal.getsignal(signum) is _stopped_while_starting:
+                signal.signal(signum, handler)
 
 
 def _entry(node: str) -> Any:
