@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from scipy.signal import sosfilt
 
 from infomax_contingency.audio.binarizer import (
     Binarizer,
@@ -146,6 +145,8 @@ def test_speech_band_passes_voice_frequencies_and_rejects_hum_and_hiss() -> None
 
 
 def test_speech_band_carries_its_filter_state_across_windows() -> None:
+    from scipy.signal import sosfilt  # here: scipy.signal takes ~0.5 s to load
+
     x = np.random.default_rng(4).normal(0, 0.1, 6 * N)
     band = SpeechBandLevel(RATE)
     levels = [band.level_db(w) for w in windows_of(x)]

@@ -49,7 +49,8 @@ from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
 # The graphs that step a room at full speed and rely on timeouts (a silent source is
 # replaced after source_timeout_s) run one at a time (on one pytest-xdist worker, with
-# `--dist loadgroup`), so that they do not starve each other of CPU.
+# `--dist loadgroup`), so that they do not starve each other of CPU. Their rooms run at
+# most 50 times real time (ROOM): much of the time they wait on the wall clock.
 pytestmark = pytest.mark.slow
 NODE_GRAPHS = pytest.mark.xdist_group("node_graphs")
 
@@ -63,7 +64,9 @@ HOLD = {"fault_hold_s": 2.0}
 MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, "start_delay_s": 0.2, **HOLD}  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, "start_delay_s": 0.2,
-        "lockstep_timeout_s": 2.0, **HOLD}  # fmt: skip
+        "lockstep_timeout_s": 2.0, "lockstep_max_speed": 50.0, **HOLD}  # fmt: skip
+"""At most 50 times real time (100 steps/s): the diagnostics, leases and timeouts these
+tests wait for come on the wall clock, and a room at full speed spent that time stepping."""
 BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the recorder
 CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
 

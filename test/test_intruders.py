@@ -52,7 +52,11 @@ HOLD = {"fault_hold_s": 1.0}
 
 MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, **HOLD}  # controller, belief, recorder  # fmt: skip
-ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, **HOLD}
+ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1,
+        "lockstep_max_speed": 50.0, **HOLD}  # fmt: skip
+"""At most 50 times real time (100 steps/s): the diagnostics this test waits for come on
+the wall clock (1 s period, 1 s hold), and a room at full speed (about 400 steps/s)
+spent that time stepping, most of the test's CPU."""
 BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the recorder
 CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
 

@@ -7,6 +7,7 @@ runs only inside ``graph.run_until``, so nothing happens between the test's step
 from __future__ import annotations
 
 import array
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -491,6 +492,36 @@ def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     loud = [float(window_energies_db(w.samples, 16000, 0.5)[0]) > -40 for w in expected]
     assert loud == [False, True, False, False]
     assert [m.data for m in truth] == [False] * 4
+
+
+def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable) -> None:
+    """lockstep_max_speed 2: each next window waits 0.25 s after its decision.
+
+    A bound from below only: a loaded machine makes the gaps longer, never shorter.
+    """
+    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
+                             start_delay_s=0.0, lockstep_max_speed=2.0)  # fmt: skip
+    arrived: list[float] = []
+    audio = probe.listen("audio", Float32MultiArray,
+                         then=lambda _: arrived.append(time.monotonic()))  # fmt: skip
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    answered: list[float] = []
+    for count, message in enumerate(decisions_of(STREAM, [True, False, False]), start=2):
+        answered.append(time.monotonic())
+        vocalize.publish(message)
+        graph.run_until(lambda n=count: len(audio) == n, "the next window")
+    gaps = [window - answer for answer, window in zip(answered, arrived[1:], strict=True)]
+    assert min(gaps) >= 0.25, gaps
+    assert node.pacer.answers == 3 and node.pacer.timeouts == 0
+    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
+    expected = [offline.next_window()]
+    offline.vocalize()
+    expected += [offline.next_window() for _ in range(3)]
+    for message, window in zip(audio, expected, strict=True):  # the same room, held
+        assert np.array_equal(np.frombuffer(message.data, np.float32),
+                              as_transmitted(window.samples))  # fmt: skip
 
 
 def test_fake_room_hears_one_controller_once_per_step(run: Callable) -> None:

@@ -14,8 +14,10 @@ playing or scheduled play out as they were made.
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
 decision on window t arrived on ``vocalize_step`` (or after ``lockstep_timeout_s``;
 the warning then names what is missing), so the robot's own
-sound and the partner's reply land in the right windows however fast the graph runs; in
-real time one window is published every ``window_s / speed`` seconds. One message per
+sound and the partner's reply land in the right windows however fast the graph runs
+(``lockstep_max_speed`` > 0: the next window waits ``window_s / lockstep_max_speed``
+after the decision, so the room runs at most that many times real time);
+in real time one window is published every ``window_s / speed`` seconds. One message per
 window. Publishing starts ``start_delay_s`` after ``audio`` has ``wait_for_listeners``
 subscribers, ``partner_present`` ``wait_for_truth_listeners`` (and, in lockstep,
 ``vocalize`` a publisher) and every subscriber seen on its topics is connected; it
@@ -38,6 +40,7 @@ import sys
 import time
 from typing import Any
 
+from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
@@ -123,6 +126,11 @@ class FakeAudioNode(GraphNode):
         speed = read.number(
             "speed", 1.0, "Real-time pacing factor (2 = twice as fast)", 0.01, 1000.0
         )
+        max_speed = read.number(
+            "lockstep_max_speed", 0.0,
+            "In lockstep, at most this many times real time; 0 = as fast as the graph answers",
+            0.0, 100000.0,
+        )  # fmt: skip
         self.max_windows = read.integer(
             "max_windows", 0, "Stop after this many windows; 0 = never", 0, 2**31 - 1
         )
@@ -160,6 +168,12 @@ class FakeAudioNode(GraphNode):
         self.pacer = LockstepPacer(timeout_s) if lockstep else None
         self.parameters.live("lockstep_timeout_s", self._set_lockstep_timeout)
         self.period_s = config.window_s / speed
+        self._held_window: Timer | None = None
+        """The timer that publishes the next window ``window_s / lockstep_max_speed`` after
+        its decision (None: no cap, the decision publishes it)."""
+        if lockstep and max_speed > 0:
+            self._held_window = self.create_timer(
+                config.window_s / max_speed, self._release_held_window, autostart=False)
         self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
@@ -184,8 +198,10 @@ class FakeAudioNode(GraphNode):
             " windows that only come after a decision",
         )
         self.get_logger().info(
-            f"room '{room}' (seed {seed}), {'lockstep' if lockstep else f'real time x{speed:g}'}"
-        )
+            f"room '{room}' (seed {seed}), "
+            + (f"real time x{speed:g}" if not lockstep else
+               f"lockstep, at most x{max_speed:g} real time" if max_speed > 0 else "lockstep")
+        )  # fmt: skip
         self.start_diagnostics()
 
     def _ready(self) -> bool:
@@ -243,7 +259,14 @@ class FakeAudioNode(GraphNode):
         if decision.vocalize:
             self.room.vocalize()
         if self.started and self.pacer is not None and self.pacer.answered():
-            self._publish_window()
+            if self._held_window is not None:
+                self._held_window.reset()  # fires once, one period from now
+            else:
+                self._publish_window()
+
+    def _release_held_window(self) -> None:
+        self._held_window.cancel()
+        self._publish_window()
 
     def _publish_window(self) -> None:
         if self.max_windows and self.room.windows_made >= self.max_windows:
