@@ -285,3 +285,32 @@ def test_a_lost_message_is_the_monitors_fault(monkeypatch) -> None:
     run = StalledRun(lost={"belief": 0})
     _, failure = demo_module._wait_for_run(args, run, run)
     assert failure.startswith("the graph made no progress for 0.05 s after")
+
+
+class LatePostures:
+    """A recorder whose posture changes arrive only on the ``arrive_at``-th look.
+
+    As a posture message lost on the way and resent at its writer's next heartbeat:
+    the beliefs are all in, the changes they call for come later.
+    """
+
+    def __init__(self, arrive_at: int) -> None:
+        high, low = demo_module.ATTENTIVE_ABOVE + 0.05, demo_module.BORED_BELOW - 0.05
+        self.belief = [low, high, high, low]
+        self._looks, self._arrive_at = 0, arrive_at
+
+    @property
+    def posture(self) -> list[tuple[int, str]]:
+        self._looks += 1
+        changes = [(2, "attentive"), (4, "bored")] if self._looks >= self._arrive_at else []
+        return [(0, "bored"), *changes]
+
+
+def test_the_table_waits_for_the_posture_changes_the_beliefs_call_for() -> None:
+    recorder = LatePostures(arrive_at=5)
+    received = [posture for _, posture in recorder.posture]
+    assert demo_module._postures(recorder.belief, received) == []  # not yet: arrival order
+    demo_module._wait_for_postures(recorder, steps=4, poll_s=0.0)
+    received = [posture for _, posture in recorder.posture]
+    assert demo_module._postures(recorder.belief, received) == [
+        "bored", "attentive", "attentive", "bored"]

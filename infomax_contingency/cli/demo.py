@@ -310,6 +310,7 @@ def _run_graph(
                     return failure
                 elapsed = time.monotonic() - start
                 _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
+                _wait_for_postures(recorder, steps)
             return recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
         finally:
             # A signal now must not cut the stopping short: it waits until every node is
@@ -408,6 +409,24 @@ def _node_failure(processes: Any) -> str | None:
         message = last.split("]: ", 1)[-1] if "]: " in last else last
         return f"{name} exited with status {status}: {message}"
     return None
+
+
+def _wait_for_postures(recorder: Any, steps: int, poll_s: float = 0.02) -> None:
+    """Wait, at most ``REPAIR_WAIT_S``, for the posture changes the recorded beliefs call for.
+
+    A run at full speed ends within a second of its last change, and a posture message
+    lost on the way is resent only at its writer's next heartbeat (3 s with Fast DDS's
+    defaults): the table printed sooner showed the whole run ``bored``. If the changes
+    never match (other thresholds in a parameter file, or a change replaced in the
+    writer's one-deep history before its repair), the table falls back to arrival order.
+    """
+    from infomax_contingency.nodes.runtime import REPAIR_WAIT_S
+
+    deadline = time.monotonic() + REPAIR_WAIT_S
+    while not _postures(recorder.belief[:steps], [p for _, p in list(recorder.posture)]):
+        if time.monotonic() > deadline:
+            return
+        time.sleep(poll_s)  # polls the recorder; the deadline above bounds it
 
 
 def _postures(beliefs: list[float], received: list[str]) -> list[str]:
