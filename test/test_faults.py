@@ -413,7 +413,11 @@ def test_intruding_processes_are_named_ignored_and_the_belief_stays_exact(
 
     # a second mic_node and a second controller_node, each started and stopped
     for node, name, parameters, topic in (
-        ("mic_node", "mic_node_2", {**MIC, "wait_for_listeners": 0}, "sound_step"),
+        # The second mic waits for the true mic's listeners (MIC: controller, belief,
+        # recorder) as the first did: with none to wait for, its first bits went out
+        # before they matched it, it then held its windows for answers that never came
+        # (max_steps_ahead), and no listener ever had a message of it to ignore (once).
+        ("mic_node", "mic_node_2", MIC, "sound_step"),
         ("controller_node", "controller_node_2", CONTROLLER, "vocalize_step"),
     ):
         foreign_before = _foreign_messages(graph)
