@@ -265,6 +265,7 @@ class StalledRun:
 
     def __init__(self, lost: dict[str, int]) -> None:
         self.belief, self.partner_present, self.lost = [0.5] * 3, [True] * 4, lost
+        self.sound, self.vocalize = [False] * 4, [False] * 4
 
     def counts(self) -> dict[str, int]:
         return {"belief": len(self.belief), "partner_present": len(self.partner_present)}

@@ -351,7 +351,10 @@ def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,
     else:
         steps = args.steps
         ok = _wait_with_watchdog(
-            lambda: min(len(recorder.belief), len(recorder.partner_present)) >= steps,
+            # every column the table prints: the monitor's subscriptions are apart, and
+            # its 'sound' once lagged its 'belief' (an IndexError at the table, under load)
+            lambda: min(len(recorder.sound), len(recorder.vocalize), len(recorder.belief),
+                        len(recorder.partner_present)) >= steps,  # fmt: skip
             recorder,
             STALL_TIMEOUT_S,
             processes,
