@@ -424,12 +424,11 @@ def _wait_for_postures(recorder: Any, steps: int, poll_s: float = 0.02) -> None:
     writer's one-deep history before its repair), the table falls back to arrival order.
     """
     from infomax_contingency.nodes.runtime import REPAIR_WAIT_S
+    from infomax_contingency.testing.graph import wait_until
 
-    deadline = time.monotonic() + REPAIR_WAIT_S
-    while not _postures(recorder.belief[:steps], [p for _, p in list(recorder.posture)]):
-        if time.monotonic() > deadline:
-            return
-        time.sleep(poll_s)  # polls the recorder; the deadline above bounds it
+    wait_until(lambda: bool(_postures(recorder.belief[:steps],
+                                      [p for _, p in list(recorder.posture)])),
+               REPAIR_WAIT_S, poll_s=poll_s)  # fmt: skip
 
 
 def _postures(beliefs: list[float], received: list[str]) -> list[str]:
