@@ -61,7 +61,8 @@ BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the record
 CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
 
 ROGUE_MESSAGES = 3000
-"""Messages of each kind the rogue publishes: ten times the belief node's queue depth."""
+"""Messages of each kind the rogue publishes: three times the step topics' queue depth
+(1000) and five times the belief node's max_pending_steps (600)."""
 
 ROGUE_IN_FLIGHT = 10
 """Rogue messages a node may have waiting at once: the rogue publishes as fast as the
