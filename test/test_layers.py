@@ -3,6 +3,7 @@
 Every module of ``infomax_contingency`` is parsed (not imported) and each of its
 imports of the package, at module level or inside a function, is checked against the
 layer table below. A new module in an unknown place fails here until it is given a layer.
+The same parse keeps functions short enough to read (``LONGEST_FUNCTION_LINES``).
 """
 
 from __future__ import annotations
@@ -75,7 +76,22 @@ def _imports(path: Path) -> list[tuple[str, bool, int]]:
     return found
 
 
+def _long_functions(path: Path) -> list[str]:
+    """'name (N lines, line L)' of each function in the file longer than the limit."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return [
+        f"{node.name} ({node.end_lineno - node.lineno + 1} lines, line {node.lineno})"
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.end_lineno - node.lineno + 1 > LONGEST_FUNCTION_LINES
+    ]
+
+
 MODULES = _modules()
+
+LONGEST_FUNCTION_LINES = 80
+"""Longest function (decorators excluded, docstring included) a module of the package may
+have; a node's parameters go in a config dataclass read by one function per source."""
 
 
 def test_every_module_has_a_known_layer() -> None:
@@ -110,3 +126,15 @@ def test_the_check_sees_an_upward_import(tmp_path: Path) -> None:
     imported = [module for module, _, _ in _imports(bad)]
     assert "infomax_contingency.nodes.runtime" in imported and "rclpy" in imported
     assert _layer_of("infomax_contingency.nodes.runtime") not in ALLOWED["core"]
+
+
+def test_no_function_is_longer_than_the_limit() -> None:
+    long = [f"{name}: {found}" for name, path in MODULES for found in _long_functions(path)]
+    assert not long, f"functions over {LONGEST_FUNCTION_LINES} lines: {long}"
+
+
+def test_the_length_check_sees_a_long_function(tmp_path: Path) -> None:
+    long = tmp_path / "long.py"
+    body = "".join(f"    x{i} = {i}\n" for i in range(LONGEST_FUNCTION_LINES))
+    long.write_text(f"def short():\n    pass\n\n\ndef long():\n{body}")
+    assert _long_functions(long) == [f"long ({LONGEST_FUNCTION_LINES + 1} lines, line 5)"]

@@ -43,9 +43,10 @@ from typing import Any
 from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
+from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
-from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.parameters import ConfigError, ParameterReader
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP, parse_decision
@@ -88,6 +89,108 @@ FIXED_ROOM_PARAMETERS = ("window_s",)
 """Room parameters that cannot change while the room runs (with ``rate_hz``)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class FakeAudioConfig:
+    """fake_audio_node's parameters (see the module docstring and config/robot.yaml)."""
+
+    params: ModelParams
+    room_name: str
+    room: FakeRoomConfig
+    seed: int
+    lockstep: bool
+    lockstep_timeout_s: float
+    speed: float
+    lockstep_max_speed: float
+    max_windows: int
+    wait_for_listeners: int
+    wait_for_truth_listeners: int
+    start_delay_s: float
+    source_timeout_s: float
+
+
+def _read_room(read: ParameterReader) -> tuple[str, dict[str, Any]]:
+    """The room preset's name and the values that override it (rate_hz, ROOM_PARAMETERS)."""
+    room_name = read.text(
+        "room", "responsive", "Room preset the other parameters start from", tuple(PRESETS)
+    )
+    defaults = FakeRoomConfig.preset(room_name)
+    values: dict[str, Any] = {
+        "rate_hz": read.integer(
+            "rate_hz", defaults.rate_hz, "Sample rate of the audio", 1000, 384000
+        )
+    }
+    for name, description, low, high, unit in ROOM_PARAMETERS:
+        live = name not in FIXED_ROOM_PARAMETERS
+        values[name] = read.number(
+            name, getattr(defaults, name), description + (" (live)" if live else ""),
+            low, high, unit, read_only=not live,
+        )  # fmt: skip
+    return room_name, values
+
+
+def _read_pacing(read: ParameterReader) -> dict[str, Any]:
+    """When windows go out: lockstep or real time, the start gate, the end, the source."""
+    return {
+        "lockstep": read.flag(
+            "lockstep", True, "Publish window t+1 after the vocalize for window t"
+        ),
+        "lockstep_timeout_s": read.number(
+            "lockstep_timeout_s", 2.0, "Publish the next window anyway after this long (live)",
+            0.01, 3600.0, "s", read_only=False,
+        ),
+        "speed": read.number(
+            "speed", 1.0, "Real-time pacing factor (2 = twice as fast)", 0.01, 1000.0
+        ),
+        "lockstep_max_speed": read.number(
+            "lockstep_max_speed", 0.0,
+            "In lockstep, at most this many times real time; 0 = as fast as the graph answers",
+            0.0, 100000.0,
+        ),
+        "max_windows": read.integer(
+            "max_windows", 0, "Stop after this many windows; 0 = never", 0, 2**31 - 1
+        ),
+        "wait_for_listeners": read.integer(
+            "wait_for_listeners", 1,
+            "Subscribers of 'audio' to wait for before the first window", 0, 1000,
+        ),
+        "wait_for_truth_listeners": read.integer(
+            "wait_for_truth_listeners", 0,
+            "Subscribers of 'partner_present' to wait for before the first window", 0, 1000,
+        ),
+        "start_delay_s": read.number(
+            "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
+        ),
+        "source_timeout_s": read.number(
+            "source_timeout_s", 3.0,
+            "A followed controller silent this long is replaced by the next one heard",
+            0.1, 3600.0, "s",
+        ),
+    }  # fmt: skip
+
+
+def read_config(node: GraphNode) -> FakeAudioConfig:
+    """Declare and check fake_audio_node's parameters."""
+    read: ParameterReader = node.parameters
+    params = read.model()
+    room_name, values = _read_room(read)
+    seed = read.integer("seed", 0, "Random seed (same seed, same room)", 0, 2**31 - 1)
+    pacing = _read_pacing(read)
+    try:
+        room = FakeRoomConfig.preset(room_name, **values)  # the preset's other sources too
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+    return FakeAudioConfig(params=params, room_name=room_name, room=room, seed=seed, **pacing)
+
+
+def pacing_description(config: FakeAudioConfig) -> str:
+    """How the room is paced, as the start-up line says it."""
+    if not config.lockstep:
+        return f"real time x{config.speed:g}"
+    if config.lockstep_max_speed > 0:
+        return f"lockstep, at most x{config.lockstep_max_speed:g} real time"
+    return "lockstep"
+
+
 class FakeAudioNode(GraphNode):
     """Fake audio: a simulated room with or without a responsive partner."""
 
@@ -95,89 +198,30 @@ class FakeAudioNode(GraphNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
-        read = self.parameters
-        params = read.model()
-        room = read.text(
-            "room", "responsive", "Room preset the other parameters start from", tuple(PRESETS)
-        )
-        defaults = FakeRoomConfig.preset(room)
-        values: dict[str, Any] = {
-            "rate_hz": read.integer(
-                "rate_hz", defaults.rate_hz, "Sample rate of the audio", 1000, 384000
-            )
-        }
-        for name, description, low, high, unit in ROOM_PARAMETERS:
-            live = name not in FIXED_ROOM_PARAMETERS
-            values[name] = read.number(
-                name, getattr(defaults, name), description + (" (live)" if live else ""),
-                low, high, unit, read_only=not live,
-            )
-        seed = read.integer("seed", 0, "Random seed (same seed, same room)", 0, 2**31 - 1)
-        lockstep = read.flag("lockstep", True, "Publish window t+1 after the vocalize for window t")
-        timeout_s = read.number(
-            "lockstep_timeout_s",
-            2.0,
-            "Publish the next window anyway after this long (live)",
-            0.01,
-            3600.0,
-            "s",
-            read_only=False,
-        )
-        speed = read.number(
-            "speed", 1.0, "Real-time pacing factor (2 = twice as fast)", 0.01, 1000.0
-        )
-        max_speed = read.number(
-            "lockstep_max_speed", 0.0,
-            "In lockstep, at most this many times real time; 0 = as fast as the graph answers",
-            0.0, 100000.0,
-        )  # fmt: skip
-        self.max_windows = read.integer(
-            "max_windows", 0, "Stop after this many windows; 0 = never", 0, 2**31 - 1
-        )
-        self.wait_for_listeners = read.integer(
-            "wait_for_listeners",
-            1,
-            "Subscribers of 'audio' to wait for before the first window",
-            0,
-            1000,
-        )
-        self.wait_for_truth_listeners = read.integer(
-            "wait_for_truth_listeners",
-            0,
-            "Subscribers of 'partner_present' to wait for before the first window",
-            0,
-            1000,
-        )
-        self.start_delay_s = read.number(
-            "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
-        )
-        source_timeout_s = read.number(
-            "source_timeout_s", 3.0,
-            "A followed controller silent this long is replaced by the next one heard",
-            0.1, 3600.0, "s",
-        )
-        try:
-            config = FakeRoomConfig.preset(room, **values)  # the preset's other sources too
-        except ValueError as error:
-            raise ConfigError(str(error)) from None
-        for warning in timing_warnings(config, params):
+        config = read_config(self)
+        for warning in timing_warnings(config.room, config.params):
             self.get_logger().warning(f"room timing vs model parameters: {warning}")
-        self.params = params
-        self.room = FakeRoom(config, seed)
+        self.params = config.params
+        self.room = FakeRoom(config.room, config.seed)
         self._live_room_parameters()
-        self.pacer = LockstepPacer(timeout_s) if lockstep else None
+        self.pacer = LockstepPacer(config.lockstep_timeout_s) if config.lockstep else None
         self.parameters.live("lockstep_timeout_s", self._set_lockstep_timeout)
-        self.period_s = config.window_s / speed
+        self.period_s = config.room.window_s / config.speed
+        self.max_windows = config.max_windows
+        self.wait_for_listeners = config.wait_for_listeners
+        self.wait_for_truth_listeners = config.wait_for_truth_listeners
         self._held_window: Timer | None = None
         """The timer that publishes the next window ``window_s / lockstep_max_speed`` after
         its decision (None: no cap, the decision publishes it)."""
-        if lockstep and max_speed > 0:
+        if config.lockstep and config.lockstep_max_speed > 0:
             self._held_window = self.create_timer(
-                config.window_s / max_speed, self._release_held_window, autostart=False)
+                config.room.window_s / config.lockstep_max_speed, self._release_held_window,
+                autostart=False,
+            )  # fmt: skip
         self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
-        self.controllers = SourceLock(source_timeout_s)
+        self.controllers = SourceLock(config.source_timeout_s)
         self._window_sent_s: float | None = None
         """When the newest window was published (s, system clock)."""
         self.timeouts = self.recent_events()
@@ -188,7 +232,7 @@ class FakeAudioNode(GraphNode):
         )
         self.start_when_ready(
             self._ready,
-            self.start_delay_s,
+            config.start_delay_s,
             self._start,
             self.pacer,
             self._on_timeout,
@@ -198,10 +242,8 @@ class FakeAudioNode(GraphNode):
             " windows that only come after a decision",
         )
         self.get_logger().info(
-            f"room '{room}' (seed {seed}), "
-            + (f"real time x{speed:g}" if not lockstep else
-               f"lockstep, at most x{max_speed:g} real time" if max_speed > 0 else "lockstep")
-        )  # fmt: skip
+            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
+        )
         self.start_diagnostics()
 
     def _ready(self) -> bool:
