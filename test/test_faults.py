@@ -422,8 +422,11 @@ def test_intruding_processes_are_named_ignored_and_the_belief_stays_exact(
     ):
         foreign_before = _foreign_messages(graph)
         graph.processes.start(node, parameters, name=name)
-        graph.wait_status("belief_node", DiagnosticStatus.ERROR, f"/{name}")
-        assert topic in graph.status("belief_node").message
+        # Discovery brings the intruder's topics one at a time: wait for the stamped one.
+        status = graph.wait_status("belief_node", DiagnosticStatus.ERROR, f"publishers_{topic}=")
+        publishers = {v.key: v.value for v in status.values}[f"publishers_{topic}"]
+        assert f"/{name}" in publishers
+        assert f"'{topic}'" in status.message
         steps_before = len(rec.belief)
         # Until the graph has had (and ignored) the intruder's messages too.
         graph.run_until(lambda n=steps_before, f=foreign_before: len(rec.belief) > n + 30
