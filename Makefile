@@ -46,7 +46,7 @@ ROS_DOMAIN_ID := 42
 endif
 export ROS_AUTOMATIC_DISCOVERY_RANGE ROS_DOMAIN_ID
 
-.PHONY: help setup demo live test lint build clean distclean system-deps apt-missing
+.PHONY: help setup demo live test lint build clean distclean system-deps apt-missing bytecode
 
 help:
 	@echo "make demo       set up (if needed) and run the demo"
@@ -126,7 +126,15 @@ system-deps:
 		}
 	fi
 
-demo: $(STAMP)
+# Byte-compiles the package (and the tests' helper modules) before a run. Python reads
+# these caches even where PYTHONDONTWRITEBYTECODE is set (as on this project's CI
+# machines), and there every node process a test or the demo starts compiled the package
+# again from source: about 0.1 s of CPU per process, a sixth of the suite's CPU time.
+# Up-to-date files are skipped.
+bytecode: $(STAMP)
+	"$(VPY)" -m compileall -q infomax_contingency test >/dev/null
+
+demo: $(STAMP) bytecode
 	"$(VENV)/bin/infomax-contingency" $(DEMO_ARGS)
 
 # The live robot: calibrate the threshold on the microphone for 10 s, then the whole graph
@@ -150,7 +158,7 @@ live: $(STAMP)
 # without it those tests skip with a one-line reason.
 ROS2CLI_VENV ?= $(abspath ../ros2cli-venv)
 
-test: $(STAMP)
+test: $(STAMP) bytecode
 	"$(VENV)/bin/ruff" check .
 	if [ -x "$(ROS2CLI_VENV)/bin/ros2" ]; then export PATH="$$PATH:$(ROS2CLI_VENV)/bin"; fi
 	"$(VPY)" -m pytest -q $(PYTEST_XDIST) $(PYTEST_ARGS)

@@ -150,6 +150,27 @@ def values(status: DiagnosticStatus) -> dict[str, str]:
     return {v.key: v.value for v in status.values}
 
 
+def an_intruder_is_named(harness: Any, topic: str, name: str) -> DiagnosticStatus:
+    """Step until the belief node's ERROR names ``/name`` among the publishers of ``topic``.
+
+    Discovery brings an intruding node's topics one at a time (a second controller is seen
+    on ``vocalize`` before ``vocalize_step`` now and then), and its node name after its
+    endpoints (for a moment its publisher is ``_NODE_NAME_UNKNOWN_``): the condition waits
+    for both. ``harness``: as for :func:`a_stray_command_is_named`. Returns the status.
+    """
+    key = f"publishers_{topic}"
+
+    def named() -> bool:
+        status = harness.status("belief_node")
+        return (status is not None and status.level == DiagnosticStatus.ERROR
+                and f"/{name}" in values(status).get(key, "").split(", "))  # fmt: skip
+
+    harness.run_until(named, f"belief_node to name /{name} among the publishers on {topic!r}")
+    status = harness.status("belief_node")
+    assert f"'{topic}'" in status.message, status.message
+    return status
+
+
 def a_stray_command_is_named(harness: Any) -> None:
     """One stray message on the plain command topic, as ``ros2 topic pub --once /vocalize``.
 

@@ -34,6 +34,7 @@ from std_msgs.msg import Float32MultiArray
 from exact_beliefs import (
     MEMORY,
     a_stray_command_is_named,
+    an_intruder_is_named,
     assert_offline_run,
     assert_same_beliefs,
     last_status,
@@ -422,11 +423,7 @@ def test_intruding_processes_are_named_ignored_and_the_belief_stays_exact(
     ):
         foreign_before = _foreign_messages(graph)
         graph.processes.start(node, parameters, name=name)
-        # Discovery brings the intruder's topics one at a time: wait for the stamped one.
-        status = graph.wait_status("belief_node", DiagnosticStatus.ERROR, f"publishers_{topic}=")
-        publishers = {v.key: v.value for v in status.values}[f"publishers_{topic}"]
-        assert f"/{name}" in publishers
-        assert f"'{topic}'" in status.message
+        an_intruder_is_named(graph, topic, name)
         steps_before = len(rec.belief)
         # Until the graph has had (and ignored) the intruder's messages too.
         graph.run_until(lambda n=steps_before, f=foreign_before: len(rec.belief) > n + 30

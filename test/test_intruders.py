@@ -25,6 +25,7 @@ from std_msgs.msg import Float32MultiArray, Int64MultiArray
 from exact_beliefs import (
     MEMORY,
     a_stray_command_is_named,
+    an_intruder_is_named,
     assert_offline_run,
     assert_same_beliefs,
     last_status,
@@ -167,11 +168,7 @@ def test_intruders_are_named_ignored_and_the_belief_stays_exact(room_graph: Faul
         ("controller_node", "controller_node_2", CONTROLLER, "vocalize_step"),
     ):  # fmt: skip
         graph.add(node, parameters, name=name)
-        # Discovery brings the intruder's topics one at a time: wait for the stamped one
-        # (a second controller is seen on 'vocalize' first, now and then).
-        status = watch.wait_status("belief_node", DiagnosticStatus.ERROR, f"publishers_{topic}=")
-        assert f"/{name}" in values(status)[f"publishers_{topic}"]
-        assert f"'{topic}'" in status.message
+        an_intruder_is_named(watch, topic, name)
         steps_before = len(rec.belief)
         graph.run_until(lambda n=steps_before: len(rec.belief) > n + 50, "50 steps meanwhile")
         graph.remove(name)
