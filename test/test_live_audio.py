@@ -489,13 +489,15 @@ def test_microphone_argument_errors() -> None:
 # --------------------------------------------------------------------------- speaker (fake)
 
 
-def speaker_backend(rate: int = 16000) -> FakeBackend:
-    return FakeBackend([device(0, "Speakers", 0, 2, rate)], default_output=0)
+def speaker_backend(rate: int = 16000, clock: FakeClock | None = None) -> FakeBackend:
+    return FakeBackend([device(0, "Speakers", 0, 2, rate)], default_output=0, clock=clock)
 
 
 def test_speaker_plays_on_command_only_and_reports_dac_start() -> None:
-    backend = speaker_backend()
-    with SpeakerOutput(volume=0.5, block_s=0.01, backend=backend) as speaker:
+    clock = FakeClock(10.0)  # the blocks are pumped by hand: the clock stays at 10 s
+    backend = speaker_backend(clock=clock)
+    with SpeakerOutput(volume=0.5, block_s=0.01, backend=backend, clock=clock,
+                       sleep=clock.sleep) as speaker:  # fmt: skip
         stream = backend.last("output")
         assert (stream.rate, stream.channels) == (16000, 1)
         silent = np.concatenate([stream.pump(t=10.0 + 0.01 * k) for k in range(5)])
@@ -503,6 +505,11 @@ def test_speaker_plays_on_command_only_and_reports_dac_start() -> None:
         sequence = speaker.play()
         out = np.concatenate([stream.pump(t=20.0 + 0.01 * k) for k in range(30)])
         events = speaker.events()
+        # A DAC time from a stale device time stamp, before the block was even filled
+        # (13 ms early, as once on a loaded machine): the sound starts no earlier than now.
+        speaker.play()
+        stream.pump(t=clock() - 0.013)
+        stale = speaker.events()
     chirp = (0.5 * synthesize_chirp(16000, 0.2, amplitude=1.0)).astype(np.float32)
     assert np.array_equal(out[: chirp.size, 0], chirp)
     assert not out[chirp.size :].any()
@@ -511,7 +518,8 @@ def test_speaker_plays_on_command_only_and_reports_dac_start() -> None:
         0
     ].duration_s == pytest.approx(0.2)
     assert not events[0].interrupted
-    assert speaker.status().played == 1 and speaker.status().requests == 1
+    assert len(stale) == 1 and stale[0].start_time == clock() == stale[0].requested_time
+    assert speaker.status().played == 2 and speaker.status().requests == 2
 
 
 def test_the_stream_clock_offset_comes_from_the_tightest_reading() -> None:
@@ -596,7 +604,8 @@ def test_speaker_survives_a_vanished_device() -> None:
         assert speaker.play() == 1
         assert speaker.status().state == "connected"
         stream = backend.last("output")
-        assert stream.pump(t=5.0).any() and speaker.events()[0].start_time == 5.0
+        dac = clock() + 0.05
+        assert stream.pump(t=dac).any() and speaker.events()[0].start_time == dac
         assert speaker.events(0.5) == [] and clock() == pytest.approx(50.71)  # waited on the clock
     finally:
         speaker.close()

@@ -59,7 +59,8 @@ class PlayEvent:
     Attributes:
         sequence: the number :meth:`SpeakerOutput.play` returned for the command.
         requested_time: when ``play()`` was called, speaker-clock seconds.
-        start_time: DAC time of the sound's first sample, speaker-clock seconds.
+        start_time: DAC time of the sound's first sample, speaker-clock seconds; never
+            before the callback that filled its block ran (see :meth:`SpeakerOutput._on_block`).
         duration_s: length of the sound, seconds.
         interrupted: True if it cut short a sound that was still playing.
     """
@@ -442,8 +443,12 @@ class SpeakerOutput:
                     self._interrupted += 1
                 self._pos = 0
                 self._played += 1
+                # A block filled now cannot play before now. PortAudio's DAC time comes
+                # from the device's last status time stamp, which can be stale: on a
+                # loaded machine it was 13 ms before the command that this block answers.
+                now = self._clock()
                 t = time_info.outputBufferDacTime or time_info.currentTime
-                start = t + self._offset if t else self._clock()
+                start = max(t + self._offset, now) if t else now
                 event = PlayEvent(
                     requested,
                     self._request_time,
