@@ -54,6 +54,7 @@ help:
 	@echo "make live       calibrate on the microphone, then run the graph live (LIVE_DEVICE=...)"
 	@echo "make setup      install missing system packages, create $(VENV), install the package"
 	@echo "make lint       ruff check ."
+	@echo "make bytecode   byte-compile the package (make test and make demo do it first)"
 	@echo "make build      colcon build into build/ install/ log/, as a ROS workspace would"
 	@echo "make clean      remove build products and caches (keeps $(VENV))"
 	@echo "make distclean  clean, and remove $(VENV)"
@@ -129,8 +130,8 @@ system-deps:
 # Byte-compiles the package (and the tests' helper modules) before a run. Python reads
 # these caches even where PYTHONDONTWRITEBYTECODE is set (as on this project's CI
 # machines), and there every node process a test or the demo starts compiled the package
-# again from source: about 0.1 s of CPU per process, a sixth of the suite's CPU time.
-# Up-to-date files are skipped.
+# again from source: about 0.1 s of CPU per process; the suite's CPU went 290 -> 223 s on
+# one machine (docs/ENVIRONMENT.md). Up-to-date files are skipped.
 bytecode: $(STAMP)
 	"$(VPY)" -m compileall -q infomax_contingency test >/dev/null
 
