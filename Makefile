@@ -162,7 +162,10 @@ ROS2CLI_VENV ?= $(abspath ../ros2cli-venv)
 test: $(STAMP) bytecode
 	"$(VENV)/bin/ruff" check .
 	if [ -x "$(ROS2CLI_VENV)/bin/ros2" ]; then export PATH="$$PATH:$(ROS2CLI_VENV)/bin"; fi
-	"$(VPY)" -m pytest -q $(PYTEST_XDIST) $(PYTEST_ARGS)
+	# pytest keeps the test modules it rewrote for its assertion messages in __pycache__,
+	# but only where bytecode may be written: with PYTHONDONTWRITEBYTECODE set (as on this
+	# project's machines) each worker rewrote every module on every run, 2 s of CPU each.
+	PYTHONDONTWRITEBYTECODE= "$(VPY)" -m pytest -q $(PYTEST_XDIST) $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	"$(VENV)/bin/ruff" check .

@@ -9,6 +9,10 @@ profile: a graph's processes find each other and a stopping node's acknowledgmen
 ends within a fraction of a second instead of up to 3 s. Tests marked ``dds_defaults``
 start their processes with Fast DDS's defaults, as a robot's nodes run (the test process
 itself keeps the profile: Fast DDS reads it once per process).
+
+Every process of the suite uses one BLAS thread, as the nodes' entry points give theirs
+(``use_one_blas_thread``): a thread per core in each of hundreds of processes only costs
+start-up CPU on a machine the suite already keeps busy.
 """
 
 import os
@@ -18,6 +22,9 @@ import pytest
 
 from colcon_workspace import shared_workspace
 from domains import NoFreeDomainError, lock_domain_ids
+from infomax_contingency.nodes.entry import use_one_blas_thread
+
+use_one_blas_thread()
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 _forced = os.environ.get("INFOMAX_TEST_DOMAIN_ID", "").strip()

@@ -6,6 +6,7 @@ while a node is still loading ends it quietly.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -81,3 +82,39 @@ def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:
     )  # fmt: skip
     assert result.returncode == 2 and "mic_node" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(("chosen", "threads"), [({}, 1), ({"OPENBLAS_NUM_THREADS": "2"}, 2)])
+def test_a_node_has_one_blas_thread_unless_its_user_chose_a_count(
+    tmp_path: Path, chosen: dict[str, str], threads: int
+) -> None:
+    """Threads of a node process once numpy is loaded: the main one, and BLAS threads.
+
+    numpy's OpenBLAS starts its threads when numpy is imported; with one, it starts none.
+    """
+    (tmp_path / "counting_node.py").write_text(
+        "import os\n"
+        "def main():\n"
+        "    import numpy  # noqa: F401\n"
+        "    print(len(os.listdir('/proc/self/task')))\n"
+        "    return 0\n"
+    )
+    environment = {key: value for key, value in os.environ.items()
+                   if key not in entry.BLAS_THREAD_VARIABLES}  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-c", "import sys; from infomax_contingency.nodes import entry; "
+         f"sys.path.insert(0, {str(tmp_path)!r}); sys.exit(entry.run_module('counting_node'))"],
+        capture_output=True, text=True, timeout=60, env={**environment, **chosen},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert int(result.stdout) == threads
+
+
+def test_the_blas_thread_count_a_user_chose_is_kept() -> None:
+    for name in entry.BLAS_THREAD_VARIABLES:
+        environment = {name: "4"}
+        entry.use_one_blas_thread(environment)
+        assert environment == {name: "4"}
+    environment = {"OMP_NUM_THREADS": " "}  # set but empty: not a choice
+    entry.use_one_blas_thread(environment)
+    assert environment["OPENBLAS_NUM_THREADS"] == "1"

@@ -7,6 +7,8 @@ its parameters) used to get a KeyboardInterrupt traceback from each node still l
 These entry points catch both signals from their first line: such a node exits with
 status 0 and says nothing, as a node stopped later does.
 
+They also start each node with one BLAS thread (:func:`use_one_blas_thread`).
+
 ``python -m infomax_contingency.nodes.entry NODE ARGS...`` runs ``NODE`` the same way (the
 test harness and the demo start their node processes so).
 """
@@ -14,8 +16,10 @@ test harness and the demo start their node processes so).
 from __future__ import annotations
 
 import importlib
+import os
 import signal
 import sys
+from collections.abc import MutableMapping
 from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -35,6 +39,24 @@ NODE_MODULES = (*NODES, "bringup")
 """Every executable under ``infomax_contingency.nodes`` that these entry points run."""
 
 
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+"""What numpy's OpenBLAS reads, once, when numpy is first imported: its thread count."""
+
+
+def use_one_blas_thread(environ: MutableMapping[str, str] = os.environ) -> None:
+    """Give numpy's OpenBLAS one thread, unless the user chose a count in ``environ``.
+
+    By default OpenBLAS starts a thread per core in every process that imports numpy.
+    The nodes compute no matrix products (their arrays hold a few hundred numbers per
+    step), so those threads only cost start-up: importing a node's module took 0.35 s of
+    CPU with them and 0.20 s with one thread (docs/ENVIRONMENT.md), for each of the six
+    processes of a graph. Takes effect only before numpy is first imported; child
+    processes inherit it.
+    """
+    if not any(environ.get(name, "").strip() for name in BLAS_THREAD_VARIABLES):
+        environ["OPENBLAS_NUM_THREADS"] = "1"
+
+
 def _stopped_while_starting(signum: int, frame: Any) -> None:
     raise SystemExit(0)
 
@@ -48,6 +70,7 @@ def run_module(module: str) -> int:
     so a second Ctrl-C while the interpreter shuts down raises nothing.
     """
     previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
+    use_one_blas_thread()
     try:
         main = importlib.import_module(module).main
         return main()
