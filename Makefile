@@ -54,7 +54,7 @@ help:
 	@echo "make live       calibrate on the microphone, then run the graph live (LIVE_DEVICE=...)"
 	@echo "make setup      install missing system packages, create $(VENV), install the package"
 	@echo "make lint       ruff check ."
-	@echo "make bytecode   byte-compile the package (make test and make demo do it first)"
+	@echo "make bytecode   byte-compile the package (make test, make demo and make live do it first)"
 	@echo "make build      colcon build into build/ install/ log/, as a ROS workspace would"
 	@echo "make clean      remove build products and caches (keeps $(VENV))"
 	@echo "make distclean  clean, and remove $(VENV)"
@@ -144,7 +144,7 @@ demo: $(STAMP) bytecode
 LIVE_DEVICE ?=
 LIVE_OUTPUT_DEVICE ?=
 LIVE_THRESHOLD ?= $(HOME)/.infomax/threshold.yaml
-live: $(STAMP)
+live: $(STAMP) bytecode
 	"$(VENV)/bin/infomax-contingency" calibrate --seconds 10 --device "$(LIVE_DEVICE)" \
 		--out "$(LIVE_THRESHOLD)"
 	"$(VENV)/bin/bringup" --ros-args --params-file config/robot.yaml \
