@@ -1,5 +1,10 @@
 """The audio-level simulated room: timing of the robot's sound and replies, determinism."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -168,3 +173,15 @@ def test_reconfigure_applies_from_the_next_window_and_is_deterministic() -> None
     room = FakeRoom(FakeRoomConfig(), seed=1)
     with pytest.raises(ValueError, match="window_s cannot change"):
         room.reconfigure(FakeRoomConfig(window_s=0.25))
+
+
+@pytest.mark.parametrize(("room", "loads_the_filters"), [
+    ("responsive", False),  # config/fake_room.yaml's room: a white floor, no filter
+    ("responsive+pink", True),
+])  # fmt: skip
+def test_a_room_loads_scipy_signal_only_when_it_filters(room: str, loads_the_filters: bool) -> None:
+    """scipy.signal costs about 1 s of CPU to load, in every fake_audio_node process."""
+    child = Path(__file__).resolve().parent / "child_imports.py"
+    out = subprocess.run([sys.executable, str(child), f"child_room:step_room:{room}",
+                          "scipy.signal"], capture_output=True, text=True, check=True)  # fmt: skip
+    assert json.loads(out.stdout) == (["scipy.signal"] if loads_the_filters else [])

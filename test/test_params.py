@@ -18,6 +18,7 @@ import yaml
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
@@ -35,7 +36,7 @@ from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
-from infomax_contingency.nodes.speaker_node import SpeakerNode
+from infomax_contingency.nodes.speaker_node import EVENTS_POLL_S, SpeakerNode
 from infomax_contingency.nodes.step_topics import parse_decision
 from infomax_contingency.testing.stepped import (
     Probe,
@@ -256,6 +257,12 @@ class FakeSpeaker:
         self.closed = True
 
 
+def fast_timers(node: Node) -> list[float]:
+    """Periods (s) of the node's running timers that fire more than once a second."""
+    periods = [timer.timer_period_ns / 1e9 for timer in node.timers if not timer.is_canceled()]
+    return [period for period in periods if period < 1.0]
+
+
 def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(speaker_node, "SpeakerOutput", FakeSpeaker)
     monkeypatch.setattr(FakeSpeaker, "opened", [])
@@ -270,6 +277,7 @@ def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatc
         executor.run_until(lambda: node.requests == requests + 1, "a vocalization")
 
     vocalize_once()
+    assert fast_timers(node) == [], "a dry run has nothing to check for"
     monkeypatch.setattr(FakeSpeaker, "fail", True)
     [result] = set_remotely(probe, executor, "speaker_node", dry_run=False)
     assert not result.successful and result.reason.startswith("parameter 'device' = '':")
@@ -280,10 +288,12 @@ def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatc
     assert result.successful, result.reason
     vocalize_once()
     executor.run_until(lambda: len(started) == 1, "the sound's start time")
+    assert fast_timers(node) == [EVENTS_POLL_S], "playing: sounds that started are checked"
     [speaker] = FakeSpeaker.opened
     [result] = set_remotely(probe, executor, "speaker_node", dry_run=True)
     assert result.successful, result.reason
     assert speaker.closed and node.speaker is None
+    assert fast_timers(node) == []
     vocalize_once()
     executor.run_for_callbacks(20)
     assert len(started) == 1 and node.requests == 3, "dry run again: counted, not played"

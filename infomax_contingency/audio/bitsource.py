@@ -126,7 +126,7 @@ class SpeechBandLevel:
                 f"speech band up to {high:g} Hz needs a sample rate above {2 * high:g} Hz,"
                 f" got {rate_hz} Hz"
             )
-        from scipy.signal import butter, sosfilt  # lazy: scipy.signal takes ~0.5 s to load
+        from scipy.signal import butter, sosfilt  # lazy: ~1 s of CPU to load
 
         self._sosfilt = sosfilt
         self.rate_hz = rate_hz

@@ -45,7 +45,7 @@ def find_onset(
     n = h.size
     if n == 0 or x.size < n:
         return None
-    from scipy.signal import correlate  # lazy: scipy.signal takes ~0.5 s to load
+    from scipy.signal import correlate  # lazy: ~1 s of CPU to load
 
     raw = correlate(x, h, mode="valid", method="fft")
     c = np.concatenate(([0.0], np.cumsum(x * x)))

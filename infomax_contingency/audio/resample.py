@@ -29,7 +29,7 @@ def resample(samples: ArrayLike, from_rate: int, to_rate: int) -> NDArray[np.flo
     x = np.asarray(samples, dtype=np.float64)
     if from_rate == to_rate:
         return x.copy()
-    from scipy.signal import resample_poly  # imported here: scipy.signal costs ~0.5 s to load
+    from scipy.signal import resample_poly  # lazy: ~1 s of CPU to load
 
     g = math.gcd(from_rate, to_rate)
     return resample_poly(x, to_rate // g, from_rate // g, axis=0)
@@ -80,7 +80,7 @@ class StreamResampler:
         if self.up == self.down:
             return
         half_len = 10 * max(self.up, self.down)
-        from scipy.signal import firwin, upfirdn  # lazy: scipy.signal takes ~0.5 s to load
+        from scipy.signal import firwin, upfirdn  # lazy: ~1 s of CPU to load
 
         self._upfirdn = upfirdn
         h = firwin(2 * half_len + 1, 1.0 / max(self.up, self.down), window=("kaiser", 5.0))

@@ -66,21 +66,21 @@ class NoiseFloor:
         self.spectrum = spectrum
         self.rng = rng
         self.rms = 10.0 ** (level_db / 20.0)
-        if spectrum == "white":
-            self._b = self._a = np.ones(1)
-        elif spectrum == "pink":
+        self._state: NDArray[np.float64] | None = None
+        if spectrum == "white":  # no filter: neither scipy.signal (about 1 s of CPU to load)
+            return
+        if spectrum == "pink":
             self._b, self._a = _PINK_B, _PINK_A
         else:
             self._b, self._a = np.array([1.0 - _HVAC_POLE]), np.array([1.0, -_HVAC_POLE])
-        from scipy.signal import lfilter, lfilter_zi  # lazy: scipy.signal takes ~0.5 s to load
+        from scipy.signal import lfilter, lfilter_zi  # lazy: only coloured floors filter
 
         impulse = np.zeros(1 << 16)
         impulse[0] = 1.0
         response = lfilter(self._b, self._a, impulse)
         self._gain = 1.0 / math.sqrt(float(np.sum(response * response)))
-        self._state = lfilter_zi(self._b, self._a) * 0.0 if spectrum != "white" else None
-        if self._state is not None:
-            self.next(_WARM_UP_SAMPLES)
+        self._state = lfilter_zi(self._b, self._a) * 0.0
+        self.next(_WARM_UP_SAMPLES)
 
     def next(self, n: int) -> NDArray[np.float64]:
         """The next ``n`` samples."""
