@@ -48,16 +48,17 @@ from infomax_contingency.testing.graph import StepRecorder
 from infomax_contingency.testing.stepped import DEFAULT_DEADLINE_S, Probe
 from stepped_graph import SteppedGraph, stepped_graph
 
-HOLD = {"fault_hold_s": 1.0}
-"""A fault shows in the diagnostics for 1 s after it last happened (10 s by default)."""
+HOLD = {"fault_hold_s": 0.5, "diagnostics_period_s": 0.2}
+"""Diagnostics every 0.2 s, and a fault shows in them for 0.5 s after it last happened (1 s
+and 10 s by default): the test waits for them on the wall clock."""
 
 MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, **HOLD}  # controller, belief, recorder  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1,
         "lockstep_max_speed": 50.0, **HOLD}  # fmt: skip
 """At most 50 times real time (100 steps/s): the diagnostics this test waits for come on
-the wall clock (1 s period, 1 s hold), and a room at full speed (about 400 steps/s)
-spent that time stepping, most of the test's CPU."""
+the wall clock (HOLD), and a room at full speed (about 400 steps/s) spent that time
+stepping, most of the test's CPU."""
 BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the recorder
 CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
 

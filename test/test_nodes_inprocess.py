@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
@@ -166,6 +167,18 @@ def test_a_window_other_than_the_model_dt_is_refused(node_class: type) -> None:
             node_class(parameter_overrides=params(window_s=0.25))
     finally:
         rclpy.try_shutdown()
+
+
+def test_the_diagnostics_come_every_diagnostics_period_s(run: Callable) -> None:
+    node, probe, graph = run(PostureNode, diagnostics_period_s=0.05)
+    statuses = probe.listen("/diagnostics", DiagnosticArray, 100)
+    graph.run_until(lambda: len(statuses) >= 3, "3 diagnostics")
+    periods = {timer.timer_period_ns for timer in node.timers}
+    assert 50_000_000 in periods and 1_000_000_000 not in periods
+    node, _, _ = run(PostureNode)
+    assert 1_000_000_000 in {timer.timer_period_ns for timer in node.timers}, "1 s by default"
+    with pytest.raises(ConfigError, match=r"'diagnostics_period_s' = 0.01 is not allowed"):
+        run(PostureNode, diagnostics_period_s=0.01)
 
 
 @pytest.mark.parametrize(

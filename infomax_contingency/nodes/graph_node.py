@@ -1,8 +1,9 @@
 """The base class of the graph's nodes: subscriptions, start gate, intruders, diagnostics.
 
 Diagnostics: each node publishes a ``diagnostic_msgs/DiagnosticArray`` on
-``/diagnostics`` about once a second, built directly (no diagnostic_updater). A fault
-that is over returns the status to OK; its count stays among the values.
+``/diagnostics`` every ``diagnostics_period_s`` seconds (1 s by default), built directly
+(no diagnostic_updater). A fault that is over returns the status to OK after
+``fault_hold_s``; its count stays among the values.
 
 Waiting is visible: a node that waits for an input (mic_node for ``audio``,
 controller_node for ``sound_step``) calls :meth:`GraphNode.wait_visibly`; when nothing
@@ -40,7 +41,7 @@ from infomax_contingency.nodes.parameters import ParameterReader
 from infomax_contingency.nodes.qos import STREAM_QOS
 
 DIAGNOSTICS_PERIOD_S = 1.0
-"""Seconds between diagnostics messages."""
+"""Seconds between diagnostics messages, by default (parameter ``diagnostics_period_s``)."""
 
 _GATE_POLL_S = 0.02
 """Seconds between checks of a start gate."""
@@ -122,6 +123,15 @@ class GraphNode(Node):
             " its count stays among the values",
             0.1,
             3600.0,
+            "s",
+        )
+        self.diagnostics_period_s = self.parameters.number(
+            "diagnostics_period_s",
+            DIAGNOSTICS_PERIOD_S,
+            "Seconds between two diagnostics messages of this node on /diagnostics (each one"
+            " also checks the watched topics for a second publisher)",
+            0.05,
+            60.0,
             "s",
         )
         self.finished: Future = Future()
@@ -311,9 +321,9 @@ class GraphNode(Node):
         else:
             logger.info(message)
 
-    def start_diagnostics(self, period_s: float = DIAGNOSTICS_PERIOD_S) -> None:
-        """Publish diagnostics every ``period_s`` seconds."""
-        self.create_timer(period_s, self.publish_diagnostics)
+    def start_diagnostics(self) -> None:
+        """Publish diagnostics every ``diagnostics_period_s`` seconds."""
+        self.create_timer(self.diagnostics_period_s, self.publish_diagnostics)
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """``(level, message, key values)`` of the node's current state."""
