@@ -220,6 +220,16 @@ def test_periods_and_timer() -> None:
     assert model.advance_timer(params, 3, 1) == 0
     assert model.advance_timer(params, 7, 0) == 7
     assert model.advance_timer(params, 2, 0) == 3
+    # one value at a time (a simulation's step) gives the arrays' values, as Python ints
+    timers = np.arange(params.n_timer_values)
+    for u in (0, 1):
+        after = model.advance_timer(params, timers, np.full_like(timers, u))
+        for z in range(params.n_timer_values):
+            for value, action in ((z, u), (np.int64(z), np.int64(u)), (z, bool(u))):
+                assert model.period_of(params, value) == labels[z]
+                one = model.advance_timer(params, value, action)
+                assert one == after[z] and type(one) is int
+            assert type(model.period_of(params, np.int64(z))) is int
 
 
 @pytest.mark.parametrize(

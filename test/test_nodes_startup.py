@@ -21,6 +21,7 @@ import rclpy
 
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.nodes import entry
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import DEFAULT_TABLE, ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
@@ -290,3 +291,21 @@ def test_a_running_node_stops_cleanly(sig: signal.Signals) -> None:
             process.wait()
     assert process.returncode == 0, out
     assert "Traceback" not in out and "[ERROR]" not in out
+
+
+HEAVY_MODULES = ("scipy", "rosbags", "mcap", "matplotlib", "sounddevice", "webrtcvad")
+"""What a node loads only when its configuration needs it (each costs 0.1-1 s of CPU per
+process): scipy for a belief, a coloured room, a band-pass bit source or resampling;
+rosbags and mcap for a bag; sounddevice for a device; webrtcvad for the vad bit source."""
+
+NEEDS_ROSBAGS = {"recorder_node", "bringup"}
+"""The executables that always write or may write a bag (bringup holds the recorder)."""
+
+
+@pytest.mark.parametrize("executable", sorted(entry.NODE_MODULES))
+def test_a_node_module_loads_no_heavy_library_it_may_not_need(executable: str) -> None:
+    child = Path(__file__).resolve().parent / "child_imports.py"
+    out = subprocess.run([sys.executable, str(child), f"infomax_contingency.nodes.{executable}",
+                          ",".join(HEAVY_MODULES)],
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    assert json.loads(out.stdout) == (["rosbags"] if executable in NEEDS_ROSBAGS else [])

@@ -20,15 +20,25 @@ Conventions:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
+from types import ModuleType
 from typing import Any, NamedTuple
 
 import numpy as np
+
+
+@functools.cache
+def _special() -> ModuleType:
+    """``scipy.special``, imported on the first call (see :func:`betaln`)."""
+    import scipy.special
+
+    return scipy.special
 
 
 def betaln(a: Any, b: Any) -> Any:
@@ -36,17 +46,15 @@ def betaln(a: Any, b: Any) -> Any:
 
     scipy.special takes about 0.25 s to import, and most node processes (mic, posture,
     speaker, recorder) never compute a belief: they load this module for its parameters.
+    Later calls find it cached (an import statement here cost a few microseconds on each
+    of the solver's and simulator's hundreds of thousands of calls).
     """
-    from scipy.special import betaln as scipy_betaln
-
-    return scipy_betaln(a, b)
+    return _special().betaln(a, b)
 
 
 def expit(x: Any) -> Any:
     """``scipy.special.expit`` (the logistic function), loaded on first use (see betaln)."""
-    from scipy.special import expit as scipy_expit
-
-    return scipy_expit(x)
+    return _special().expit(x)
 
 SELF, AGENT, BACKGROUND = 1, 2, 3
 """Period labels, numbered as in MODEL.md."""
@@ -223,6 +231,10 @@ NAMED_PARAMS: dict[str, ModelParams] = {
 
 def period_of(params: ModelParams, z: np.ndarray | int) -> np.ndarray | int:
     """Period label (SELF, AGENT, BACKGROUND) of timer value(s) ``z``."""
+    if isinstance(z, int | np.integer):  # one step of a simulation: no array needed
+        if params.ts1 <= z <= params.ts2:
+            return SELF
+        return AGENT if params.ta1 <= z <= params.ta2 else BACKGROUND
     z_arr = np.asarray(z)
     labels = np.where(
         (params.ts1 <= z_arr) & (z_arr <= params.ts2),
@@ -234,6 +246,8 @@ def period_of(params: ModelParams, z: np.ndarray | int) -> np.ndarray | int:
 
 def advance_timer(params: ModelParams, z: np.ndarray | int, u: np.ndarray | int) -> Any:
     """Timer after action ``u``: 0 after a vocalization, else ``min(z + 1, ta2 + 1)``."""
+    if isinstance(z, int | np.integer) and isinstance(u, int | np.integer):
+        return 0 if u != 0 else min(int(z) + 1, params.ta2 + 1)
     z_next = np.where(np.asarray(u) != 0, 0, np.minimum(np.asarray(z) + 1, params.ta2 + 1))
     return int(z_next) if z_next.ndim == 0 else z_next
 

@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 from std_msgs.msg import Bool, Int64MultiArray
 
-from infomax_contingency.audio.bag_replay import recorded_decisions
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.core.controllers import (
     Controller,
@@ -85,6 +84,10 @@ def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
         if kind == "interval":
             return make_controller(spec, params, np.random.default_rng(seed))
         if kind == "recorded" and argument:
+            # Imported here: the bag library takes about 0.1 s of CPU to load, and only
+            # this controller needs it.
+            from infomax_contingency.audio.bag_replay import recorded_decisions
+
             return ReplayedDecisions(params, recorded_decisions(Path(argument)),
                                      name=f"recorded:{argument}")
     except (ValueError, OSError, AudioError) as error:
