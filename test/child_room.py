@@ -1,4 +1,4 @@
-"""Child process of the import tests: a fake room made and stepped in a fresh interpreter.
+"""For the import tests: a fake room made and stepped in child_imports.py's fresh interpreter.
 
 ``python test/child_imports.py child_room:step_room:ROOM[+SPECTRUM] FORBIDDEN,...`` makes
 the room ``ROOM`` (a preset of :class:`FakeRoomConfig`), with the noise floor spectrum

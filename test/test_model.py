@@ -225,11 +225,17 @@ def test_periods_and_timer() -> None:
     for u in (0, 1):
         after = model.advance_timer(params, timers, np.full_like(timers, u))
         for z in range(params.n_timer_values):
-            for value, action in ((z, u), (np.int64(z), np.int64(u)), (z, bool(u))):
+            for value, action in ((z, u), (np.int64(z), np.int64(u)), (np.int32(z), u),
+                                  (np.uint8(z), u), (z, bool(u)), (z, np.bool_(u))):  # fmt: skip
                 assert model.period_of(params, value) == labels[z]
                 one = model.advance_timer(params, value, action)
                 assert one == after[z] and type(one) is int
             assert type(model.period_of(params, np.int64(z))) is int
+    outside = np.array([-3, -1, params.ta2 + 2, params.ta2 + 9, 2**40])  # not a timer value
+    for z, label in zip(outside, model.period_of(params, outside), strict=True):
+        assert model.period_of(params, int(z)) == label
+    for z, after in zip(outside, model.advance_timer(params, outside, 0 * outside), strict=True):
+        assert model.advance_timer(params, int(z), 0) == after
 
 
 @pytest.mark.parametrize(

@@ -169,7 +169,9 @@ def test_a_window_other_than_the_model_dt_is_refused(node_class: type) -> None:
         rclpy.try_shutdown()
 
 
-def test_the_diagnostics_come_every_diagnostics_period_s(run: Callable) -> None:
+def test_the_diagnostics_come_every_diagnostics_period_s(
+    run: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
     node, probe, graph = run(PostureNode, diagnostics_period_s=0.05)
     statuses = probe.listen("/diagnostics", DiagnosticArray, 100)
     graph.run_until(lambda: len(statuses) >= 3, "3 diagnostics")
@@ -179,6 +181,11 @@ def test_the_diagnostics_come_every_diagnostics_period_s(run: Callable) -> None:
     assert 1_000_000_000 in {timer.timer_period_ns for timer in node.timers}, "1 s by default"
     with pytest.raises(ConfigError, match=r"'diagnostics_period_s' = 0.01 is not allowed"):
         run(PostureNode, diagnostics_period_s=0.01)
+    assert "shorter than diagnostics_period_s" not in capfd.readouterr().err
+    run(PostureNode, fault_hold_s=0.5)  # a fault may come and go between two messages
+    assert ("fault_hold_s (0.5 s) is shorter than diagnostics_period_s (1 s): a fault that"
+            " starts and ends between two diagnostics messages shows only in the counts"
+            in capfd.readouterr().err)  # fmt: skip
 
 
 @pytest.mark.parametrize(

@@ -296,7 +296,8 @@ def test_a_running_node_stops_cleanly(sig: signal.Signals) -> None:
 HEAVY_MODULES = ("scipy", "rosbags", "mcap", "matplotlib", "sounddevice", "webrtcvad")
 """What a node loads only when its configuration needs it (each costs 0.1-1 s of CPU per
 process): scipy for a belief, a coloured room, a band-pass bit source or resampling;
-rosbags and mcap for a bag; sounddevice for a device; webrtcvad for the vad bit source."""
+rosbags and mcap for a bag; sounddevice for a device; webrtcvad for the vad bit source;
+matplotlib for the figures of the command line, never for a node."""
 
 NEEDS_ROSBAGS = {"recorder_node", "bringup"}
 """The executables that always write or may write a bag (bringup holds the recorder)."""

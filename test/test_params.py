@@ -282,7 +282,7 @@ def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatc
     [result] = set_remotely(probe, executor, "speaker_node", dry_run=False)
     assert not result.successful and result.reason.startswith("parameter 'device' = '':")
     assert "dry_run:=true runs the node without a loudspeaker" in result.reason
-    assert node.dry_run and node.speaker is None
+    assert node.dry_run and node.speaker is None and fast_timers(node) == []
     monkeypatch.setattr(FakeSpeaker, "fail", False)
     [result] = set_remotely(probe, executor, "speaker_node", dry_run=False)
     assert result.successful, result.reason

@@ -127,6 +127,15 @@ def test_noise_floor_spectra_and_level(spectrum: str, slope: float) -> None:
     assert abs(_octave_slope_db(x, 16000) - slope) < 0.6
 
 
+@pytest.mark.parametrize("spectrum", room_sounds.FLOOR_SPECTRA)
+def test_noise_floor_read_in_any_pieces_is_one_signal(spectrum: str) -> None:
+    whole = room_sounds.NoiseFloor(spectrum, -50.0, np.random.default_rng(2)).next(8000)
+    floor = room_sounds.NoiseFloor(spectrum, -50.0, np.random.default_rng(2))
+    pieces = [floor.next(n) for n in (1, 0, 159, 0, 7840)]
+    assert [p.size for p in pieces] == [1, 0, 159, 0, 7840]
+    np.testing.assert_allclose(np.concatenate(pieces), whole, rtol=1e-12, atol=0.0)
+
+
 def test_speech_like_sound_has_syllables_and_voice() -> None:
     rng = np.random.default_rng(3)
     x = room_sounds.speech_like(16000, 16000, rng, syllable_rate_hz=4.0, f0_hz=150.0)

@@ -246,7 +246,7 @@ def period_of(params: ModelParams, z: np.ndarray | int) -> np.ndarray | int:
 
 def advance_timer(params: ModelParams, z: np.ndarray | int, u: np.ndarray | int) -> Any:
     """Timer after action ``u``: 0 after a vocalization, else ``min(z + 1, ta2 + 1)``."""
-    if isinstance(z, int | np.integer) and isinstance(u, int | np.integer):
+    if isinstance(z, int | np.integer) and isinstance(u, int | np.integer | np.bool_):
         return 0 if u != 0 else min(int(z) + 1, params.ta2 + 1)
     z_next = np.where(np.asarray(u) != 0, 0, np.minimum(np.asarray(z) + 1, params.ta2 + 1))
     return int(z_next) if z_next.ndim == 0 else z_next

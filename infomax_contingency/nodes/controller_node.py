@@ -85,7 +85,7 @@ def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
             return make_controller(spec, params, np.random.default_rng(seed))
         if kind == "recorded" and argument:
             # Imported here: the bag library takes about 0.1 s of CPU to load, and only
-            # this controller needs it.
+            # this controller needs it (docs/ENVIRONMENT.md).
             from infomax_contingency.audio.bag_replay import recorded_decisions
 
             return ReplayedDecisions(params, recorded_decisions(Path(argument)),

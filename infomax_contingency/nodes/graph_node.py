@@ -134,6 +134,12 @@ class GraphNode(Node):
             60.0,
             "s",
         )
+        if self.fault_hold_s < self.diagnostics_period_s:
+            self.get_logger().warning(
+                f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
+                f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
+                " diagnostics messages shows only in the counts"
+            )
         self.finished: Future = Future()
         self._quiet_until: dict[str, float] = {}
         """Throttled log kind -> monotonic second until which it stays quiet."""

@@ -1014,7 +1014,8 @@ class MicNode(GraphNode):
 
 def open_bag_replay(config: MicConfig, samples: bool = False) -> BagReplay:
     """The session bag of ``source: bag`` (keeping its windows' samples if ``samples``)."""
-    # Imported here: the bag library takes ~0.5 s to load, and only this source needs it.
+    # Imported here: the bag library takes about 0.1 s of CPU to load, and only this
+    # source needs it.
     from infomax_contingency.audio.bag_replay import BagReplay
 
     try:
