@@ -79,12 +79,14 @@ class SteppedGraph:
         self.executor.remove(self.nodes.pop(name))
 
     def run_steps(self, steps: int) -> None:
-        """Step until ``steps`` bits, decisions and beliefs have been recorded."""
+        """Step until ``steps`` bits, decisions and beliefs have been recorded.
+
+        Bits and decisions on both their topics (plain and stamped): DDS orders no topic
+        against another, so a step's belief may be recorded before its stamped bit.
+        """
         rec = self.recorder
-        self.run_until(
-            lambda: min(len(rec.sound), len(rec.vocalize), len(rec.belief)) >= steps,
-            f"{steps} steps",
-        )
+        topics = (rec.sound, rec.sound_step, rec.vocalize, rec.vocalize_step, rec.belief)
+        self.run_until(lambda: min(map(len, topics)) >= steps, f"{steps} steps")
 
 
 def _parameters(values: dict[str, Any]) -> list[Parameter]:

@@ -307,7 +307,9 @@ def record_robot2(
                 assert time.monotonic() < deadline, graph.output()[-3000:]
                 time.sleep(0.1)  # polls the recorder; the deadline above bounds it
             recorder.record_step_topics()
-            while len(recorder.belief) < steps:
+            # Both: the belief of a step may reach this recorder before that step's bit
+            # (two topics, two writers: DDS orders neither against the other).
+            while len(recorder.belief) < steps or len(recorder.sound_step) < steps:
                 assert graph.process.poll() is None, graph.output()[-3000:]
                 assert time.monotonic() < deadline, graph.output()[-3000:]
                 time.sleep(0.1)  # polls the recorder; the deadline above bounds it
