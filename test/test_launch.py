@@ -350,15 +350,15 @@ def each_robot_has_its_own_topics_and_a_lockstep_room(
         assert publishers() == [(f"/{robot}", "mic_node")], publishers()
 
 
-def robot2_alone_in_process(params: Path, steps: int) -> tuple[list, list]:
+def robot2_alone_in_process(params: Path, fake_room: Path, steps: int) -> tuple[list, list]:
     """The graph of robot2 alone, from the same files, on the in-process stepped graph.
 
     What ``contingency.launch.py namespace:=robot2 use_fake_room:=true room_seed:=2
-    realtime:=false`` runs, as in-process nodes: robot.yaml and fake_room.yaml, the room's
-    seed 2, lockstep. (That the node processes compute what the in-process nodes do, step
-    for step, is test_graph_rooms.py's smoke test.)
+    realtime:=false`` runs, as in-process nodes: ``params`` and ``fake_room`` (the test's
+    robot.yaml and fake_room.yaml), the room's seed 2, lockstep. (That the node processes
+    compute what the in-process nodes do, step for step, is test_graph_rooms.py's smoke
+    test.)
     """
-    fake_room = ROOT / "config" / "fake_room.yaml"
     nodes = {"mic_node": {"lockstep": True}, "controller_node": {}, "belief_node": {},
              "posture_node": {}, "fake_audio_node": {"seed": 2, "lockstep": True}}  # fmt: skip
     with stepped_graph(nodes, "fake_audio_node", (str(params), str(fake_room))) as graph:
@@ -379,17 +379,26 @@ def test_two_robots_in_namespaces_have_their_own_topics_and_do_not_cross_talk(
     the same graph from the same files in this process.
     """
     steps = 40
-    # mic_node waits for this test's recorder too (a third listener of 'sound').
+    # mic_node waits for this test's recorder too (a third listener of 'sound'), and so
+    # does controller_node (a fourth of 'vocalize_step', beside mic, belief and room):
+    # with 3, the recorder could be matched before the room, and the room, never given
+    # the first decision, waited for it for ever (once in a soak under load). Robot1 has
+    # no recorder: it stays at its first window, beside robot2.
     config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())
     config["/**/mic_node"]["ros__parameters"]["wait_for_listeners"] = 3
     params = tmp_path / "robot.yaml"
     params.write_text(yaml.safe_dump(config))
+    room_config = yaml.safe_load((ROOT / "config" / "fake_room.yaml").read_text())
+    room_config["/**/controller_node"]["ros__parameters"]["wait_for_listeners"] = 4
+    fake_room = tmp_path / "fake_room.yaml"  # read after robot.yaml, as the launch does
+    fake_room.write_text(yaml.safe_dump(room_config))
     beside = record_robot2(
         launch,
-        f"multi_robot.launch.py robots:=2 realtime:=false params_file:={params}",
+        f"multi_robot.launch.py robots:=2 realtime:=false params_file:={params}"
+        f" fake_room_file:={fake_room}",
         steps,
         each_robot_has_its_own_topics_and_a_lockstep_room,
     )
-    alone = robot2_alone_in_process(params, steps)
+    alone = robot2_alone_in_process(params, fake_room, steps)
     assert beside[0] == alone[0] and [step for step, _ in alone[0]] == list(range(1, steps + 1))
     assert beside[1] == alone[1]
