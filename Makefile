@@ -12,8 +12,13 @@ SHELL := /bin/bash
 .ONESHELL:
 .DEFAULT_GOAL := help
 
-# Interpreter that creates the venv, and where the venv lives.
-PYTHON ?= python3
+# Interpreter that creates the venvs (.venv, and the ros2cli venv that .ci/run builds):
+# the distribution's Python 3.11 where there is one, else python3 (the ROS 2 wheels are
+# cp311). Debian builds its interpreter with profile-guided and link-time optimization; a
+# plain source build (pyenv's, first on PATH on this project's machines) is not, and the
+# suite took about 28 % more CPU on it (docs/ENVIRONMENT.md). An existing venv keeps the
+# interpreter it was made with: `make distclean setup` rebuilds it.
+PYTHON ?= $(firstword $(wildcard /usr/bin/python3.11) python3)
 VENV ?= .venv
 VPY := $(VENV)/bin/python
 STAMP := $(VENV)/.setup-stamp
@@ -46,7 +51,8 @@ ROS_DOMAIN_ID := 42
 endif
 export ROS_AUTOMATIC_DISCOVERY_RANGE ROS_DOMAIN_ID
 
-.PHONY: help setup demo live test lint build clean distclean system-deps apt-missing bytecode
+.PHONY: help setup demo live test lint build clean distclean system-deps apt-missing bytecode \
+	print-python
 
 help:
 	@echo "make demo       set up (if needed) and run the demo"
@@ -79,6 +85,10 @@ $(STAMP): $(SETUP_INPUTS)
 	"$(VPY)" -m pip install --progress-bar off --no-deps --use-pep517 -e .
 	"$(VPY)" -c 'import rclpy, numpy, scipy, yaml, infomax_contingency'
 	touch "$@"
+
+# Prints the interpreter the venvs are made from (.ci/run builds the ros2cli venv with it).
+print-python:
+	@echo "$(PYTHON)"
 
 # Prints the system packages that are missing (empty output: none). No `grep -q` after a
 # pipe: with pipefail, the writer's SIGPIPE would count as a failure.
