@@ -52,15 +52,28 @@ HOLD = {"fault_hold_s": 0.5, "diagnostics_period_s": 0.2}
 """Diagnostics every 0.2 s, and a fault shows in them for 0.5 s after it last happened (1 s
 and 10 s by default): the test waits for them on the wall clock."""
 
+NO_TIMEOUTS = {"source_timeout_s": 600.0}
+"""No node takes another source for a restarted one in this test: a stall of the one
+executor (a loaded machine) must not look like a silent controller or microphone.
+
+With the defaults (3 s; the room's lockstep timeout 2 s), one soak run under load sent
+900 of the rogue's 3000 messages in 180 s; the recorder had 424 windows of the room
+against 357 bits of the mic. The room had gone on without the true decisions, by its
+timeout or by following the rogue's controller (a true decision late by 2 s twice running
+allows both), and the rogue, which waits for its messages to be taken as foreign, went at
+that pace. Replacing a silent source is test_faults.py's (killed nodes) and
+test_stepclock.py's."""
+
 MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, **HOLD}  # controller, belief, recorder  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1,
-        "lockstep_max_speed": 50.0, **HOLD}  # fmt: skip
+        "lockstep_max_speed": 50.0, "lockstep_timeout_s": 600.0, **NO_TIMEOUTS, **HOLD}  # fmt: skip
 """At most 50 times real time (100 steps/s): the diagnostics this test waits for come on
 the wall clock (HOLD), and a room at full speed (about 400 steps/s) spent that time
-stepping, most of the test's CPU."""
-BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **HOLD}  # the recorder
-CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **HOLD}  # mic, belief, room, recorder
+stepping, most of the test's CPU. Each window waits for its decision (NO_TIMEOUTS)."""
+BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **NO_TIMEOUTS, **HOLD}  # the recorder
+CONTROLLER: dict[str, Any] = {"wait_for_listeners": 4, **NO_TIMEOUTS,
+                              **HOLD}  # mic, belief, room, recorder  # fmt: skip
 
 ROGUE_MESSAGES = 3000
 """Messages of each kind the rogue publishes: three times the step topics' queue depth
@@ -73,9 +86,10 @@ executor turns, as long as each node that reads its topics has taken all but thi
 so a true message waits behind at most this many rogue ones. With 100, on a loaded
 machine a true bit waited more than the room's 2 s lockstep timeout, the room went on
 without its decision, and after 3 s it took the rogue for a restarted controller (as it
-must: the two cannot be told apart; see docs/ARCHITECTURE.md). A faster rogue would also
-push true messages out of a node's queue (depth 1000): the node would apply those steps
-as missing and say so, but the recorder has them and the comparison here is exact."""
+must: the two cannot be told apart; see docs/ARCHITECTURE.md); NO_TIMEOUTS now rules
+that out. A faster rogue would also push true messages out of a node's queue (depth
+1000): the node would apply those steps as missing and say so, but the recorder has
+them and the comparison here is exact."""
 
 
 ROGUE_READERS = {"belief_node": 2, "controller_node": 1, "fake_audio_node": 1}
