@@ -16,8 +16,8 @@ SHELL := /bin/bash
 # the distribution's Python 3.11 where there is one, else python3 (the ROS 2 wheels are
 # cp311). Debian builds its interpreter with profile-guided and link-time optimization; a
 # plain source build (pyenv's, first on PATH on this project's machines) is not, and the
-# suite took about 28 % more CPU on it (docs/ENVIRONMENT.md). An existing venv keeps the
-# interpreter it was made with: `make distclean setup` rebuilds it.
+# suite took about 38 % more CPU on it (199 s against 144 s; docs/ENVIRONMENT.md). An
+# existing venv keeps the interpreter it was made with: `make distclean setup` rebuilds it.
 PYTHON ?= $(firstword $(wildcard /usr/bin/python3.11) python3)
 VENV ?= .venv
 VPY := $(VENV)/bin/python
