@@ -24,7 +24,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
-        *_share("config", "*.yaml"),
+        *_share("config", "*.yaml", "*.xml"),
         *_share("policies", "*.npz", "*.md"),
         *_share("launch", "*.py"),
     ],

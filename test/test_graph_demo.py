@@ -51,13 +51,15 @@ def demo(*args: str) -> subprocess.CompletedProcess:
 def test_demo_finds_the_partner_notices_they_left_and_records_every_step(tmp_path: Path) -> None:
     """The README's demo, with ``--record``: its verdict, and a bag with every step.
 
-    The recorder is up before the graph starts: nothing of the first steps is lost. With
-    Fast DDS's defaults, as ``make demo`` runs: a sample lost on the way is resent only at
-    its writer's next heartbeat (3 s), and the stop still records it.
+    The recorder is up before the graph starts: nothing of the first steps is lost. As
+    ``make demo`` runs, with no profile of the suite's: the demo's own discovery profile
+    (config/fastdds_demo.xml) and Fast DDS's default data path, so a sample lost on the way
+    is resent only at its writer's next heartbeat (3 s), and the stop still records it.
     """
     bag = tmp_path / "demo"
     result = demo("--steps", "200", "--seed", "1", "--leave-at", "50", "--record", str(bag))
     assert result.returncode == 0, result.stdout + result.stderr
+    assert "Fast DDS profile fastdds_demo.xml)" in result.stdout.splitlines()[0], result.stdout
     summary = "\n".join(line for line in result.stdout.splitlines() if line.startswith("#"))
     assert "# note:" not in summary, summary  # a released window: not the reproducible run
     lines = [STEP_LINE.match(line) for line in result.stdout.splitlines()]
@@ -315,3 +317,31 @@ def test_the_table_waits_for_the_posture_changes_the_beliefs_call_for() -> None:
     received = [posture for _, posture in recorder.posture]
     assert demo_module._postures(recorder.belief, received) == [
         "bored", "attentive", "attentive", "bored"]
+
+
+def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile(
+    tmp_path: Path,
+) -> None:
+    """config/fastdds_demo.xml for the demo's graph; any profile the user chose stands."""
+    environ: dict[str, str] = {}
+    chosen = demo_module.demo_dds_profile(environ, cwd=tmp_path)
+    assert environ == {"FASTRTPS_DEFAULT_PROFILES_FILE": chosen}
+    assert Path(chosen) == ROOT / "config" / "fastdds_demo.xml"
+    assert demo_module.describe_dds_profile(chosen) == "fastdds_demo.xml"
+    text = Path(chosen).read_text()
+    assert "<leaseAnnouncement><sec>0</sec><nanosec>500000000</nanosec>" in text
+    assert "heartbeat" not in text.split("-->")[-1].lower(), "the data path keeps the defaults"
+
+    for users in ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/robot/dds.xml"},
+                  {"FASTDDS_DEFAULT_PROFILES_FILE": "/robot/dds.xml"}):  # fmt: skip
+        environ = dict(users)
+        assert demo_module.demo_dds_profile(environ, cwd=tmp_path) == "/robot/dds.xml"
+        assert environ == users
+    environ = {"SKIP_DEFAULT_XML_FILE": "1"}
+    assert demo_module.demo_dds_profile(environ, cwd=tmp_path) == ""
+    assert environ == {"SKIP_DEFAULT_XML_FILE": "1"}
+    assert demo_module.describe_dds_profile("") == "none"
+    (tmp_path / "DEFAULT_FASTRTPS_PROFILES.xml").write_text("<profiles/>")
+    environ = {}
+    assert demo_module.demo_dds_profile(environ, cwd=tmp_path) == "DEFAULT_FASTRTPS_PROFILES.xml"
+    assert environ == {}

@@ -229,7 +229,7 @@ def test_colcon_build_layout(colcon_workspace: Path) -> None:
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PKG).is_file()
     assert (prefix / "share" / PKG / "package.xml").is_file()
     for subdir, patterns in {
-        "config": ["*.yaml"],
+        "config": ["*.yaml", "*.xml"],
         "policies": ["*.npz", "*.md"],
         "launch": ["*.py"],
     }.items():

@@ -104,6 +104,7 @@ def run_calibration_session(args: argparse.Namespace) -> int:
     """Record the session; 0 after it, 1 if the graph failed, 2 for bad arguments."""
     steps = _check(args)
     demo.isolate_dds()
+    demo.demo_dds_profile()  # its own graph starts as fast as the demo's
     run, nodes, clock = _graph(args, steps)
     where = "the simulated room" if args.fake_room else "live audio"
     print(f"# calibration-session: {args.minutes:g} min ({steps} windows) against {where},"
