@@ -146,11 +146,19 @@ SHORT_LEASE_PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
       </builtin>
     </rtps>
   </participant>
+  <data_writer profile_name="short_lease_writer" is_default_profile="true">
+    <times>
+      <heartbeatPeriod><sec>0</sec><nanosec>200000000</nanosec></heartbeatPeriod>
+    </times>
+  </data_writer>
 </profiles>
 """
-"""Fast DDS participants that count a silent peer as gone after 2 s (the default: 20 s),
-for the restart test: a node killed with SIGKILL says no goodbye, and the room names
-what is not running only once its peers' discovery dropped the dead node."""
+"""The suite's profile (test/fastdds_quick.xml), and participants that count a silent peer
+as gone after 2 s (the default: 20 s), for the restart test: a node killed with SIGKILL
+says no goodbye, and the room names what is not running only once its peers' discovery
+dropped the dead node. Fast DDS reads one profile file, so this one repeats the suite's
+heartbeats: without them a node stopped here waited up to 3 s for its readers'
+acknowledgments (Fast DDS's default heartbeat period), 5 s of the test in all."""
 
 
 @pytest.fixture
@@ -192,7 +200,7 @@ def _room_graph(**extra: Any) -> dict[str, dict[str, Any]]:
 
 REPAIR_DEADLINE_S = 20.0
 """Seconds the recorder may take to have a lost sample resent (Fast DDS: at the writer's
-next heartbeat, every 3 s for these small messages) before the test fails."""
+next heartbeat, every 0.2 s here: SHORT_LEASE_PROFILES) before the test fails."""
 
 
 def _contiguous(steps: list[int]) -> bool:
