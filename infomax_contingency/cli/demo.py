@@ -135,8 +135,9 @@ def demo_dds_profile(environ: MutableMapping[str, str] = os.environ, cwd: Path |
 
     That profile makes the participants announce themselves every 0.5 s instead of 3 s:
     the demo's processes start together, and a node whose first announcements a peer
-    missed was found only at the next one (start-up 4-8 s instead of 2.6 s). The data
-    path (heartbeats, resends) keeps Fast DDS's defaults, as on a robot. Sets
+    missed was found only at the next one (start-up 4.6-8.1 s instead of 2.5-3.9 s,
+    docs/ENVIRONMENT.md). The data path (heartbeats, resends) keeps Fast DDS's defaults,
+    as on a robot. Sets
     :data:`FAST_DDS_PROFILE_VARIABLE` in ``environ``, which this process and the node
     processes read.
 
