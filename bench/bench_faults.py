@@ -59,7 +59,7 @@ def run(workdir: Path, intrusion_s: float) -> int:
     from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    recorder = StepRecorder("bench_recorder", stream_qos=LOSSLESS_READER_QOS)
+    recorder = StepRecorder("bench_recorder", stream_qos=LOSSLESS_READER_QOS, instrument=True)
     probe = Probe("bench_probe")
     diagnostics = probe.listen("/diagnostics", DiagnosticArray, 100)
     steps = SteppedExecutor([recorder, probe])

@@ -72,7 +72,8 @@ def run_graph(workdir: Path, room: dict, steps: int, audio: bool):
 
     processes = GraphProcesses(workdir)
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    recorder = StepRecorder("bench_recorder", audio=audio, step_topics=False)
+    recorder = StepRecorder("bench_recorder", audio=audio, step_topics=False,
+                            instrument=True)
     try:
         with SpinThread(recorder):
             nodes = graph_nodes(room, audio)

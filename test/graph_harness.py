@@ -37,7 +37,7 @@ class Graph:
 
     def __init__(self, workdir: Path) -> None:
         self.processes = GraphProcesses(workdir)
-        self.recorder = StepRecorder()
+        self.recorder = StepRecorder(instrument=True)
         self._spin = SpinThread(self.recorder)
         self._spin.__enter__()
 

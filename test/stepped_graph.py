@@ -113,7 +113,7 @@ def stepped_graph(
     rclpy.init(args=["--ros-args", *files] if files else None)
     executor = None
     try:
-        recorder = StepRecorder(stream_qos=recorder_qos)
+        recorder = StepRecorder(stream_qos=recorder_qos, instrument=True)
         executor = SteppedExecutor([recorder])
         built: dict[str, Node] = {}
         others = [name for name in nodes if name != clock]

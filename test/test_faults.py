@@ -179,7 +179,7 @@ def graph(tmp_path: Path, request: pytest.FixtureRequest,
         # other tests after this one.
         node_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
     rclpy.init()
-    recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS)
+    recorder = StepRecorder(stream_qos=LOSSLESS_READER_QOS, instrument=True)
     probe = Probe()
     diagnostics = probe.listen("/diagnostics", DiagnosticArray, 100)
     steps = SteppedExecutor([recorder, probe])

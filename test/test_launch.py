@@ -294,7 +294,8 @@ def record_robot2(
     rclpy.init()
     keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
     recorder = StepRecorder(
-        "robot2_echo", namespace="robot2", stream_qos=keep_all, step_topics=False
+        "robot2_echo", namespace="robot2", stream_qos=keep_all, step_topics=False,
+        instrument=True,
     )
     try:
         with SpinThread(recorder):

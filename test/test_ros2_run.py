@@ -59,7 +59,7 @@ def test_ros2_run_layout_runs_the_graph(
 
     processes = GraphProcesses(tmp_path / "run", env=env, executable=ros2_run)
     rclpy.init()
-    recorder = StepRecorder("belief_echo")
+    recorder = StepRecorder("belief_echo", instrument=True)
     try:
         with SpinThread(recorder):
             mic = {"source": "wav", "wav_file": str(WAV), "exit_at_end": True}
@@ -95,7 +95,7 @@ def two_namespaced_graphs(workdir: Path, env: dict, prefix: Path, steps: int) ->
     }
     processes: list[subprocess.Popen] = []
     rclpy.init()
-    recorder = StepRecorder("robot2_echo", namespace="robot2")
+    recorder = StepRecorder("robot2_echo", namespace="robot2", instrument=True)
     try:
         with SpinThread(recorder):
             for robot, listeners in (("robot1", 2), ("robot2", 3)):

@@ -75,3 +75,41 @@ def test_a_dds_defaults_test_starts_its_processes_with_fast_dds_defaults() -> No
     if _caller_chose_profiles():
         pytest.skip("the caller chose a Fast DDS profile; the suite leaves it as it is")
     assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in os.environ
+
+
+def test_a_tests_instruments_carry_no_services_and_the_demos_monitor_keeps_them() -> None:
+    """The recorder and probe a test watches with add nothing to each wait of its executor.
+
+    A hand-stepped graph rebuilds its wait set from every service and QoS event handler of
+    its nodes several times per step; the demo's monitor, which a user may query, keeps its
+    parameter services.
+    """
+    import rclpy
+    from std_msgs.msg import Float64
+
+    from infomax_contingency.testing.graph import StepRecorder
+    from infomax_contingency.testing.stepped import Probe
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        recorder = StepRecorder("instrument_recorder", context=context, instrument=True)
+        monitor = StepRecorder("demo_monitor", context=context)
+        probe = Probe(context=context)
+        probe.listen("/instrument_check", Float64)
+        probe.talk("/instrument_check", Float64)
+        try:
+            for instrument in (recorder, probe):
+                assert list(instrument.services) == [], instrument.get_name()
+                assert not instrument.get_parameter("start_type_description_service").value
+            # the recorder's one handler per subscription counts the messages DDS lost
+            assert {len(sub.event_handlers) for sub in recorder.subscriptions} == {1}
+            assert [len(sub.event_handlers) for sub in probe.subscriptions] == [0]
+            assert [len(pub.event_handlers) for pub in probe.pubs.values()] == [0]
+            assert list(monitor.services), "the demo's monitor lost its parameter services"
+            assert min(len(sub.event_handlers) for sub in monitor.subscriptions) > 1
+        finally:
+            for node in (recorder, monitor, probe):
+                node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

@@ -1,7 +1,8 @@
 """Running the node graph as separate processes and watching it.
 
-Running the node graph as separate processes and watching it: the process
-harness and recorder used by the test suite, the benchmarks and the demo.
+The process harness and recorder used by the test suite, the benchmarks and
+the demo, and the lean instrument nodes (no parameter or type-description
+services, no default event callbacks) that tests and benchmarks watch with.
 
 Imports rclpy. May import every subpackage except ``cli``.
 """

@@ -29,6 +29,7 @@ import yaml
 from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
 
@@ -45,6 +46,21 @@ PUBLISHES: dict[str, tuple[str, ...]] = {
     "recorder_node": ("session_info",),
 }
 """Topics each node publishes (besides /diagnostics)."""
+
+
+def instrument_options(**kwargs: Any) -> dict[str, Any]:
+    """``Node`` keyword arguments for a node that only watches the graph under test.
+
+    A test's recorder or probe: no parameter services and no type-description service
+    (``kwargs`` may add parameter overrides). An executor rebuilds its wait set from every
+    service, subscription and QoS event handler of its nodes on each wait, and a test's
+    hand-stepped graph waits a few times per step: the recorder's seven services and the
+    default QoS event handlers of its subscriptions were about 12 % of such a graph's CPU.
+    Nobody asks a test's instrument for its parameters; the nodes under test keep theirs.
+    """
+    overrides = [*kwargs.pop("parameter_overrides", ()),
+                 Parameter("start_type_description_service", value=False)]  # fmt: skip
+    return {**kwargs, "start_parameter_services": False, "parameter_overrides": overrides}
 
 
 class GraphError(RuntimeError):
@@ -218,6 +234,10 @@ class StepRecorder(Node):
         step_topics: also record ``sound_step`` and ``vocalize_step`` (a benchmark that
             measures the graph leaves them out: they would load the machine it measures);
             False leaves them to a later :meth:`record_step_topics`.
+        instrument: a test's recorder (:func:`instrument_options`): no services, and its
+            subscriptions have no default QoS event handlers (rclpy's, which log an
+            incompatible QoS or type); it still counts the messages DDS reports lost.
+            The demo's monitor keeps both.
     """
 
     def __init__(
@@ -226,9 +246,11 @@ class StepRecorder(Node):
         audio: bool = False,
         stream_qos: QoSProfile | None = None,
         step_topics: bool = True,
+        instrument: bool = False,
         **kwargs: Any,
     ) -> None:
-        super().__init__(name, **kwargs)
+        super().__init__(name, **(instrument_options(**kwargs) if instrument else kwargs))
+        self._instrument = instrument
         stream_qos = stream_qos or STREAM_QOS
         self.lost: dict[str, int] = {}
         self.lock = threading.Lock()
@@ -260,7 +282,8 @@ class StepRecorder(Node):
         if audio:
             self.times["audio"] = []
             self.create_subscription(
-                Float32MultiArray, "audio", self._recorder("audio", None), STREAM_QOS
+                Float32MultiArray, "audio", self._recorder("audio", None), STREAM_QOS,
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=not instrument),
             )
 
     def record_step_topics(self) -> None:
@@ -283,11 +306,15 @@ class StepRecorder(Node):
             with self.lock:
                 self.lost[topic] += int(status.total_count_change)
 
+        defaults = not self._instrument  # rclpy's handlers of an incompatible QoS or type
         try:
-            events = SubscriptionEventCallbacks(message_lost=on_lost)
+            events = SubscriptionEventCallbacks(
+                message_lost=on_lost, use_default_callbacks=defaults
+            )
             self.create_subscription(kind, topic, callback, qos, event_callbacks=events)
         except UnsupportedEventTypeError:  # a middleware that cannot tell
-            self.create_subscription(kind, topic, callback, qos)
+            events = SubscriptionEventCallbacks(use_default_callbacks=defaults)
+            self.create_subscription(kind, topic, callback, qos, event_callbacks=events)
 
     def _recorder(self, topic: str, store: list | None) -> Callable[[Any, dict], None]:
         def record(msg: Any, info: dict) -> None:

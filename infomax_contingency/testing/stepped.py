@@ -19,12 +19,14 @@ from contextlib import contextmanager
 from typing import Any
 
 import rclpy
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 
 from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.testing.graph import instrument_options
 
 DEFAULT_DEADLINE_S = 60.0
 """Seconds a condition may take before the test fails (a guard, not a pace)."""
@@ -37,12 +39,15 @@ class StepTimeoutError(AssertionError):
 class Probe(Node):
     """Publishes to and records from the nodes under test.
 
+    A test's instrument (:func:`~infomax_contingency.testing.graph.instrument_options`): no
+    services, and no default QoS event handlers on what it publishes or subscribes.
+
     Args:
         name: node name (several probes need distinct names).
     """
 
     def __init__(self, name: str = "probe", **kwargs: Any) -> None:
-        super().__init__(name, **kwargs)
+        super().__init__(name, **instrument_options(**kwargs))
         self.received: dict[str, list[Any]] = {}
         self.pubs: dict[str, Any] = {}
 
@@ -65,12 +70,14 @@ class Probe(Node):
             if then is not None:
                 then(message)
 
-        self.create_subscription(kind, topic, record, qos)
+        events = SubscriptionEventCallbacks(use_default_callbacks=False)
+        self.create_subscription(kind, topic, record, qos, event_callbacks=events)
         return received
 
     def talk(self, topic: str, kind: type, qos: QoSProfile = STREAM_QOS) -> Any:
         """A publisher on ``topic``."""
-        self.pubs[topic] = self.create_publisher(kind, topic, qos)
+        events = PublisherEventCallbacks(use_default_callbacks=False)
+        self.pubs[topic] = self.create_publisher(kind, topic, qos, event_callbacks=events)
         return self.pubs[topic]
 
 
