@@ -128,12 +128,6 @@ class FaultGraph:
                 if sent > published_after_ns]  # fmt: skip
 
 
-UDP_ONLY = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
-"""Fast DDS over UDP loopback only, no shared memory: a process killed with SIGKILL can
-leave its peers' shared-memory transport stalled (eProsima/Fast-DDS#5469; seen here as a
-test process that stopped receiving /diagnostics after a kill). The restart test kills."""
-
-
 SHORT_LEASE_PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
   <participant profile_name="short_lease" is_default_profile="true">
@@ -162,17 +156,16 @@ acknowledgments (Fast DDS's default heartbeat period), 5 s of the test in all.""
 
 
 @pytest.fixture
-def graph(tmp_path: Path, request: pytest.FixtureRequest,
-          monkeypatch: pytest.MonkeyPatch) -> Iterator[FaultGraph]:  # fmt: skip
+def graph(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[FaultGraph]:
     """Node processes and the recorder on the test's hand-stepped executor.
 
-    The nodes of a ``kills_nodes`` test talk over UDP loopback with a 2 s discovery lease.
+    The nodes of a ``kills_nodes`` test run with a 2 s discovery lease. They move data
+    through Fast DDS's shared memory like every other test's: under
+    ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` Jazzy's rmw_fastrtps chooses the transports
+    itself (docs/ENVIRONMENT.md).
     """
     node_env = dict(os.environ)
     if request.node.get_closest_marker("kills_nodes"):
-        for name, value in UDP_ONLY.items():
-            monkeypatch.setenv(name, value)  # this process and the nodes it starts
-        node_env.update(UDP_ONLY)
         profiles = tmp_path / "short_lease.xml"
         profiles.write_text(SHORT_LEASE_PROFILES)
         # The nodes only: Fast DDS reads the profile once per process, and this one runs
