@@ -67,8 +67,10 @@ published on ``sound`` (Bool) and, with its identity and the window length, on
 ``sound_step`` (see :mod:`~infomax_contingency.nodes.step_topics`). Windows wait in a
 bounded outbox (:class:`~infomax_contingency.core.stepclock.StepOutbox`): while a
 controller answers on ``vocalize_step``, at most ``max_steps_ahead`` steps are out
-unanswered, so a burst of audio (a 30 s message, a fast replay) is published as fast as
-the controller decides and nothing overflows a queue; at most ``max_backlog_s`` of
+unanswered, or not yet taken by a listener that acknowledges every step on
+``step_applied`` (belief_node; one that takes nothing for ``listener_timeout_s`` is no
+longer waited for), so a burst of audio (a 30 s message, a fast replay) or a slow
+belief_node slows the graph and nothing overflows a queue; at most ``max_backlog_s`` of
 windows wait (more is dropped and counted). ``window_s`` must equal the model's dt
 (``params``): another value is refused at start-up.
 
@@ -113,17 +115,24 @@ from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceEr
 from infomax_contingency.audio.energy import WindowAssembler
 from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
+from infomax_contingency.core.stepclock import (
+    MAX_STEP_JUMP,
+    Listening,
+    LockstepPacer,
+    StepOutbox,
+)
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
+    STEP_APPLIED,
     VOCALIZE_STEP,
     StepBit,
     bit_message,
     new_source_id,
+    parse_applied,
     parse_decision,
     window_us,
 )
@@ -132,6 +141,9 @@ SOURCES = ("wav", "topic", "sounddevice", "bag")
 
 MICROPHONE_POLL_S = 0.02
 """Seconds between reads of the live microphone's finished windows."""
+
+LISTENER_CHECK_S = 0.5
+"""Seconds between checks for a listener on 'step_applied' that stalled (killed, hung)."""
 
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
@@ -165,6 +177,7 @@ class MicConfig:
     max_windows: int
     max_steps_ahead: int
     max_backlog_s: float
+    listener_timeout_s: float
     wav_file: str
     bag_dir: str
     channel: int
@@ -263,8 +276,15 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
         ),
         "max_steps_ahead": read.integer(
             "max_steps_ahead", 16,
-            "Steps that may be out unanswered while a controller answers on 'vocalize_step'",
-            1, 1000,
+            "Steps that may be out unanswered (by the controller on 'vocalize_step') or not"
+            " taken (by a listener on 'step_applied', e.g. belief_node)",
+            1, MAX_STEP_JUMP,
+        ),
+        "listener_timeout_s": read.number(
+            "listener_timeout_s", 5.0,
+            "A listener on 'step_applied' (belief_node) that takes nothing this long is no"
+            " longer waited for (killed, hung) until it keeps up again",
+            0.1, 3600.0, "s",
         ),
         "max_backlog_s": read.number(
             "max_backlog_s", 3600.0,
@@ -468,7 +488,8 @@ class MicNode(GraphNode):
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
-            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s))
+            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s)),
+            config.listener_timeout_s,
         )
         self.sound_pub = self.create_publisher(Bool, "sound", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, SOUND_STEP, STREAM_QOS)
@@ -476,6 +497,8 @@ class MicNode(GraphNode):
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
+        self.subscribe(Int64MultiArray, STEP_APPLIED, self._on_applied, STEP_READER_QOS)
+        self.stalled_listeners = self.recent_events()
         self.windows = 0
         self.last_energy_db = float("nan")
         self.dropped_chunks = 0
@@ -608,6 +631,7 @@ class MicNode(GraphNode):
         if self.microphone is not None:
             self.microphone.start()
             self.create_timer(MICROPHONE_POLL_S, self._read_microphone)
+        self.create_timer(LISTENER_CHECK_S, self._release)  # a stalled listener is let go
         self._release()
 
     def _on_timeout(self) -> None:
@@ -682,6 +706,19 @@ class MicNode(GraphNode):
             and self.pacer.answered()
         ):
             self._emit_from_file()
+        self._release()
+
+    def _on_applied(self, msg: Int64MultiArray, stamp: int) -> None:
+        """A listener (belief_node) took the steps of this stream up to one: release more."""
+        applied = parse_applied(msg)
+        if applied is None or applied.stream != self.stream_id:
+            return
+        taken = self.outbox.acknowledged(applied.listener, applied.step, self.now_s())
+        if taken is Listening.WAITED_FOR:
+            self.get_logger().info(
+                f"listener {applied.listener} on '{STEP_APPLIED}' keeps up (step"
+                f" {applied.step}): no step goes more than {self.outbox.max_ahead} ahead of it"
+            )
         self._release()
 
     def _on_audio(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
@@ -780,13 +817,21 @@ class MicNode(GraphNode):
         if not self.started or self.finished.done():
             return
         outbox = self.outbox
+        now = self.now_s()
+        for listener in outbox.give_up_stalled(now):
+            self.stalled_listeners.note(now)
+            self.get_logger().warning(
+                f"listener {listener} on '{STEP_APPLIED}'"
+                f" took no step for {outbox.listener_timeout_s:g} s (after step"
+                f" {outbox.listeners[listener].taken}): no longer waited for (killed or hung?)"
+            )
         # Pacing matters only when more would go out than may be unanswered: only then ask
         # the graph whether a controller answers (one query per window is measurable).
         paced = (
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit) in self.outbox.release(paced):
+        for step, (energy_db, bit) in self.outbox.release(paced, now):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
@@ -976,6 +1021,9 @@ class MicNode(GraphNode):
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
+            "steps_taken": self.outbox.last_taken,
+            "listeners_waited_for": sum(x.waited_for for x in self.outbox.listeners.values()),
+            "listeners_given_up": self.outbox.given_up,
             "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
             "dropped_chunks": self.dropped_chunks,
@@ -1007,6 +1055,8 @@ class MicNode(GraphNode):
             return ERROR, b.calibration_problem, values
         if b.calibrating:
             return OK, "calibrating the threshold", values
+        if self.stalled_listeners.recent(now):
+            return WARN, f"a listener on '{STEP_APPLIED}' stalled (not waited for)", values
         if self.losses.recent(now) or self.timeouts.recent(now):
             return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
         return OK, f"{self.windows} windows", values

@@ -8,7 +8,10 @@ dimension labelled with the field names):
   ``step`` (1, 2, ...) of ``stream`` (a random id chosen by each run of mic_node), whose
   windows last ``window_us`` microseconds;
 * ``vocalize_step``: ``[stream, step, vocalize, controller]`` — the decision ``u_t`` on
-  that window, by ``controller`` (a random id chosen by each run of controller_node).
+  that window, by ``controller`` (a random id chosen by each run of controller_node);
+* ``step_applied``: ``[stream, step, listener]`` — ``listener`` (a random id chosen by
+  each run of belief_node) applied every step of ``stream`` up to ``step``: mic_node's
+  flow control waits for it (:class:`~infomax_contingency.core.stepclock.StepOutbox`).
 
 A listener joins the two exactly by ``(stream, step)``
 (:class:`~infomax_contingency.core.stepclock.StepJoiner`) and follows one stream and one
@@ -24,9 +27,11 @@ from std_msgs.msg import Int64MultiArray, MultiArrayDimension
 
 SOUND_STEP = "sound_step"
 VOCALIZE_STEP = "vocalize_step"
+STEP_APPLIED = "step_applied"
 
 _SOUND_FIELDS = ("stream", "step", "bit", "window_us")
 _VOCALIZE_FIELDS = ("stream", "step", "vocalize", "controller")
+_APPLIED_FIELDS = ("stream", "step", "listener")
 
 
 class StepBit(NamedTuple):
@@ -36,6 +41,14 @@ class StepBit(NamedTuple):
     step: int
     bit: bool
     window_us: int
+
+
+class StepApplied(NamedTuple):
+    """A listener's acknowledgment: it applied every step of ``stream`` up to ``step``."""
+
+    stream: int
+    step: int
+    listener: int
 
 
 class StepDecision(NamedTuple):
@@ -56,7 +69,8 @@ def _dimension(fields: tuple[str, ...]) -> MultiArrayDimension:
     return MultiArrayDimension(label=",".join(fields), size=len(fields), stride=len(fields))
 
 
-_LAYOUTS = {fields: [_dimension(fields)] for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS)}
+_LAYOUTS = {fields: [_dimension(fields)]
+            for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS, _APPLIED_FIELDS)}
 """The one-dimension layout of each message kind, made once (a message per window)."""
 
 
@@ -75,6 +89,19 @@ def bit_message(bit: StepBit) -> Int64MultiArray:
 def decision_message(decision: StepDecision) -> Int64MultiArray:
     """The ``vocalize_step`` message of ``decision``."""
     return _message(_VOCALIZE_FIELDS, tuple(decision))
+
+
+def applied_message(applied: StepApplied) -> Int64MultiArray:
+    """The ``step_applied`` message of ``applied``."""
+    return _message(_APPLIED_FIELDS, tuple(applied))
+
+
+def parse_applied(message: Int64MultiArray) -> StepApplied | None:
+    """The acknowledgment in a ``step_applied`` message, or None if it is malformed."""
+    data = list(message.data)
+    if len(data) != len(_APPLIED_FIELDS) or min(data) <= 0:
+        return None
+    return StepApplied(*data)
 
 
 def _fields(message: Int64MultiArray, n: int) -> list[int] | None:
