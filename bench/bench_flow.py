@@ -7,8 +7,8 @@ audio comes from:
 
 * ``--source room`` (default): fake_audio_node in lockstep, as fast as the graph goes;
 * ``--source bursts``: this process publishes messages of ``--burst-samples`` samples
-  (default 10^7: 625 s of audio, 1250 windows, in one message), each once the belief
-  node has applied the windows of the one before.
+  (default 10^7: 625 s of audio, 1250 windows, in one message), each once mic_node has
+  published every window of the one before (a driver that keeps pace with its reader).
 
 No fault is injected, so every step should reach the belief: it prints belief_node's
 counts (steps applied, steps applied without their bit / without their decision),
@@ -104,8 +104,10 @@ def run(workdir: Path, minutes: float, loops: int, source: str, burst_samples: i
             if processes.dead():
                 print(f"bench_flow: a node died\n{processes.report()}", file=sys.stderr)
                 return 1
-            applied = int(statuses.get("belief_node", {}).get("steps", 0))
-            if source == "bursts" and audio.get_subscription_count() and applied >= windows_sent:
+            # The driver keeps pace with its reader, mic_node: the next burst once the mic
+            # has published every window of the last one (not once the belief has them).
+            published = int(statuses.get("mic_node", {}).get("windows", -1))
+            if source == "bursts" and audio.get_subscription_count() and published == windows_sent:
                 windows = burst_samples // 8000
                 levels = np.where(rng.random(windows) < 0.3, 0.1, 0.001)
                 samples = rng.standard_normal((windows, 8000)) * levels[:, None]
@@ -119,7 +121,11 @@ def run(workdir: Path, minutes: float, loops: int, source: str, burst_samples: i
                 next_line += 30.0
         if source == "room":
             processes.stop("fake_audio_node")
-        settle = time.monotonic() + 5.0  # the last steps, and a diagnostics message after them
+        # the last steps (at most 60 s), and a diagnostics message after them
+        settle = time.monotonic() + 60.0
+        while time.monotonic() < settle and not _settled(statuses):
+            executor.spin_once(timeout_sec=0.05)
+        settle = time.monotonic() + 2.0
         while time.monotonic() < settle:
             executor.spin_once(timeout_sec=0.05)
         elapsed = time.monotonic() - start
@@ -139,6 +145,13 @@ def run(workdir: Path, minutes: float, loops: int, source: str, burst_samples: i
     print(f"  steps lost (belief_node: applied without their bit + without their decision):"
           f" {lost}")  # fmt: skip
     return 0
+
+
+def _settled(statuses: dict[str, dict[str, str]]) -> bool:
+    """True once the belief node has applied every step mic_node published, none waiting."""
+    mic, belief = statuses.get("mic_node", {}), statuses.get("belief_node", {})
+    return (mic.get("steps_waiting") == "0" and "windows" in mic
+            and belief.get("last_step") == mic["windows"])  # fmt: skip
 
 
 def _line(statuses: dict[str, dict[str, str]]) -> str:
