@@ -64,7 +64,6 @@ from std_srvs.srv import Trigger
 from infomax_contingency.core.model import StatisticTracker
 from infomax_contingency.core.stepclock import (
     Arrival,
-    Pace,
     PublicationTimes,
     SourceLock,
     StepJoiner,
@@ -80,7 +79,6 @@ from infomax_contingency.nodes.step_topics import (
     VOCALIZE_STEP,
     StepApplied,
     StepBit,
-    StepDecision,
     applied_message,
     new_source_id,
     parse_bit,
@@ -206,31 +204,16 @@ class BeliefNode(GraphNode):
             self._hold(bit, now)
             return
         sent = self.sent_s(stamp, now)
-        pace = self.bit_pace.check(bit.step, sent, bit)
-        if pace is Pace.JUMP:
-            self._jumped(f"bit for step {bit.step} of stream {bit.stream}", self.bit_pace, now)
-            return
-        self._bit_times.note(sent)
-        for taken in self._taken(pace, self.bit_pace, bit, f"stream {bit.stream}"):
+        bits = self.take_on_pace(self.bit_pace, self.jumps, bit.step, sent, bit, "bit",
+                                 f"stream {bit.stream}")  # fmt: skip
+        if bits:
+            self._bit_times.note(sent)
+        for taken in bits:
             if not self.joiner.bit(taken.step, taken.bit):
                 self.warn_intrusion(
                     f"bit for step {taken.step} of stream {taken.stream} repeats or goes"
                     f" backwards (last step {self.joiner.last_bit_step}): ignored"
                 )
-
-    def _jumped(self, what: str, pace: StepPace, now: float) -> None:
-        """A message jumped further ahead than its source's pace allows: named, ignored."""
-        self.jumps.note(now)
-        self.warn_intrusion(pace.jump_message(what), "jump")
-
-    def _taken(self, pace: Pace, clock: StepPace, message: StepBit | StepDecision,
-               source: str) -> list[StepBit | StepDecision]:  # fmt: skip
-        """The messages to take now: ``message``, or the run a confirmed jump began."""
-        if pace is not Pace.CONFIRMED:
-            return [message]
-        taken = clock.take_confirmed()
-        self.get_logger().warning(clock.run_message(source, taken[0].step))
-        return taken
 
     def _hold(self, bit: StepBit, now: float) -> None:
         """Keep a bit of a stream the controller does not answer (yet): maybe it will."""
@@ -282,13 +265,9 @@ class BeliefNode(GraphNode):
         if decision.stream != self.stream:
             self._follow(decision.stream, decision.step)
             self.decision_pace.restart()
-        pace = self.decision_pace.check(decision.step, sent, decision)
-        if pace is Pace.JUMP:
-            self._jumped(f"decision for step {decision.step} of controller"
-                         f" {decision.controller}", self.decision_pace, now)  # fmt: skip
-            return
-        for taken in self._taken(pace, self.decision_pace, decision,
-                                 f"controller {decision.controller}"):  # fmt: skip
+        for taken in self.take_on_pace(self.decision_pace, self.jumps, decision.step, sent,
+                                       decision, "decision",
+                                       f"controller {decision.controller}"):  # fmt: skip
             if not self.joiner.decision(taken.step, taken.vocalize):
                 self.warn_intrusion(
                     f"decision for step {taken.step} repeats, goes backwards or answers no"

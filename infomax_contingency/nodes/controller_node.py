@@ -50,7 +50,7 @@ from infomax_contingency.core.controllers import (
 )
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.stepclock import Arrival, Pace, SourceLock, StepPace
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -237,20 +237,9 @@ class ControllerNode(GraphNode):
             self.controller.missed(self.controller.params.timer_long_ago)
         if arrival is not Arrival.FOLLOWED:
             self.pace.restart()
-        pace = self.pace.check(bit.step, self.sent_s(stamp, now), bit)
-        if pace is Pace.JUMP:
-            self.jumps.note(now)
-            what = f"bit for step {bit.step} of stream {bit.stream}"
-            self.warn_intrusion(self.pace.jump_message(what), "jump")
-            return
-        if pace is Pace.CONFIRMED:
-            taken = self.pace.take_confirmed()
-            self.get_logger().warning(self.pace.run_message(f"stream {bit.stream}",
-                                                            taken[0].step))  # fmt: skip
-            for held in taken:
-                self._answer(held, now)
-            return
-        self._answer(bit, now)
+        for taken in self.take_on_pace(self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
+                                       bit, "bit", f"stream {bit.stream}"):  # fmt: skip
+            self._answer(taken, now)
 
     def _answer(self, bit: StepBit, now: float) -> None:
         """Answer ``bit`` of the stream followed (unless it repeats or goes backwards)."""

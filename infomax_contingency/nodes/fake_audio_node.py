@@ -51,7 +51,6 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import (
     Arrival,
     LockstepPacer,
-    Pace,
     SourceLock,
     StepPace,
 )
@@ -313,20 +312,10 @@ class FakeAudioNode(GraphNode):
             return
         if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
             self.pace.restart()
-        pace = self.pace.check(decision.step, self.sent_s(stamp, now), decision)
-        if pace is Pace.JUMP:
-            self.jumps.note(now)
-            what = f"decision for step {decision.step} of controller {decision.controller}"
-            self.warn_intrusion(self.pace.jump_message(what), "jump")
-            return
-        if pace is Pace.CONFIRMED:
-            taken = self.pace.take_confirmed()
-            self.get_logger().warning(self.pace.run_message(
-                f"controller {decision.controller}", taken[0].step))  # fmt: skip
-            for held in taken:
-                self._hear(held)
-            return
-        self._hear(decision)
+        for taken in self.take_on_pace(self.pace, self.jumps, decision.step,
+                                       self.sent_s(stamp, now), decision, "decision",
+                                       f"controller {decision.controller}"):  # fmt: skip
+            self._hear(taken)
 
     def _hear(self, decision: StepDecision) -> None:
         """The followed controller's decision on a step: the robot's sound, the next window."""

@@ -36,7 +36,7 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
-from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents
+from infomax_contingency.core.stepclock import LockstepPacer, Pace, RecentEvents, StepPace
 from infomax_contingency.nodes.parameters import ParameterReader
 from infomax_contingency.nodes.qos import STREAM_QOS
 
@@ -293,6 +293,25 @@ class GraphNode(Node):
                     f"{info.node_namespace.rstrip('/')}/{info.node_name}" for info in infos
                 )
         return found
+
+    def take_on_pace(self, pace: StepPace, jumps: RecentEvents, step: int, sent_s: float,
+                     message: Any, kind: str, source: str) -> list[Any]:  # fmt: skip
+        """The messages to take now, after the pace of the step clock judged ``message``.
+
+        ``message`` of ``source`` (e.g. "stream 4"), a ``kind`` (e.g. "bit") for ``step``
+        published at ``sent_s``: itself if on pace; none if it jumps too far ahead (named
+        in a WARN, counted in ``jumps``); the run it confirms, oldest first (logged).
+        """
+        verdict = pace.check(step, sent_s, message)
+        if verdict is Pace.JUMP:
+            jumps.note(self.now_s())
+            self.warn_intrusion(pace.jump_message(f"{kind} for step {step} of {source}"), "jump")
+            return []
+        if verdict is Pace.CONFIRMED:
+            taken = pace.take_confirmed()
+            self.get_logger().warning(pace.run_message(source, taken[0].step))
+            return taken
+        return [message]
 
     def warn_intrusion(self, message: str, kind: str = "intrusion") -> None:
         """A WARN about an intruder, throttled per ``kind`` (by default one for all)."""

@@ -47,7 +47,7 @@ from std_msgs.msg import Int64MultiArray
 from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
 from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
 from infomax_contingency.audio.wav import read_wav
-from infomax_contingency.core.stepclock import Arrival, Pace, SourceLock, StepPace
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
@@ -147,14 +147,10 @@ class SpeakerNode(GraphNode):
             return
         if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
             self.pace.restart()
-        pace = self.pace.check(decision.step, sent, decision)
-        if pace is Pace.JUMP:
-            self.jumps.note(now)
-            what = f"decision for step {decision.step} of controller {decision.controller}"
-            self.warn_intrusion(self.pace.jump_message(what), "jump")
-            return
-        # A run taken after a jump is in the past: only its newest decision may sound.
-        self._obey(self.pace.take_confirmed()[-1] if pace is Pace.CONFIRMED else decision)
+        taken = self.take_on_pace(self.pace, self.jumps, decision.step, sent, decision,
+                                  "decision", f"controller {decision.controller}")  # fmt: skip
+        if taken:  # a run taken after a jump is in the past: only its newest may sound
+            self._obey(taken[-1])
 
     def _obey(self, decision: StepDecision) -> None:
         """Play the sound if the followed controller decided so for a step not yet heard."""
