@@ -80,8 +80,8 @@ class BeliefNode(GraphNode):
     NODE_NAME = "belief_node"
     WATCHED_TOPICS = ("sound", SOUND_STEP, "vocalize", VOCALIZE_STEP)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         self.params = read.model()
         window_s = read.number(
@@ -136,13 +136,15 @@ class BeliefNode(GraphNode):
         self._joining = False
         self._bit_times = PublicationTimes(horizon_s=max(10.0, 4 * self.controllers.silence_s))
         """Publication times (s) of the followed stream's recent bits."""
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS
         )
         self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
-        self.start_diagnostics()
 
     def _subscribe_bits_when_ready(self) -> None:
         """Subscribe ``sound_step`` once a controller and the belief's listeners are there."""

@@ -196,9 +196,9 @@ class FakeAudioNode(GraphNode):
 
     NODE_NAME = "fake_audio_node"
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
-        config = read_config(self)
+    def configure(self) -> None:
+        """Declare and check the parameters; the room they describe."""
+        self.config = config = read_config(self)
         for warning in timing_warnings(config.room, config.params):
             self.get_logger().warning(f"room timing vs model parameters: {warning}")
         self.params = config.params
@@ -210,6 +210,20 @@ class FakeAudioNode(GraphNode):
         self.max_windows = config.max_windows
         self.wait_for_listeners = config.wait_for_listeners
         self.wait_for_truth_listeners = config.wait_for_truth_listeners
+        self.started = False
+        self.controllers = SourceLock(config.source_timeout_s)
+        self._window_sent_s: float | None = None
+        """When the newest window was published (s, system clock)."""
+        self.timeouts = self.recent_events()
+        self.foreign = self.recent_events()
+        self._answered: tuple[int, int] = (0, 0)
+        self.get_logger().info(
+            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
+        )
+
+    def activate(self) -> None:
+        """Publishers, the decisions' subscription, the start gate and the held-window timer."""
+        config = self.config
         self._held_window: Timer | None = None
         """The timer that publishes the next window ``window_s / lockstep_max_speed`` after
         its decision (None: no cap, the decision publishes it)."""
@@ -218,15 +232,8 @@ class FakeAudioNode(GraphNode):
                 config.room.window_s / config.lockstep_max_speed, self._release_held_window,
                 autostart=False,
             )  # fmt: skip
-        self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
-        self.controllers = SourceLock(config.source_timeout_s)
-        self._window_sent_s: float | None = None
-        """When the newest window was published (s, system clock)."""
-        self.timeouts = self.recent_events()
-        self.foreign = self.recent_events()
-        self._answered: tuple[int, int] = (0, 0)
         self.vocalize_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
@@ -241,10 +248,6 @@ class FakeAudioNode(GraphNode):
             " calibrating, or warming up a noise floor, on this stream would wait for"
             " windows that only come after a decision",
         )
-        self.get_logger().info(
-            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
-        )
-        self.start_diagnostics()
 
     def _ready(self) -> bool:
         return (

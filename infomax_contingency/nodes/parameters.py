@@ -28,6 +28,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
 
 
@@ -44,6 +45,8 @@ class ParameterReader:
 
     def __init__(self, node: Node) -> None:
         self._node = node
+        self.node = node
+        """The node whose parameters these are."""
         self._coercers: dict[str, Callable[[Any], Any]] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
@@ -299,6 +302,17 @@ class ParameterReader:
             coerce,
             allowed,
         )
+
+    def declared(self, spec: SettingSpec) -> Any:
+        """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text."""
+        read_only = not spec.live
+        if isinstance(spec.default, str):
+            return self.text(spec.name, spec.default, spec.description, spec.choices, read_only)
+        if isinstance(spec.default, int):
+            return self.integer(spec.name, spec.default, spec.description, int(spec.low),
+                                int(spec.high), read_only)  # fmt: skip
+        return self.number(spec.name, spec.default, spec.description, spec.low, spec.high,
+                           spec.unit, read_only)  # fmt: skip
 
     def model(self) -> ModelParams:
         """The ``params`` parameter: a named model parameter set or a YAML file."""
