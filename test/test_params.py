@@ -126,8 +126,7 @@ def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
     assert result.successful, result.reason
     assert node.bits.threshold_db == -5.0
-    for name in ("source", "window_s", "device", "threshold_mode", "threshold_file",
-                 "refresh_s"):  # fmt: skip
+    for name in ("source", "device", "threshold_mode", "threshold_file", "refresh_s"):
         assert node.describe_parameter(name).read_only, name
     [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
     assert not result.successful and "read-only" in result.reason
@@ -423,8 +422,9 @@ def test_fake_room_partner_and_replies_are_live(graph: Callable) -> None:
     windows([False])
     last = np.frombuffer(audio[-1].data, np.float32).astype(np.float64)
     assert abs(10 * np.log10(np.mean(last**2)) - (-30.0)) < 0.5, "the new floor at once"
-    [result] = set_remotely(probe, executor, "fake_audio_node", window_s=0.25)
+    [result] = set_remotely(probe, executor, "fake_audio_node", rate_hz=8000)
     assert not result.successful and "read-only" in result.reason
+    assert not node.has_parameter("window_s"), "the window is the model's dt"
 
 
 def test_fake_room_lockstep_timeout_is_live(graph: Callable) -> None:

@@ -52,7 +52,6 @@ from infomax_contingency.core.stepclock import (
     StepJoiner,
 )
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
-from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
@@ -84,16 +83,6 @@ class BeliefNode(GraphNode):
         """Declare and check the parameters; the state they set."""
         read = self.parameters
         self.params = read.model()
-        window_s = read.number(
-            "window_s", self.params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - self.params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {self.params.dt:g} s (parameter 'params'): the steps would not be the"
-                " model's"
-            )
         memory = read.integer(
             "memory_steps",
             60,

@@ -107,15 +107,6 @@ class ControllerNode(GraphNode):
         """Declare and check the parameters; the state they set."""
         read = self.parameters
         params = read.model()
-        window_s = read.number(
-            "window_s", params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {params.dt:g} s (parameter 'params' and the policy table)"
-            )
         path = read.text(
             "policy_file",
             "",

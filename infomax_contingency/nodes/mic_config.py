@@ -83,7 +83,6 @@ class MicConfig:
 
     params: ModelParams
     source: str
-    window_s: float
     bit_source: str
     bit_settings: Any
     wait_for_listeners: int
@@ -101,6 +100,11 @@ class MicConfig:
     audio_rate_hz: int
     device: str
     queue_s: float
+
+    @property
+    def window_s(self) -> float:
+        """Window (step) length, seconds: the model's dt."""
+        return self.params.dt
 
     @property
     def rate_hz(self) -> int:
@@ -179,9 +183,6 @@ def read_config(read: ParameterReader) -> MicConfig:
         "Where audio comes from: wav (a file), topic (the 'audio' topic),"
         " sounddevice (a live microphone), bag (a recorded session)", SOURCES,
     )  # fmt: skip
-    window_s = read.number(
-        "window_s", 0.5, "Window (step) length; must equal the model's dt", 0.01, 10.0, "s"
-    )
     bit_source = read.text(
         "bit_source", DEFAULT_BIT_SOURCE,
         "How a window becomes a bit: "
@@ -193,18 +194,11 @@ def read_config(read: ParameterReader) -> MicConfig:
     config = MicConfig(
         params=params,
         source=source,
-        window_s=window_s,
         bit_source=bit_source,
         bit_settings=kind.make_settings({spec.name: values[spec.name] for spec in kind.specs()}),
         **_read_step_clock(read),
         **_read_sources(read),
     )
-    if abs(config.window_s - params.dt) > 1e-9:
-        raise ConfigError(
-            f"parameter 'window_s' = {config.window_s:g} s differs from the model's dt ="
-            f" {params.dt:g} s (parameter 'params'): one window must be one step of the"
-            " model"
-        )
     check_bit_settings(config)
     if config.source == "wav" and not config.wav_file:
         raise ConfigError("parameter 'wav_file' is empty: source 'wav' needs a WAV file")

@@ -12,8 +12,8 @@ bounded outbox (:class:`~infomax_contingency.core.stepclock.StepOutbox`): while 
 controller answers on ``vocalize_step``, at most ``max_steps_ahead`` steps are out
 unanswered, so a burst of audio (a 30 s message, a fast replay) is published as fast as
 the controller decides and nothing overflows a queue; at most ``max_backlog_s`` of
-windows wait (more is dropped and counted). ``window_s`` must equal the model's dt
-(``params``): another value is refused at start-up.
+windows wait (more is dropped and counted). A window is one step of the model: its length
+is the model's dt (``params``).
 
 Start: the first bit goes out once ``sound_step`` has ``wait_for_listeners`` subscribers
 (and, in lockstep, ``vocalize_step`` a publisher) and every subscriber seen on its topics

@@ -323,9 +323,33 @@ class ParameterReader:
             " dt, ts1, ts2, ta1, ta2, pi and optionally the Beta priors b11 .. b32",
         )
         try:
-            return ModelParams.load(name)
+            params = ModelParams.load(name)
         except ParameterError as error:
             raise ConfigError(f"parameter 'params' = {name!r}: {error}") from None
+        self._refuse_another_window(params.dt)
+        return params
+
+    def _refuse_another_window(self, dt: float) -> None:
+        """Refuse a ``window_s`` given for the node that is not the model's dt (seconds).
+
+        The window (one step) is always the model's dt; ``window_s`` is no parameter. A
+        parameter file that still sets it to dt works; another value would silently be
+        another window than the one meant, so the node stops and says so.
+        """
+        given = getattr(self._node, "_parameter_overrides", {}).get("window_s")
+        if given is None:
+            return
+        value = given.value
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if abs(value - dt) <= 1e-9:
+                return
+            shown = f"{value:g} s"
+        else:
+            shown = repr(value)
+        raise ConfigError(
+            f"parameter 'window_s' = {shown} differs from the model's dt = {dt:g} s (parameter"
+            " 'params'): one window is one step of the model; remove window_s"
+        )
 
 
 
