@@ -75,7 +75,7 @@ def save_threshold(
     tmp.replace(path)
 
 
-def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:
+def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:  # noqa: C901
     """Read the threshold (dB) from a file written by :func:`save_threshold`.
 
     Args:

@@ -161,6 +161,29 @@ def _value(spec: str, text: str, argument: NameArgument, declared: SettingSpec) 
         raise BinarizerNameError(spec, f"{argument.placeholder}: {error}") from None
 
 
+def _source_and_words(spec: str) -> tuple[str, list[str]]:
+    """The source a name stands for and the words after it (a short name is energy's)."""
+    words = spec.split(":")
+    if words[0] in BIT_SOURCES:
+        return words[0], words[1:]
+    if words[0] not in BIT_SOURCES[SHORT_NAME_SOURCE].name_modes:
+        raise BinarizerNameError(spec, "unknown binarizer")
+    return SHORT_NAME_SOURCE, words
+
+
+def _mode_and_words(spec: str, name: str, words: list[str]) -> tuple[str, list[str]]:
+    """The mode word of a source that has modes ("" for one without) and the arguments."""
+    source = BIT_SOURCES[name]
+    if source.mode_setting is None:
+        return "", words
+    if not words or not words[0]:
+        raise BinarizerNameError(spec, f"{name} needs a {source.mode_setting}, e.g."
+                                 f" {name}:{next(iter(source.name_modes))}")  # fmt: skip
+    if words[0] not in source.name_modes:
+        raise BinarizerNameError(spec, f"unknown {source.mode_setting} {words[0]!r}")
+    return words[0], words[1:]
+
+
 def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
     """The bit source and the :func:`make_bit_source` options a binarizer name stands for.
 
@@ -171,28 +194,15 @@ def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
     Raises:
         BinarizerNameError: the name is outside the grammar of :data:`BINARIZERS`.
     """
-    words = spec.split(":")
-    name = words[0] if words[0] in BIT_SOURCES else SHORT_NAME_SOURCE
-    if words[0] in BIT_SOURCES:
-        words = words[1:]
-    elif words[0] not in BIT_SOURCES[SHORT_NAME_SOURCE].name_modes:
-        raise BinarizerNameError(spec, "unknown binarizer")
+    name, words = _source_and_words(spec)
+    mode, words = _mode_and_words(spec, name, words)
     source = BIT_SOURCES[name]
-    options: dict[str, Any] = {}
-    mode = ""
-    if source.mode_setting is not None:
-        if not words or not words[0]:
-            raise BinarizerNameError(spec, f"{name} needs a {source.mode_setting}, e.g."
-                                     f" {name}:{next(iter(source.name_modes))}")  # fmt: skip
-        mode, words = words[0], words[1:]
-        if mode not in source.name_modes:
-            raise BinarizerNameError(spec, f"unknown {source.mode_setting} {mode!r}")
-        options[source.mode_setting] = mode
+    options: dict[str, Any] = {source.mode_setting: mode} if source.mode_setting else {}
     arguments = source.name_modes[mode]
     declared = {s.name: s for s in source.specs()}
-    if arguments and len(words) > len(arguments):
-        if isinstance(declared[arguments[-1].setting].default, str):  # a path may hold ':'
-            words = [*words[: len(arguments) - 1], ":".join(words[len(arguments) - 1 :])]
+    last = len(arguments) - 1
+    if 0 <= last < len(words) - 1 and isinstance(declared[arguments[-1].setting].default, str):
+        words = [*words[:last], ":".join(words[last:])]  # a path may hold ':'
     if len(words) > len(arguments):
         takes = " and ".join(a.placeholder for a in arguments) or "no argument"
         raise BinarizerNameError(spec, f"{name}{':' + mode if mode else ''} takes at most {takes}")
@@ -306,7 +316,7 @@ class RoomsConfig:
     curve_priors: tuple[float, ...] = (0.01, 0.05, 0.2, 0.5)
     jobs: int = 2
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # noqa: C901
         def fail(name: str, allowed: str) -> None:
             raise ValueError(
                 f"experiment rooms: {name} = {getattr(self, name)!r}: must be {allowed}"

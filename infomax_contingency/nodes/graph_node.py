@@ -92,11 +92,54 @@ class GraphNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
         try:
-            self._set_up_common()
+            self.intruders: dict[str, list[str]] = {}
+            """Watched topics with more than one publisher -> the publishers (last check)."""
+            self.started_ns = time.time_ns()
+            self.stale_messages = 0
+            """Messages ignored because they were published before this node started."""
+            self.parameters = ParameterReader(self)
+            self.fault_hold_s = self.parameters.number(
+                "fault_hold_s",
+                10.0,
+                "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
+                " its count stays among the values",
+                0.1,
+                3600.0,
+                "s",
+            )
+            self.diagnostics_period_s = self.parameters.number(
+                "diagnostics_period_s",
+                DIAGNOSTICS_PERIOD_S,
+                "Seconds between two diagnostics messages of this node on /diagnostics (each one"
+                " also checks the watched topics for a second publisher)",
+                0.05,
+                60.0,
+                "s",
+            )
+            if self.fault_hold_s < self.diagnostics_period_s:
+                self.get_logger().warning(
+                    f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
+                    f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
+                    " diagnostics messages shows only in the counts"
+                )
+            self.finished: Future = Future()
+            self._quiet_until: dict[str, float] = {}
+            """Throttled log kind -> monotonic second until which it stays quiet."""
+            self.arrivals: dict[str, int] = {}
+            """Messages received per topic (as subscribed, relative names)."""
+            self.waiting_for = ""
+            """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
+            self._awaited: list[tuple[str, str]] = []
+            self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             self.configure()
             self.activate()
         except BaseException:
-            self._destroy_refused()
+            # A refused node is destroyed (what it made goes with it) before the error goes on.
+            try:
+                self.destroy_node()  # the subclass's: releases a device it opened
+            except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
+                with suppress(Exception):
+                    Node.destroy_node(self)
             raise
         self.start_diagnostics()
 
@@ -107,56 +150,6 @@ class GraphNode(Node):
     def activate(self) -> None:
         """Create the node's publishers, subscriptions, services and timers."""
         raise NotImplementedError
-
-    def _destroy_refused(self) -> None:
-        """Destroy a node whose configure or activate raised (what it made goes with it)."""
-        try:
-            self.destroy_node()  # the subclass's: releases a device it opened
-        except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
-            with suppress(Exception):
-                Node.destroy_node(self)
-
-    def _set_up_common(self) -> None:
-        """What every node has: the fault hold, the diagnostics, the arrival counts."""
-        self.intruders: dict[str, list[str]] = {}
-        """Watched topics with more than one publisher -> the publishers (last check)."""
-        self.started_ns = time.time_ns()
-        self.stale_messages = 0
-        """Messages ignored because they were published before this node started."""
-        self.parameters = ParameterReader(self)
-        self.fault_hold_s = self.parameters.number(
-            "fault_hold_s",
-            10.0,
-            "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
-            " its count stays among the values",
-            0.1,
-            3600.0,
-            "s",
-        )
-        self.diagnostics_period_s = self.parameters.number(
-            "diagnostics_period_s",
-            DIAGNOSTICS_PERIOD_S,
-            "Seconds between two diagnostics messages of this node on /diagnostics (each one"
-            " also checks the watched topics for a second publisher)",
-            0.05,
-            60.0,
-            "s",
-        )
-        if self.fault_hold_s < self.diagnostics_period_s:
-            self.get_logger().warning(
-                f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
-                f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
-                " diagnostics messages shows only in the counts"
-            )
-        self.finished: Future = Future()
-        self._quiet_until: dict[str, float] = {}
-        """Throttled log kind -> monotonic second until which it stays quiet."""
-        self.arrivals: dict[str, int] = {}
-        """Messages received per topic (as subscribed, relative names)."""
-        self.waiting_for = ""
-        """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
-        self._awaited: list[tuple[str, str]] = []
-        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
 
     def subscribe(
         self,

@@ -134,7 +134,7 @@ class FakeRoomConfig:
     reverb_rt60_s: float = 0.0
     reverb_level_db: float = -35.0
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # noqa: C901
         def fail(name: str, allowed: str) -> None:
             raise ValueError(f"room parameter {name} = {getattr(self, name)!r}: must be {allowed}")
 
