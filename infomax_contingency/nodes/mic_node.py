@@ -38,7 +38,7 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources import BIT_SOURCES, all_setting_specs
+from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.audio.bitsources.base import UNSEPARATED, SettingError
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -90,7 +90,7 @@ class MicNode(GraphNode):
         self._calibrate_ahead()
         self.pacer = LockstepPacer(config.lockstep_timeout_s) if self.replay and config.lockstep \
             else None  # fmt: skip
-        for spec in all_setting_specs():
+        for spec in self.bits.specs():
             if spec.live:
                 self._make_live(spec.name)
         self.stream_id = new_source_id()
@@ -169,9 +169,6 @@ class MicNode(GraphNode):
                     f"parameter {name!r} = {value!r} has no effect: the session"
                     f" {self.config.bag_dir} holds no audio, its recorded bits are replayed"
                 )
-            if name not in {spec.name for spec in self.bits.specs()}:
-                raise ConfigError(f"parameter {name!r} = {value!r} has no effect with"
-                                  f" bit_source {self.config.bit_source}")  # fmt: skip
             try:
                 self.bits.check_live(name, value)
             except SettingError as error:
