@@ -249,7 +249,7 @@ def open_window_source(config: MicConfig, samples: bool, log: LogFunction) -> Wi
             raise ConfigError(f"parameter 'bag_dir' = {config.bag_dir!r}: {error}") from None
     if config.source == "topic":
         return TopicWindows(config.audio_rate_hz, config.window_s, samples)
-    return MicrophoneWindows(_microphone(config, channel, log), samples)
+    return MicrophoneWindows(_microphone(config, channel, log), samples, log)
 
 
 def _microphone(config: MicConfig, channel: int | None, log: LogFunction) -> MicrophoneStream:

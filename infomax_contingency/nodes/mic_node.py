@@ -1,9 +1,9 @@
 """mic_node: audio windows to bits — the step clock of the graph.
 
-Where the windows come from (``source``: a WAV file, the ``audio`` topic, a session bag,
-a live microphone) and how a window becomes a bit (``bit_source``) are its configuration:
-:mod:`~infomax_contingency.nodes.mic_config`. This module is the node: it takes windows
-from its window source, asks the bit source for their bits and publishes them.
+Where the windows come from (``source``) and how a window becomes a bit
+(``bit_source``) are its configuration (:mod:`~infomax_contingency.nodes.mic_config`); the
+node takes windows from its window source, asks the bit source for their bits and
+publishes them.
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -83,13 +83,12 @@ class MicNode(GraphNode):
         self.replay = self.source if self.source.replay else None
         self.recorded_bits = getattr(self.source, "has_audio", True) is False
         if self.recorded_bits and config.bit_source != "energy":
-            self.get_logger().warning(
-                f"bit_source {config.bit_source} is not applied: the session"
-                f" {config.bag_dir} holds no audio, its recorded bits are replayed"
-            )
-        self._calibrate_ahead()
-        self.pacer = LockstepPacer(config.lockstep_timeout_s) if self.replay and config.lockstep \
-            else None  # fmt: skip
+            ignored = f"bit_source {config.bit_source} is not applied"
+            self.get_logger().warning(f"{ignored}: {self._no_audio}")
+        if calibrated := self._calibrate_ahead():
+            self.get_logger().info(calibrated)
+        lockstep = self.replay is not None and config.lockstep
+        self.pacer = LockstepPacer(config.lockstep_timeout_s) if lockstep else None
         for spec in self.bits.specs():
             if spec.live:
                 self._make_live(spec.name)
@@ -101,8 +100,6 @@ class MicNode(GraphNode):
         self.windows = 0
         self.last_energy_db = float("nan")
         self.bad_chunks = 0
-        self.windows_with_loss = 0
-        self.window_delay_s = self.max_window_delay_s = float("nan")
         self.started = self.ended = False
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
@@ -153,22 +150,23 @@ class MicNode(GraphNode):
     def _calibration_refused(self, message: str) -> None:
         self.get_logger().warning(message)
 
-    def _calibrate_ahead(self) -> None:
-        """Calibrate the bit source on a replay's first seconds, if it calibrates."""
+    @property
+    def _no_audio(self) -> str:
+        return f"the session {self.config.bag_dir} holds no audio, its recorded bits are replayed"
+
+    def _calibrate_ahead(self) -> str:
+        """Calibrate the bit source on a replay's first seconds if it calibrates; what it did."""
         if self.replay is None or self.recorded_bits or not self.bits.read_ahead_s:
-            return
-        energies, windows = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
-        self.get_logger().info(f"{self.bits.calibrate_ahead(energies, windows)} of the replay")
+            return ""
+        ahead = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
+        return f"{self.bits.calibrate_ahead(*ahead)} of the replay"
 
     def _make_live(self, name: str) -> None:
         """Let the bit-source setting ``name`` change live, checked by the bit source."""
 
         def check(value: Any) -> None:
             if self.recorded_bits:
-                raise ConfigError(
-                    f"parameter {name!r} = {value!r} has no effect: the session"
-                    f" {self.config.bag_dir} holds no audio, its recorded bits are replayed"
-                )
+                raise ConfigError(f"parameter {name!r} = {value!r} has no effect: {self._no_audio}")
             try:
                 self.bits.check_live(name, value)
             except SettingError as error:
@@ -180,15 +178,11 @@ class MicNode(GraphNode):
         """Start the bit source's calibration again (a replay's first seconds again)."""
         response.success = False
         if self.recorded_bits:
-            response.message = (f"nothing to calibrate: the session {self.config.bag_dir}"
-                                " holds no audio, its recorded bits are replayed")  # fmt: skip
+            response.message = f"nothing to calibrate: {self._no_audio}"
             return response
         try:
             message = self.bits.recalibrate()
-            if self.replay is not None and self.bits.read_ahead_s:
-                energies, windows = self.replay.read_ahead(self.bits.read_ahead_s,
-                                                           self.config.window_s)  # fmt: skip
-                message = f"{self.bits.calibrate_ahead(energies, windows)} of the replay"
+            message = self._calibrate_ahead() or message
         except AudioError as error:
             response.message = str(error)
             return response
@@ -271,18 +265,10 @@ class MicNode(GraphNode):
         for window in self.source.take():
             if self.finished.done():
                 return
-            if window.gap_s > 0:
-                self.losses.note(self.now_s())
-                self.get_logger().warning(
-                    f"audio gap of {window.gap_s:.2f} s before window {window.index}: the step"
-                    " clock goes on, without bits for the missing time"
-                )
-            if not window.intact:
-                self.windows_with_loss += 1
+            if window.gap_s > 0 or not window.intact:
                 self.losses.note(self.now_s())
             self._window(window)
-            self.window_delay_s = time.monotonic() - window.end_time
-            self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
+            self.source.published(window)
 
     def _window(self, window: SourceWindow) -> bool | None:
         """A window was made: its bit (after calibration) waits in the outbox to go out.
@@ -386,10 +372,6 @@ class MicNode(GraphNode):
             values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
-        if isinstance(self.source, MicrophoneWindows):
-            values["windows_with_loss"] = self.windows_with_loss
-            values["window_delay_s"] = self.window_delay_s
-            values["max_window_delay_s"] = self.max_window_delay_s
         if self.intruders:
             return ERROR, "another publisher on 'sound' or 'sound_step'", values
         if not self.started:
