@@ -38,7 +38,7 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources import BIT_SOURCES
+from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import UNSEPARATED, SettingError
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -76,13 +76,13 @@ class MicNode(GraphNode):
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = read_config(self.parameters)
         self.bits = make_bits(config, self._calibration_refused)
-        if config.bit_source != "energy":
+        if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
             self.get_logger().info(f"bit source {config.bit_source}: {summary}")
         self.source = open_window_source(config, self.bits.needs_samples, self.log_at)
         self.replay = self.source if self.source.replay else None
         self.recorded_bits = getattr(self.source, "has_audio", True) is False
-        if self.recorded_bits and config.bit_source != "energy":
+        if self.recorded_bits and config.bit_source != DEFAULT_BIT_SOURCE:
             ignored = f"bit_source {config.bit_source} is not applied"
             self.get_logger().warning(f"{ignored}: {self._no_audio}")
         if calibrated := self._calibrate_ahead():
