@@ -20,7 +20,7 @@ from graph_harness import Graph, assert_every_step_recorded, graph_fixture
 from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.cli import demo as demo_module
 from infomax_contingency.testing.graph import wait_until
-from processes import readline_within
+from processes import read_until, readline_within
 from stepped_graph import stepped_graph
 
 # The graph tests that start many node processes running at full speed run one at a
@@ -228,6 +228,37 @@ def test_a_signal_stops_the_demo_and_every_node(how: str, status: int, name: str
     assert err.strip() == f"infomax-contingency demo: interrupted ({name}); nodes stopped"
     assert "Traceback" not in out + err
     assert not [pid for pid in nodes if alive(pid)], "node processes left behind"
+
+
+@NODE_GRAPHS
+@pytest.mark.slow
+def test_the_nodes_of_a_demo_killed_with_sigkill_end_too() -> None:
+    """A demo killed with SIGKILL leaves no node running the graph on.
+
+    An OOM kill or a CI timeout gives the demo no chance to stop its nodes: they end on
+    their own (the kernel's parent-death signal).
+    """
+    process = subprocess.Popen(
+        [sys.executable, "-m", "infomax_contingency.cli", "demo", "--steps", "10000000"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    nodes: set[int] = set()
+    try:
+        read_until(process, "# demo: the graph is up")
+        nodes = children_of(process.pid)
+        assert len(nodes) == 6, nodes
+        process.kill()
+        process.communicate(timeout=30)
+        assert wait_until(lambda: not [pid for pid in nodes if alive(pid)], 30.0), (
+            "node processes left running after the demo was killed"
+        )
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+        for pid in nodes:  # on the old code: end the orphans, not to load the suite
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
 
 
 @pytest.mark.slow
