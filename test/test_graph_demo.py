@@ -376,3 +376,65 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
     environ = {}
     assert demo_module.demo_dds_profile(environ, cwd=tmp_path) == "DEFAULT_FASTRTPS_PROFILES.xml"
     assert environ == {}
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--leave-at", "nan"], "argument --leave-at: expected a finite number, got 'nan'"),
+        (["--leave-at", "inf"], "argument --leave-at: expected a finite number, got 'inf'"),
+        (["--leave-at", "1e10"], "--leave-at must be at most 1e+09 s"),
+        (["--calibration-s", "inf"], "argument --calibration-s: expected a finite number"),
+        (["--calibration-s", "4000"], "--calibration-s must be in (0, 3600] seconds"),
+        (["--steps", str(2**31)], "--steps must be in [1, 2147483647]"),
+        (["--seed", "-1"], "--seed must be in [0, 2147483647]"),
+        (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
+    ],
+)
+def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(
+    arguments: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One line and status 2, before any node starts.
+
+    ``--leave-at nan`` meant "the partner never leaves"; ``--record /proc/x`` ran the
+    whole demo and exited 0 with no bag and no word.
+    """
+    from infomax_contingency.cli.main import main
+
+    try:
+        status = main(["demo", *arguments])
+    except SystemExit as exit_:  # argparse
+        status = exit_.code
+    assert status == 2
+    assert message in capsys.readouterr().err
+
+
+def test_the_record_check_leaves_nothing_behind(tmp_path: Path) -> None:
+    demo_module._check_record_directory(tmp_path / "bag")
+    assert not (tmp_path / "bag").exists()  # the recorder must create it itself
+    (tmp_path / "bag").mkdir()
+    with pytest.raises(ValueError, match="exists already"):
+        demo_module._check_record_directory(tmp_path / "bag")
+
+
+class LoggedProcesses:
+    """A stand-in for GraphProcesses: the recorder's log."""
+
+    def __init__(self, log: str) -> None:
+        self.text = log
+
+    def log(self, node: str) -> str:
+        return self.text if node == "recorder_node" else ""
+
+
+def test_a_recording_that_stopped_is_the_demos_failure(tmp_path: Path) -> None:
+    """The recorder keeps the graph running when it cannot write; the demo must say so."""
+    log = ("[INFO] [1.0] [recorder_node]: up\n[ERROR] [2.0] [recorder_node]: recording stopped:"
+           " cannot write: No space left on device\n")  # fmt: skip
+    failure = demo_module._recording_failure(tmp_path, LoggedProcesses(log))
+    assert failure == (
+        f"--record {tmp_path}: the session was not recorded whole: recording stopped:"
+        " cannot write: No space left on device"
+    )
+    (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    assert demo_module._recording_failure(tmp_path, LoggedProcesses(log)) == ""
