@@ -109,6 +109,7 @@ from infomax_contingency.audio.bitsource import (
 )
 from infomax_contingency.audio.capture import MicrophoneStream, Window
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
 from infomax_contingency.audio.energy import WindowAssembler
 from infomax_contingency.audio.threshold import load_threshold
@@ -487,6 +488,7 @@ class MicNode(GraphNode):
         self._pace_timer = None
         self.ended = False
         self.microphone: MicrophoneStream | None = None
+        self.contract: AudioContract | None = None
         self.segment = 0
         self.windows_with_loss = 0
         self.window_delay_s = float("nan")
@@ -561,6 +563,7 @@ class MicNode(GraphNode):
 
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
+        self.contract = AudioContract(rate, hold_s=self.fault_hold_s)
         self._last_sequence: int | None = None
         self.create_subscription(
             Float32MultiArray, "audio", self._on_audio_message, AUDIO_QOS
@@ -696,6 +699,10 @@ class MicNode(GraphNode):
                 self.assembler.reset()
             self._last_sequence = sequence
         chunk = np.frombuffer(msg.data, dtype=np.float32)
+        dims = [(dim.label, dim.size) for dim in msg.layout.dim]
+        sent_s = self.sent_s(int(info.get("source_timestamp", 0)), self.contract.clock())
+        for warning in self.contract.check(chunk, dims, sent_s):
+            self.get_logger().warning(warning)
         try:
             if self.bits.needs_samples:
                 windows = self.assembler.push_windows(chunk)
@@ -993,6 +1000,8 @@ class MicNode(GraphNode):
             values["windows_with_loss"] = self.windows_with_loss
             values["window_delay_s"] = self.window_delay_s
             values["max_window_delay_s"] = self.max_window_delay_s
+        if self.contract is not None:
+            values.update(self.contract.values())
         if self.intruders:
             return ERROR, "another publisher on 'sound' or 'sound_step'", values
         if not self.started:
@@ -1005,6 +1014,8 @@ class MicNode(GraphNode):
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
         if b.state == UNSEPARATED:
             return ERROR, b.calibration_problem, values
+        if self.contract is not None and self.contract.problem():
+            return WARN, self.contract.problem(), values
         if b.calibrating:
             return OK, "calibrating the threshold", values
         if self.losses.recent(now) or self.timeouts.recent(now):
