@@ -29,6 +29,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.nodes.parameters import params_files, undeclared_parameters
 
 SPIN_TIMEOUT_S = 0.1
 """Seconds one executor wait may block, so that a finished node is noticed."""
@@ -274,6 +275,18 @@ def await_acknowledgments(nodes: Sequence[Node], budget_s: float = ACK_BUDGET_S)
                 continue
 
 
+def warn_undeclared_parameters(nodes: Sequence[Node], program: str, args: Sequence[str]
+                               ) -> None:  # fmt: skip
+    """Warn about the keys of the ``--params-file`` files in ``args`` that no node takes.
+
+    rcl ignores them silently (a misspelled key or node section): each is named once, by
+    the node it was meant for, or by ``program`` for a section that matches no node.
+    """
+    for node, message in undeclared_parameters(params_files(args), nodes):
+        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(program)
+        logger.warning(message)
+
+
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
@@ -299,6 +312,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
             nodes.append(factory())
             executor.add_node(nodes[-1])
         current = program
+        warn_undeclared_parameters(nodes, program, sys.argv if args is None else args)
         any_finished = Future()
         for node in nodes:
             finished = getattr(node, "finished", None)
