@@ -429,10 +429,10 @@ def undeclared_parameters(files: Sequence[str], nodes: Sequence[DeclaringNode]
     own = {node.get_fully_qualified_name().rsplit("/", 1)[-1] for node in nodes}
     for file in files:
         try:
-            document = yaml.safe_load(Path(file).read_text())
-        except (OSError, yaml.YAMLError):
-            continue
-        for pattern, keys in parameter_sections(document):
+            sections = list(parameter_sections(yaml.safe_load(Path(file).read_text())))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError):
+            continue  # rcl read it, this check cannot: it says nothing rather than fail
+        for pattern, keys in sections:
             matched = [n for n in nodes if section_matches(pattern, n.get_fully_qualified_name())]
             last = pattern.rsplit("/", 1)[-1]
             wildcard = last in ("*", "**")
