@@ -13,7 +13,13 @@ threshold is the k-means calibration on the first ``--calibration-s`` seconds).
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
 arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
 (each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C)
-and end the demo with status 130 or 143 and "interrupted".
+and end the demo with status 130 or 143 and "interrupted". A demo killed outright (SIGKILL,
+an OOM kill) leaves no node running: each ends with it (the kernel's parent-death signal,
+:func:`~infomax_contingency.nodes.runtime.end_with_parent`).
+
+``--record DIR``: DIR must be new and writable (tried before any node starts); a
+recorder that stopped writing during the run (it keeps the graph running) makes the
+demo fail, with its error line (status 1).
 
 DDS stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a random
 ``ROS_DOMAIN_ID`` unless the environment sets them. The graph's processes announce
