@@ -178,3 +178,18 @@ def test_a_paused_driver_starts_the_check_again() -> None:
     chunks = ((160, cycle * 4.0 + k * 0.01) for cycle in range(50) for k in range(100))
     assert feed(contract, chunks) == []
     assert np.isnan(contract.rate.last_pace)
+
+
+def test_lost_chunks_restart_the_rate_check() -> None:
+    """A 16 kHz driver that loses every other chunk would look like 8 kHz audio."""
+    contract = AudioContract(RATE_HZ, clock=FakeClock())
+    warnings = []
+    for k, (samples, at_s) in enumerate(live_driver(RATE_HZ, 3 * JUDGED_AFTER_S)):
+        if k % 2:
+            contract.chunks_lost()
+            continue
+        warnings += contract.check(np.zeros(samples, np.float32), (), at_s)
+    assert warnings == []
+    unnoticed = AudioContract(RATE_HZ, clock=FakeClock())  # the same without the report
+    chunks = [c for k, c in enumerate(live_driver(RATE_HZ, 3 * JUDGED_AFTER_S)) if not k % 2]
+    assert "8000 Hz audio" in feed(unnoticed, iter(chunks))[0]

@@ -21,7 +21,8 @@ averages out over :data:`RATE_SPAN_S`). Other sources legitimately run at other 
 a lockstep replay (the fake room, a wav file through the graph) goes as fast as the
 graph answers, hundreds of times real time on a quiet machine and slower than real time
 on a loaded one, never steadily; a burst (a single message of 10^7 samples) is a jump;
-a paused driver leaves gaps. So a mismatch is reported only when, over
+a paused driver leaves gaps, and lost chunks (:meth:`AudioContract.chunks_lost`) shorten
+the audio. So a mismatch is reported only when, over
 :data:`RATE_SUBSPANS` consecutive spans of :data:`RATE_SPAN_S` seconds each without a
 gap longer than :data:`MAX_GAP_S`, the pace (audio seconds per wall second) stayed
 within :data:`RATE_TOLERANCE` of one value, and that pace times the stated rate is a
@@ -113,11 +114,15 @@ class RateCheck:
     _span_start: tuple[float, float] | None = None
     _paces: list[float] = field(default_factory=list)
 
+    def restart(self) -> None:
+        """Judge only spans from the next chunk on (chunks were lost: audio time is short)."""
+        self._paces.clear()
+        self._span_start = None
+
     def observe(self, samples: int, at_s: float) -> bool:
         """Account one chunk; True when this chunk started a mismatch (word it once)."""
         if self._last_at is not None and not 0 <= at_s - self._last_at <= self.max_gap_s:
-            self._paces.clear()  # a gap (or a clock going back): start again
-            self._span_start = None
+            self.restart()  # a gap (or a clock going back)
         self._last_at = at_s
         if self._span_start is None:
             # The span starts at this chunk's publication: its samples were recorded
@@ -212,6 +217,13 @@ class AudioContract:
         if self.rate.observe(int(x.size), now):
             warnings.append(self._once("rate", self.rate_problem()))
         return [warning for warning in warnings if warning]
+
+    def chunks_lost(self) -> None:
+        """Chunks were lost on the way (the caller counts them): the rate check restarts.
+
+        Their audio, missing, would make the pace look slower than it is.
+        """
+        self.rate.restart()
 
     def _once(self, kind: str, message: str) -> str:
         if kind in self._worded:

@@ -697,6 +697,7 @@ class MicNode(GraphNode):
                 self.dropped_chunks += sequence - self._last_sequence - 1
                 self.losses.note(self.now_s())
                 self.assembler.reset()
+                self.contract.chunks_lost()
             self._last_sequence = sequence
         chunk = np.frombuffer(msg.data, dtype=np.float32)
         dims = [(dim.label, dim.size) for dim in msg.layout.dim]
