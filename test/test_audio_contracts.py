@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from infomax_contingency.audio.contracts import (
+    PACED_SOURCES,
     RATE_SPAN_S,
     RATE_SUBSPANS,
     AudioContract,
@@ -152,12 +153,22 @@ def test_a_lockstep_replay_faster_than_real_time_is_not_a_rate_mismatch() -> Non
     assert contract.rate.last_pace > 50  # far faster than any sound card
 
 
-def test_a_lockstep_graph_at_a_steady_3x_is_named_with_both_explanations() -> None:
-    """What cannot be told apart: a steady replay at 3x real time looks like 48 kHz."""
-    contract = AudioContract(RATE_HZ, clock=FakeClock())
-    chunks = ((8000, k * 0.5 / 3) for k in range(1, int(JUDGED_AFTER_S * 6) + 12))
-    warnings = feed(contract, chunks)
+def steady_3x() -> Iterator[tuple[int, float]]:
+    """One 0.5 s window every 1/6 s: a room in lockstep with ``lockstep_max_speed: 3``."""
+    return ((8000, k * 0.5 / 3) for k in range(1, int(JUDGED_AFTER_S * 6) + 12))
+
+
+def test_a_steady_3x_replay_is_told_apart_from_48_khz_audio_by_its_publisher_only() -> None:
+    """The audio of a steady replay at 3x real time is that of a 48 kHz driver."""
+    publishers: list[str] = ["my_driver"]
+    contract = AudioContract(RATE_HZ, clock=FakeClock(), publishers=lambda: publishers)
+    warnings = feed(contract, steady_3x())
     assert len(warnings) == 1 and "or a replay at a steady 3x real time" in warnings[0]
+    for paced in PACED_SOURCES:
+        publishers[:] = ["my_driver", paced]
+        contract = AudioContract(RATE_HZ, clock=FakeClock(), publishers=lambda: publishers)
+        assert feed(contract, steady_3x()) == []
+        assert contract.problem(0.0) == ""
 
 
 def test_bursts_and_pauses_of_a_live_driver_are_not_a_rate_mismatch() -> None:

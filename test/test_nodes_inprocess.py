@@ -453,6 +453,7 @@ def test_mic_says_once_when_the_audio_breaks_its_contract(
     assert "outside [-1, 1] (up to 3e+38)" in message and "multi-channel" in message
     assert values["chunks_out_of_range"] == 2 and values["samples_out_of_range"] == 16000
     assert values["chunks_multichannel"] == 2
+    assert node.contract.rate.paced_by_source() is False  # the probe is no paced source
 
 
 @pytest.mark.parametrize(

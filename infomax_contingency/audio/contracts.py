@@ -27,9 +27,12 @@ the audio. So a mismatch is reported only when, over
 gap longer than :data:`MAX_GAP_S`, the pace (audio seconds per wall second) stayed
 within :data:`RATE_TOLERANCE` of one value, and that pace times the stated rate is a
 common sample rate (:data:`COMMON_RATES_HZ`) other than the stated one: what a live
-driver at another rate does, and nothing else this package does. A replay at a steady
-speed that happens to be such a ratio (``ros2 bag play --rate 3`` into a 16 kHz node
-looks exactly like 48 kHz audio) cannot be told apart: the warning names both. The
+driver at another rate does. A replay or simulation at a steady speed that happens to be
+such a ratio (``ros2 bag play --rate 3`` into a 16 kHz node, the fake room in lockstep
+with ``lockstep_max_speed: 2``) looks exactly like such audio: the audio cannot tell them
+apart, its publisher can. Audio whose publisher is one of :data:`PACED_SOURCES` is not
+judged; from any other, a steady pace at such a ratio is reported, and the warning names
+both readings. The
 problem clears once a steady pace of 1 (real time) is measured again.
 
 No rclpy, no clock of its own: times are passed in (a chunk's publication time, which a
@@ -67,6 +70,11 @@ RATE_TOLERANCE = 0.03
 """Relative tolerance of the rate check: of the spans' paces among themselves, of a pace
 of 1, and of the implied rate to a common rate (44.1 vs 48 kHz differ by 8.8 %)."""
 
+PACED_SOURCES = ("fake_audio_node", "rosbag2_player")
+"""Publishers of ``audio`` that set its pace themselves, on purpose: the simulated room (in
+lockstep with ``lockstep_max_speed``, or in real time times ``speed``) and ``ros2 bag
+play`` (``--rate``). A steady pace of theirs is not a rate mismatch."""
+
 COMMON_RATES_HZ = (8000, 11025, 12000, 16000, 22050, 24000, 32000, 44100, 48000, 88200,
                    96000, 176400, 192000, 352800, 384000)  # fmt: skip
 """Sample rates that audio hardware and drivers use."""
@@ -103,6 +111,9 @@ class RateCheck:
     subspans: int = RATE_SUBSPANS
     max_gap_s: float = MAX_GAP_S
     tolerance: float = RATE_TOLERANCE
+    paced_by_source: Callable[[], bool] = lambda: False
+    """True while the audio comes from a source that sets its own pace (asked before a
+    mismatch is declared: a simulated room at twice real time is not 32 kHz audio)."""
     mismatch_rate_hz: int | None = None
     """The common rate the audio arrives at, while it is not the stated one."""
     mismatches: int = 0
@@ -149,6 +160,9 @@ class RateCheck:
         common = common_rate_near(mean * self.stated_rate_hz, self.tolerance)
         if common is None or common == self.stated_rate_hz:
             return False  # a steady pace no sound card has: a paced replay
+        if self.paced_by_source():
+            self.mismatch_rate_hz = None
+            return False
         started = self.mismatch_rate_hz is None
         self.mismatch_rate_hz = common
         self.mismatches += 1
@@ -164,10 +178,14 @@ class AudioContract:
         clock: wall seconds, on the origin of the publication times passed to
             :meth:`check` (default: the system clock, as DDS publication stamps); read for
             a chunk whose publication time is unknown, and by :meth:`problem`.
+        publishers: the names of the nodes that publish the audio; asked only when a
+            steady pace would be a rate mismatch: one of :data:`PACED_SOURCES` sets its
+            own pace, which is then not one.
     """
 
     def __init__(self, rate_hz: int, hold_s: float = 10.0,
-                 clock: Callable[[], float] = time.time) -> None:  # fmt: skip
+                 clock: Callable[[], float] = time.time,
+                 publishers: Callable[[], Sequence[str]] = tuple) -> None:  # fmt: skip
         self.rate_hz = rate_hz
         self.clock = clock
         self.out_of_range = RecentEvents(hold_s=hold_s)
@@ -179,7 +197,9 @@ class AudioContract:
         """Chunks whose layout describes more than one channel."""
         self.layout = ""
         """The last multi-channel layout seen, as ``label=size x label=size``."""
-        self.rate = RateCheck(rate_hz)
+        self.rate = RateCheck(
+            rate_hz, paced_by_source=lambda: any(name in PACED_SOURCES for name in publishers())
+        )
         self._worded: set[str] = set()
 
     def check(self, samples: ArrayLike, dims: Sequence[tuple[str, int]] = (),

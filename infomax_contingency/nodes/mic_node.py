@@ -563,7 +563,9 @@ class MicNode(GraphNode):
 
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
-        self.contract = AudioContract(rate, hold_s=self.fault_hold_s)
+        self.audio_topic = self.resolve_topic_name("audio")
+        self.contract = AudioContract(rate, hold_s=self.fault_hold_s, publishers=lambda: [
+            info.node_name for info in self.get_publishers_info_by_topic(self.audio_topic)])
         self._last_sequence: int | None = None
         self.create_subscription(
             Float32MultiArray, "audio", self._on_audio_message, AUDIO_QOS
