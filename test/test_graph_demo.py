@@ -19,6 +19,7 @@ import pytest
 from graph_harness import Graph, assert_every_step_recorded, graph_fixture
 from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.cli import demo as demo_module
+from infomax_contingency.cli import demo_checks
 from infomax_contingency.testing.graph import wait_until
 from processes import read_until, readline_within
 from stepped_graph import stepped_graph
@@ -410,31 +411,21 @@ def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(
 
 
 def test_the_record_check_leaves_nothing_behind(tmp_path: Path) -> None:
-    demo_module._check_record_directory(tmp_path / "bag")
+    demo_checks.check_record_directory(tmp_path / "bag")
     assert not (tmp_path / "bag").exists()  # the recorder must create it itself
     (tmp_path / "bag").mkdir()
     with pytest.raises(ValueError, match="exists already"):
-        demo_module._check_record_directory(tmp_path / "bag")
-
-
-class LoggedProcesses:
-    """A stand-in for GraphProcesses: the recorder's log."""
-
-    def __init__(self, log: str) -> None:
-        self.text = log
-
-    def log(self, node: str) -> str:
-        return self.text if node == "recorder_node" else ""
+        demo_checks.check_record_directory(tmp_path / "bag")
 
 
 def test_a_recording_that_stopped_is_the_demos_failure(tmp_path: Path) -> None:
     """The recorder keeps the graph running when it cannot write; the demo must say so."""
     log = ("[INFO] [1.0] [recorder_node]: up\n[ERROR] [2.0] [recorder_node]: recording stopped:"
            " cannot write: No space left on device\n")  # fmt: skip
-    failure = demo_module._recording_failure(tmp_path, LoggedProcesses(log))
+    failure = demo_checks.recording_failure(tmp_path, log)
     assert failure == (
         f"--record {tmp_path}: the session was not recorded whole: recording stopped:"
         " cannot write: No space left on device"
     )
     (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
-    assert demo_module._recording_failure(tmp_path, LoggedProcesses(log)) == ""
+    assert demo_checks.recording_failure(tmp_path, log) == ""

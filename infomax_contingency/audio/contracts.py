@@ -42,6 +42,7 @@ wall seconds on one origin (by default the system clock, as DDS publication stam
 
 from __future__ import annotations
 
+import array
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -80,13 +81,15 @@ COMMON_RATES_HZ = (8000, 11025, 12000, 16000, 22050, 24000, 32000, 44100, 48000,
 """Sample rates that audio hardware and drivers use."""
 
 
-def channel_dims(dims: Sequence[tuple[str, int]]) -> list[tuple[str, int]]:
+def channel_dims(dims: Sequence[Any]) -> list[tuple[str, int]]:
     """The dimensions of a ``Float32MultiArray`` layout longer than one: ``(label, size)``.
 
-    Mono audio has at most one (the samples); a second one (channels) means interleaved
-    multi-channel audio.
+    ``dims``: ``(label, size)`` pairs, or objects with ``label`` and ``size`` (the
+    message's ``layout.dim``). Mono audio has at most one (the samples); a second one
+    (channels) means interleaved multi-channel audio.
     """
-    return [(label, int(size)) for label, size in dims if int(size) > 1]
+    pairs = [(d.label, d.size) if hasattr(d, "size") else tuple(d) for d in dims]
+    return [(str(label), int(size)) for label, size in pairs if int(size) > 1]
 
 
 def common_rate_near(rate_hz: float, tolerance: float = RATE_TOLERANCE) -> int | None:
@@ -201,18 +204,22 @@ class AudioContract:
             rate_hz, paced_by_source=lambda: any(name in PACED_SOURCES for name in publishers())
         )
         self._worded: set[str] = set()
+        self._checked = False
 
-    def check(self, samples: ArrayLike, dims: Sequence[tuple[str, int]] = (),
+    def check(self, samples: ArrayLike, dims: Sequence[Any] = (),
               at_s: float | None = None) -> list[str]:  # fmt: skip
         """Check one chunk; the warnings to log now (each kind once per node).
 
         Args:
-            samples: the chunk's samples, as received.
-            dims: its layout's dimensions, ``(label, size)`` (empty: no layout).
+            samples: the chunk's samples, as received (float32 bytes, ``array('f')`` or
+                an array).
+            dims: its layout's dimensions (:func:`channel_dims`; empty: no layout).
             at_s: when it was published, wall seconds on the clock's origin (None: now).
         """
         now = self.clock() if at_s is None else at_s
-        x = np.asarray(samples)
+        x = np.frombuffer(samples, np.float32) if isinstance(samples, bytes | array.array) \
+            else np.asarray(samples)  # fmt: skip
+        self._checked = True
         warnings = []
         # max and min first: no temporary array for a chunk within range (10^7 samples)
         loud = x.size > 0 and (x.max() > SAMPLE_LIMIT or x.min() < -SAMPLE_LIMIT)
@@ -278,7 +285,9 @@ class AudioContract:
         return "; ".join(problems)
 
     def values(self) -> dict[str, Any]:
-        """Counts for the diagnostics' values."""
+        """Counts for the diagnostics' values (none before the first chunk)."""
+        if not self._checked:
+            return {}
         return {
             "chunks_out_of_range": self.out_of_range.count,
             "samples_out_of_range": self.out_of_range_samples,

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import random
 import signal
@@ -43,7 +42,8 @@ from collections.abc import Callable, Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
 
-from infomax_contingency.audio.bitsource import BIT_SOURCES
+from infomax_contingency.audio.bitsources import BIT_SOURCES
+from infomax_contingency.cli.demo_checks import check_arguments, finite_number, recording_failure
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
@@ -78,7 +78,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--leave-at",
-        type=_finite_number,
+        type=finite_number,
         default=60.0,
         metavar="SECONDS",
         help="room time the partner leaves; negative: stays (default 60)",
@@ -94,7 +94,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--calibration-s",
-        type=_finite_number,
+        type=finite_number,
         default=10.0,
         help="seconds of the wav file to calibrate the threshold on (default 10)",
     )
@@ -116,17 +116,6 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         help="with --record: leave the 'audio' topic out of the bag (a bag of a few KB)",
     )
     parser.set_defaults(run=run_demo)
-
-
-def _finite_number(text: str) -> float:
-    """An argparse type: a finite number (``nan`` and ``inf`` mean nothing here)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
 
 
 def isolate_dds() -> str:
@@ -238,62 +227,6 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     return nodes, "fake_audio_node"
 
 
-MAX_STEPS = MAX_SEED = 2**31 - 1
-"""Largest ``--steps`` and ``--seed``: the room's ``max_windows`` and ``seed`` parameters."""
-
-MAX_LEAVE_AT_S = 1e9
-"""Largest ``--leave-at``: the room's ``partner_leave_s`` parameter."""
-
-MAX_CALIBRATION_S = 3600.0
-"""Largest ``--calibration-s``: mic_node's ``calibration_s`` parameter."""
-
-
-def _check(args: argparse.Namespace) -> None:
-    """Refuse what the graph cannot run, before a node starts (ValueError: one line)."""
-    if not 1 <= args.steps <= MAX_STEPS:
-        raise ValueError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
-    if not 0 <= args.seed <= MAX_SEED:
-        raise ValueError(f"--seed must be in [0, {MAX_SEED}], got {args.seed}")
-    if not math.isfinite(args.leave_at) or args.leave_at > MAX_LEAVE_AT_S:
-        raise ValueError(
-            f"--leave-at must be at most {MAX_LEAVE_AT_S:g} s (negative: the partner stays),"
-            f" got {args.leave_at}"
-        )
-    if args.memory < 0:
-        raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
-    if args.wav and not Path(args.wav).is_file():
-        raise ValueError(f"--wav {args.wav}: no such file")
-    if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
-        raise ValueError(
-            f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
-            f" got {args.calibration_s}"
-        )
-    if args.record:
-        _check_record_directory(Path(args.record))
-
-
-def _check_record_directory(directory: Path) -> None:
-    """Refuse a ``--record`` directory that exists or that cannot be created and written.
-
-    Tried for real (the directory and a file in it are made, then removed): a path the
-    permissions allow on paper may still refuse (``/proc``, a read-only mount, a full disk).
-    """
-    if directory.exists() or directory.is_symlink():
-        raise ValueError(f"--record {directory}: exists already; name a new directory")
-    try:
-        directory.mkdir()
-    except OSError as error:
-        raise ValueError(f"--record {directory}: cannot create it: {error.strerror}") from None
-    try:
-        with tempfile.TemporaryFile(dir=directory):
-            pass
-    except OSError as error:
-        raise ValueError(f"--record {directory}: cannot write in it: {error.strerror}") from None
-    finally:
-        with contextlib.suppress(OSError):
-            directory.rmdir()
-
-
 class Interrupted(BaseException):
     """SIGINT or SIGTERM reached the demo: stop the nodes, exit 128 + the signal number."""
 
@@ -330,7 +263,7 @@ def run_demo(args: argparse.Namespace) -> int:
     Exit status 0 after a run, 1 if the graph failed, 2 for bad arguments, 130 / 143
     after SIGINT / SIGTERM (every node process is stopped first).
     """
-    _check(args)
+    check_arguments(args)
     domain = isolate_dds()
     profile = demo_dds_profile()
     nodes, clock = _nodes(args)
@@ -421,33 +354,28 @@ def _run_graph(
                 _wait_for_postures(recorder, steps)
             outcome = recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
         finally:
-            # A signal now must not cut the stopping short: it waits until every node is
-            # stopped, then interrupts (and the demo still exits 130 / 143).
-            stop_signals = {signal.SIGINT, signal.SIGTERM}
-            signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
-            try:
-                processes.stop_all()
-                if recorder is not None:
-                    recorder.destroy_node()
-                rclpy.try_shutdown()
-            finally:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
-        return (args.record and _recording_failure(Path(args.record), processes)) or outcome
+            _stop_graph(processes, recorder)
+        lost = args.record and recording_failure(Path(args.record), processes.log("recorder_node"))
+        return lost or outcome
 
 
-def _recording_failure(directory: Path, processes: Any) -> str:
-    """Why the stopped recorder left no whole bag in ``directory``; "" when it did.
+def _stop_graph(processes: Any, recorder: Any) -> None:
+    """Stop every node process, then the monitor and ROS.
 
-    The recorder keeps the graph running when it cannot write (it logs an ERROR and
-    says so in its diagnostics), and writes ``metadata.yaml`` on a clean stop only after
-    writing everything: without it the bag is missing or cut short.
+    A signal now must not cut the stopping short: it waits until every node is stopped,
+    then interrupts (and the demo still exits 130 / 143).
     """
-    if (directory / "metadata.yaml").is_file():
-        return ""
-    lines = processes.log("recorder_node").splitlines()
-    errors = [line.split("]: ", 1)[-1].strip() for line in lines if "[ERROR]" in line]
-    reason = errors[0] if errors else "it wrote no metadata.yaml"
-    return f"--record {directory}: the session was not recorded whole: {reason}"
+    import rclpy
+
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+    try:
+        processes.stop_all()
+        if recorder is not None:
+            recorder.destroy_node()
+        rclpy.try_shutdown()
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
 
 
 def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,

@@ -35,6 +35,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.nodes.entry import NODES as PACKAGE_NODES
 
@@ -52,6 +53,8 @@ class ParameterReader:
 
     def __init__(self, node: Node) -> None:
         self._node = node
+        self.node = node
+        """The node whose parameters these are."""
         self._coercers: dict[str, Callable[[Any], Any]] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
@@ -308,6 +311,17 @@ class ParameterReader:
             allowed,
         )
 
+    def declared(self, spec: SettingSpec) -> Any:
+        """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text."""
+        read_only = not spec.live
+        if isinstance(spec.default, str):
+            return self.text(spec.name, spec.default, spec.description, spec.choices, read_only)
+        if isinstance(spec.default, int):
+            return self.integer(spec.name, spec.default, spec.description, int(spec.low),
+                                int(spec.high), read_only)  # fmt: skip
+        return self.number(spec.name, spec.default, spec.description, spec.low, spec.high,
+                           spec.unit, read_only)  # fmt: skip
+
     def model(self) -> ModelParams:
         """The ``params`` parameter: a named model parameter set or a YAML file."""
         name = self.text(
@@ -317,9 +331,33 @@ class ParameterReader:
             " dt, ts1, ts2, ta1, ta2, pi and optionally the Beta priors b11 .. b32",
         )
         try:
-            return ModelParams.load(name)
+            params = ModelParams.load(name)
         except ParameterError as error:
             raise ConfigError(f"parameter 'params' = {name!r}: {error}") from None
+        self._refuse_another_window(params.dt)
+        return params
+
+    def _refuse_another_window(self, dt: float) -> None:
+        """Refuse a ``window_s`` given for the node that is not the model's dt (seconds).
+
+        The window (one step) is always the model's dt; ``window_s`` is no parameter. A
+        parameter file that still sets it to dt works; another value would silently be
+        another window than the one meant, so the node stops and says so.
+        """
+        given = getattr(self._node, "_parameter_overrides", {}).get("window_s")
+        if given is None:
+            return
+        value = given.value
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if abs(value - dt) <= 1e-9:
+                return
+            shown = f"{value:g} s"
+        else:
+            shown = repr(value)
+        raise ConfigError(
+            f"parameter 'window_s' = {shown} differs from the model's dt = {dt:g} s (parameter"
+            " 'params'): one window is one step of the model; remove window_s"
+        )
 
 
 
@@ -345,10 +383,13 @@ def device_parameter(node: Node, what: str) -> str:
     return str(value).strip()
 
 
-SHARED_PARAMETERS = frozenset({"params", "window_s", "fault_hold_s", "diagnostics_period_s",
-                               "use_sim_time"})  # fmt: skip
+SHARED_PARAMETERS = frozenset({"params", "fault_hold_s", "diagnostics_period_s", "use_sim_time"})
 """Parameters a ``/**`` section may give every node although some nodes do not declare
-them (``config/robot.yaml``: the model, the window length, the diagnostics' timing)."""
+them (``config/robot.yaml``: the model, the diagnostics' timing)."""
+
+CHECKED_UNDECLARED = frozenset({"window_s"})
+"""Keys no node declares that the nodes read themselves: ``window_s``, no parameter any
+more, which a file may still set to the model's dt (:meth:`ParameterReader.model`)."""
 
 _PARAMETERS_KEY = "ros__parameters"
 
@@ -426,32 +467,38 @@ def undeclared_parameters(files: Sequence[str], nodes: Sequence[DeclaringNode]
     :data:`SHARED_PARAMETERS`. Unreadable files are skipped (rcl refused them already).
     """
     found: list[tuple[DeclaringNode | None, str]] = []
-    own = {node.get_fully_qualified_name().rsplit("/", 1)[-1] for node in nodes}
     for file in files:
         try:
             sections = list(parameter_sections(yaml.safe_load(Path(file).read_text())))
         except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError):
             continue  # rcl read it, this check cannot: it says nothing rather than fail
         for pattern, keys in sections:
-            matched = [n for n in nodes if section_matches(pattern, n.get_fully_qualified_name())]
-            last = pattern.rsplit("/", 1)[-1]
-            wildcard = last in ("*", "**")
-            if not matched:
-                if not wildcard and last not in PACKAGE_NODES and last not in own and keys:
-                    found.append((None, (
-                        f"parameter file {file}: section '{pattern}' matches no node (the"
-                        f" package's nodes: {', '.join(PACKAGE_NODES)}); its parameters"
-                        f" {', '.join(keys)} are ignored")))
-                continue
-            for key in keys:
-                if wildcard:
-                    if key in SHARED_PARAMETERS or any(n.has_parameter(key) for n in nodes):
-                        continue
-                    targets = matched
-                else:
-                    targets = [n for n in matched if not n.has_parameter(key)]
-                for node in targets:
-                    found.append((node, (
-                        f"parameter file {file}: '{key}' (section '{pattern}') is not a"
-                        f" parameter of {node.get_fully_qualified_name()}: ignored")))
+            found += [(node, f"parameter file {file}: {message}")
+                      for node, message in _section_findings(pattern, keys, nodes)]  # fmt: skip
+    return found
+
+
+def _section_findings(pattern: str, keys: list[str], nodes: Sequence[DeclaringNode]
+                      ) -> list[tuple[DeclaringNode | None, str]]:  # fmt: skip
+    """:func:`undeclared_parameters` of one section ``pattern`` holding ``keys``."""
+    matched = [n for n in nodes if section_matches(pattern, n.get_fully_qualified_name())]
+    last = pattern.rsplit("/", 1)[-1]
+    wildcard = last in ("*", "**")
+    if not matched:
+        own = {node.get_fully_qualified_name().rsplit("/", 1)[-1] for node in nodes}
+        if wildcard or last in PACKAGE_NODES or last in own or not keys:
+            return []  # another namespace's, or another process's
+        return [(None, f"section '{pattern}' matches no node (the package's nodes:"
+                       f" {', '.join(PACKAGE_NODES)}); its parameters {', '.join(keys)} are"
+                       " ignored")]  # fmt: skip
+    found: list[tuple[DeclaringNode | None, str]] = []
+    for key in (key for key in keys if key not in CHECKED_UNDECLARED):
+        if wildcard:  # for every node: some take it, others need not
+            shared = key in SHARED_PARAMETERS or any(n.has_parameter(key) for n in nodes)
+            targets = [] if shared else matched
+        else:
+            targets = [n for n in matched if not n.has_parameter(key)]
+        found += [(node, f"'{key}' (section '{pattern}') is not a parameter of"
+                         f" {node.get_fully_qualified_name()}: ignored")
+                  for node in targets]  # fmt: skip
     return found

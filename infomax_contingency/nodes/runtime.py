@@ -287,7 +287,7 @@ def warn_undeclared_parameters(nodes: Sequence[Node], program: str, args: Sequen
         logger.warning(message)
 
 
-def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
+def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,  # noqa: C901
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
 
