@@ -41,6 +41,7 @@ from std_srvs.srv import Trigger
 from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import UNSEPARATED, SettingError
 from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
 from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, TopicWindows
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
@@ -103,6 +104,9 @@ class MicNode(GraphNode):
         self.started = self.ended = False
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
+        audio = self.resolve_topic_name("audio")
+        self.contract = AudioContract(config.audio_rate_hz, self.fault_hold_s, publishers=lambda: [
+            info.node_name for info in self.get_publishers_info_by_topic(audio)])
         if self.replay is not None:
             self.get_logger().info(
                 f"replaying {self.source.describe()},"
@@ -247,6 +251,9 @@ class MicNode(GraphNode):
         if 0 < int(info.get("source_timestamp", 0)) < self.started_ns:
             self.stale_messages += 1  # published before this node started
             return
+        sent_s = self.sent_s(int(info.get("source_timestamp", 0)), self.contract.clock())
+        for warning in self.contract.check(msg.data, msg.layout.dim, sent_s):
+            self.get_logger().warning(warning)
         sequence = info.get("publication_sequence_number")
         try:
             missed = self.source.feed(np.frombuffer(msg.data, dtype=np.float32),
@@ -258,6 +265,7 @@ class MicNode(GraphNode):
             return
         if missed:
             self.losses.note(self.now_s())
+            self.contract.chunks_lost()
         for window in self.source.take():
             self._window(window)
 
@@ -367,6 +375,7 @@ class MicNode(GraphNode):
             "bad_chunks": self.bad_chunks,
             **bits.diagnostic_values(),
             **self.source.status(),
+            **self.contract.values(),  # none before the first chunk of 'audio'
         }
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
@@ -383,8 +392,10 @@ class MicNode(GraphNode):
             return ERROR, bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
-        if self.losses.recent(now) or self.timeouts.recent(now):
-            return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
+        problem = self.contract.problem()  # the 'audio' contract broken lately
+        if problem or self.losses.recent(now) or self.timeouts.recent(now):
+            problem = problem or "audio lost or lockstep timeouts lately (counts in the values)"
+            return WARN, problem, values
         return OK, f"{self.windows} windows", values
 
 
