@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from infomax_contingency.core.flowcontrol import Listening, StepOutbox
 from infomax_contingency.core.model import (
     AGENT,
     BACKGROUND,
@@ -17,14 +18,12 @@ from infomax_contingency.core.model import (
 from infomax_contingency.core.stepclock import (
     MAX_STEP_JUMP,
     Arrival,
-    Listening,
     LockstepPacer,
     Pace,
     PublicationTimes,
     RecentEvents,
     SourceLock,
     StepJoiner,
-    StepOutbox,
     StepPace,
 )
 

@@ -51,7 +51,7 @@ from infomax_contingency.core.controllers import (
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -108,19 +108,10 @@ class ControllerNode(GraphNode):
     NODE_NAME = "controller_node"
     WATCHED_TOPICS = (SOUND_STEP,)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         params = read.model()
-        window_s = read.number(
-            "window_s", params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {params.dt:g} s (parameter 'params' and the policy table)"
-            )
         path = read.text(
             "policy_file",
             "",
@@ -162,6 +153,18 @@ class ControllerNode(GraphNode):
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
+        if spec:
+            self.get_logger().info(f"controller {self.controller.name} (no table);"
+                                   f" controller id {self.controller_id}")
+        else:
+            self.get_logger().info(
+                f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
+                + (f", memory {table.memory}" if table.mode == "receding" else "")
+                + f"; controller id {self.controller_id}"
+            )
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
@@ -172,16 +175,6 @@ class ControllerNode(GraphNode):
         self.wait_visibly(
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )
-        self.start_diagnostics()
-        if spec:
-            self.get_logger().info(f"controller {self.controller.name} (no table);"
-                                   f" controller id {self.controller_id}")
-        else:
-            self.get_logger().info(
-                f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
-                + (f", memory {table.memory}" if table.mode == "receding" else "")
-                + f"; controller id {self.controller_id}"
-            )
 
     def _listeners_ready(self) -> bool:
         return self.step_pub.get_subscription_count() >= self.wait_for_listeners
@@ -237,7 +230,7 @@ class ControllerNode(GraphNode):
             self.controller.missed(self.controller.params.timer_long_ago)
         if arrival is not Arrival.FOLLOWED:
             self.pace.restart()
-        for taken in self.take_on_pace(self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
+        for taken in take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
                                        bit, "bit", f"stream {bit.stream}"):  # fmt: skip
             self._answer(taken, now)
 

@@ -48,7 +48,7 @@ from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
 from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
 from infomax_contingency.audio.wav import read_wav
 from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -65,8 +65,8 @@ class SpeakerNode(GraphNode):
     NODE_NAME = "speaker_node"
     WATCHED_TOPICS = ("vocalize", VOCALIZE_STEP)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         self.dry_run = read.flag(
             "dry_run", True, "Only count vocalizations, play nothing (live)", read_only=False
@@ -94,12 +94,8 @@ class SpeakerNode(GraphNode):
             "A followed controller silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         )
-        window_s = read.number(
-            "window_s", 0.5, "Window (step) length of the graph, for the pace of its steps",
-            0.01, 10.0, "s",
-        )
         self.controllers = SourceLock(timeout_s)
-        self.pace = StepPace(1.0 / window_s, timeout_s)
+        self.pace = StepPace(1.0 / read.model().dt, timeout_s)  # one step per window: dt
         self._answered = (0, 0)
         """The last step played or passed: (stream, step)."""
         self.sound = {
@@ -114,10 +110,16 @@ class SpeakerNode(GraphNode):
         self.speaker: SpeakerOutput | None = None
         self._opened: SpeakerOutput | None = None
         """A loudspeaker opened by a live ``dry_run`` false, until the set applies."""
+        if self.dry_run and sound_file:
+            read_wav(sound_file)  # a bad file is refused in a dry run too
+        self.output_errors = self.recent_events()
+        self.foreign = self.recent_events()
+        self.jumps = self.recent_events()
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.started_pub = self.create_publisher(TimeMsg, "speaker_started", STREAM_QOS)
         if self.dry_run:
-            if sound_file:
-                read_wav(sound_file)  # a bad file is refused in a dry run too
             self.get_logger().info("dry run: vocalizations are counted, not played")
         else:
             self.speaker = self._open_speaker()
@@ -125,11 +127,7 @@ class SpeakerNode(GraphNode):
             EVENTS_POLL_S, self._publish_starts, autostart=self.speaker is not None
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
-        self.foreign = self.recent_events()
-        self.jumps = self.recent_events()
         self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS)
-        self.output_errors = self.recent_events()
-        self.start_diagnostics()
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -147,7 +145,7 @@ class SpeakerNode(GraphNode):
             return
         if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
             self.pace.restart()
-        taken = self.take_on_pace(self.pace, self.jumps, decision.step, sent, decision,
+        taken = take_on_pace(self, self.pace, self.jumps, decision.step, sent, decision,
                                   "decision", f"controller {decision.controller}")  # fmt: skip
         if taken:  # a run taken after a jump is in the past: only its newest may sound
             self._obey(taken[-1])

@@ -11,7 +11,7 @@ dimension labelled with the field names):
   that window, by ``controller`` (a random id chosen by each run of controller_node);
 * ``step_applied``: ``[stream, step, listener]`` — ``listener`` (a random id chosen by
   each run of belief_node) applied every step of ``stream`` up to ``step``: mic_node's
-  flow control waits for it (:class:`~infomax_contingency.core.stepclock.StepOutbox`).
+  flow control waits for it (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`).
 
 A listener joins the two exactly by ``(stream, step)``
 (:class:`~infomax_contingency.core.stepclock.StepJoiner`) and follows one stream and one
