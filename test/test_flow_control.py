@@ -29,7 +29,7 @@ from exact_beliefs import (
     step_pairs,
     true_sources,
 )
-from infomax_contingency.nodes.graph_node import ERROR
+from infomax_contingency.nodes.graph_node import ERROR, WARN
 from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS, STREAM_DEPTH
 from infomax_contingency.nodes.step_topics import (
     StepBit,
@@ -175,3 +175,26 @@ def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
         counts = belief.joiner.counts
         assert (counts.missing_bits, counts.missing_decisions) == (0, 0)
         assert control.missed_steps == 0 and control.last_step == last
+
+
+def test_the_graph_goes_on_without_a_belief_node_that_stopped() -> None:
+    """A belief node that takes no step for listener_timeout_s is let go: nothing hangs."""
+    nodes = {"mic_node": {**MIC, "listener_timeout_s": 0.5, "fault_hold_s": 60.0},
+             "controller_node": CONTROLLER, "belief_node": BELIEF}  # fmt: skip
+    with stepped_graph(nodes, None, recorder_qos=LOSSLESS_READER_QOS) as graph:
+        rec, mic = graph.recorder, graph.nodes["mic_node"]
+        probe = graph.executor.add(Probe())
+        audio = probe.talk("audio", Float32MultiArray)
+        graph.run_until(lambda: audio.get_subscription_count() >= 1 and mic.started,
+                        "the mic on 'audio'")  # fmt: skip
+        audio.publish(_message(_audio(200, seed=6)))
+        graph.run_until(lambda: len(rec.belief) >= 20 and any(
+            x.waited_for for x in mic.outbox.listeners.values()), "20 steps, the belief node"
+            " waited for")  # fmt: skip
+        graph.remove("belief_node")  # as if killed: it takes nothing more
+        graph.run_until(lambda: mic.outbox.given_up == 1 and mic.outbox.last_step == 200,
+                        "the belief node let go, every window published")  # fmt: skip
+        assert mic.outbox.dropped == 0
+        graph.run_until(lambda: len(rec.vocalize_step) == 200, "every step answered")
+        level, message, _ = mic.diagnostic_status()
+        assert level == WARN and "step_applied" in message, message

@@ -189,7 +189,7 @@ def test_outbox_waits_for_a_listener_that_keeps_up_and_lets_a_stalled_one_go() -
         outbox.push(window)
     assert [s for s, _ in outbox.release(paced=True, now=0.0)] == [1, 2]
     assert outbox.acknowledged(7, 3, now=0.0) is Listening.REFUSED  # never handed out
-    assert outbox.acknowledged(7, 1, now=0.1) is Listening.WAITED_FOR  # 1 behind: keeps up
+    assert outbox.acknowledged(7, 1, now=0.1) is Listening.WAITED_FOR  # from its first on
     outbox.answered(2)
     # the controller answered both, the listener took one: one more step may go
     assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [3]
@@ -204,12 +204,14 @@ def test_outbox_waits_for_a_listener_that_keeps_up_and_lets_a_stalled_one_go() -
     assert outbox.give_up_stalled(now=5.9) == [] and outbox.release(paced=True, now=5.9) == []
     assert outbox.give_up_stalled(now=6.0) == [7] and outbox.given_up == 1
     assert [s for s, _ in outbox.release(paced=True, now=6.0)] == [6, 7]
-    # far behind, it is not waited for; once it keeps up again, it is
-    assert outbox.acknowledged(7, 4, now=6.1) is Listening.BEHIND
     outbox.answered(7)
-    assert [s for s, _ in outbox.release(paced=True, now=6.2)] == [8, 9]
-    assert outbox.acknowledged(7, 8, now=6.3) is Listening.WAITED_FOR
+    assert [s for s, _ in outbox.release(paced=True, now=6.1)] == [8, 9]
+    # it takes a step again: waited for until it has caught up
+    assert outbox.acknowledged(7, 3, now=6.2) is Listening.TAKEN  # an old one: no news
+    assert outbox.acknowledged(7, 4, now=6.2) is Listening.WAITED_FOR
     outbox.answered(9)
+    assert outbox.release(paced=True, now=6.3) == [] and outbox.in_flight == 5
+    assert outbox.acknowledged(7, 8, now=6.4) is Listening.TAKEN
     assert [s for s, _ in outbox.release(paced=True, now=6.4)] == [10]
 
 

@@ -29,8 +29,8 @@ class StepListener:
     """The highest step it acknowledged."""
     busy_since: float
     """When it last took a step, or last had nothing left to take (seconds)."""
-    waited_for: bool = False
-    """True while the outbox waits for it (it keeps up, and has not stalled)."""
+    waited_for: bool = True
+    """True while the outbox waits for it (it has not stalled)."""
 
 
 class Listening(Enum):
@@ -39,9 +39,7 @@ class Listening(Enum):
     TAKEN = "taken"
     """A step taken (or an old one repeated)."""
     WAITED_FOR = "waited for"
-    """The listener keeps up: from now on the outbox waits for it."""
-    BEHIND = "behind"
-    """A step taken by a listener too far behind to be waited for (yet)."""
+    """A new listener, or one given up that takes steps again: the outbox waits for it."""
     REFUSED = "refused"
     """A step never handed out (a forgery): ignored."""
 
@@ -56,11 +54,11 @@ class StepOutbox:
     first) and counted.
 
     Listeners (:meth:`acknowledged`) are the nodes that need every step: a listener is
-    waited for once it acknowledges a step at most ``max_ahead`` behind the last one
-    handed out (it keeps up), so a graph without it, or with one that is far behind (it
-    restarted), runs on at the controller's pace; one that took nothing for
-    ``listener_timeout_s`` while it had steps to take is no longer waited for
-    (:meth:`give_up_stalled`: killed, hung) until it keeps up again.
+    waited for from its first acknowledgment on (a graph without one runs at the
+    controller's pace); one that took nothing for ``listener_timeout_s`` while it had
+    steps to take is no longer waited for (:meth:`give_up_stalled`: killed, hung) until
+    it takes a step again (then the outbox waits until it has caught up: the steps it
+    has not taken are in its queue, or it counts them as lost).
 
     Args:
         max_ahead: steps that may be published and not yet answered and taken (>= 1).
@@ -134,15 +132,15 @@ class StepOutbox:
             if len(self.listeners) >= self.MAX_LISTENERS:
                 idle = min(self.listeners, key=lambda key: self.listeners[key].busy_since)
                 del self.listeners[idle]
-            known = self.listeners[listener] = StepListener(step, now)
-        elif step > known.taken:
-            known.taken, known.busy_since = step, now
+            self.listeners[listener] = StepListener(step, now)
+            return Listening.WAITED_FOR
+        if step <= known.taken:
+            return Listening.TAKEN  # an old step again: no news
+        known.taken, known.busy_since = step, now
         if known.waited_for:
             return Listening.TAKEN
-        if self.last_step - known.taken <= self.max_ahead:
-            known.waited_for = True
-            return Listening.WAITED_FOR
-        return Listening.BEHIND
+        known.waited_for = True
+        return Listening.WAITED_FOR
 
     def give_up_stalled(self, now: float) -> list[int]:
         """Stop waiting for listeners that took nothing for ``listener_timeout_s``; their ids."""
