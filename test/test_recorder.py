@@ -10,6 +10,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+# mcap reads the bags back independently of the recorder's library (test_depend
+# mcap-ros2-support); without it these tests skip, with this reason.
+pytest.importorskip("mcap", reason="mcap is not installed (pip install mcap-ros2-support)")
+
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from mcap.exceptions import EndOfFile

@@ -49,6 +49,7 @@ from infomax_contingency.audio.threshold import (
     ThresholdFit,
     load_threshold,
 )
+from infomax_contingency.errors import MissingPackageError
 
 THRESHOLD_MODES = ("calibrate", "fixed", "file", "noise_floor")
 """How ``energy`` and ``speech_band`` set their threshold."""
@@ -285,7 +286,10 @@ class VadBitSource:
         frame_ms: int = 30,
         min_voiced_s: float = 0.1,
     ) -> None:
-        import webrtcvad  # here, so the other sources need no webrtcvad
+        try:
+            import webrtcvad  # here, so the other sources need no webrtcvad
+        except ModuleNotFoundError:
+            raise MissingPackageError("webrtcvad-wheels", "bit source 'vad'") from None
 
         rate_hz = check_rate(rate_hz, "rate_hz")
         if rate_hz not in VAD_RATES_HZ:
