@@ -137,7 +137,8 @@ def launch(workspace: Path, tmp_path: Path) -> Iterator:
 @pytest.mark.slow
 @pytest.mark.dds_defaults  # as a robot's user runs it
 def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path, launch) -> None:
-    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true")
+    # log_level sets the nodes' loggers only: rcl's debug lines (thousands) stay out.
+    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true log_level:=debug")
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
     # realtime:=true is the default: the room runs at the speed of the room, not lockstep.
     graph.wait_for("[robot7.fake_audio_node]: room 'responsive' (seed 1), real time x1")
@@ -161,8 +162,39 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
     # or 0.5); read-only parameters give theirs the same way (test_params.py)
     assert "must be below 'attentive_above'" in answers["refused"], answers["refused"]
     assert "statistic reset after" in answers["reset"], answers["reset"]
+    graph.wait_for("[robot7.speaker_node]: vocalize (dry run)")  # a debug line of a node
     assert graph.stop() == 0
     assert "Traceback" not in graph.output()
+    assert "[rcl]" not in graph.output() and "[rmw" not in graph.output()
+    last_line = graph.output().strip().splitlines()[-1]
+    assert last_line.endswith("launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped")
+
+
+@pytest.mark.slow
+def test_ctrl_c_as_the_nodes_start_and_a_bad_choice_end_the_launch_in_one_clear_line(
+    workspace: Path, launch
+) -> None:
+    """Ctrl-C the moment every node process exists: no traceback, "interrupted" last.
+
+    The nodes' interpreters are then still starting (a second or more for the six of
+    them): the launch starts them with SIGINT and SIGTERM blocked until their entry point
+    takes the signals over. A true/false argument refuses any other value.
+    """
+    graph = launch("contingency.launch.py use_fake_room:=true")
+    maybe = launch("contingency.launch.py use_fake_room:=maybe")  # at once, beside it
+    for index, node in enumerate(("mic_node", "fake_audio_node", "controller_node",
+                                  "belief_node", "posture_node", "speaker_node"), 1):
+        graph.wait_for(f"[{node}-{index}]: process started")  # fmt: skip
+    assert graph.stop() == 0
+    output = graph.output()
+    assert "Traceback" not in output and "exit code" not in output, output[-3000:]
+    assert output.strip().splitlines()[-1].endswith(
+        "launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped"
+    ), output[-3000:]
+    assert maybe.process.wait(timeout=60) != 0
+    refusal = """provided value "maybe" is not valid. Valid options are: ['true', 'false']"""
+    assert refusal in maybe.output(), maybe.output()
+    assert "process started" not in maybe.output()
 
 
 @pytest.mark.slow
