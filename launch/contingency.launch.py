@@ -22,9 +22,11 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   ``fake_room_file`` (default config/fake_room.yaml) by mic_node and fake_audio_node
   with the fake room.
 - ``record`` (default false) / ``record_dir``: true adds this package's recorder_node
-  with parameter ``directory`` = ``record_dir``; mic_node then waits for it as a third
-  listener of ``sound_step`` (and the fake room for its ``partner_present``), so the bag
-  holds the session from its first step.
+  with parameter ``directory`` = ``record_dir`` (default: a new
+  ``session_YYYY_MM_DD-HH_MM_SS`` in the current directory, as ``ros2 bag record`` names
+  its bags; a ``record_dir`` that exists already is refused and ends the launch);
+  mic_node then waits for it as a third listener of ``sound_step`` (and the fake room
+  for its ``partner_present``), so the bag holds the session from its first step.
 - ``controller`` (default empty: the policy table): ``interval:MIN_S-MAX_S`` makes
   controller_node follow the calibration protocol, sounds at random intervals uniform over
   MIN_S .. MAX_S seconds; with ``record:=true`` that is a calibration session for
@@ -51,6 +53,7 @@ import os
 import re
 import signal
 import subprocess
+import time
 
 from launch.actions import (
     DeclareLaunchArgument,
@@ -259,7 +262,8 @@ def _graph(context: LaunchContext) -> list:
                      + ([controller] if controller and name == "controller_node" else []))
                 for name in GRAPH_NODES]
     if record:
-        directory = LaunchConfiguration("record_dir")
+        directory = LaunchConfiguration("record_dir").perform(context).strip()
+        directory = directory or time.strftime("session_%Y_%m_%d-%H_%M_%S")
         actions.append(node("recorder_node", [params_file, {"directory": directory}]))
     _WATCH.nodes = [a for a in actions if isinstance(a, Node)]
     _WATCH.started = len(_WATCH.nodes)
@@ -324,8 +328,9 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
         ),
         DeclareLaunchArgument(
             "record_dir",
-            default_value="sessions",
-            description="directory of recorder_node (with record:=true)",
+            default_value="",
+            description="bag directory of recorder_node (with record:=true), new; empty ="
+            " session_YYYY_MM_DD-HH_MM_SS in the current directory",
         ),
     ]
 

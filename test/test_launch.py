@@ -150,6 +150,8 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
         "refused": (ros2_once_known,
                     "param set --no-daemon /robot7/posture_node bored_below 0.99"),
         "reset": (ros2, "service call /robot7/belief_node/reset std_srvs/srv/Trigger"),
+        "threshold": (ros2_once_known,
+                      "param set --no-daemon /robot7/mic_node threshold_db -30.0"),
     }  # fmt: skip
     with ThreadPoolExecutor(len(commands)) as pool:
         running = {key: pool.submit(run, workspace, arguments)
@@ -163,6 +165,11 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
     assert "must be below 'attentive_above'" in answers["refused"], answers["refused"]
     assert "statistic reset after" in answers["reset"], answers["reset"]
     graph.wait_for("[robot7.speaker_node]: vocalize (dry run)")  # a debug line of a node
+    # The threshold in force, at start-up and set live; what posture_node waited for.
+    graph.wait_for("[robot7.mic_node]: threshold in force: -30.00 dB (threshold_db,")
+    assert "[robot7.mic_node]: threshold in force: -40.00 dB (threshold_db," in graph.output()
+    assert "[robot7.posture_node]: waiting for '/robot7/belief'" in graph.output()
+    graph.wait_for("[robot7.posture_node]: '/robot7/belief' received after")
     assert graph.stop() == 0
     assert "Traceback" not in graph.output()
     assert "[rcl]" not in graph.output() and "[rmw" not in graph.output()
@@ -205,6 +212,8 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
     graph = launch(f"contingency.launch.py params_file:={bad}")
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
+    (tmp_path / "old_session").mkdir()
+    recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
     assert graph.process.wait(timeout=60) is not None
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
@@ -213,6 +222,13 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     )
     assert missing.process.wait(timeout=60) is not None
     assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in missing.output()
+    # a recorder refuses a directory that exists: the launch ends, naming it
+    assert recorded.process.wait(timeout=60) is not None
+    assert "old_session' exists already" in recorded.output(), recorded.output()[-3000:]
+    assert recorded.output().strip().splitlines()[-1].endswith(
+        "launch stopped: recorder_node-6 exited with status 2 (its error is above)"
+    )
+    assert list((tmp_path / "old_session").iterdir()) == []
 
 
 def robot_params(tmp_path: Path, name: str, **sections: dict) -> Path:

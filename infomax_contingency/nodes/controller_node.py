@@ -162,9 +162,6 @@ class ControllerNode(GraphNode):
         self.unanswered_bits = 0
         self._last_unanswered: tuple[Int64MultiArray, int] | None = None
         self.start_when_ready(self._listeners_ready, 0.0, self._start_answering)
-        self.wait_visibly(
-            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
-        )
         self.start_diagnostics()
         if spec:
             self.get_logger().info(f"controller {self.controller.name} (no table);"
@@ -175,6 +172,9 @@ class ControllerNode(GraphNode):
                 + (f", memory {table.memory}" if table.mode == "receding" else "")
                 + f"; controller id {self.controller_id}"
             )
+        self.wait_visibly(
+            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
+        )
 
     def _listeners_ready(self) -> bool:
         return self.step_pub.get_subscription_count() >= self.wait_for_listeners

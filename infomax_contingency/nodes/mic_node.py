@@ -97,7 +97,7 @@ import numpy as np
 from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 
-from infomax_contingency.audio.binarizer import UNSEPARATED, WavReplay
+from infomax_contingency.audio.binarizer import UNSEPARATED, NoiseFloorBinarizer, WavReplay
 from infomax_contingency.audio.bitsource import (
     BIT_SOURCES,
     SPEECH_BAND_HZ,
@@ -129,6 +129,9 @@ from infomax_contingency.nodes.step_topics import (
 )
 
 SOURCES = ("wav", "topic", "sounddevice", "bag")
+
+NOISE_FLOOR_LOG_STEP_DB = 1.0
+"""A noise-floor threshold is logged again once it moved by this much (dB)."""
 
 MICROPHONE_POLL_S = 0.02
 """Seconds between reads of the live microphone's finished windows."""
@@ -459,6 +462,8 @@ class MicNode(GraphNode):
         self.wait_for_listeners = config.wait_for_listeners
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
+        self._threshold_logged_db: float | None = None
+        """The threshold in force last logged (dB); see :meth:`_log_threshold_in_force`."""
         self.bits = make_binarizer(config, self._calibration_refused)
         if config.bit_source != "energy":
             self.get_logger().info(
@@ -510,6 +515,7 @@ class MicNode(GraphNode):
             "is controller_node running?",
         )
         self.get_logger().info(f"stream id {self.stream_id}")
+        self._log_threshold_in_force()
         self.start_diagnostics()
 
     @property
@@ -761,7 +767,9 @@ class MicNode(GraphNode):
             self.energy_pub.publish(Float32(data=energy_db))
             return None
         if was_calibrating:
-            self.get_logger().info(self.bits.ready_message())
+            self.get_logger().info(self.bits.ready_message())  # the threshold and its source
+            self._threshold_logged_db = self.bits.threshold_db
+        self._log_threshold_in_force()  # a refit, a moving noise floor
         dropped = self.outbox.dropped
         self.outbox.push((energy_db, bit))
         if self.outbox.dropped > dropped:
@@ -815,11 +823,50 @@ class MicNode(GraphNode):
 
     def _live_threshold_parameters(self) -> None:
         """Let threshold_db, threshold_mode, threshold_file and refresh_s change live."""
-        live = self.parameters.live
+        def live(name: str, apply: Callable[[Any], None], check: Callable[[Any], None]) -> None:
+            def apply_and_log(value: Any) -> None:
+                apply(value)
+                self._log_threshold_in_force()
+
+            self.parameters.live(name, apply_and_log, check)
+
         live("threshold_db", self._set_threshold, self._check_fixed_threshold)
         live("threshold_mode", self._set_threshold_mode, self._check_threshold_mode)
         live("threshold_file", self._set_threshold_file, self._check_threshold_file)
         live("refresh_s", self._set_refresh, self._check_refresh)
+
+    def _log_threshold_in_force(self) -> None:
+        """Log (INFO) the threshold in force and where it came from, when it changed.
+
+        Called wherever it can change: at start-up, after each window (a calibration
+        that ended, an accepted refit, the noise floor) and after a live parameter set.
+        A noise-floor threshold follows the floor window by window: it is logged when it
+        moved by :data:`NOISE_FLOOR_LOG_STEP_DB` or more (the diagnostics show each value).
+        """
+        rule = self.bits.rule
+        threshold_db = None if rule is None else rule.threshold_db
+        if threshold_db is None:
+            return  # vad, or calibrating: the end of the calibration is logged
+        last = self._threshold_logged_db
+        noise_floor = isinstance(rule, NoiseFloorBinarizer)
+        step = NOISE_FLOOR_LOG_STEP_DB if noise_floor else 0.005
+        if last is not None and abs(threshold_db - last) < step:
+            return
+        self._threshold_logged_db = threshold_db
+        if noise_floor:
+            origin = f"noise floor {rule.floor_db:.1f} dB + margin {rule.margin_db:g} dB"
+        elif rule.fit is not None:
+            fit = rule.fit
+            origin = (f"k-means of {fit.n_low + fit.n_high} windows: quiet"
+                      f" {fit.low_mean_db:.1f} dB, sound {fit.high_mean_db:.1f} dB")  # fmt: skip
+        elif self.config.threshold_mode == "file":
+            origin = f"threshold_file {self.config.threshold_file}"
+        else:
+            origin = f"threshold_db, threshold_mode {self.config.threshold_mode}"
+        self.get_logger().info(
+            f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
+            f" {self.config.bit_source})"
+        )
 
     def _check_has_threshold(self, name: str, value: Any) -> None:
         """A live threshold parameter needs a threshold that decides the bits."""
@@ -852,6 +899,7 @@ class MicNode(GraphNode):
                 f" {fit.n_low + fit.n_high} windows of {path} (quiet"
                 f" {fit.low_mean_db:.1f} dB, sound {fit.high_mean_db:.1f} dB)"
             )
+            self._threshold_logged_db = fit.threshold_db
 
     def _use_bits(self, bits: BitSource) -> None:
         """Put ``bits`` (a new threshold rule, same kind) in force from the next window.
@@ -905,11 +953,7 @@ class MicNode(GraphNode):
                 f"{what} on the next {windows} windows: no bits until then (their energies"
                 " are published)"
             )
-        else:
-            self.get_logger().info(
-                f"threshold_mode {mode}: threshold {rule.threshold_db:.2f} dB from the next"
-                " window on"
-            )
+        # else: the new threshold is logged by _log_threshold_in_force (from the next window)
 
     def _check_threshold_file(self, path: str) -> None:
         """In threshold_mode file, a new ``threshold_file`` must load (for this source's level)."""

@@ -86,6 +86,7 @@ class PostureNode(GraphNode):
         self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
         self.joints_pub = self.create_publisher(JointTrajectory, "joint_targets", LATCHED_QOS)
         self.subscribe(Float64, "belief", self._on_belief)
+        self.wait_visibly("belief", "P(S=1) from belief_node: is it running?")
         self._publish(initial)
         self.start_diagnostics()
 

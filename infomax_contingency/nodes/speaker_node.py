@@ -101,6 +101,7 @@ class SpeakerNode(GraphNode):
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.wait_visibly("vocalize", "the decisions of controller_node: is it running?")
         self.output_errors = self.recent_events()
         self.start_diagnostics()
 
