@@ -188,8 +188,12 @@ class GraphNode(Node):
         pacer: LockstepPacer | None = None,
         on_timeout: Callable[[], None] | None = None,
         stalled_hint: str = "",
+        waiting_for: str = "",
     ) -> None:
         """Call ``start`` once ``ready()`` has held for ``delay_s`` seconds.
+
+        ``waiting_for`` (e.g. "2 listeners on 'sound_step'"), if given, is logged (INFO)
+        at once, and again with the time waited when the gate opens.
 
         The start gate of a node that sets the pace of the graph: ``ready`` checks that
         its listeners are there; then every subscriber it sees on its topics must be
@@ -201,6 +205,9 @@ class GraphNode(Node):
         """
         ready_since: list[float] = []
         connected_since: list[float] = []
+        gate_since_s = time.monotonic()
+        if waiting_for:
+            self.get_logger().info(f"waiting for {waiting_for}")
 
         def check_timeout() -> None:
             now = time.monotonic()
@@ -234,6 +241,10 @@ class GraphNode(Node):
             self.destroy_timer(gate)
             if pacer is not None and on_timeout is not None:
                 self.create_timer(_TIMEOUT_POLL_S, check_timeout)
+            if waiting_for:
+                self.get_logger().info(
+                    f"{waiting_for}: there after {now - gate_since_s:.1f} s of waiting"
+                )
             start()
 
         gate = self.create_timer(_GATE_POLL_S, poll)

@@ -513,6 +513,7 @@ class MicNode(GraphNode):
             self.pacer,
             self._on_timeout,
             "is controller_node running?",
+            f"{self.wait_for_listeners} listeners on '{SOUND_STEP}'",
         )
         self.get_logger().info(f"stream id {self.stream_id}")
         self._log_threshold_in_force()
