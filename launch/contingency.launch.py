@@ -241,6 +241,9 @@ def _graph(context: LaunchContext) -> list:
         room = dict(pacing)
         seed = LaunchConfiguration("room_seed").perform(context).strip()
         if seed:
+            if not seed.isdigit():
+                raise ValueError(f"room_seed:={seed} is not allowed: a whole number >= 0, or"
+                                 " empty for the seed of fake_room_file")  # fmt: skip
             room["seed"] = int(seed)
         if record:
             room["wait_for_truth_listeners"] = 1
