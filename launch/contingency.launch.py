@@ -11,7 +11,7 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   (``/robot1/belief``, ``/robot1/belief_node/reset``); the shipped configs use
   ``/**/node:`` keys, so they apply in any namespace.
 - ``use_fake_room`` (default false): add fake_audio_node, a simulated room, and listen to
-  it; ``fake_room`` is its old name, still accepted with a deprecation line.
+  it.
 - ``realtime`` (default true): the fake room plays at the speed of the room (one 0.5 s
   window per 0.5 s); false runs lockstep, as fast as the graph answers.
 - ``room_seed`` (default empty = fake_room_file's): the simulated room's seed.
@@ -32,7 +32,7 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   MIN_S .. MAX_S seconds; with ``record:=true`` that is a calibration session for
   ``infomax-contingency analyze`` (``calibration-session`` does it in one command).
 
-``use_fake_room``, ``fake_room``, ``realtime`` and ``record`` take ``true`` or ``false``;
+``use_fake_room``, ``realtime`` and ``record`` take ``true`` or ``false``;
 any other value ends the launch before a node starts, naming the valid values.
 
 A node that exits with an error ends the whole launch with a final line naming it; a
@@ -110,6 +110,15 @@ def _prefix(context: LaunchContext, executable: str) -> str:
     if user_prefix and (not only or re.match(only, executable)):
         return user_prefix
     return " ".join(BLOCK_STOP_SIGNALS) if _can_block_signals() else ""
+
+
+def _room_seed(context: LaunchContext) -> dict:
+    """``{"seed": N}`` from ``room_seed:=N``; ``{}`` when empty (fake_room_file's seed)."""
+    seed = LaunchConfiguration("room_seed").perform(context).strip()
+    if seed and not seed.isdigit():
+        raise ValueError(f"room_seed:={seed} is not allowed: a whole number >= 0, or empty for"
+                         " the seed of fake_room_file")  # fmt: skip
+    return {"seed": int(seed)} if seed else {}
 
 
 def node_logger(namespace: str, name: str) -> str:
@@ -196,11 +205,6 @@ def _graph(context: LaunchContext) -> list:
     log_level = LaunchConfiguration("log_level")
     actions: list = []
     fake_room = _is_true(context, "use_fake_room")
-    if _is_true(context, "fake_room"):
-        actions.append(
-            LogInfo(msg="fake_room:=true is deprecated; use use_fake_room:=true (same effect)")
-        )
-        fake_room = True
     realtime = _is_true(context, "realtime")
     files = ["params_file"] + (["fake_room_file"] if fake_room else [])
     for argument in files:
@@ -239,12 +243,7 @@ def _graph(context: LaunchContext) -> list:
         # Lockstep on request; paced at the room's speed (speed 1.0) by default.
         pacing = {"lockstep": not realtime}
         room = dict(pacing)
-        seed = LaunchConfiguration("room_seed").perform(context).strip()
-        if seed:
-            if not seed.isdigit():
-                raise ValueError(f"room_seed:={seed} is not allowed: a whole number >= 0, or"
-                                 " empty for the seed of fake_room_file")  # fmt: skip
-            room["seed"] = int(seed)
+        room.update(_room_seed(context))
         if record:
             room["wait_for_truth_listeners"] = 1
         _WATCH.mic = node("mic_node", [params_file, fake_room_file, {**pacing, **mic}])
@@ -287,12 +286,6 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
             default_value="false",
             choices=BOOLEAN_CHOICES,
             description="true: add fake_audio_node, a simulated room, and listen to it",
-        ),
-        DeclareLaunchArgument(
-            "fake_room",
-            default_value="false",
-            choices=BOOLEAN_CHOICES,
-            description="deprecated name of use_fake_room",
         ),
         DeclareLaunchArgument(
             "fake_room_file",

@@ -56,13 +56,11 @@ def _threshold_lines(text: str) -> list[str]:
             if "[mic_node]: threshold in force" in line]  # fmt: skip
 
 
-def test_mic_node_logs_the_threshold_in_force_whenever_it_changes(
-    graph: Callable, capfd: pytest.CaptureFixture[str]
-) -> None:
+def _mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
+    """A mic_node on 'audio', started; ``play(levels_db)`` sends one window per level."""
     node, probe, executor = graph(
-        MicNode, source="topic", threshold_mode="fixed", threshold_db=-40.0,
-        calibration_s=1.0, noise_window_s=1.0, noise_percentile=0.0,
-        wait_for_listeners=1, start_delay_s=0.0,
+        MicNode, source="topic", calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0,
+        **parameters,
     )  # fmt: skip
     probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
     energies = probe.listen("sound_energy", Float32)
@@ -76,17 +74,33 @@ def test_mic_node_logs_the_threshold_in_force_whenever_it_changes(
         audio.publish(_audio(levels))
         executor.run_until(lambda: len(energies) == heard + len(levels), "the windows")
 
+    return node, probe, executor, play
+
+
+def test_mic_node_logs_the_threshold_in_force_at_start_up_and_when_set_live(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    node, probe, executor, play = _mic(graph, threshold_mode="fixed", threshold_db=-40.0)
     assert _threshold_lines(capfd.readouterr().err) == [
         "threshold in force: -40.00 dB (threshold_db, threshold_mode fixed; bit_source energy)"
     ]
     _set(probe, executor, "mic_node", threshold_db=-30.0)  # live: logged at once
     play([-35.0, -45.0])  # the same threshold: nothing more
-    _set(probe, executor, "mic_node", threshold_mode="noise_floor")
+    assert _threshold_lines(capfd.readouterr().err) == [
+        "threshold in force: -30.00 dB (threshold_db, threshold_mode fixed; bit_source energy)"
+    ]
+
+
+def test_mic_node_logs_a_threshold_that_follows_the_noise_floor_when_it_moved(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    node, probe, executor, play = _mic(
+        graph, threshold_mode="noise_floor", noise_window_s=1.0, noise_percentile=0.0
+    )
     # 2 windows start the floor at -60 dB; it then follows the last 2 windows: -40 dB
     # moves it 20 dB up, -40.5 dB by less than 1 dB (not logged again)
     play([-60.0, -60.0, -60.0, -40.0, -40.0, -40.5])
     assert _threshold_lines(capfd.readouterr().err) == [
-        "threshold in force: -30.00 dB (threshold_db, threshold_mode fixed; bit_source energy)",
         "threshold in force: -50.11 dB (noise floor -60.1 dB + margin 10 dB; bit_source"
         " energy)",
         "threshold in force: -30.04 dB (noise floor -40.0 dB + margin 10 dB; bit_source"

@@ -263,7 +263,7 @@ def test_colcon_build_layout(colcon_workspace: Path) -> None:
 def test_the_vad_bit_source_without_webrtcvad_names_the_package(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from infomax_contingency.audio.bitsource import make_bit_source
+    from infomax_contingency.audio.bitsources import make_bit_source
     from infomax_contingency.errors import USER_ERRORS, MissingPackageError
 
     monkeypatch.setitem(sys.modules, "webrtcvad", None)  # the import then fails

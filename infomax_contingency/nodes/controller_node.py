@@ -103,19 +103,10 @@ class ControllerNode(GraphNode):
     NODE_NAME = "controller_node"
     WATCHED_TOPICS = (SOUND_STEP,)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         params = read.model()
-        window_s = read.number(
-            "window_s", params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {params.dt:g} s (parameter 'params' and the policy table)"
-            )
         path = read.text(
             "policy_file",
             "",
@@ -155,13 +146,6 @@ class ControllerNode(GraphNode):
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
-        self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
-        self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
-        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
-        self.answering = False
-        self.unanswered_bits = 0
-        self._last_unanswered: tuple[Int64MultiArray, int] | None = None
-        self.start_diagnostics()
         if spec:
             self.get_logger().info(f"controller {self.controller.name} (no table);"
                                    f" controller id {self.controller_id}")
@@ -171,6 +155,15 @@ class ControllerNode(GraphNode):
                 + (f", memory {table.memory}" if table.mode == "receding" else "")
                 + f"; controller id {self.controller_id}"
             )
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
+        self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
+        self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
+        self.answering = False
+        self.unanswered_bits = 0
+        self._last_unanswered: tuple[Int64MultiArray, int] | None = None
         self.start_when_ready(
             self._listeners_ready, 0.0, self._start_answering,
             waiting_for=f"{self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'",
