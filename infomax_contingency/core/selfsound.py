@@ -33,7 +33,10 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
+from collections.abc import Sequence
 from typing import Any, Generic, TypeVar
+
+from infomax_contingency.core.model import Withheld
 
 NS_PER_S = 1_000_000_000
 
@@ -233,6 +236,16 @@ class ChunkClock:
                 break
             self._chunks.popleft()
         return self.time_ns(first_sample), self.time_ns(first_sample + samples)
+
+
+def recorded_observation(fields: Sequence[int]) -> bool | Withheld:
+    """The observation of a ``sound_step`` message's fields, as recorded.
+
+    ``[stream, step, bit, window_us, withheld]``; a message of the first four fields
+    (recorded before ``withheld`` existed) is a window not withheld.
+    """
+    bit = bool(fields[2])
+    return Withheld(bit) if len(fields) > 4 and fields[4] == 1 else bit
 
 
 def describe(gate: SelfSoundGate[Any]) -> dict[str, Any]:

@@ -32,7 +32,8 @@ from infomax_contingency.audio.threshold import (
     require_separation,
 )
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
+from infomax_contingency.core.selfsound import recorded_observation
 from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import BitObservation, StepRecord, step_record
@@ -52,7 +53,7 @@ class RecordedSession:
         memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
     """
 
-    bits: list[tuple[int, bool]]
+    bits: list[tuple[int, bool | Withheld]]
     decisions: list[tuple[int, bool]]
     beliefs: list[float]
     memory_steps: int
@@ -71,7 +72,7 @@ def load_session(directory: Path) -> RecordedSession:
         raise ValueError(f"the session {directory} holds no sound_step messages: nothing to"
                          " replay (was mic_node running while it was recorded?)")
     stream = steps[0][0]
-    bits = [(int(s[1]), bool(s[2])) for s in steps if s[0] == stream]
+    bits = [(int(s[1]), recorded_observation(s)) for s in steps if s[0] == stream]
     decisions = [(int(d[1]), bool(d[2])) for d in (list(m.data) for _, m in
                  topics["/vocalize_step"]) if d[0] == stream]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
@@ -100,15 +101,12 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
                                memory)
     out: list[StepRecord] = []
 
-    def apply(step: int, y: bool | None, u: bool | None) -> None:
+    def apply(step: int, y: bool | Withheld | None, u: bool | None) -> None:
         z = tracker.statistic.z
-        if y is None:
-            tracker.skip_observation()
-        else:
-            tracker.observe(y)
-        statistic = tracker.statistic
+        statistic = tracker.observe_window(y)  # a withheld or missing bit is not counted
+        heard = y.bit if isinstance(y, Withheld) else bool(y)
         out.append(StepRecord(
-            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(bool(y)),
+            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(heard),
             u=int(bool(u)), belief=statistic.belief(params),
             entropy=statistic.entropy(params), ratio=statistic.variance_ratio(params),
         ))

@@ -78,6 +78,18 @@ is connected, plus ``start_delay_s`` for the rest of the graph to connect; windo
 ``audio`` topic that arrive meanwhile wait, none is lost. ``max_windows > 0`` stops the
 node (exit status 0) after that many bits, once the subscribers have acknowledged them.
 
+Self-sound: any node may declare the robot's own sound (speech, motors) on
+``self_sound`` (``[start_ns, end_ns]`` on the ROS clock, see
+:mod:`~infomax_contingency.core.selfsound`). A window that overlaps a declared range is
+published *withheld* (``sound_step``'s last field; ``sound`` still carries the bit
+heard): no listener counts it. While ``self_sound`` has a publisher, each window waits
+``self_sound_hold_s`` past its end for the ranges that overlap it; a range that comes
+later, from another clock or that makes no sense is counted and logged (WARN). Window
+times: a live microphone's ADC times; on the ``audio`` topic, the time since the
+previous chunk's publication (:class:`~infomax_contingency.core.selfsound.ChunkClock`);
+a file or bag paced in real time, the time it is served. A session bag replays its
+recorded withheld windows.
+
 Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB),
 ``/diagnostics`` (for a live microphone also the device, its state, overflows, dropped
 blocks, lost samples, gaps and reconnections).
@@ -113,18 +125,21 @@ from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceEr
 from infomax_contingency.audio.energy import WindowAssembler
 from infomax_contingency.audio.threshold import load_threshold
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.selfsound import ChunkClock, SelfSoundGate, describe
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
+    SELF_SOUND,
     SOUND_STEP,
     VOCALIZE_STEP,
     StepBit,
     bit_message,
     new_source_id,
     parse_decision,
+    parse_self_sound,
     window_us,
 )
 
@@ -165,6 +180,7 @@ class MicConfig:
     max_windows: int
     max_steps_ahead: int
     max_backlog_s: float
+    self_sound_hold_s: float
     wav_file: str
     bag_dir: str
     channel: int
@@ -270,6 +286,11 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
             "max_backlog_s", 3600.0,
             "Audio whose windows may wait for the controller; more is dropped and counted",
             1.0, 86400.0, "s",
+        ),
+        "self_sound_hold_s": read.number(
+            "self_sound_hold_s", 0.15,
+            f"While '{SELF_SOUND}' has a publisher, each window waits this long past its end"
+            " for the robot's declared sound ranges that overlap it", 0.0, 10.0, "s",
         ),
     }
 
@@ -493,6 +514,12 @@ class MicNode(GraphNode):
         self.max_window_delay_s = float("nan")
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
+        self.self_sound = SelfSoundGate[tuple[float, bool, bool]](config.self_sound_hold_s)
+        self.self_sound_faults = self.recent_events()
+        self._self_sound_sub = self.subscribe(
+            Int64MultiArray, SELF_SOUND, self._on_self_sound, STEP_READER_QOS
+        )
+        self.create_timer(MICROPHONE_POLL_S, self._pass_self_sound_gate)
         if self.source == "wav":
             self._setup_wav(config)
         elif self.source == "bag":
@@ -561,6 +588,8 @@ class MicNode(GraphNode):
 
     def _setup_topic(self, rate: int) -> None:
         self.assembler = WindowAssembler(rate, self.window_s)
+        self.chunk_clock = ChunkClock(rate)
+        self._windows_since_gap = 0
         self._last_sequence: int | None = None
         self.create_subscription(
             Float32MultiArray, "audio", self._on_audio_message, AUDIO_QOS
@@ -665,7 +694,10 @@ class MicNode(GraphNode):
             return None
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
-        return self._window(energy, samples, recorded_bit)
+        now_ns = self.get_clock().now().nanoseconds
+        span = (now_ns - round(self.window_s * 1e9), now_ns)
+        withheld = self.bag is not None and self.bag.last_withheld
+        return self._window(energy, samples, recorded_bit, span, withheld)
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -694,8 +726,12 @@ class MicNode(GraphNode):
                 self.dropped_chunks += sequence - self._last_sequence - 1
                 self.losses.note(self.now_s())
                 self.assembler.reset()
+                self.chunk_clock.reset()
+                self._windows_since_gap = 0
             self._last_sequence = sequence
         chunk = np.frombuffer(msg.data, dtype=np.float32)
+        published_ns = int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds
+        self.chunk_clock.add(chunk.size, published_ns)
         try:
             if self.bits.needs_samples:
                 windows = self.assembler.push_windows(chunk)
@@ -708,17 +744,27 @@ class MicNode(GraphNode):
             return
         if self.bits.needs_samples:
             for samples in windows:
-                self._window(0.0, samples)
+                self._window(0.0, samples, span_ns=self._next_chunk_window())
             return
         for energy in energies:
-            self._window(float(energy))
+            self._window(float(energy), span_ns=self._next_chunk_window())
+
+    def _next_chunk_window(self) -> tuple[int, int]:
+        """The time range (ROS ns) of the next window of the ``audio`` topic."""
+        n = self.assembler.samples_per_window
+        self._windows_since_gap += 1
+        return self.chunk_clock.window_ns((self._windows_since_gap - 1) * n, n)
 
     def _read_microphone(self) -> None:
         for window in self.microphone.read_windows(0.0):
             if self.finished.done():
                 return
             self._note_window(window)
-            self._window(window.energy_db, window.samples if self.bits.needs_samples else None)
+            ros_minus_monotonic_ns = self.get_clock().now().nanoseconds - time.monotonic_ns()
+            span = (round(window.start_time * 1e9) + ros_minus_monotonic_ns,
+                    round(window.end_time * 1e9) + ros_minus_monotonic_ns)  # fmt: skip
+            self._window(window.energy_db, window.samples if self.bits.needs_samples else None,
+                         span_ns=span)  # fmt: skip
             self.window_delay_s = time.monotonic() - window.end_time
             self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
 
@@ -740,13 +786,19 @@ class MicNode(GraphNode):
         energy_db: float,
         samples: np.ndarray | None = None,
         recorded_bit: bool | None = None,
+        span_ns: tuple[int, int] | None = None,
+        withheld: bool = False,
     ) -> bool | None:
         """A window was made: its bit (after calibration) waits in the outbox to go out.
 
         ``samples``: the window's samples, for a bit source that needs them (then its
         energy comes from the bit source and ``energy_db`` is not used).
         ``recorded_bit``: the bit a session bag without audio recorded for it (the bit
-        source is not applied). Returns the bit (None for a calibration window).
+        source is not applied). ``span_ns``: the window's time range on the ROS clock
+        (ns), which the robot's declared own sound may overlap; ``withheld``: withheld
+        whatever is declared (a session bag's recorded withheld window). First the
+        window waits in the self-sound gate. Returns the bit (None for a calibration
+        window).
         """
         was_calibrating = self.bits.calibrating and recorded_bit is None
         if recorded_bit is not None:
@@ -762,8 +814,25 @@ class MicNode(GraphNode):
             return None
         if was_calibrating:
             self.get_logger().info(self.bits.ready_message())
+        now_ns = self.get_clock().now().nanoseconds
+        start_ns, end_ns = span_ns or (now_ns, now_ns)
+        self.self_sound.push(start_ns, end_ns, (energy_db, bit, withheld))
+        self._pass_self_sound_gate()
+        return bit
+
+    def _pass_self_sound_gate(self) -> None:
+        """Windows whose self-sound is known go to the outbox (withheld or not)."""
+        if not self.self_sound.waiting:
+            return
+        # In lockstep from a file there is no live sound to wait for.
+        holding = (self.pacer is None or self.source == "topic") and (
+            self._self_sound_sub.get_publisher_count() > 0)  # fmt: skip
+        released = self.self_sound.release(self.get_clock().now().nanoseconds, holding)
+        if not released:
+            return
         dropped = self.outbox.dropped
-        self.outbox.push((energy_db, bit))
+        for (energy_db, bit, recorded), withheld in released:
+            self.outbox.push((energy_db, bit, withheld or recorded))
         if self.outbox.dropped > dropped:
             self.losses.note(self.now_s())
             self.log_throttled(
@@ -773,7 +842,20 @@ class MicNode(GraphNode):
                 f" {self.config.max_backlog_s:g} s waited for the controller",
             )
         self._release()
-        return bit
+
+    def _on_self_sound(self, msg: Int64MultiArray, stamp: int) -> None:
+        """A node declared the robot's own sound: check the range, keep it, say what is wrong."""
+        declared = parse_self_sound(msg)
+        now_ns = self.get_clock().now().nanoseconds
+        if declared is None:
+            self.self_sound.refused += 1
+            verdict_problem = (f"'{SELF_SOUND}' message refused: {list(msg.data)} (expected"
+                               " [start_ns, end_ns] on the ROS clock)")  # fmt: skip
+        else:
+            verdict_problem = self.self_sound.declare(*declared, now_ns).problem
+        if verdict_problem:
+            self.self_sound_faults.note(self.now_s())
+            self.log_throttled("self_sound", "warning", verdict_problem)
 
     def _release(self) -> None:
         """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
@@ -786,12 +868,12 @@ class MicNode(GraphNode):
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit) in self.outbox.release(paced):
+        for step, (energy_db, bit, withheld) in self.outbox.release(paced):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(
-                bit_message(StepBit(self.stream_id, step, bit, self.window_us))
+                bit_message(StepBit(self.stream_id, step, bit, self.window_us, withheld))
             )
             if self.max_windows and self.windows >= self.max_windows:
                 self.get_logger().info(f"{self.windows} bits published (max_windows): stopping")
@@ -981,6 +1063,7 @@ class MicNode(GraphNode):
             "dropped_chunks": self.dropped_chunks,
             "bad_chunks": self.bad_chunks,
             **b.diagnostic_values(),
+            **describe(self.self_sound),
         }
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
@@ -1009,6 +1092,8 @@ class MicNode(GraphNode):
             return OK, "calibrating the threshold", values
         if self.losses.recent(now) or self.timeouts.recent(now):
             return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
+        if self.self_sound_faults.recent(now):
+            return WARN, f"'{SELF_SOUND}' ranges refused or late lately (see the log)", values
         return OK, f"{self.windows} windows", values
 
 
