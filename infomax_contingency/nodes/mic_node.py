@@ -100,6 +100,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -516,6 +517,8 @@ class MicNode(GraphNode):
         self.timeouts = self.recent_events()
         self.self_sound = SelfSoundGate[tuple[float, bool, bool]](config.self_sound_hold_s)
         self.self_sound_faults = self.recent_events()
+        self.self_sound_problems: deque[str] = deque(maxlen=16)
+        """The latest problems with ``self_sound`` ranges (refused or late), oldest first."""
         self._self_sound_sub = self.subscribe(
             Int64MultiArray, SELF_SOUND, self._on_self_sound, STEP_READER_QOS
         )
@@ -854,6 +857,7 @@ class MicNode(GraphNode):
         else:
             verdict_problem = self.self_sound.declare(*declared, now_ns).problem
         if verdict_problem:
+            self.self_sound_problems.append(verdict_problem)
             self.self_sound_faults.note(self.now_s())
             self.log_throttled("self_sound", "warning", verdict_problem)
 
@@ -1065,6 +1069,8 @@ class MicNode(GraphNode):
             **b.diagnostic_values(),
             **describe(self.self_sound),
         }
+        if self.self_sound_problems:
+            values["self_sound_last_problem"] = self.self_sound_problems[-1]
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:

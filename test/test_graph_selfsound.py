@@ -1,0 +1,95 @@
+"""End to end: a robot that speaks, and the ``self_sound`` topic that says so.
+
+The fake room's robot speaks after each vocalization, in the agent period: without a
+declaration its speech looks exactly like a partner's reply. With fake_audio_node
+declaring it on ``self_sound``, mic_node publishes those windows withheld and no node
+counts them. In the test process on one hand-stepped executor (real DDS between the
+nodes); every run equals the offline loop, withheld windows included.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+from std_msgs.msg import Int64MultiArray
+
+from graph_harness import FIXED_THRESHOLD, room_nodes
+from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.selfsound import NS_PER_S
+from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.step_topics import SELF_SOUND, self_sound_message
+from infomax_contingency.resources import resource_path
+from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+from infomax_contingency.testing.stepped import nodes_on_their_own_executors
+from stepped_graph import stepped_graph
+
+STEPS, SEED, MEMORY = 100, 3, 60
+SPEAKING_ROBOT = {"room": "silent", "seed": SEED, "robot_speech_probability": 1.0}
+"""Nobody in the room; the robot speaks 1.0 s after every vocalization, for 0.6-1.0 s."""
+
+
+def offline(declare: bool) -> list:
+    """The offline loop of the same room, memory and threshold."""
+    params = ModelParams.named("robot")
+    table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"),
+                             expected_params=params)  # fmt: skip
+    config = FakeRoomConfig.preset("silent", robot_speech_probability=1.0)
+    return simulate_audio_loop(PolicyController(table), FakeRoom(config, SEED),
+                               Binarizer(FIXED_THRESHOLD["threshold_db"]), STEPS, memory=MEMORY,
+                               declare_self_sound=declare)  # fmt: skip
+
+
+@pytest.mark.parametrize("declare", [False, True], ids=["undeclared", "declared"])
+def test_the_robots_speech_counts_only_when_undeclared(declare: bool) -> None:
+    nodes = room_nodes({**SPEAKING_ROBOT, "declare_self_sound": declare}, STEPS,
+                       memory_steps=MEMORY)  # fmt: skip
+    nodes["mic_node"]["self_sound_hold_s"] = 0.01  # one process: declarations come first
+    with stepped_graph(nodes, "fake_audio_node") as graph:
+        graph.run_steps(STEPS)
+        rec = graph.recorder
+        expected = offline(declare)
+        withheld = [bool(fields[4]) for fields in rec.sound_step[:STEPS]]
+        assert withheld == [r.withheld for r in expected]
+        assert rec.sound[:STEPS] == [bool(r.y) for r in expected]
+        assert rec.vocalize[:STEPS] == [bool(u.u) for u in expected]
+        assert rec.belief[:STEPS] == [r.belief for r in expected]
+        beliefs = np.array(rec.belief[:STEPS])
+        mic = graph.nodes["mic_node"]
+        if declare:
+            assert sum(withheld) >= 10 and mic.self_sound.late == 0
+            assert beliefs.max() < 0.05, f"declared speech still counted: {beliefs.max():.3f}"
+        else:
+            assert not any(withheld) and mic.self_sound.declared == 0
+            assert beliefs[-1] > 0.9, "undeclared, the robot's speech is a partner's reply"
+        assert graph.nodes["belief_node"].tracker.withheld == sum(withheld)
+        assert graph.nodes["controller_node"].withheld_bits == sum(withheld)
+
+
+def test_bad_self_sound_ranges_get_a_clear_diagnostic() -> None:
+    """Ranges from another clock, reversed or endless: refused, counted, named."""
+    with nodes_on_their_own_executors() as start:
+        mic, probe, executor = start(MicNode, source="topic", **FIXED_THRESHOLD)
+        declare = probe.talk(SELF_SOUND, Int64MultiArray)
+        executor.connected(declare)
+        now = mic.get_clock().now().nanoseconds
+        steady = 12_345 * NS_PER_S  # a steady clock's time since boot
+        for start_ns, end_ns in ((steady, steady + NS_PER_S), (now, now - NS_PER_S),
+                                 (now, now + 3600 * NS_PER_S)):  # fmt: skip
+            declare.publish(self_sound_message(start_ns, end_ns))
+        declare.publish(Int64MultiArray(data=[1, 2, 3]))
+        declare.publish(self_sound_message(now, now + NS_PER_S))  # a good one
+        executor.run_until(lambda: mic.self_sound.refused + mic.self_sound.declared == 5,
+                           "five declarations handled")  # fmt: skip
+        assert (mic.self_sound.refused, mic.self_sound.declared) == (4, 1)
+        level, message, values = mic.diagnostic_status()
+        assert level in (DiagnosticStatus.WARN, DiagnosticStatus.OK)
+        assert values["self_sound_refused"] == 4
+        assert "another clock" in mic.self_sound_problems[0]
+        assert "0 < start_ns <= end_ns" in mic.self_sound_problems[1]
+        assert "more than 600 s" in mic.self_sound_problems[2]
+        assert "expected [start_ns, end_ns]" in mic.self_sound_problems[3]
+        assert values["self_sound_last_problem"] == mic.self_sound_problems[3]
