@@ -9,19 +9,28 @@ nodes); every run equals the offline loop, withheld windows included.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
-from std_msgs.msg import Int64MultiArray
+from std_msgs.msg import Float64, Int64MultiArray
 
 from graph_harness import FIXED_THRESHOLD, room_nodes
+from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.audio.binarizer import Binarizer
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.selfsound import NS_PER_S
+from infomax_contingency.eval.sessions import load_session, replay_recorded, write_offline_session
 from infomax_contingency.nodes.mic_node import MicNode
-from infomax_contingency.nodes.step_topics import SELF_SOUND, self_sound_message
+from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.step_topics import (
+    SELF_SOUND,
+    parse_self_sound,
+    self_sound_message,
+)
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
 from infomax_contingency.testing.stepped import nodes_on_their_own_executors
@@ -93,3 +102,45 @@ def test_bad_self_sound_ranges_get_a_clear_diagnostic() -> None:
         assert "more than 600 s" in mic.self_sound_problems[2]
         assert "expected [start_ns, end_ns]" in mic.self_sound_problems[3]
         assert values["self_sound_last_problem"] == mic.self_sound_problems[3]
+
+
+def test_posture_node_declares_its_moves() -> None:
+    """Each move of the head is the robot's own sound for ``move_duration_s``."""
+    with nodes_on_their_own_executors() as start:
+        posture, probe, executor = start(PostureNode, declare_motion_sound=True,
+                                         move_duration_s=1.5)  # fmt: skip
+        declared = probe.listen(SELF_SOUND, Int64MultiArray)
+        belief = probe.talk("belief", Float64)
+        executor.connected(belief)
+        executor.run_until(lambda: posture.self_sound_pub.get_subscription_count() > 0,
+                           "the probe on self_sound")  # fmt: skip
+        before = posture.get_clock().now().nanoseconds
+        belief.publish(Float64(data=0.95))  # bored -> attentive: the head moves
+        executor.run_until(lambda: bool(declared), "a declared move")
+        start_ns, end_ns = parse_self_sound(declared[-1])
+        assert before <= start_ns and end_ns - start_ns == round(1.5 * NS_PER_S)
+        assert posture.hysteresis.posture == "attentive"
+
+
+def test_a_session_with_withheld_windows_replays_to_its_belief(tmp_path: Path) -> None:
+    """Recorded withheld windows stay withheld: offline replay, bag reader and the graph."""
+    expected = offline(declare=True)
+    session_dir = write_offline_session(
+        tmp_path / "session", [r.y for r in expected], [r.u for r in expected],
+        [r.belief for r in expected], 0.5, withheld=[r.withheld for r in expected])
+    withheld = [r.withheld for r in expected]
+    replayed = list(replay_recorded(load_session(session_dir), ModelParams.named("robot"),
+                                    memory=MEMORY))  # fmt: skip
+    assert [row.belief for row in replayed] == [r.belief for r in expected]
+    reader = BagReplay(session_dir, 0.5, 16000)
+    served = [(reader.next_window(), reader.last_withheld) for _ in range(STEPS)]
+    assert [w for _, w in served] == withheld and sum(withheld) >= 10
+    mic = {"source": "bag", "bag_dir": str(session_dir), "lockstep": True,
+           "exit_at_end": True, "threshold_mode": "fixed", "wait_for_listeners": 3}
+    nodes = {"controller_node": {"controller": f"recorded:{session_dir}"},
+             "belief_node": {"memory_steps": MEMORY}, "mic_node": mic}
+    with stepped_graph(nodes, "mic_node") as graph:
+        graph.run_steps(STEPS)
+        rec = graph.recorder
+        assert [bool(fields[4]) for fields in rec.sound_step[:STEPS]] == withheld
+        assert rec.belief[:STEPS] == [r.belief for r in expected]

@@ -247,13 +247,15 @@ OFFLINE_CONTROLLER = 2
 
 
 def write_offline_session(directory: Path, bits: Sequence[bool], decisions: Sequence[bool],
-                          beliefs: Sequence[float], dt: float, start_ns: int = 0) -> Path:
+                          beliefs: Sequence[float], dt: float, start_ns: int = 0,
+                          withheld: Sequence[bool] = ()) -> Path:
     """A session bag of an offline run (e.g. the audio-level fake room's loop).
 
     It holds what a recorded graph run holds for replay and ``analyze``: ``/sound_step``
     and ``/sound`` (the bits), ``/vocalize_step`` and ``/vocalize`` (the decisions) and
     ``/belief``, message ``t`` (from 0) stamped ``start_ns + t dt`` (receive and publish
     time alike). No ``/diagnostics``: replays use the whole history unless told a memory.
+    ``withheld[t]`` (default: none): window t was heard during the robot's own sound.
     """
     from infomax_contingency.audio.bag import BagWriter, encode
 
@@ -265,12 +267,13 @@ def write_offline_session(directory: Path, bits: Sequence[bool], decisions: Sequ
     for topic, kind in topics.items():
         writer.add_topic(topic, kind, stream_qos)
     window_us = round(dt * 1e6)
-    for t, (y, u, belief) in enumerate(zip(bits, decisions, beliefs, strict=True)):
+    withheld = list(withheld) or [False] * len(bits)
+    for t, (y, u, belief, w) in enumerate(zip(bits, decisions, beliefs, withheld, strict=True)):
         time_ns = start_ns + round(t * dt * 1e9)
         step = t + 1
         writer.write("/sound", encode("std_msgs/msg/Bool", data=bool(y)), time_ns)
         writer.write("/sound_step", encode("std_msgs/msg/Int64MultiArray",
-                     data=[OFFLINE_STREAM, step, int(y), window_us]), time_ns)
+                     data=[OFFLINE_STREAM, step, int(y), window_us, int(w)]), time_ns)
         writer.write("/vocalize", encode("std_msgs/msg/Bool", data=bool(u)), time_ns + 1)
         writer.write("/vocalize_step", encode("std_msgs/msg/Int64MultiArray",
                      data=[OFFLINE_STREAM, step, int(u), OFFLINE_CONTROLLER]), time_ns + 1)
