@@ -14,10 +14,10 @@ Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``
 ``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
 ``self_sound`` (the robot's declared own sound), ``/diagnostics``. The session itself
 (the parameter files and threshold file named in ``session_files``, their text) goes
-on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into the metadata's ``custom_data``. ``session_info`` is
-also published (transient-local), and only once every subscription of the recorder
-exists, so a launcher that waits for it (the demo does) cannot start the graph before the
-recorder listens.
+on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into
+the metadata's ``custom_data``. ``session_info`` is also published (transient-local),
+and only once every subscription of the recorder exists, so a launcher that waits for
+it (the demo does) cannot start the graph before the recorder listens.
 
 Robustness: the MCAP file is flushed every ``flush_period_s`` seconds (a chunk ends
 there), so a recorder killed with ``kill -9`` leaves a file readable up to the last
