@@ -97,11 +97,11 @@ def test_bad_self_sound_ranges_get_a_clear_diagnostic() -> None:
         level, message, values = mic.diagnostic_status()
         assert level in (DiagnosticStatus.WARN, DiagnosticStatus.OK)
         assert values["self_sound_refused"] == 4
-        assert "another clock" in mic.self_sound_problems[0]
-        assert "0 < start_ns <= end_ns" in mic.self_sound_problems[1]
-        assert "more than 600 s" in mic.self_sound_problems[2]
-        assert "expected [start_ns, end_ns]" in mic.self_sound_problems[3]
-        assert values["self_sound_last_problem"] == mic.self_sound_problems[3]
+        assert "another clock" in mic.self_sound.problems[0]
+        assert "0 < start_ns <= end_ns" in mic.self_sound.problems[1]
+        assert "more than 600 s" in mic.self_sound.problems[2]
+        assert "expected [start_ns, end_ns]" in mic.self_sound.problems[3]
+        assert values["self_sound_last_problem"] == mic.self_sound.problems[3]
 
 
 def test_posture_node_declares_its_moves() -> None:

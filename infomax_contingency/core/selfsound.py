@@ -90,6 +90,8 @@ class SelfSoundGate(Generic[ItemT]):
     Attributes:
         declared, refused, late: counts of ranges accepted, refused and arrived late.
         withheld: windows released withheld.
+        problems: the latest problems (refused or late ranges), one line each, oldest
+            first.
     """
 
     def __init__(self, hold_s: float, max_range_s: float = MAX_RANGE_S,
@@ -107,18 +109,30 @@ class SelfSoundGate(Generic[ItemT]):
         self.refused = 0
         self.late = 0
         self.withheld = 0
+        self.problems: deque[str] = deque(maxlen=16)
 
     @property
     def waiting(self) -> int:
         """Windows held."""
         return len(self._waiting)
 
+    def declare_fields(self, fields: Sequence[int], now_ns: int) -> Verdict:
+        """A ``self_sound`` message's fields (``[start_ns, end_ns]``), received at ``now_ns``."""
+        if len(fields) != 2:
+            return self._refuse(f"'self_sound' message refused: {list(fields)} (expected"
+                                " [start_ns, end_ns] on the ROS clock)")  # fmt: skip
+        return self.declare(int(fields[0]), int(fields[1]), now_ns)
+
+    def _refuse(self, problem: str) -> Verdict:
+        self.refused += 1
+        self.problems.append(problem)
+        return Verdict(False, problem)
+
     def declare(self, start_ns: int, end_ns: int, now_ns: int) -> Verdict:
         """A node declared the robot's sound over ``[start_ns, end_ns]``, received at ``now_ns``."""
         problem = self._check(start_ns, end_ns, now_ns)
         if problem:
-            self.refused += 1
-            return Verdict(False, problem)
+            return self._refuse(problem)
         self.declared += 1
         self._ranges.append((start_ns, end_ns))
         late = sum(1 for ws, we in self._released if start_ns < we and ws <= end_ns)
@@ -126,14 +140,13 @@ class SelfSoundGate(Generic[ItemT]):
             return Verdict(True)
         self.late += 1
         delay_s = (now_ns - max(start_ns, self._first_overlap_end(start_ns, end_ns))) / NS_PER_S
-        return Verdict(
-            True,
+        self.problems.append(
             f"self-sound [{start_ns}, {end_ns}] ns arrived {delay_s:.3f} s after the end of a"
             f" window it overlaps: {late} window(s) already published were counted as evidence"
             f" (declare the sound when it starts, or raise the hold of"
-            f" {self.hold_ns / NS_PER_S:g} s)",
-            late,
+            f" {self.hold_ns / NS_PER_S:g} s)"
         )
+        return Verdict(True, self.problems[-1], late)
 
     def _first_overlap_end(self, start_ns: int, end_ns: int) -> int:
         return min(we for ws, we in self._released if start_ns < we and ws <= end_ns)
@@ -249,7 +262,10 @@ def recorded_observation(fields: Sequence[int]) -> bool | Withheld:
 
 
 def describe(gate: SelfSoundGate[Any]) -> dict[str, Any]:
-    """The gate's counts for diagnostics."""
-    return {"self_sound_declared": gate.declared, "self_sound_refused": gate.refused,
-            "self_sound_late": gate.late, "withheld_windows": gate.withheld,
-            "windows_held": gate.waiting}  # fmt: skip
+    """The gate's counts (and its latest problem, if any) for diagnostics."""
+    values = {"self_sound_declared": gate.declared, "self_sound_refused": gate.refused,
+              "self_sound_late": gate.late, "withheld_windows": gate.withheld,
+              "windows_held": gate.waiting}  # fmt: skip
+    if gate.problems:
+        values["self_sound_last_problem"] = gate.problems[-1]
+    return values

@@ -100,7 +100,6 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -140,7 +139,6 @@ from infomax_contingency.nodes.step_topics import (
     bit_message,
     new_source_id,
     parse_decision,
-    parse_self_sound,
     window_us,
 )
 
@@ -517,8 +515,6 @@ class MicNode(GraphNode):
         self.timeouts = self.recent_events()
         self.self_sound = SelfSoundGate[tuple[float, bool, bool]](config.self_sound_hold_s)
         self.self_sound_faults = self.recent_events()
-        self.self_sound_problems: deque[str] = deque(maxlen=16)
-        """The latest problems with ``self_sound`` ranges (refused or late), oldest first."""
         self._self_sound_sub = self.subscribe(
             Int64MultiArray, SELF_SOUND, self._on_self_sound, STEP_READER_QOS
         )
@@ -828,8 +824,7 @@ class MicNode(GraphNode):
         if not self.self_sound.waiting:
             return
         # In lockstep from a file there is no live sound to wait for.
-        holding = (self.pacer is None or self.source == "topic") and (
-            self._self_sound_sub.get_publisher_count() > 0)  # fmt: skip
+        holding = self.pacer is None and self._self_sound_sub.get_publisher_count() > 0
         released = self.self_sound.release(self.get_clock().now().nanoseconds, holding)
         if not released:
             return
@@ -848,18 +843,10 @@ class MicNode(GraphNode):
 
     def _on_self_sound(self, msg: Int64MultiArray, stamp: int) -> None:
         """A node declared the robot's own sound: check the range, keep it, say what is wrong."""
-        declared = parse_self_sound(msg)
-        now_ns = self.get_clock().now().nanoseconds
-        if declared is None:
-            self.self_sound.refused += 1
-            verdict_problem = (f"'{SELF_SOUND}' message refused: {list(msg.data)} (expected"
-                               " [start_ns, end_ns] on the ROS clock)")  # fmt: skip
-        else:
-            verdict_problem = self.self_sound.declare(*declared, now_ns).problem
-        if verdict_problem:
-            self.self_sound_problems.append(verdict_problem)
+        verdict = self.self_sound.declare_fields(msg.data, self.get_clock().now().nanoseconds)
+        if verdict.problem:
             self.self_sound_faults.note(self.now_s())
-            self.log_throttled("self_sound", "warning", verdict_problem)
+            self.log_throttled("self_sound", "warning", verdict.problem)
 
     def _release(self) -> None:
         """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
@@ -1069,8 +1056,6 @@ class MicNode(GraphNode):
             **b.diagnostic_values(),
             **describe(self.self_sound),
         }
-        if self.self_sound_problems:
-            values["self_sound_last_problem"] = self.self_sound_problems[-1]
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
