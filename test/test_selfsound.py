@@ -196,3 +196,16 @@ def test_the_robots_speech_is_taken_for_a_partner_unless_it_is_declared() -> Non
         assert any(r.withheld for r in records) == declare
     assert final[False] > 0.9, "undeclared, the robot's speech looks like replies"
     assert final[True] < 0.05, "declared, it is not evidence"
+
+
+def test_the_robot_also_speaks_on_its_own_and_those_windows_are_marked() -> None:
+    config = FakeRoomConfig.preset("silent", robot_speech_rate_hz=0.5, event_rate_hz=0.0)
+    room = FakeRoom(config, 4)
+    windows = [room.next_window() for _ in range(120)]  # 60 s, no vocalization
+    loud = [float(np.mean(w.samples**2)) > 1e-4 for w in windows]  # above -40 dB
+    marked = [w.robot_sound for w in windows]
+    assert room.robot_utterances >= 10 and room.vocalizations == 0
+    assert all(m for m, sound in zip(marked, loud, strict=True) if sound), "unmarked speech"
+    assert sum(loud) >= 0.8 * sum(marked), "marked windows without the robot's speech"
+    quiet = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), 4)
+    assert not any(quiet.next_window().robot_sound for _ in range(120))

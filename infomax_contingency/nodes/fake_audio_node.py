@@ -101,6 +101,8 @@ ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
     ("syllable_rate_hz", "Syllables per second in a reply", 0.1, 50.0, "1/s"),
     ("robot_speech_probability", "Probability that the robot speaks after a vocalization",
      0.0, 1.0, ""),
+    ("robot_speech_rate_hz", "Utterances per second the robot says on its own", 0.0, 100.0,
+     "1/s"),
     ("robot_speech_delay_s", "Start of the robot's speech after its vocalization", 0.0, 60.0,
      "s"),
     ("robot_speech_min_s", "Shortest utterance of the robot", 0.001, 60.0, "s"),

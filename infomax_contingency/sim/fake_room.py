@@ -26,10 +26,12 @@ would on a robot. The room holds (the sounds themselves are made in
 * the robot speaking (a TTS-like utterance through the room's loudspeaker): after a
   vocalization, with probability ``robot_speech_probability``, it says something
   (speech-like sound at ``robot_speech_level_db``) starting ``robot_speech_delay_s``
-  after the vocalization and lasting ``robot_speech_min_s`` .. ``robot_speech_max_s``,
-  from its own random stream. Unlike the chirp it falls in the agent period: to the
-  model it sounds like a partner's reply unless it is declared as the robot's own sound
-  (:attr:`RoomWindow.robot_sound`; fake_audio_node publishes it on ``self_sound``);
+  after the vocalization and lasting ``robot_speech_min_s`` .. ``robot_speech_max_s``;
+  and now and then on its own, ``robot_speech_rate_hz`` utterances per second (a
+  Poisson process), from random streams of their own. After a vocalization it falls in
+  the agent period: to the model it sounds like a partner's reply unless it is declared
+  as the robot's own sound (:attr:`RoomWindow.robot_sound`; fake_audio_node publishes
+  it on ``self_sound``);
 * a partner, present from ``partner_arrive_s`` until ``partner_leave_s`` (room time),
   who answers a vocalization with probability ``reply_probability``: a reply at
   ``reply_level_db``, starting ``reply_delay_min_s`` .. ``reply_delay_max_s`` after the
@@ -142,6 +144,7 @@ class FakeRoomConfig:
     reverb_rt60_s: float = 0.0
     reverb_level_db: float = -35.0
     robot_speech_probability: float = 0.0
+    robot_speech_rate_hz: float = 0.0
     robot_speech_delay_s: float = 1.0
     robot_speech_min_s: float = 0.6
     robot_speech_max_s: float = 1.0
@@ -184,6 +187,7 @@ class FakeRoomConfig:
             "door_rate_hz",
             "footsteps_rate_hz",
             "robot_speech_delay_s",
+            "robot_speech_rate_hz",
         ):
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
@@ -317,6 +321,7 @@ _LIVE_FIELDS = frozenset({
     "self_delay_s", "self_level_db", "partner_arrive_s", "partner_leave_s",
     "reply_probability", "reply_level_db", "reply_delay_min_s", "reply_delay_max_s",
     "reply_min_s", "reply_max_s", "syllable_rate_hz", "robot_speech_probability",
+    "robot_speech_rate_hz",
     "robot_speech_delay_s", "robot_speech_min_s", "robot_speech_max_s", "robot_speech_level_db",
 })
 """Fields of :class:`FakeRoomConfig` that :meth:`FakeRoom.reconfigure` may change."""
@@ -377,11 +382,14 @@ class FakeRoom:
         self.config = config
         self.rate = config.rate_hz
         self.window = window_samples(config.rate_hz, config.window_s)
-        streams = np.random.SeedSequence(seed).spawn(9)  # the first three: as ever
-        noise, events, replies, doors, steps, babble, tv, reverb, speech = (
+        streams = np.random.SeedSequence(seed).spawn(10)  # the first three: as ever
+        noise, events, replies, doors, steps, babble, tv, reverb, speech, chatter = (
             np.random.default_rng(stream) for stream in streams
         )
         self._speech_rng = speech
+        self._chatter_rng = chatter
+        self._next_chatter = self._chatter_gap()
+        """Room sample of the robot's next utterance of its own (inf: none)."""
         self._robot_f0 = float(speech.uniform(90.0, 130.0))
         self._robot_speech: list[tuple[int, int]] = []
         """The robot's utterances still to come or under way: (first, end) room samples."""
@@ -438,6 +446,8 @@ class FakeRoom:
             chirp = synthesize_chirp(self.rate, ROBOT_SOUND_S, amplitude=1.0)
             self._chirp = rms_scaled(chirp, config.self_level_db)
         self._floor.rms = 10.0 ** (config.noise_floor_db / 20.0)
+        if config.robot_speech_rate_hz != old.robot_speech_rate_hz:
+            self._next_chatter = self.windows_made * self.window + self._chatter_gap()
         if config.event_rate_hz != old.event_rate_hz:
             knocks = self._streams[0]
             knocks.gap = self._poisson_gap(self._event_rng, config.event_rate_hz)
@@ -572,12 +582,20 @@ class FakeRoom:
             return
         if self._speech_rng.random() >= config.robot_speech_probability:
             return
-        length = self._speech_rng.uniform(config.robot_speech_min_s, config.robot_speech_max_s)
-        n = max(1, round(length * self.rate))
-        voice = room_sounds.speech_like(
-            n, self.rate, self._speech_rng, config.syllable_rate_hz, self._robot_f0
-        )
         first = vocalization_start + round(config.robot_speech_delay_s * self.rate)
+        self._speak(first, self._speech_rng)
+
+    def _chatter_gap(self) -> float:
+        """Room samples to the robot's next utterance of its own (exponential; inf: none)."""
+        rate_hz = self.config.robot_speech_rate_hz
+        return math.inf if rate_hz <= 0 else self._chatter_rng.exponential(self.rate / rate_hz)
+
+    def _speak(self, first: int, rng: np.random.Generator) -> None:
+        """The robot says an utterance from room sample ``first`` on."""
+        config = self.config
+        length = rng.uniform(config.robot_speech_min_s, config.robot_speech_max_s)
+        n = max(1, round(length * self.rate))
+        voice = room_sounds.speech_like(n, self.rate, rng, config.syllable_rate_hz, self._robot_f0)
         self._sounds.append(_Sound(first, rms_scaled(voice, config.robot_speech_level_db),
                                    "robot_speech"))  # fmt: skip
         self._robot_speech.append((first, first + n))
@@ -614,6 +632,9 @@ class FakeRoom:
         end = start + self.window
         for stream in self._streams:
             self._sounds.extend(stream.due(end))
+        while self._next_chatter < end:
+            self._speak(int(self._next_chatter), self._chatter_rng)
+            self._next_chatter += self._chatter_gap()
         x = self._floor.next(self.window)
         if self._meter is not None:
             self._measure("floor", x, self.window)
