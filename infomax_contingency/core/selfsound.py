@@ -82,6 +82,10 @@ class SelfSoundGate(Generic[ItemT]):
     node publishes on ``self_sound``) a window waits until ``hold_ns`` past its end;
     otherwise it goes at once.
 
+    A window released withheld is no evidence for anything downstream: a threshold that
+    learns the background's level from the windows the model counts as background (a
+    self-calibrating threshold) must not take it either.
+
     Args:
         hold_s: seconds a window waits past its end for ranges that overlap it (the
             latency allowed from the sound's start to its declaration's arrival).
