@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Int64MultiArray
 
 from graph_harness import FIXED_THRESHOLD, room_nodes
@@ -120,6 +121,10 @@ def test_posture_node_declares_its_moves() -> None:
         start_ns, end_ns = parse_self_sound(declared[-1])
         assert before <= start_ns and end_ns - start_ns == round(1.5 * NS_PER_S)
         assert posture.hysteresis.posture == "attentive"
+        # mic_node holds its windows while 'self_sound' has a publisher: none when not declaring
+        result = posture.set_parameters([Parameter("declare_motion_sound", value=False)])
+        assert result[0].successful and posture.self_sound_pub is None
+        assert posture.count_publishers(SELF_SOUND) == 0
 
 
 def test_a_session_with_withheld_windows_replays_to_its_belief(tmp_path: Path) -> None:

@@ -51,6 +51,7 @@ import sys
 import time
 from typing import Any
 
+from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
@@ -254,7 +255,10 @@ class FakeAudioNode(GraphNode):
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
         self.declare_self_sound = config.declare_self_sound
-        self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
+        self.self_sound_pub: Publisher | None = None
+        """On ``self_sound`` once the room's robot may speak (and declares it): mic_node
+        holds its windows while the topic has a publisher, so there is none before."""
+        self._publish_self_sound_if_needed(config.room)
         self.self_sound_declared = 0
         self._audio_sent_ns: int | None = None
         """ROS time (ns) just after the newest window's audio was published."""
@@ -355,12 +359,22 @@ class FakeAudioNode(GraphNode):
         message.data = array.array("f", as_transmitted(window.samples).tobytes())
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
-        if window.robot_sound and self.declare_self_sound:
+        if window.robot_sound and self.self_sound_pub is not None:
             self._declare_robot_sound()
         self.audio_pub.publish(message)
         self._audio_sent_ns = self.get_clock().now().nanoseconds
         self._window_sent_s = time.time()
         self.truth_pub.publish(Bool(data=window.partner_present))
+
+    def _publish_self_sound_if_needed(self, room: FakeRoomConfig) -> None:
+        """The ``self_sound`` publisher, once the robot may speak and its speech is declared.
+
+        Made at start-up when the room's robot speaks; a live set that makes it speak
+        makes it then (the first declarations may reach mic_node late: it says so).
+        """
+        speaks = room.robot_speech_probability > 0 or room.robot_speech_rate_hz > 0
+        if self.declare_self_sound and speaks and self.self_sound_pub is None:
+            self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
 
     def _declare_robot_sound(self) -> None:
         """Declare the window about to go out as the robot's sound (see the module doc).
@@ -396,6 +410,7 @@ class FakeAudioNode(GraphNode):
         """The room goes on with ``name`` = ``value`` from the next window on."""
         config = self._room_config(name, value)
         self.room.reconfigure(config)
+        self._publish_self_sound_if_needed(config)
         self.get_logger().info(
             f"room: {name} = {value:g} from window {self.room.windows_made + 1} on (room time"
             f" {self.room.now_s:g} s; partner present then:"

@@ -24,6 +24,7 @@ import sys
 from typing import Any
 
 from builtin_interfaces.msg import Duration
+from rclpy.publisher import Publisher
 from std_msgs.msg import Float64, Int64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -99,8 +100,11 @@ class PostureNode(GraphNode):
         self.belief = float("nan")
         self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
         self.joints_pub = self.create_publisher(JointTrajectory, "joint_targets", LATCHED_QOS)
-        self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
+        self.self_sound_pub: Publisher | None = None
+        """On ``self_sound`` while moves are declared: mic_node holds its windows while
+        the topic has a publisher, so there is none otherwise."""
         self.motions_declared = 0
+        self._set_declare_motion_sound(self.declare_motion_sound)
         self.subscribe(Float64, "belief", self._on_belief)
         self._publish(initial)
         self.start_diagnostics()
@@ -139,8 +143,16 @@ class PostureNode(GraphNode):
         set_positions(ATTENTIVE)
         set_positions(BORED)
         read.live("move_duration_s", lambda value: setattr(self, "move_duration_s", value))
-        read.live("declare_motion_sound",
-                  lambda value: setattr(self, "declare_motion_sound", value))
+        read.live("declare_motion_sound", self._set_declare_motion_sound)
+
+    def _set_declare_motion_sound(self, declare: bool) -> None:
+        """Declare the moves from now on (or not): the publisher exists only then."""
+        self.declare_motion_sound = declare
+        if declare and self.self_sound_pub is None:
+            self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
+        elif not declare and self.self_sound_pub is not None:
+            self.destroy_publisher(self.self_sound_pub)
+            self.self_sound_pub = None
 
     def _on_belief(self, msg: Float64, stamp: int) -> None:
         self.belief = msg.data
@@ -163,7 +175,7 @@ class PostureNode(GraphNode):
         trajectory = JointTrajectory(joint_names=self.joint_names, points=[point])
         now = self.get_clock().now()
         trajectory.header.stamp = now.to_msg()
-        if self.declare_motion_sound:  # the motors are heard from now to the move's end
+        if self.self_sound_pub is not None:  # the motors are heard until the move's end
             end_ns = now.nanoseconds + round(self.move_duration_s * 1e9)
             self.self_sound_pub.publish(self_sound_message(now.nanoseconds, end_ns))
             self.motions_declared += 1
