@@ -729,8 +729,6 @@ class MicNode(GraphNode):
                 self._windows_since_gap = 0
             self._last_sequence = sequence
         chunk = np.frombuffer(msg.data, dtype=np.float32)
-        published_ns = int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds
-        self.chunk_clock.add(chunk.size, published_ns)
         try:
             if self.bits.needs_samples:
                 windows = self.assembler.push_windows(chunk)
@@ -741,6 +739,8 @@ class MicNode(GraphNode):
             self.losses.note(self.now_s())
             self.log_throttled("bad chunk", "warning", f"audio chunk ignored: {error}")
             return
+        published_ns = int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds
+        self.chunk_clock.add(chunk.size, published_ns)
         if self.bits.needs_samples:
             for samples in windows:
                 self._window(0.0, samples, span_ns=self._next_chunk_window())
