@@ -19,7 +19,7 @@ from std_msgs.msg import Float64, Int64MultiArray
 
 from graph_harness import FIXED_THRESHOLD, room_nodes
 from infomax_contingency.audio.bag_replay import BagReplay
-from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
@@ -48,9 +48,9 @@ def offline(declare: bool) -> list:
     table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"),
                              expected_params=params)  # fmt: skip
     config = FakeRoomConfig.preset("silent", robot_speech_probability=1.0)
-    return simulate_audio_loop(PolicyController(table), FakeRoom(config, SEED),
-                               Binarizer(FIXED_THRESHOLD["threshold_db"]), STEPS, memory=MEMORY,
-                               declare_self_sound=declare)  # fmt: skip
+    bits = make_bit_source("energy", 16000, 0.5, **FIXED_THRESHOLD)
+    return simulate_audio_loop(PolicyController(table), FakeRoom(config, SEED), bits, STEPS,
+                               memory=MEMORY, declare_self_sound=declare)  # fmt: skip
 
 
 @pytest.mark.parametrize("declare", [False, True], ids=["undeclared", "declared"])

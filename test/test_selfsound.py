@@ -9,7 +9,7 @@ import pytest
 from scipy.special import betaln
 
 import brute_force
-from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
 from infomax_contingency.core.policy_table import PolicyTable
@@ -189,8 +189,9 @@ def test_the_robots_speech_is_taken_for_a_partner_unless_it_is_declared() -> Non
     final = {}
     for declare in (False, True):
         room = FakeRoom(FakeRoomConfig.preset("silent", robot_speech_probability=1.0), 3)
-        records = simulate_audio_loop(PolicyController(table), room, Binarizer(-40.0), 120,
-                                      memory=60, declare_self_sound=declare)  # fmt: skip
+        bits = make_bit_source("energy", 16000, 0.5, threshold_mode="fixed", threshold_db=-40.0)
+        records = simulate_audio_loop(PolicyController(table), room, bits, 120, memory=60,
+                                      declare_self_sound=declare)  # fmt: skip
         final[declare] = records[-1].belief
         assert room.robot_utterances > 5
         assert any(r.withheld for r in records) == declare

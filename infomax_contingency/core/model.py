@@ -36,6 +36,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from infomax_contingency.core.selfsound import Withheld
+
 
 @functools.cache
 def _special() -> ModuleType:
@@ -70,27 +72,6 @@ TIE_TOLERANCE = 1e-12
 ties, and floating-point noise around them, go to silence."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Withheld:
-    """The bit of a window withheld from the statistic: observed, but not evidence.
-
-    A window that overlaps sound the robot declared as its own (its speech, its motors:
-    the ``self_sound`` topic) is driven by the robot, not by the room: its bit has a
-    likelihood that does not depend on S, so leaving it out of the counts gives exactly
-    the posterior given the other bits — the same case as a missing bit
-    (:meth:`StatisticTracker.skip_observation`). The bit itself is kept for people and
-    recordings. ``bool()`` of it is refused, so no code counts it by mistake.
-
-    Attributes:
-        bit: the bit the window's sound gave (True: above the threshold).
-    """
-
-    bit: bool
-
-    def __bool__(self) -> bool:
-        raise TypeError("a withheld window's bit is not evidence: use .bit to read it")
-
-
 class ParameterError(ValueError):
     """Model parameters that are invalid or cannot be loaded."""
 
@@ -122,7 +103,7 @@ class ModelParams:
     b31: float = 1.0
     b32: float = 1.0
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # noqa: C901
         for name in ("ts1", "ts2", "ta1", "ta2"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):

@@ -36,8 +36,6 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any, Generic, TypeVar
 
-from infomax_contingency.core.model import Withheld
-
 NS_PER_S = 1_000_000_000
 
 MAX_RANGE_S = 600.0
@@ -48,6 +46,27 @@ CLOCK_TOLERANCE_S = 120.0
 (seconds) is taken as stamped on another clock (a steady clock, sim time)."""
 
 ItemT = TypeVar("ItemT")
+
+
+@dataclasses.dataclass(frozen=True)
+class Withheld:
+    """The bit of a window withheld from the statistic: observed, but not evidence.
+
+    A window that overlaps sound the robot declared as its own (its speech, its motors:
+    the ``self_sound`` topic) is driven by the robot, not by the room: its bit has a
+    likelihood that does not depend on S, so leaving it out of the counts gives exactly
+    the posterior given the other bits — the same case as a missing bit
+    (:meth:`StatisticTracker.skip_observation`). The bit itself is kept for people and
+    recordings. ``bool()`` of it is refused, so no code counts it by mistake.
+
+    Attributes:
+        bit: the bit the window's sound gave (True: above the threshold).
+    """
+
+    bit: bool
+
+    def __bool__(self) -> bool:
+        raise TypeError("a withheld window's bit is not evidence: use .bit to read it")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -45,8 +45,8 @@ class PostureNode(GraphNode):
 
     NODE_NAME = "posture_node"
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         attentive_above = read.number(
             "attentive_above",
@@ -98,6 +98,10 @@ class PostureNode(GraphNode):
         self._make_live()
         self.changes = 0
         self.belief = float("nan")
+        self._initial = initial
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
         self.joints_pub = self.create_publisher(JointTrajectory, "joint_targets", LATCHED_QOS)
         self.self_sound_pub: Publisher | None = None
@@ -106,8 +110,7 @@ class PostureNode(GraphNode):
         self.motions_declared = 0
         self._set_declare_motion_sound(self.declare_motion_sound)
         self.subscribe(Float64, "belief", self._on_belief)
-        self._publish(initial)
-        self.start_diagnostics()
+        self._publish(self._initial)
 
     def _check_positions(self, posture: str, positions: list[float]) -> None:
         if len(positions) != len(self.joint_names):
