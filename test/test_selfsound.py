@@ -10,6 +10,7 @@ from scipy.special import betaln
 
 import brute_force
 from infomax_contingency.audio.bitsources import make_bit_source
+from infomax_contingency.audio.windows import SourceWindow, TopicWindows
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
 from infomax_contingency.core.policy_table import PolicyTable
@@ -210,3 +211,20 @@ def test_the_robot_also_speaks_on_its_own_and_those_windows_are_marked() -> None
     assert sum(loud) >= 0.8 * sum(marked), "marked windows without the robot's speech"
     quiet = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), 4)
     assert not any(quiet.next_window().robot_sound for _ in range(120))
+
+
+def test_window_sources_give_each_window_its_time_range() -> None:
+    """The 'audio' topic's windows from the chunks' publication, a device's from its ADC."""
+    topic = TopicWindows(1000, 0.5)
+    topic.feed(np.zeros(250, np.float32), 1, NOW)
+    topic.feed(np.zeros(750, np.float32), 2, NOW + 30_000_000)  # 10 ms per 250 samples
+    first, second = topic.take()
+    assert first.time_range_ns(0, 0, 0.5) == (NOW - NS_PER_S // 4, NOW + 10_000_000)
+    assert second.time_range_ns(0, 0, 0.5) == (NOW + 10_000_000, NOW + 30_000_000)
+    topic.feed(np.zeros(500, np.float32), 4, NOW + 10 * NS_PER_S)  # chunk 3 lost: a gap
+    (after_gap,) = topic.take()
+    assert after_gap.time_range_ns(0, 0, 0.5) == (NOW + 9_500_000_000, NOW + 10 * NS_PER_S)
+    live = SourceWindow(-50.0, start_time=100.0, end_time=100.5)  # monotonic seconds
+    assert live.time_range_ns(NOW, 101 * NS_PER_S, 0.5) == (NOW - NS_PER_S,
+                                                            NOW - NS_PER_S // 2)  # fmt: skip
+    assert SourceWindow(-50.0).time_range_ns(NOW, 0, 0.5) == (NOW - NS_PER_S // 2, NOW)
