@@ -70,10 +70,10 @@ def test_the_robots_speech_counts_only_when_undeclared(declare: bool) -> None:
         beliefs = np.array(rec.belief[:STEPS])
         mic = graph.nodes["mic_node"]
         if declare:
-            assert sum(withheld) >= 10 and mic.self_sound.late == 0
+            assert sum(withheld) >= 10 and mic.self_sound.gate.late == 0
             assert beliefs.max() < 0.05, f"declared speech still counted: {beliefs.max():.3f}"
         else:
-            assert not any(withheld) and mic.self_sound.declared == 0
+            assert not any(withheld) and mic.self_sound.gate.declared == 0
             assert beliefs[-1] > 0.9, "undeclared, the robot's speech is a partner's reply"
         assert graph.nodes["belief_node"].tracker.withheld == sum(withheld)
         assert graph.nodes["controller_node"].withheld_bits == sum(withheld)
@@ -92,17 +92,17 @@ def test_bad_self_sound_ranges_get_a_clear_diagnostic() -> None:
             declare.publish(self_sound_message(start_ns, end_ns))
         declare.publish(Int64MultiArray(data=[1, 2, 3]))
         declare.publish(self_sound_message(now, now + NS_PER_S))  # a good one
-        executor.run_until(lambda: mic.self_sound.refused + mic.self_sound.declared == 5,
+        executor.run_until(lambda: mic.self_sound.gate.refused + mic.self_sound.gate.declared == 5,
                            "five declarations handled")  # fmt: skip
-        assert (mic.self_sound.refused, mic.self_sound.declared) == (4, 1)
+        assert (mic.self_sound.gate.refused, mic.self_sound.gate.declared) == (4, 1)
         level, message, values = mic.diagnostic_status()
         assert level in (DiagnosticStatus.WARN, DiagnosticStatus.OK)
         assert values["self_sound_refused"] == 4
-        assert "another clock" in mic.self_sound.problems[0]
-        assert "0 < start_ns <= end_ns" in mic.self_sound.problems[1]
-        assert "more than 600 s" in mic.self_sound.problems[2]
-        assert "expected [start_ns, end_ns]" in mic.self_sound.problems[3]
-        assert values["self_sound_last_problem"] == mic.self_sound.problems[3]
+        assert "another clock" in mic.self_sound.gate.problems[0]
+        assert "0 < start_ns <= end_ns" in mic.self_sound.gate.problems[1]
+        assert "more than 600 s" in mic.self_sound.gate.problems[2]
+        assert "expected [start_ns, end_ns]" in mic.self_sound.gate.problems[3]
+        assert values["self_sound_last_problem"] == mic.self_sound.gate.problems[3]
 
 
 def test_posture_node_declares_its_moves() -> None:
