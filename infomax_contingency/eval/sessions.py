@@ -22,7 +22,6 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import wav_energies
@@ -67,6 +66,9 @@ def load_session(directory: Path) -> RecordedSession:
         BagReadError: the bag cannot be read.
         ValueError: it holds no ``sound_step`` (nothing to replay).
     """
+    # Imported here: sessions need the optional rosbags; the other commands start without it.
+    from infomax_contingency.audio.bag import read_topics
+
     topics = read_topics(directory, SESSION_TOPICS)
     steps = [list(m.data) for _, m in topics["/sound_step"]]
     if not steps:

@@ -137,6 +137,10 @@ class BeliefNode(GraphNode):
         )
         self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
+        self.wait_visibly(
+            SOUND_STEP, "the bits of mic_node, read once a controller publishes decisions"
+        )
 
     def _subscribe_bits_when_ready(self) -> None:
         """Subscribe ``sound_step`` once a controller and the belief's listeners are there."""

@@ -167,7 +167,10 @@ class ControllerNode(GraphNode):
         self.answering = False
         self.unanswered_bits = 0
         self._last_unanswered: tuple[Int64MultiArray, int] | None = None
-        self.start_when_ready(self._listeners_ready, 0.0, self._start_answering)
+        self.start_when_ready(
+            self._listeners_ready, 0.0, self._start_answering,
+            waiting_for=f"{self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'",
+        )  # fmt: skip
         self.wait_visibly(
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )

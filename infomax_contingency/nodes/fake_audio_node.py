@@ -283,6 +283,10 @@ class FakeAudioNode(GraphNode):
             " lockstep mic_node needs threshold_mode fixed or file (or bit_source vad):"
             " calibrating, or warming up a noise floor, on this stream would wait for"
             " windows that only come after a decision",
+            f"{config.wait_for_listeners} listeners on 'audio'"
+            + (f", {config.wait_for_truth_listeners} on 'partner_present'"
+               if config.wait_for_truth_listeners else "")
+            + (" and a controller on 'vocalize_step'" if self.pacer is not None else ""),
         )
 
     def _ready(self) -> bool:

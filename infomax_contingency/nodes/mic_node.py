@@ -43,7 +43,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
-from infomax_contingency.audio.bitsources.base import UNSEPARATED, SettingError
+from infomax_contingency.audio.bitsources.base import UNSEPARATED, BitSource, SettingError
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -71,6 +71,39 @@ MICROPHONE_POLL_S = 0.02
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
 
+NOISE_FLOOR_LOG_STEP_DB = 1.0
+"""A threshold that follows the noise floor is logged again once it moved this much, dB."""
+
+
+class ThresholdLog:
+    """Logs (INFO) the threshold in force, and where it came from, when it changed.
+
+    mic_node calls it wherever the threshold can change: at start-up, after each window
+    (the end of a calibration, an accepted refit, the noise floor), after a live set and a
+    ~/recalibrate. A threshold that follows the noise floor window by window is logged
+    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
+    """
+
+    def __init__(self, logger: Any, bit_source: str) -> None:
+        self.logger = logger
+        self.bit_source = bit_source
+        self.logged_db: float | None = None
+        """The threshold last logged, dB (set it when another line named the threshold)."""
+
+    def __call__(self, bits: BitSource) -> None:
+        """Log ``bits``' threshold in force if it changed since the last line."""
+        threshold_db, last = bits.threshold_db, self.logged_db
+        if threshold_db is None or threshold_db == last:
+            return  # no threshold (vad, calibrating: its end is logged), or the same one
+        origin = bits.threshold_origin()
+        if last is not None and origin.startswith("noise floor") and (
+            abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
+        ):
+            return
+        self.logged_db = threshold_db
+        self.logger.info(f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
+                         f" {self.bit_source})")  # fmt: skip
+
 
 class MicNode(GraphNode):
     """Microphone: audio windows to sound bits."""
@@ -81,6 +114,7 @@ class MicNode(GraphNode):
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = read_config(self.parameters)
+        self.threshold_log = ThresholdLog(self.get_logger(), config.bit_source)
         self.bits = make_bits(config, self._calibration_refused)
         if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
@@ -93,6 +127,7 @@ class MicNode(GraphNode):
             self.get_logger().warning(f"{ignored}: {self._no_audio}")
         if calibrated := self._calibrate_ahead():
             self.get_logger().info(calibrated)
+            self.threshold_log.logged_db = self.bits.threshold_db  # that line names it
         lockstep = self.replay is not None and config.lockstep
         self.pacer = LockstepPacer(config.lockstep_timeout_s) if lockstep else None
         for spec in self.bits.specs():
@@ -146,8 +181,10 @@ class MicNode(GraphNode):
             self.pacer,
             self._on_timeout,
             "is controller_node running?",
+            f"{self.config.wait_for_listeners} listeners on '{SOUND_STEP}'",
         )
         self.get_logger().info(f"stream id {self.stream_id}")
+        self.threshold_log(self.bits)
 
     def destroy_node(self) -> None:
         """Release the microphone, then the node."""
@@ -183,7 +220,11 @@ class MicNode(GraphNode):
             except SettingError as error:
                 raise ConfigError(f"parameter {error}") from None
 
-        self.parameters.live(name, lambda value: self.bits.set_live(name, value), check)
+        def apply(value: Any) -> None:
+            self.bits.set_live(name, value)
+            self.threshold_log(self.bits)
+
+        self.parameters.live(name, apply, check)
 
     def _on_recalibrate(self, _request: Trigger.Request, response: Trigger.Response) -> Any:
         """Start the bit source's calibration again (a replay's first seconds again)."""
@@ -198,6 +239,7 @@ class MicNode(GraphNode):
             response.message = str(error)
             return response
         self.get_logger().info(f"recalibrate: {message}")
+        self.threshold_log(self.bits)
         response.success, response.message = True, message
         return response
 
@@ -302,7 +344,9 @@ class MicNode(GraphNode):
             bit = self.bits.bit_of(window.energy_db, window.samples)
             energy_db = self.bits.last_energy_db
             if bit is not None and was_calibrating:
-                self.get_logger().info(self.bits.ready_message())
+                self.get_logger().info(self.bits.ready_message())  # names the threshold
+                self.threshold_log.logged_db = self.bits.threshold_db
+            self.threshold_log(self.bits)  # an accepted refit, a moving noise floor
         self.last_energy_db = energy_db
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))

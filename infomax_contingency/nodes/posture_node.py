@@ -110,6 +110,7 @@ class PostureNode(GraphNode):
         self.motions_declared = 0
         self._set_declare_motion_sound(self.declare_motion_sound)
         self.subscribe(Float64, "belief", self._on_belief)
+        self.wait_visibly("belief", "P(S=1) from belief_node: is it running?")
         self._publish(self._initial)
 
     def _check_positions(self, posture: str, positions: list[float]) -> None:
