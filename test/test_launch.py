@@ -368,7 +368,7 @@ def record_robot2(
                 assert time.monotonic() < deadline, graph.output()[-3000:]
                 time.sleep(0.1)  # polls the recorder; the deadline above bounds it
             with recorder.lock:
-                bits = [(step, bit) for _stream, step, bit, _us in recorder.sound_step[:steps]]
+                bits = [(step, bit) for _stream, step, bit, *_ in recorder.sound_step[:steps]]
                 beliefs = recorder.belief[:steps]
             while_running(graph, recorder)
             assert graph.stop() == 0
@@ -418,7 +418,7 @@ def robot2_alone_in_process(params: Path, fake_room: Path, steps: int) -> tuple[
     with stepped_graph(nodes, "fake_audio_node", (str(params), str(fake_room))) as graph:
         graph.run_steps(steps)
         rec = graph.recorder
-        bits = [(step, bit) for _stream, step, bit, _us in rec.sound_step[:steps]]
+        bits = [(step, bit) for _stream, step, bit, *_ in rec.sound_step[:steps]]
         return bits, rec.belief[:steps]
 
 

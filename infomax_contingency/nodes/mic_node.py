@@ -21,6 +21,10 @@ is connected, plus ``start_delay_s`` for the rest of the graph to connect; windo
 ``audio`` topic that arrive meanwhile wait, none is lost. ``max_windows > 0`` stops the
 node (exit status 0) after that many bits, once the subscribers have acknowledged them.
 
+Self-sound (:mod:`~infomax_contingency.nodes.self_sound`): a window that overlaps the
+robot's own sound declared on ``self_sound`` is published withheld (``sound_step``); while
+the topic has a publisher, windows wait ``self_sound_hold_s`` past their end for it.
+
 Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB),
 ``/diagnostics`` (for a live microphone also the device, its state, overflows, dropped
 blocks, lost samples, gaps and reconnections). Service ``~/recalibrate``
@@ -50,6 +54,7 @@ from infomax_contingency.nodes.mic_config import make_bits, open_window_source, 
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.self_sound import SelfSoundInput
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
     VOCALIZE_STEP,
@@ -157,6 +162,8 @@ class MicNode(GraphNode):
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
+        self.self_sound = SelfSoundInput(self, self.config.self_sound_hold_s,
+                                         self.config.window_s, self._release)  # fmt: skip
         if isinstance(self.source, TopicWindows):
             self.create_subscription(Float32MultiArray, "audio", self._on_audio, AUDIO_QOS)
             self.wait_visibly(
@@ -298,8 +305,11 @@ class MicNode(GraphNode):
             self.get_logger().warning(warning)
         sequence = info.get("publication_sequence_number")
         try:
-            missed = self.source.feed(np.frombuffer(msg.data, dtype=np.float32),
-                                      sequence if isinstance(sequence, int) else None)  # fmt: skip
+            missed = self.source.feed(
+                np.frombuffer(msg.data, dtype=np.float32),
+                sequence if isinstance(sequence, int) else None,
+                int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds,
+            )
         except AudioError as error:
             self.bad_chunks += 1
             self.losses.note(self.now_s())
@@ -341,16 +351,7 @@ class MicNode(GraphNode):
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))
             return None
-        dropped = self.outbox.dropped
-        self.outbox.push((energy_db, bit))
-        if self.outbox.dropped > dropped:
-            self.losses.note(self.now_s())
-            self.log_throttled(
-                "windows dropped",
-                "warning",
-                f"{self.outbox.dropped} windows dropped: more than"
-                f" {self.config.max_backlog_s:g} s waited for the controller",
-            )
+        self.self_sound.push(window, energy_db, bit)
         self._release()
         return bit
 
@@ -372,7 +373,19 @@ class MicNode(GraphNode):
         self._release()
 
     def _release(self) -> None:
-        """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
+        """Publish the windows the outbox lets go now: energy, bit and stamped bit.
+
+        First the windows whose self-sound is known leave the self-sound gate for the
+        outbox.
+        """
+        dropped = self.outbox.dropped
+        for window in self.self_sound.release(replaying_in_lockstep=self.pacer is not None):
+            self.outbox.push(window)
+        if self.outbox.dropped > dropped:
+            self.losses.note(self.now_s())
+            self.log_throttled("windows dropped", "warning",
+                               f"{self.outbox.dropped} windows dropped: more than"
+                               f" {self.config.max_backlog_s:g} s waited for the controller")
         if not self.started or self.finished.done():
             return
         outbox = self.outbox
@@ -382,12 +395,12 @@ class MicNode(GraphNode):
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit) in self.outbox.release(paced):
+        for step, (energy_db, bit, withheld) in self.outbox.release(paced):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(
-                bit_message(StepBit(self.stream_id, step, bit, self.window_us))
+                bit_message(StepBit(self.stream_id, step, bit, self.window_us, withheld))
             )
             if self.config.max_windows and self.windows >= self.config.max_windows:
                 self.get_logger().info(f"{self.windows} bits published (max_windows): stopping")
@@ -419,6 +432,7 @@ class MicNode(GraphNode):
             "bad_chunks": self.bad_chunks,
             **bits.diagnostic_values(),
             **self.source.status(),
+            **self.self_sound.values(),
             **self.contract.values(),  # none before the first chunk of 'audio'
         }
         for topic, names in self.intruders.items():
@@ -437,8 +451,10 @@ class MicNode(GraphNode):
         if bits.calibrating:
             return OK, "calibrating the threshold", values
         problem = self.contract.problem()  # the 'audio' contract broken lately
-        if problem or self.losses.recent(now) or self.timeouts.recent(now):
-            problem = problem or "audio lost or lockstep timeouts lately (counts in the values)"
+        if problem or self.losses.recent(now) or self.timeouts.recent(now) or (
+                self.self_sound.faults.recent(now)):  # fmt: skip
+            problem = problem or ("audio lost, lockstep timeouts, or 'self_sound' ranges refused"
+                                  " or late lately (counts in the values)")  # fmt: skip
             return WARN, problem, values
         return OK, f"{self.windows} windows", values
 

@@ -12,12 +12,12 @@ when the publisher sent it), and each topic with the QoS its publishers offer
 Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
 ``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
 ``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
-``/diagnostics``. The session itself (the parameter files and threshold file named in
-``session_files``, their text) goes on the topic ``session_info`` (std_msgs/String,
-YAML) as the first message, and into the metadata's ``custom_data``. ``session_info`` is
-also published (transient-local), and only once every subscription of the recorder
-exists, so a launcher that waits for it (the demo does) cannot start the graph before the
-recorder listens.
+``self_sound`` (the robot's declared own sound), ``/diagnostics``. The session itself
+(the parameter files and threshold file named in ``session_files``, their text) goes
+on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into
+the metadata's ``custom_data``. ``session_info`` is also published (transient-local),
+and only once every subscription of the recorder exists, so a launcher that waits for
+it (the demo does) cannot start the graph before the recorder listens.
 
 Logs: the bag's path when recording starts, that it waits for the first ``sound_step``
 (and when it came), and when it stops the messages recorded per topic.
@@ -87,6 +87,7 @@ RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
     "joint_targets": (JointTrajectory, LATCHED_READER_QOS),
     "speaker_started": (TimeMsg, RECORDER_QOS),
     "partner_present": (Bool, RECORDER_QOS),
+    "self_sound": (Int64MultiArray, RECORDER_QOS),
     "/diagnostics": (DiagnosticArray, QoSProfile(depth=100)),
 }
 """Topic -> (message type, QoS of the recorder's subscription); ``audio`` is added when
