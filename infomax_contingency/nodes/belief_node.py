@@ -14,6 +14,9 @@ heard, a restarted node) and the stream that controller answers (one mic_node ru
 bits of another stream are counted and kept aside, and used if the controller moves to
 that stream (a restarted mic_node). The fake room hears the same decisions.
 
+A withheld bit (heard while the robot declared its own sound on ``self_sound``) is
+not counted: the belief is still published for its step.
+
 Nothing is guessed: a step whose bit can no longer arrive is applied without it (not
 counted), a step whose decision can no longer arrive leaves the timer uncertain until it
 is known again (bits meanwhile are counted only where the period is certain), and a new
@@ -61,7 +64,7 @@ from typing import Any
 from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.core.model import StatisticTracker
+from infomax_contingency.core.model import StatisticTracker, Withheld
 from infomax_contingency.core.stepclock import (
     Arrival,
     PublicationTimes,
@@ -162,6 +165,10 @@ class BeliefNode(GraphNode):
         )
         self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
+        self.wait_visibly(
+            SOUND_STEP, "the bits of mic_node, read once a controller publishes decisions"
+        )
 
     def _subscribe_bits_when_ready(self) -> None:
         """Subscribe ``sound_step`` once a controller and the belief's listeners are there."""
@@ -196,11 +203,11 @@ class BeliefNode(GraphNode):
             return
         sent = self.sent_s(stamp, now)
         bits = take_on_pace(self, self.bit_pace, self.jumps, bit.step, sent, bit, "bit",
-                                 f"stream {bit.stream}")  # fmt: skip
+                            f"stream {bit.stream}")  # fmt: skip
         if bits:
             self._bit_times.note(sent)
         for taken in bits:
-            if not self.joiner.bit(taken.step, taken.bit):
+            if not self.joiner.bit(taken.step, taken.observation):
                 self.warn_intrusion(
                     f"bit for step {taken.step} of stream {taken.stream} repeats or goes"
                     f" backwards (last step {self.joiner.last_bit_step}): ignored"
@@ -257,8 +264,8 @@ class BeliefNode(GraphNode):
             self._follow(decision.stream, decision.step)
             self.decision_pace.restart()
         for taken in take_on_pace(self, self.decision_pace, self.jumps, decision.step, sent,
-                                       decision, "decision",
-                                       f"controller {decision.controller}"):  # fmt: skip
+                                  decision, "decision",
+                                  f"controller {decision.controller}"):  # fmt: skip
             if not self.joiner.decision(taken.step, taken.vocalize):
                 self.warn_intrusion(
                     f"decision for step {taken.step} repeats, goes backwards or answers no"
@@ -287,13 +294,13 @@ class BeliefNode(GraphNode):
             )
         self.stream = stream
         for bit in held:
-            self.joiner.bit(bit.step, bit.bit)
+            self.joiner.bit(bit.step, bit.observation)
         # The stream's pace from its newest bit held (or from its next bit).
         self.bit_pace.restart(held[-1].step if held else None, time.time())
 
     # ------------------------------------------------------------------ steps
 
-    def _apply(self, step: int, y: bool | None, u: bool | None) -> None:
+    def _apply(self, step: int, y: bool | Withheld | None, u: bool | None) -> None:
         """Apply one step in order: count the bit, publish the belief, act."""
         if self._joining:
             self._joining = False
@@ -302,10 +309,7 @@ class BeliefNode(GraphNode):
             self.get_logger().info(f"joined stream {self.stream} at step {step}: {how}")
             if step > 1:  # the decisions before it are unknown
                 self.tracker.forget_timer_completely()
-        if y is None:
-            self.tracker.skip_observation()
-        else:
-            self.tracker.observe(y)
+        self.tracker.observe_window(y)
         self.belief = self.tracker.statistic.belief(self.params)
         self.belief_pub.publish(Float64(data=self.belief))
         if u is None:
@@ -344,6 +348,7 @@ class BeliefNode(GraphNode):
             "statistic": tuple(self.tracker.statistic),
             "timer_certain": self.tracker.timer_certain,
             "uncounted_bits": self.tracker.uncounted,
+            "withheld_bits": self.tracker.withheld,
             "memory_steps": self.tracker.memory,
             "stream": self.stream or "none yet",
             "controller": self.controllers.source or "none yet",

@@ -26,7 +26,9 @@ ignored, and one whose step jumps further ahead than the stream's pace allows
 (:class:`~infomax_contingency.core.stepclock.StepPace`: a forged message) is named and
 ignored (diagnostics ERROR) unless the stream goes on from there for
 ``source_timeout_s`` with nothing on pace meanwhile (its messages were lost). Bits whose
-window length is not the model's dt are refused.
+window length is not the model's dt are refused. A withheld bit (the window overlapped
+the robot's declared own sound, ``self_sound``) is answered like any other, but the
+statistic does not count it.
 
 Subscribes ``sound_step`` (std_msgs/Int64MultiArray); publishes ``vocalize`` (Bool, one
 per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
@@ -150,6 +152,7 @@ class ControllerNode(GraphNode):
         self.steps = 0
         self.vocalizations = 0
         self.missed_steps = 0
+        self.withheld_bits = 0
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
@@ -171,7 +174,10 @@ class ControllerNode(GraphNode):
         self.answering = False
         self.unanswered_bits = 0
         self._last_unanswered: tuple[Int64MultiArray, int] | None = None
-        self.start_when_ready(self._listeners_ready, 0.0, self._start_answering)
+        self.start_when_ready(
+            self._listeners_ready, 0.0, self._start_answering,
+            waiting_for=f"{self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'",
+        )  # fmt: skip
         self.wait_visibly(
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )
@@ -231,7 +237,7 @@ class ControllerNode(GraphNode):
         if arrival is not Arrival.FOLLOWED:
             self.pace.restart()
         for taken in take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
-                                       bit, "bit", f"stream {bit.stream}"):  # fmt: skip
+                                  bit, "bit", f"stream {bit.stream}"):  # fmt: skip
             self._answer(taken, now)
 
     def _answer(self, bit: StepBit, now: float) -> None:
@@ -248,7 +254,8 @@ class ControllerNode(GraphNode):
             self.missed_steps += missed
             self.controller.missed(missed)
         self.last_step = bit.step
-        u = bool(self.controller.step(int(bit.bit)))
+        u = bool(self.controller.step(bit.observation))
+        self.withheld_bits += bit.withheld
         self.steps += 1
         self.vocalizations += u
         self.vocalize_pub.publish(Bool(data=u))
@@ -266,6 +273,7 @@ class ControllerNode(GraphNode):
             "unanswered_before_start": self.unanswered_bits,
             "vocalizations": self.vocalizations,
             "missed_steps": self.missed_steps,
+            "withheld_bits": self.withheld_bits,
             "stream": self.streams.source or "none yet",
             "controller_id": self.controller_id,
             "foreign_messages": self.foreign.count,

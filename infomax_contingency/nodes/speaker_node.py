@@ -128,6 +128,7 @@ class SpeakerNode(GraphNode):
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
         self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS)
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -146,7 +147,7 @@ class SpeakerNode(GraphNode):
         if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
             self.pace.restart()
         taken = take_on_pace(self, self.pace, self.jumps, decision.step, sent, decision,
-                                  "decision", f"controller {decision.controller}")  # fmt: skip
+                             "decision", f"controller {decision.controller}")  # fmt: skip
         if taken:  # a run taken after a jump is in the past: only its newest may sound
             self._obey(taken[-1])
 
