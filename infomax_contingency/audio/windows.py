@@ -120,6 +120,8 @@ class TopicWindows(WindowSource):
         self._ready: list[SourceWindow] = []
         self.dropped_chunks = 0
         """Chunks found missing."""
+        self.bad_chunks = 0
+        """Chunks of bad samples, ignored."""
 
     def feed(self, chunk: NDArray[np.float32], sequence: int | None = None) -> int:
         """Add one chunk (``sequence``: its publication number, if known); chunks missed before.
@@ -134,7 +136,11 @@ class TopicWindows(WindowSource):
                 self.dropped_chunks += missed
                 self._assembler.reset()
             self._last_sequence = sequence
-        windows = self._assembler.push_windows(chunk)
+        try:
+            windows = self._assembler.push_windows(chunk)
+        except AudioError:
+            self.bad_chunks += 1
+            raise
         energies = frame_energies_db(windows)
         self._ready += [
             SourceWindow(float(e), w if self.samples else None)
@@ -148,6 +154,9 @@ class TopicWindows(WindowSource):
 
     def describe(self) -> str:
         return f"the 'audio' topic at {self.rate_hz} Hz"
+
+    def status(self) -> dict[str, Any]:
+        return {"dropped_chunks": self.dropped_chunks, "bad_chunks": self.bad_chunks}
 
 
 class MicrophoneWindows(WindowSource):

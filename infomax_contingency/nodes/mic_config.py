@@ -56,6 +56,7 @@ from infomax_contingency.audio.bitsources import (
     BIT_SOURCES,
     DEFAULT_BIT_SOURCE,
     BitSource,
+    all_setting_specs,
 )
 from infomax_contingency.audio.bitsources.base import SettingError
 from infomax_contingency.audio.capture import MicrophoneStream
@@ -215,6 +216,11 @@ def check_bit_settings(config: MicConfig) -> None:
     except SettingError as error:
         name = "audio_rate_hz" if error.setting == "rate_hz" else error.setting
         raise ConfigError(f"parameter '{name}' {error.reason}") from None
+
+
+def is_bit_source_setting(name: str) -> bool:
+    """True for a setting of any registered bit source (only the chosen one's is declared)."""
+    return any(name == spec.name for spec in all_setting_specs())
 
 
 def make_bits(config: MicConfig, on_problem: Any = None) -> BitSource:

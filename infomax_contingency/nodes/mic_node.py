@@ -45,8 +45,8 @@ from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
 from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, TopicWindows
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
+from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
-from infomax_contingency.nodes.mic_config import make_bits, open_window_source, read_config
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -75,12 +75,12 @@ class MicNode(GraphNode):
 
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
-        self.config = config = read_config(self.parameters)
-        self.bits = make_bits(config, self._calibration_refused)
+        self.config = config = mic_config.read_config(self.parameters)
+        self.bits = mic_config.make_bits(config, self._calibration_refused)
         if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
             self.get_logger().info(f"bit source {config.bit_source}: {summary}")
-        self.source = open_window_source(config, self.bits.needs_samples, self.log_at)
+        self.source = mic_config.open_window_source(config, self.bits.needs_samples, self.log_at)
         self.replay = self.source if self.source.replay else None
         self.recorded_bits = getattr(self.source, "has_audio", True) is False
         if self.recorded_bits and config.bit_source != DEFAULT_BIT_SOURCE:
@@ -100,7 +100,6 @@ class MicNode(GraphNode):
         )
         self.windows = 0
         self.last_energy_db = float("nan")
-        self.bad_chunks = 0
         self.started = self.ended = False
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
@@ -108,11 +107,9 @@ class MicNode(GraphNode):
         self.contract = AudioContract(config.audio_rate_hz, self.fault_hold_s, publishers=lambda: [
             info.node_name for info in self.get_publishers_info_by_topic(audio)])
         if self.replay is not None:
-            self.get_logger().info(
-                f"replaying {self.source.describe()},"
-                f" {'lockstep' if self.pacer else 'real time'}"
-                f"{', looping' if getattr(self.source, 'loop', False) else ''}"
-            )
+            looping = ", looping" if getattr(self.source, "loop", False) else ""
+            pace = "lockstep" if self.pacer else "real time"
+            self.get_logger().info(f"replaying {self.source.describe()}, {pace}{looping}")
 
     def activate(self) -> None:
         """Publishers, the decisions (and audio) subscriptions, ~/recalibrate, the start gate."""
@@ -141,6 +138,8 @@ class MicNode(GraphNode):
             "is controller_node running?",
         )
         self.get_logger().info(f"stream id {self.stream_id}")
+
+    known_parameter = staticmethod(mic_config.is_bit_source_setting)  # the other sources' settings
 
     def destroy_node(self) -> None:
         """Release the microphone, then the node."""
@@ -197,9 +196,8 @@ class MicNode(GraphNode):
     # ------------------------------------------------------------------ start gate
 
     def _listeners_ready(self) -> bool:
-        if self.step_pub.get_subscription_count() < self.config.wait_for_listeners:
-            return False
-        return self.pacer is None or self._decisions_sub.get_publisher_count() > 0
+        listening = self.step_pub.get_subscription_count() >= self.config.wait_for_listeners
+        return listening and (self.pacer is None or self._decisions_sub.get_publisher_count() > 0)
 
     def _start(self) -> None:
         self.started = True
@@ -259,7 +257,6 @@ class MicNode(GraphNode):
             missed = self.source.feed(np.frombuffer(msg.data, dtype=np.float32),
                                       sequence if isinstance(sequence, int) else None)  # fmt: skip
         except AudioError as error:
-            self.bad_chunks += 1
             self.losses.note(self.now_s())
             self.log_throttled("bad chunk", "warning", f"audio chunk ignored: {error}")
             return
@@ -357,8 +354,6 @@ class MicNode(GraphNode):
             publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
         self.finish(0)
 
-    # ------------------------------------------------------------------ diagnostics
-
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""
         bits, now = self.bits, self.now_s()
@@ -371,14 +366,10 @@ class MicNode(GraphNode):
             "windows_dropped": self.outbox.dropped,
             "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
-            "dropped_chunks": getattr(self.source, "dropped_chunks", 0),
-            "bad_chunks": self.bad_chunks,
             **bits.diagnostic_values(),
             **self.source.status(),
             **self.contract.values(),  # none before the first chunk of 'audio'
         }
-        for topic, names in self.intruders.items():
-            values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
         if self.intruders:

@@ -478,6 +478,16 @@ def undeclared_parameters(files: Sequence[str], nodes: Sequence[DeclaringNode]
     return found
 
 
+def _knows(node: DeclaringNode, key: str) -> bool:
+    """True if ``node`` declares ``key`` or knows it as a setting it leaves undeclared.
+
+    mic_node declares the chosen bit source's settings only; the other sources' settings
+    (``config/robot.yaml`` gives them all) are known, not misspelled (``known_parameter``).
+    """
+    known = getattr(node, "known_parameter", None)
+    return node.has_parameter(key) or (known is not None and known(key))
+
+
 def _section_findings(pattern: str, keys: list[str], nodes: Sequence[DeclaringNode]
                       ) -> list[tuple[DeclaringNode | None, str]]:  # fmt: skip
     """:func:`undeclared_parameters` of one section ``pattern`` holding ``keys``."""
@@ -494,10 +504,10 @@ def _section_findings(pattern: str, keys: list[str], nodes: Sequence[DeclaringNo
     found: list[tuple[DeclaringNode | None, str]] = []
     for key in (key for key in keys if key not in CHECKED_UNDECLARED):
         if wildcard:  # for every node: some take it, others need not
-            shared = key in SHARED_PARAMETERS or any(n.has_parameter(key) for n in nodes)
+            shared = key in SHARED_PARAMETERS or any(_knows(n, key) for n in nodes)
             targets = [] if shared else matched
         else:
-            targets = [n for n in matched if not n.has_parameter(key)]
+            targets = [n for n in matched if not _knows(n, key)]
         found += [(node, f"'{key}' (section '{pattern}') is not a parameter of"
                          f" {node.get_fully_qualified_name()}: ignored")
                   for node in targets]  # fmt: skip
