@@ -501,6 +501,6 @@ def test_mic_knows_the_settings_of_the_bit_sources_it_does_not_use(graph: Callab
     from infomax_contingency.nodes.parameters import undeclared_parameters
 
     node, _probe, _executor = graph(MicNode, bit_source="vad")
-    assert not node.has_parameter("threshold_mode") and node.known_parameter("threshold_mode")
+    assert not node.has_parameter("threshold_mode") and "threshold_mode" in node.parameters.known
     assert undeclared_parameters([str(ROOT / "config" / "robot.yaml")], [node]) == []
-    assert not node.known_parameter("treshold_mode")
+    assert "treshold_mode" not in node.parameters.known

@@ -43,7 +43,8 @@ replay's first seconds again; a stream's next windows, without bits; threshold_m
 reads its file again).
 
 Step clock (``max_steps_ahead``, ``max_backlog_s``, ``wait_for_listeners``,
-``start_delay_s``, ``max_windows``): see :mod:`~infomax_contingency.nodes.mic_node`.
+``start_delay_s``, ``max_windows``) and the robot's own sound (``self_sound_hold_s``):
+see :mod:`~infomax_contingency.nodes.mic_node`.
 """
 
 from __future__ import annotations
@@ -56,7 +57,6 @@ from infomax_contingency.audio.bitsources import (
     BIT_SOURCES,
     DEFAULT_BIT_SOURCE,
     BitSource,
-    all_setting_specs,
 )
 from infomax_contingency.audio.bitsources.base import SettingError
 from infomax_contingency.audio.capture import MicrophoneStream
@@ -91,6 +91,7 @@ class MicConfig:
     max_windows: int
     max_steps_ahead: int
     max_backlog_s: float
+    self_sound_hold_s: float
     wav_file: str
     bag_dir: str
     channel: int
@@ -139,6 +140,11 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
             "max_backlog_s", 3600.0,
             "Audio whose windows may wait for the controller; more is dropped and counted",
             1.0, 86400.0, "s",
+        ),
+        "self_sound_hold_s": read.number(
+            "self_sound_hold_s", 0.15,
+            "While 'self_sound' has a publisher, each window waits this long past its end"
+            " for the robot's declared sound ranges that overlap it", 0.0, 10.0, "s",
         ),
     }
 
@@ -216,11 +222,6 @@ def check_bit_settings(config: MicConfig) -> None:
     except SettingError as error:
         name = "audio_rate_hz" if error.setting == "rate_hz" else error.setting
         raise ConfigError(f"parameter '{name}' {error.reason}") from None
-
-
-def is_bit_source_setting(name: str) -> bool:
-    """True for a setting of any registered bit source (only the chosen one's is declared)."""
-    return any(name == spec.name for spec in all_setting_specs())
 
 
 def make_bits(config: MicConfig, on_problem: Any = None) -> BitSource:
