@@ -42,8 +42,7 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
-from infomax_contingency.audio.bitsources.base import UNSEPARATED, BitSource, SettingError
+from infomax_contingency.audio.bitsources.base import UNSEPARATED
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -51,7 +50,7 @@ from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, T
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
 from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
-from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.mic_bits import BitSourceControls
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.self_sound import SelfSoundInput
@@ -71,40 +70,6 @@ MICROPHONE_POLL_S = 0.02
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
 
-NOISE_FLOOR_LOG_STEP_DB = 1.0
-"""A threshold that follows the noise floor is logged again once it moved this much, dB."""
-
-
-class ThresholdLog:
-    """Logs (INFO) the threshold in force, and where it came from, when it changed.
-
-    mic_node calls it wherever the threshold can change: at start-up, after each window
-    (the end of a calibration, an accepted refit, the noise floor), after a live set and a
-    ~/recalibrate. A threshold that follows the noise floor window by window is logged
-    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
-    """
-
-    def __init__(self, logger: Any, bit_source: str) -> None:
-        self.logger = logger
-        self.bit_source = bit_source
-        self.logged_db: float | None = None
-        """The threshold last logged, dB (set it when another line named the threshold)."""
-
-    def __call__(self, bits: BitSource) -> None:
-        """Log ``bits``' threshold in force if it changed since the last line."""
-        threshold_db, last = bits.threshold_db, self.logged_db
-        if threshold_db is None or threshold_db == last:
-            return  # no threshold (vad, calibrating: its end is logged), or the same one
-        origin = bits.threshold_origin()
-        if last is not None and origin.startswith("noise floor") and (
-            abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
-        ):
-            return
-        self.logged_db = threshold_db
-        self.logger.info(f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
-                         f" {self.bit_source})")  # fmt: skip
-
-
 class MicNode(GraphNode):
     """Microphone: audio windows to sound bits."""
 
@@ -114,25 +79,13 @@ class MicNode(GraphNode):
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = mic_config.read_config(self.parameters)
-        self.threshold_log = ThresholdLog(self.get_logger(), config.bit_source)
-        self.bits = mic_config.make_bits(config, self._calibration_refused)
-        if config.bit_source != DEFAULT_BIT_SOURCE:
-            summary = BIT_SOURCES[config.bit_source].summary
-            self.get_logger().info(f"bit source {config.bit_source}: {summary}")
+        self.controls = BitSourceControls(self, config)
+        self.bits, self.threshold_log = self.controls.bits, self.controls.threshold_log
         self.source = mic_config.open_window_source(config, self.bits.needs_samples, self.log_at)
         self.replay = self.source if self.source.replay else None
-        self.recorded_bits = getattr(self.source, "has_audio", True) is False
-        if self.recorded_bits and config.bit_source != DEFAULT_BIT_SOURCE:
-            ignored = f"bit_source {config.bit_source} is not applied"
-            self.get_logger().warning(f"{ignored}: {self._no_audio}")
-        if calibrated := self._calibrate_ahead():
-            self.get_logger().info(calibrated)
-            self.threshold_log.logged_db = self.bits.threshold_db  # that line names it
+        self.controls.use_source(self.source)
         lockstep = self.replay is not None and config.lockstep
         self.pacer = LockstepPacer(config.lockstep_timeout_s) if lockstep else None
-        for spec in self.bits.specs():
-            if spec.live:
-                self._make_live(spec.name)
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
@@ -169,7 +122,7 @@ class MicNode(GraphNode):
                 " audio driver or fake_audio_node (launch use_fake_room:=true), or set source"
                 " to wav or sounddevice",
             )
-        self.create_service(Trigger, "~/recalibrate", self._on_recalibrate)
+        self.create_service(Trigger, "~/recalibrate", self.controls.on_recalibrate)
         self._pace_timer = None
         self.start_when_ready(
             self._listeners_ready,
@@ -189,56 +142,6 @@ class MicNode(GraphNode):
         if source is not None:
             source.close()
         super().destroy_node()
-
-    # ------------------------------------------------------------------ bit source
-
-    def _calibration_refused(self, message: str) -> None:
-        self.get_logger().warning(message)
-
-    @property
-    def _no_audio(self) -> str:
-        return f"the session {self.config.bag_dir} holds no audio, its recorded bits are replayed"
-
-    def _calibrate_ahead(self) -> str:
-        """Calibrate the bit source on a replay's first seconds if it calibrates; what it did."""
-        if self.replay is None or self.recorded_bits or not self.bits.read_ahead_s:
-            return ""
-        ahead = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
-        return f"{self.bits.calibrate_ahead(*ahead)} of the replay"
-
-    def _make_live(self, name: str) -> None:
-        """Let the bit-source setting ``name`` change live, checked by the bit source."""
-
-        def check(value: Any) -> None:
-            if self.recorded_bits:
-                raise ConfigError(f"parameter {name!r} = {value!r} has no effect: {self._no_audio}")
-            try:
-                self.bits.check_live(name, value)
-            except SettingError as error:
-                raise ConfigError(f"parameter {error}") from None
-
-        def apply(value: Any) -> None:
-            self.bits.set_live(name, value)
-            self.threshold_log(self.bits)
-
-        self.parameters.live(name, apply, check)
-
-    def _on_recalibrate(self, _request: Trigger.Request, response: Trigger.Response) -> Any:
-        """Start the bit source's calibration again (a replay's first seconds again)."""
-        response.success = False
-        if self.recorded_bits:
-            response.message = f"nothing to calibrate: {self._no_audio}"
-            return response
-        try:
-            message = self.bits.recalibrate()
-            message = self._calibrate_ahead() or message
-        except AudioError as error:
-            response.message = str(error)
-            return response
-        self.get_logger().info(f"recalibrate: {message}")
-        self.threshold_log(self.bits)
-        response.success, response.message = True, message
-        return response
 
     # ------------------------------------------------------------------ start gate
 
