@@ -228,8 +228,6 @@ class SpeakerNode(GraphNode):
             "foreign_decisions": self.controllers.foreign_messages,
             "jumps_ignored": self.pace.jumps,
         }
-        for topic, names in self.intruders.items():
-            values[f"publishers_{topic}"] = ", ".join(names)
         if self.intruders:
             topics = ", ".join(f"'{topic}'" for topic in self.intruders)
             return ERROR, f"more than one publisher on {topics}", values
