@@ -23,9 +23,15 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
+from infomax_contingency.limits import load_yaml
 
 THRESHOLD_FORMAT_VERSION = 1
 """Version of the threshold file layout written by :func:`save_threshold`."""
+
+THRESHOLD_MIN_DB, THRESHOLD_MAX_DB = -150.0, 0.0
+"""The thresholds allowed, dB (0 dB: a full-scale window of samples in [-1, 1]); one range
+for mic_node's ``threshold_db`` parameter, threshold files and the offline tools
+(:func:`check_threshold_db`)."""
 
 DEFAULT_MIN_SEPARATION_DB = 10.0
 """Least distance between the two cluster means (dB) for a calibration to be used."""
@@ -269,11 +275,9 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
             "contains both quiet and sound"
         )
     try:
-        record = yaml.safe_load(path.read_bytes())
-    except OSError as exc:
-        raise AudioError(f"cannot read threshold file {path}: {exc.strerror or exc}") from exc
-    except yaml.YAMLError as exc:
-        raise AudioError(f"threshold file {path} is not valid YAML: {exc}") from exc
+        record = load_yaml(path, "threshold file")
+    except ValueError as exc:
+        raise AudioError(str(exc)) from None
     if not isinstance(record, dict):
         raise AudioError(
             f"threshold file {path} must hold a YAML mapping with {', '.join(_REQUIRED_FIELDS)}; "
@@ -299,6 +303,19 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
         raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
     if not math.isfinite(value):
         raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
+    return check_threshold_db(value, f"threshold file {path}")
+
+
+def check_threshold_db(value: float, what: str) -> float:
+    """``value`` if it lies in ``THRESHOLD_MIN_DB .. THRESHOLD_MAX_DB``, else AudioError.
+
+    ``what`` names the value in the one-line message (``"threshold file x.yaml"``).
+    """
+    if not THRESHOLD_MIN_DB <= value <= THRESHOLD_MAX_DB:
+        raise AudioError(
+            f"{what}: threshold_db {value:g} dB is not allowed: {THRESHOLD_MIN_DB:g} .."
+            f" {THRESHOLD_MAX_DB:g} dB (0 dB is a full-scale window of samples in [-1, 1])"
+        )
     return float(value)
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -247,13 +248,22 @@ def _rate_text(rate: Rate | None) -> str:
 
 def run_analyze(args: argparse.Namespace) -> int:
     """Print the study; write ``--out`` when both peaks are found. 0, or 1 if data lack."""
+    for option, value in (("--max-lag-s", args.max_lag_s),
+                          ("--background-from-s", args.background_from_s)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{option} must be a number of seconds > 0, got {value}")
     params = ModelParams.load(args.params)
-    max_lag = max(1, round(args.max_lag_s / params.dt))
-    background_from = max(1, min(max_lag, round(args.background_from_s / params.dt)))
     runs = []
     for directory in args.sessions:
         records = list(replay_recorded(load_session(Path(directory)), params))
         runs.append(([bool(r.y) for r in records], [bool(r.u) for r in records]))
+    # no lag can be longer than the longest session: the table stops there
+    longest = max(len(bits) for bits, _ in runs)
+    max_lag = max(1, min(round(args.max_lag_s / params.dt), longest))
+    if max_lag < round(args.max_lag_s / params.dt):
+        print(f"# lags shown up to {max_lag * params.dt:g} s, the longest session"
+              f" (--max-lag-s {args.max_lag_s:g})")
+    background_from = max(1, min(max_lag, round(args.background_from_s / params.dt)))
     study = fig4_study_of_runs(runs, max_lag, background_from)
     if args.plot:
         from infomax_contingency.eval.fig4_plot import fig4_figure

@@ -111,7 +111,11 @@ from infomax_contingency.audio.capture import MicrophoneStream, Window
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.devices import DISCONNECTED, INPUT, AudioDeviceError, resolve_device
 from infomax_contingency.audio.energy import WindowAssembler
-from infomax_contingency.audio.threshold import load_threshold
+from infomax_contingency.audio.threshold import (
+    THRESHOLD_MAX_DB,
+    THRESHOLD_MIN_DB,
+    load_threshold,
+)
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
@@ -188,8 +192,8 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             "threshold_db",
             -40.0,
             "Fixed threshold (threshold_mode fixed; live)",
-            -150.0,
-            0.0,
+            THRESHOLD_MIN_DB,
+            THRESHOLD_MAX_DB,
             "dB",
             read_only=False,
         ),
