@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from infomax_contingency.audio.binarizer import WavReplay
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import iter_wav_windows
 from infomax_contingency.audio.threshold import kmeans_split, load_threshold, save_threshold
@@ -66,6 +67,11 @@ def test_a_wav_whose_header_says_1_hz_is_refused_before_a_sample_is_read(tmp_pat
                             str(tmp_path / "t.yaml"))
     assert "327,680 frames at 1 Hz" in error
     assert not (tmp_path / "t.yaml").exists()
+    # mic_node's source wav (demo --wav) and replay of a wav file read it the same way
+    with pytest.raises(AudioError, match="91 hours of audio"):
+        WavReplay(wav, 0.5)
+    error = _one_line_error(capsys, "replay", str(wav), "--actions", "rule")
+    assert "91 hours of audio" in error
 
 
 def test_a_low_rate_wav_is_resampled_a_few_frames_at_a_time(tmp_path):

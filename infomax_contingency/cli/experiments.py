@@ -670,9 +670,10 @@ def _run_plot(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
     memory = args.memory
     if args.session and Path(args.session).is_dir():  # a recorded session (bag)
+        from infomax_contingency.cli.sessions import warn
         from infomax_contingency.eval.sessions import load_session, replay_recorded
 
-        session = load_session(Path(args.session))
+        session = load_session(Path(args.session), warn=warn)
         memory = memory or session.memory_steps
         records = [record.__dict__ for record in replay_recorded(session, params, memory)]
         title = args.title or f"recorded session {Path(args.session).name}"

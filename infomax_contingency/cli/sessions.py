@@ -169,7 +169,13 @@ def run_replay(args: argparse.Namespace) -> int:
     if is_wav:
         records, what = _wav_records(args, kind, params)
         return _print_what_if(args, records, what)
-    session = load_session(Path(args.session))
+    cut: list[str] = []
+
+    def warn_cut(message: str) -> None:
+        cut.append(message)
+        warn(message)
+
+    session = load_session(Path(args.session), warn=warn_cut)
     if kind == "controller":
         memory = session.memory_steps if args.memory is None else args.memory
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
@@ -182,6 +188,12 @@ def run_replay(args: argparse.Namespace) -> int:
         replayed.append(record.belief)
         if args.json:
             _write_line(json.dumps(record.__dict__))
+    if cut and len(replayed) > len(session.beliefs):
+        # the cut took the last beliefs while their steps' bits and decisions were kept
+        print(f"# the last {len(replayed) - len(session.beliefs)} replayed steps have no"
+              " recorded belief (cut): compared up to the last one recorded",
+              file=sys.stderr if args.json else sys.stdout)
+        replayed = replayed[:len(session.beliefs)]
     same = replayed == session.beliefs
     first_difference = next(
         (i for i, (a, b) in enumerate(zip(replayed, session.beliefs, strict=False)) if a != b),
@@ -194,6 +206,11 @@ def run_replay(args: argparse.Namespace) -> int:
     )
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def warn(message: str) -> None:
+    """A warning about the input (a bag cut by a killed recorder): one line on stderr."""
+    print(f"warning: {message}", file=sys.stderr, flush=True)
 
 
 def _write_line(text: str) -> None:
@@ -255,7 +272,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
     runs = []
     for directory in args.sessions:
-        records = list(replay_recorded(load_session(Path(directory)), params))
+        records = list(replay_recorded(load_session(Path(directory), warn=warn), params))
         runs.append(([bool(r.y) for r in records], [bool(r.u) for r in records]))
     # no lag can be longer than the longest session: the table stops there
     longest = max(len(bits) for bits, _ in runs)

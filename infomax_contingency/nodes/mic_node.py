@@ -548,6 +548,8 @@ class MicNode(GraphNode):
     def _setup_bag(self, config: MicConfig) -> None:
         """Open the session bag of ``source: bag``; calibrate on its audio if asked."""
         self.bag = open_bag_replay(config, self.bits.needs_samples)
+        for warning in self.bag.warnings:  # a bag cut by a killed recorder
+            self.get_logger().warning(warning)
         if self.bag.has_audio:
             what = "its audio, through the bit source"
             if config.threshold_mode == "calibrate" and self.binarizer is not None:
