@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.cli import INTERRUPTED_STATUS
 from infomax_contingency.cli.calibration_session import register_calibration_session
 from infomax_contingency.cli.demo import register_demo
 from infomax_contingency.cli.experiments import register_experiment, register_learn, register_plot
@@ -380,10 +381,6 @@ def build_parser() -> argparse.ArgumentParser:
     for register in REGISTRARS:
         register(subparsers)
     return parser
-
-
-INTERRUPTED_STATUS = 130
-"""Exit status after a Ctrl-C (128 + SIGINT), as a shell reports it."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:
