@@ -135,3 +135,14 @@ def test_what_is_not_a_bag_is_one_line(tmp_path, capsys):
     meta = _copy(tmp_path, "meta", MCAP.read_bytes())
     (meta / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
     assert "its metadata.yaml is damaged" in _one_line_error(capsys, "replay", str(meta))
+
+
+def test_the_session_types_are_the_recorders() -> None:
+    from infomax_contingency.audio.bag import SESSION_TYPES
+    from infomax_contingency.nodes.recorder_node import RECORDED_TOPICS
+
+    recorded = {("" if name.startswith("/") else "/") + name:
+                f"{kind.__module__.split('.')[0]}/msg/{kind.__name__}"
+                for name, (kind, _) in RECORDED_TOPICS.items()}
+    assert recorded.items() <= SESSION_TYPES.items()
+    assert SESSION_TYPES["/audio"] == "std_msgs/msg/Float32MultiArray"

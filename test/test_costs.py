@@ -20,11 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from infomax_contingency.audio.binarizer import WavReplay
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import iter_wav_windows
-from infomax_contingency.audio.threshold import kmeans_split, load_threshold, save_threshold
+from infomax_contingency.audio.threshold import kmeans_split
+from infomax_contingency.audio.threshold_file import load_threshold, save_threshold
 from infomax_contingency.audio.wav import open_wav_info, write_wav_int16
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.limits import (

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from infomax_contingency.nodes import entry
+from infomax_contingency.nodes import entry, runtime
 
 
 @pytest.mark.parametrize("module", ["belief_node", "bringup"])
@@ -43,10 +43,16 @@ def test_a_stop_signal_while_a_node_loads_ends_it_with_status_0_and_no_traceback
     )
     monkeypatch.syspath_prepend(str(tmp_path))
     before = {s: signal.getsignal(s) for s in entry.STOP_SIGNALS}
-    with pytest.raises(SystemExit) as stop:
-        entry.run_module("loading_node")
-    assert stop.value.code == 0
-    assert {s: signal.getsignal(s) for s in entry.STOP_SIGNALS} == before  # given back
+    try:
+        with pytest.raises(SystemExit) as stop:
+            entry.run_module("loading_node")
+        assert stop.value.code == 0
+        # The process is ending: a second stop signal (the terminal's Ctrl-C and ros2
+        # launch's both reach a node) is ignored, not a KeyboardInterrupt on the way out.
+        assert all(signal.getsignal(s) == signal.SIG_IGN for s in entry.STOP_SIGNALS)
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler)
 
 
 def test_a_node_that_ends_ignoring_stop_signals_keeps_ignoring_them(
@@ -121,3 +127,22 @@ def test_the_blas_thread_count_a_user_chose_is_kept() -> None:
     environment = {"OMP_NUM_THREADS": " "}  # set but empty: not a choice
     entry.use_one_blas_thread(environment)
     assert environment["OPENBLAS_NUM_THREADS"] == "1"
+
+
+def test_a_node_whose_parent_died_while_it_loaded_does_not_start() -> None:
+    """The parent named by the harness (or the demo) died before the node could follow it.
+
+    The node sets its parent-death signal only once loaded; a parent gone by then cannot
+    send it, so the node checks and ends at once, instead of running as an orphan.
+    """
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    env = {**os.environ, runtime.PARENT_PID_VARIABLE: str(gone.pid)}
+    result = subprocess.run(
+        [sys.executable, "-m", "infomax_contingency.nodes.entry", "posture_node"],
+        capture_output=True, text=True, timeout=60, env=env,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.strip() == (
+        "posture_node: the process that started it is gone; not starting"
+    )

@@ -24,23 +24,30 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any
 
-from rosbags.interfaces import (
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
-from rosbags.rosbag2.storage_mcap import (
-    McapWriter,
-    write_record,
-    write_uint16,
-    write_uint32,
-    write_uint64,
-)
-from rosbags.typesys import Stores, get_typestore
+from infomax_contingency.errors import MissingPackageError
+
+try:
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        write_record,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
+    from rosbags.typesys import Stores, get_typestore
+except ModuleNotFoundError:  # sessions are optional: say which package is missing
+    raise MissingPackageError(
+        "rosbags", "recording or reading a session (rosbag2 bag)", "python3-rosbags-pip"
+    ) from None
 
 BAG_VERSION = 9
 """rosbag2 metadata version (the one Jazzy writes)."""
@@ -215,6 +222,9 @@ SESSION_TYPES = {
     "/belief": "std_msgs/msg/Float64",
     "/posture": "std_msgs/msg/String",
     "/partner_present": "std_msgs/msg/Bool",
+    "/self_sound": "std_msgs/msg/Int64MultiArray",
+    "/joint_targets": "trajectory_msgs/msg/JointTrajectory",
+    "/speaker_started": "builtin_interfaces/msg/Time",
     "/session_info": "std_msgs/msg/String",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
@@ -403,21 +413,7 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
     found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
     held: dict[str, str] = {}
     for path in files:
-        try:
-            scan, stopped = _scan_mcap(path)
-        except OSError as error:
-            raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") \
-                from error
-        if stopped is not None:
-            if info is not None:
-                raise BagReadError(f"the session {directory} is damaged: {path.name} is"
-                                   f" readable only up to byte {scan.read_bytes:,} of"
-                                   f" {path.stat().st_size:,} ({stopped})")
-            if warn is not None:
-                warn(f"the session {directory} was cut (no metadata.yaml: was its recorder"
-                     f" killed?): {path.name} read up to its last complete chunk, byte"
-                     f" {scan.read_bytes:,} of {path.stat().st_size:,},"
-                     f" {len(scan.messages):,} messages")
+        scan = _scan_file(directory, path, metadata=info is not None, warn=warn)
         held.update(scan.channels.values())
         _decode_into(found, scan, topics, directory)
     _check_types(directory, held, topics, required)
@@ -426,6 +422,26 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
     for messages in found.values():
         messages.sort(key=lambda item: item[0])
     return found
+
+
+def _scan_file(directory: Path, path: Path, metadata: bool,
+               warn: Callable[[str], None] | None) -> _Scan:
+    """One MCAP file of a bag: damage refused (with ``metadata``), a cut told to ``warn``."""
+    try:
+        scan, stopped = _scan_mcap(path)
+    except OSError as error:
+        raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
+    if stopped is None:
+        return scan
+    if metadata:
+        raise BagReadError(f"the session {directory} is damaged: {path.name} is readable only"
+                           f" up to byte {scan.read_bytes:,} of {path.stat().st_size:,}"
+                           f" ({stopped})")
+    if warn is not None:
+        warn(f"the session {directory} was cut (no metadata.yaml: was its recorder killed?):"
+             f" {path.name} read up to its last complete chunk, byte {scan.read_bytes:,} of"
+             f" {path.stat().st_size:,}, {len(scan.messages):,} messages")
+    return scan
 
 
 def _decode_into(found: dict[str, list[tuple[int, Any]]], scan: _Scan,

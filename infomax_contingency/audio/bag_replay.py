@@ -10,9 +10,13 @@ the microphone stream it heard (``/sound_step``, with ``/sound_energy`` beside t
   replay can try another threshold; the bits equal the recorded ones for the threshold
   the session used. With ``samples=True`` each window's samples are kept as well
   (:attr:`BagReplay.last_samples`), for a bit source that looks at the samples
-  (:mod:`~infomax_contingency.audio.bitsource`);
+  (:mod:`~infomax_contingency.audio.bitsources`);
 * without audio: the recorded energy and the **recorded bit** of each step of the first
   stream heard, in step order.
+
+Either way a window the session recorded as withheld (heard during the robot's declared
+own sound) is served withheld again (:attr:`BagReplay.last_withheld`); with audio, the
+recorded steps are the last windows of the audio (calibration windows come first).
 
 The robot's recorded decisions for the same steps are :attr:`BagReplay.decisions`
 (controller_node's ``controller: recorded:BAG`` answers with them, for a faithful
@@ -30,6 +34,10 @@ import numpy as np
 from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import WindowAssembler, frame_energies_db
+from infomax_contingency.audio.threshold import calibration_window_count
+from infomax_contingency.audio.windows import SourceWindow, WindowSource
+from infomax_contingency.core.model import Withheld
+from infomax_contingency.core.selfsound import recorded_observation
 
 BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
 """Topics a bag replay reads (their types: :data:`~infomax_contingency.audio.bag.SESSION_TYPES`)."""
@@ -64,7 +72,7 @@ def _first_stream(directory: Path, sound_steps: list) -> tuple[int, int]:
     return stream, max(int(m.data[1]) for _, m in sound_steps if int(m.data[0]) == stream)
 
 
-class BagReplay:
+class BagReplay(WindowSource):
     """The windows of a session bag, one at a time (see the module docstring).
 
     Args:
@@ -95,6 +103,10 @@ class BagReplay:
         self.windows: list[tuple[float, bool | None]]
         self.window_samples: np.ndarray | None = None
         """The windows' samples, one per row (``samples=True`` and audio), else None."""
+        stream, _ = _first_stream(self.directory, topics["/sound_step"]) if topics[
+            "/sound_step"] else (None, 0)
+        recorded = sorted((int(m.data[1]), recorded_observation(list(m.data)))
+                          for _, m in topics["/sound_step"] if int(m.data[0]) == stream)
         if self.has_audio:
             assembler = WindowAssembler(audio_rate_hz, window_s)
             energies: list[float] = []
@@ -111,18 +123,49 @@ class BagReplay:
                 energies = list(frame_energies_db(self.window_samples))
             self.windows = [(float(e), None) for e in energies]
         else:
-            stream, _ = _first_stream(self.directory, topics["/sound_step"])
-            steps = [(int(m.data[1]), bool(m.data[2])) for _, m in topics["/sound_step"]
-                     if int(m.data[0]) == stream]
+            if stream is None:
+                raise AudioError(f"the session {directory} holds no sound_step messages:"
+                                 " nothing to replay")
             # Calibration windows (energy, no bit) come first: the last energies are the
             # steps' (an energy not recorded is nan).
-            energies = [float(m.data) for _, m in topics["/sound_energy"]][-len(steps):]
-            energies = [math.nan] * (len(steps) - len(energies)) + energies
-            self.windows = [(energy, bit) for energy, (_, bit) in
-                            zip(energies, sorted(steps), strict=True)]
+            energies = [float(m.data) for _, m in topics["/sound_energy"]][-len(recorded):]
+            energies = [math.nan] * (len(recorded) - len(energies)) + energies
+            self.windows = [(energy, y.bit if isinstance(y, Withheld) else y) for energy, (_, y)
+                            in zip(energies, recorded, strict=True)]
+        withheld = [isinstance(y, Withheld) for _, y in recorded][-len(self.windows):]
+        self.withheld = [False] * (len(self.windows) - len(withheld)) + withheld
+        """Per window: recorded as withheld."""
         if not self.windows:
             raise AudioError(f"the session {self.directory} holds no complete window of audio")
         self.position = 0
+
+    replay = True
+
+    def take(self) -> list[SourceWindow]:
+        """The next window (its samples if kept, its recorded bit if no audio); [] at the end."""
+        found = self.next_window()
+        if found is None:
+            return []
+        energy, bit = found
+        return [SourceWindow(energy, self.last_samples, bit, withheld=self.last_withheld)]
+
+    @property
+    def finished(self) -> bool:
+        """True once the last window was served."""
+        return self.position >= len(self.windows)
+
+    def read_ahead(
+        self, seconds: float, window_s: float
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Energies and (if kept) samples of the first ``seconds``' windows."""
+        energies = self.calibration_energies(seconds, window_s)
+        if self.window_samples is None:
+            return energies, None
+        return energies, self.calibration_windows(seconds, window_s)
+
+    def describe(self) -> str:
+        what = "its audio" if self.has_audio else "its recorded bits (no audio recorded)"
+        return f"the session {self.directory}: {self.n_windows} windows from {what}"
 
     @property
     def n_windows(self) -> int:
@@ -137,6 +180,11 @@ class BagReplay:
         return self.windows[self.position - 1]
 
     @property
+    def last_withheld(self) -> bool:
+        """Was the window :meth:`next_window` served last recorded as withheld."""
+        return self.position > 0 and self.withheld[self.position - 1]
+
+    @property
     def last_samples(self) -> np.ndarray | None:
         """Samples of the window :meth:`next_window` served last (None without samples)."""
         if self.window_samples is None or self.position == 0:
@@ -145,7 +193,7 @@ class BagReplay:
 
     def calibration_energies(self, calibration_s: float, window_s: float) -> np.ndarray:
         """Energies of the first ``calibration_s`` seconds (for ``threshold_mode`` calibrate)."""
-        count = _calibration_count(calibration_s, window_s)
+        count = calibration_window_count(calibration_s, window_s)
         return np.array([energy for energy, _ in self.windows[:count]])
 
     def calibration_windows(self, calibration_s: float, window_s: float) -> np.ndarray:
@@ -156,9 +204,4 @@ class BagReplay:
         """
         if self.window_samples is None:
             raise AudioError(f"the replay of {self.directory} keeps no samples of audio")
-        return self.window_samples[: _calibration_count(calibration_s, window_s)]
-
-
-def _calibration_count(calibration_s: float, window_s: float) -> int:
-    """Windows of the calibration read ahead: ``calibration_s`` seconds, at least 2."""
-    return max(2, round(calibration_s / window_s))
+        return self.window_samples[: calibration_window_count(calibration_s, window_s)]

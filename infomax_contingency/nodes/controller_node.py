@@ -22,7 +22,9 @@ It answers once ``vocalize_step`` has ``wait_for_listeners`` subscribers, each c
 then answered, earlier ones are not (counted as ``unanswered_before_start``).
 Steps it never saw (it joined late, messages were lost) are counted, and their windows
 passed without a bit and without a vocalization; a bit that repeats or goes backwards is
-ignored. Bits whose window length is not the model's dt are refused.
+ignored. Bits whose window length is not the model's dt are refused. A withheld bit (the
+window overlapped the robot's declared own sound, ``self_sound``) is answered like any
+other, but the statistic does not count it.
 
 Subscribes ``sound_step`` (std_msgs/Int64MultiArray); publishes ``vocalize`` (Bool, one
 per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
@@ -103,19 +105,10 @@ class ControllerNode(GraphNode):
     NODE_NAME = "controller_node"
     WATCHED_TOPICS = (SOUND_STEP,)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         params = read.model()
-        window_s = read.number(
-            "window_s", params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {params.dt:g} s (parameter 'params' and the policy table)"
-            )
         path = read.text(
             "policy_file",
             "",
@@ -152,20 +145,10 @@ class ControllerNode(GraphNode):
         self.steps = 0
         self.vocalizations = 0
         self.missed_steps = 0
+        self.withheld_bits = 0
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
-        self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
-        self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
-        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
-        self.answering = False
-        self.unanswered_bits = 0
-        self._last_unanswered: tuple[Int64MultiArray, int] | None = None
-        self.start_when_ready(self._listeners_ready, 0.0, self._start_answering)
-        self.wait_visibly(
-            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
-        )
-        self.start_diagnostics()
         if spec:
             self.get_logger().info(f"controller {self.controller.name} (no table);"
                                    f" controller id {self.controller_id}")
@@ -175,6 +158,22 @@ class ControllerNode(GraphNode):
                 + (f", memory {table.memory}" if table.mode == "receding" else "")
                 + f"; controller id {self.controller_id}"
             )
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
+        self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
+        self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
+        self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
+        self.answering = False
+        self.unanswered_bits = 0
+        self._last_unanswered: tuple[Int64MultiArray, int] | None = None
+        self.start_when_ready(
+            self._listeners_ready, 0.0, self._start_answering,
+            waiting_for=f"{self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'",
+        )  # fmt: skip
+        self.wait_visibly(
+            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
+        )
 
     def _listeners_ready(self) -> bool:
         return self.step_pub.get_subscription_count() >= self.wait_for_listeners
@@ -240,7 +239,8 @@ class ControllerNode(GraphNode):
             self.missed_steps += missed
             self.controller.missed(missed)
         self.last_step = bit.step
-        u = bool(self.controller.step(int(bit.bit)))
+        u = bool(self.controller.step(bit.observation))
+        self.withheld_bits += bit.withheld
         self.steps += 1
         self.vocalizations += u
         self.vocalize_pub.publish(Bool(data=u))
@@ -258,6 +258,7 @@ class ControllerNode(GraphNode):
             "unanswered_before_start": self.unanswered_bits,
             "vocalizations": self.vocalizations,
             "missed_steps": self.missed_steps,
+            "withheld_bits": self.withheld_bits,
             "stream": self.streams.source or "none yet",
             "controller_id": self.controller_id,
             "foreign_messages": self.foreign.count,

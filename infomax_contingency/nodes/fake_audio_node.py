@@ -4,12 +4,13 @@ The room (:class:`~infomax_contingency.sim.fake_room.FakeRoom`) is chosen by ``r
 (responsive | silent | noisy) and every one of its parameters can be overridden (noise
 floor, background events, the robot's own sound, the partner's arrival, departure,
 reply probability, delays and level; see :mod:`infomax_contingency.sim.fake_room`).
-Deterministic for a given ``seed``. Every room parameter but ``rate_hz`` and
-``window_s`` is live (``ros2 param set``): it is checked as at start-up and applies from
-the next window on (:meth:`~infomax_contingency.sim.fake_room.FakeRoom.reconfigure`):
-the partner's schedule (``partner_arrive_s``, ``partner_leave_s``, in room time), the
-reply probability, levels, delays and the rate of background events; sounds already
-playing or scheduled play out as they were made.
+Deterministic for a given ``seed``. The room's window is the model's dt (``params``).
+Every room parameter but ``rate_hz`` is live (``ros2 param set``): it is checked as at
+start-up and applies from the next window on
+(:meth:`~infomax_contingency.sim.fake_room.FakeRoom.reconfigure`): the partner's schedule
+(``partner_arrive_s``, ``partner_leave_s``, in room time), the reply probability, levels,
+delays and the rate of background events; sounds already playing or scheduled play out
+as they were made.
 
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
 decision on window t arrived on ``vocalize_step`` (or after ``lockstep_timeout_s``;
@@ -23,13 +24,24 @@ subscribers, ``partner_present`` ``wait_for_truth_listeners`` (and, in lockstep,
 ``vocalize`` a publisher) and every subscriber seen on its topics is connected; it
 stops after ``max_windows`` windows (0 = never).
 
+The room's robot may speak after its vocalizations (``robot_speech_probability``, a
+TTS-like utterance, see :mod:`~infomax_contingency.sim.fake_room`); with
+``declare_self_sound`` (the default) the node declares that speech on ``self_sound``, as a
+robot's speech node would: just before the audio of each window the speech overlaps, the
+time since the previous window's audio went out, which is the time mic_node gives that
+window (:class:`~infomax_contingency.core.selfsound.ChunkClock`: room time runs faster
+than the clock in lockstep, so the room declares window by window). mic_node then
+publishes the window withheld; with ``declare_self_sound`` false the robot's speech is
+heard like anyone's.
+
 The room hears the robot through the decisions of one controller (the first heard on
 ``vocalize_step``; a second one is counted and ignored, a silent one replaced after
 ``source_timeout_s``), each step once: the same decisions the belief node follows.
 
 Subscribes ``vocalize_step`` (std_msgs/Int64MultiArray); publishes ``audio``
 (Float32MultiArray, mono samples in [-1, 1] at ``rate_hz``), ``partner_present`` (Bool,
-the ground truth of each window, right after its audio) and ``/diagnostics``.
+the ground truth of each window, right after its audio), ``self_sound``
+(Int64MultiArray ``[start_ns, end_ns]``) and ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -40,6 +52,7 @@ import sys
 import time
 from typing import Any
 
+from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
@@ -49,7 +62,13 @@ from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WAR
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
-from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP, parse_decision
+from infomax_contingency.nodes.step_topics import (
+    SELF_SOUND,
+    SOUND_STEP,
+    VOCALIZE_STEP,
+    parse_decision,
+    self_sound_message,
+)
 from infomax_contingency.sim.fake_room import (
     PRESETS,
     FakeRoom,
@@ -59,13 +78,6 @@ from infomax_contingency.sim.fake_room import (
 )
 
 ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
-    (
-        "window_s",
-        "Window length; must equal the mic's window_s and the model's dt",
-        0.01,
-        10.0,
-        "s",
-    ),
     ("noise_floor_db", "RMS level of the background hiss", -150.0, 0.0, "dB"),
     ("event_rate_hz", "Background sound events per second", 0.0, 100.0, "1/s"),
     ("event_level_db", "RMS level of a background event", -150.0, 0.0, "dB"),
@@ -82,11 +94,19 @@ ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
     ("reply_min_s", "Shortest reply", 0.001, 60.0, "s"),
     ("reply_max_s", "Longest reply", 0.001, 60.0, "s"),
     ("syllable_rate_hz", "Syllables per second in a reply", 0.1, 50.0, "1/s"),
+    ("robot_speech_probability", "Probability that the robot speaks after a vocalization",
+     0.0, 1.0, ""),
+    ("robot_speech_rate_hz", "Utterances per second the robot says on its own", 0.0, 100.0,
+     "1/s"),
+    ("robot_speech_delay_s", "Start of the robot's speech after its vocalization", 0.0, 60.0,
+     "s"),
+    ("robot_speech_min_s", "Shortest utterance of the robot", 0.001, 60.0, "s"),
+    ("robot_speech_max_s", "Longest utterance of the robot", 0.001, 60.0, "s"),
+    ("robot_speech_level_db", "RMS level of the robot's speech at the microphone", -150.0,
+     0.0, "dB"),
 )
 """(name, description, low, high, unit) of the room's floating-point parameters."""
 
-FIXED_ROOM_PARAMETERS = ("window_s",)
-"""Room parameters that cannot change while the room runs (with ``rate_hz``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,24 +126,28 @@ class FakeAudioConfig:
     wait_for_truth_listeners: int
     start_delay_s: float
     source_timeout_s: float
+    declare_self_sound: bool
 
 
-def _read_room(read: ParameterReader) -> tuple[str, dict[str, Any]]:
-    """The room preset's name and the values that override it (rate_hz, ROOM_PARAMETERS)."""
+def _read_room(read: ParameterReader, window_s: float) -> tuple[str, dict[str, Any]]:
+    """The room preset's name and the values that override it (rate_hz, ROOM_PARAMETERS).
+
+    The room's window is ``window_s`` (the model's dt, seconds).
+    """
     room_name = read.text(
         "room", "responsive", "Room preset the other parameters start from", tuple(PRESETS)
     )
     defaults = FakeRoomConfig.preset(room_name)
     values: dict[str, Any] = {
+        "window_s": window_s,
         "rate_hz": read.integer(
             "rate_hz", defaults.rate_hz, "Sample rate of the audio", 1000, 384000
-        )
+        ),
     }
     for name, description, low, high, unit in ROOM_PARAMETERS:
-        live = name not in FIXED_ROOM_PARAMETERS
         values[name] = read.number(
-            name, getattr(defaults, name), description + (" (live)" if live else ""),
-            low, high, unit, read_only=not live,
+            name, getattr(defaults, name), description + " (live)", low, high, unit,
+            read_only=False,
         )  # fmt: skip
     return room_name, values
 
@@ -165,6 +189,10 @@ def _read_pacing(read: ParameterReader) -> dict[str, Any]:
             "A followed controller silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         ),
+        "declare_self_sound": read.flag(
+            "declare_self_sound", True,
+            "Declare the robot's speech on 'self_sound' (false: it is heard like a partner's)",
+        ),
     }  # fmt: skip
 
 
@@ -172,7 +200,7 @@ def read_config(node: GraphNode) -> FakeAudioConfig:
     """Declare and check fake_audio_node's parameters."""
     read: ParameterReader = node.parameters
     params = read.model()
-    room_name, values = _read_room(read)
+    room_name, values = _read_room(read, params.dt)
     seed = read.integer("seed", 0, "Random seed (same seed, same room)", 0, 2**31 - 1)
     pacing = _read_pacing(read)
     try:
@@ -196,9 +224,9 @@ class FakeAudioNode(GraphNode):
 
     NODE_NAME = "fake_audio_node"
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
-        config = read_config(self)
+    def configure(self) -> None:
+        """Declare and check the parameters; the room they describe."""
+        self.config = config = read_config(self)
         for warning in timing_warnings(config.room, config.params):
             self.get_logger().warning(f"room timing vs model parameters: {warning}")
         self.params = config.params
@@ -210,6 +238,24 @@ class FakeAudioNode(GraphNode):
         self.max_windows = config.max_windows
         self.wait_for_listeners = config.wait_for_listeners
         self.wait_for_truth_listeners = config.wait_for_truth_listeners
+        self.started = False
+        self.controllers = SourceLock(config.source_timeout_s)
+        self._window_sent_s: float | None = None
+        """When the newest window was published (s, system clock)."""
+        self.timeouts = self.recent_events()
+        self.foreign = self.recent_events()
+        self._answered: tuple[int, int] = (0, 0)
+        self.declare_self_sound = config.declare_self_sound
+        self.self_sound_declared = 0
+        self._audio_sent_ns: int | None = None
+        """ROS time (ns) just after the newest window's audio was published."""
+        self.get_logger().info(
+            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
+        )
+
+    def activate(self) -> None:
+        """Publishers, the decisions' subscription, the start gate and the held-window timer."""
+        config = self.config
         self._held_window: Timer | None = None
         """The timer that publishes the next window ``window_s / lockstep_max_speed`` after
         its decision (None: no cap, the decision publishes it)."""
@@ -218,15 +264,12 @@ class FakeAudioNode(GraphNode):
                 config.room.window_s / config.lockstep_max_speed, self._release_held_window,
                 autostart=False,
             )  # fmt: skip
-        self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
-        self.controllers = SourceLock(config.source_timeout_s)
-        self._window_sent_s: float | None = None
-        """When the newest window was published (s, system clock)."""
-        self.timeouts = self.recent_events()
-        self.foreign = self.recent_events()
-        self._answered: tuple[int, int] = (0, 0)
+        self.self_sound_pub: Publisher | None = None
+        """On ``self_sound`` once the room's robot may speak (and declares it): mic_node
+        holds its windows while the topic has a publisher, so there is none before."""
+        self._publish_self_sound_if_needed(config.room)
         self.vocalize_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
@@ -240,11 +283,11 @@ class FakeAudioNode(GraphNode):
             " lockstep mic_node needs threshold_mode fixed or file (or bit_source vad):"
             " calibrating, or warming up a noise floor, on this stream would wait for"
             " windows that only come after a decision",
+            f"{config.wait_for_listeners} listeners on 'audio'"
+            + (f", {config.wait_for_truth_listeners} on 'partner_present'"
+               if config.wait_for_truth_listeners else "")
+            + (" and a controller on 'vocalize_step'" if self.pacer is not None else ""),
         )
-        self.get_logger().info(
-            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
-        )
-        self.start_diagnostics()
 
     def _ready(self) -> bool:
         return (
@@ -318,19 +361,44 @@ class FakeAudioNode(GraphNode):
         message.data = array.array("f", as_transmitted(window.samples).tobytes())
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
+        if window.robot_sound and self.self_sound_pub is not None:
+            self._declare_robot_sound()
         self.audio_pub.publish(message)
+        self._audio_sent_ns = self.get_clock().now().nanoseconds
         self._window_sent_s = time.time()
         self.truth_pub.publish(Bool(data=window.partner_present))
 
+    def _publish_self_sound_if_needed(self, room: FakeRoomConfig) -> None:
+        """The ``self_sound`` publisher, once the robot may speak and its speech is declared.
+
+        Made at start-up when the room's robot speaks; a live set that makes it speak
+        makes it then (the first declarations may reach mic_node late: it says so).
+        """
+        speaks = room.robot_speech_probability > 0 or room.robot_speech_rate_hz > 0
+        if self.declare_self_sound and speaks and self.self_sound_pub is None:
+            self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
+
+    def _declare_robot_sound(self) -> None:
+        """Declare the window about to go out as the robot's sound (see the module doc).
+
+        The range lies strictly between the previous window's publication and this
+        one's: inside the time mic_node gives this window and no other.
+        """
+        now_ns = self.get_clock().now().nanoseconds
+        window_ns = round(self.room.config.window_s * 1e9)
+        start_ns = now_ns - window_ns if self._audio_sent_ns is None else self._audio_sent_ns + 1
+        end_ns = max(start_ns, now_ns - 1)
+        self.self_sound_pub.publish(self_sound_message(start_ns, end_ns))
+        self.self_sound_declared += 1
+
     def _live_room_parameters(self) -> None:
-        """Let every room parameter but rate_hz and window_s change while the room runs."""
+        """Let every room parameter but rate_hz change while the room runs."""
         for name, *_ in ROOM_PARAMETERS:
-            if name not in FIXED_ROOM_PARAMETERS:
-                self.parameters.live(
-                    name,
-                    lambda value, name=name: self._reconfigure(name, value),
-                    lambda value, name=name: self._room_config(name, value),
-                )
+            self.parameters.live(
+                name,
+                lambda value, name=name: self._reconfigure(name, value),
+                lambda value, name=name: self._room_config(name, value),
+            )
 
     def _room_config(self, name: str, value: float) -> FakeRoomConfig:
         """The room's parameters with ``name`` = ``value``; ConfigError as at start-up."""
@@ -343,6 +411,7 @@ class FakeAudioNode(GraphNode):
         """The room goes on with ``name`` = ``value`` from the next window on."""
         config = self._room_config(name, value)
         self.room.reconfigure(config)
+        self._publish_self_sound_if_needed(config)
         self.get_logger().info(
             f"room: {name} = {value:g} from window {self.room.windows_made + 1} on (room time"
             f" {self.room.now_s:g} s; partner present then:"
@@ -366,6 +435,8 @@ class FakeAudioNode(GraphNode):
             "vocalizations": room.vocalizations,
             "replies": room.replies,
             "events": room.events,
+            "robot_utterances": room.robot_utterances,
+            "self_sound_declared": self.self_sound_declared,
         }
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts

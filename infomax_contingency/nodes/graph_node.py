@@ -6,24 +6,30 @@ Diagnostics: each node publishes a ``diagnostic_msgs/DiagnosticArray`` on
 ``fault_hold_s``; its count stays among the values.
 
 Waiting is visible: a node that waits for an input (mic_node for ``audio``,
-controller_node for ``sound_step``) calls :meth:`GraphNode.wait_visibly`; when nothing
-has arrived after :data:`WAITING_NOTICE_S` seconds it logs once what it waits for and
-how to provide it, and its diagnostics say WARN "waiting for ..." until it arrives.
+controller_node for ``sound_step``, belief_node for both step topics, posture_node for
+``belief``, ...) calls :meth:`GraphNode.wait_visibly`: it logs at once (INFO) what it
+waits for and again when the first message came, with the time waited; when nothing
+has arrived after :data:`WAITING_NOTICE_S` seconds it logs once (WARN) how to provide
+it, and its diagnostics say WARN "waiting for ..." until it arrives.
 
 Intruders: a node that listens to a topic with one rightful publisher (``sound`` and
 ``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
 the publishers on it (:meth:`GraphNode.extra_publishers`) and reports a second one by
 name, in a throttled WARN and an ERROR diagnostic while it lasts.
 
-A refused node leaves nothing behind: when a subclass's ``__init__`` raises (a bad
-parameter, a missing file or device), the half-built node is destroyed before the error
-goes on, so its publishers and services do not outlive it in a process that carries on
-(an in-process test, a composed bringup that reports the refusal).
+A node is built in two steps, as a managed node's configure and activate (ros2/demos'
+``lifecycle_py/talker.py``), called in that order by :class:`GraphNode`'s constructor:
+:meth:`GraphNode.configure` declares and checks the parameters (a bad one raises
+:class:`~infomax_contingency.nodes.parameters.ConfigError`), :meth:`GraphNode.activate`
+creates the publishers, subscriptions, services and timers; then the diagnostics start.
+A refused node leaves nothing behind: when either step raises (a bad parameter, a missing
+file or device), the half-built node is destroyed before the error goes on, so its
+publishers and services do not outlive it in a process that carries on (an in-process
+test, a composed bringup that reports the refusal).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Callable
@@ -71,84 +77,85 @@ WAITING_NOTICE_S = 5.0
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
-def _destroyed_if_refused(init: Callable[..., None]) -> Callable[..., None]:
-    """``init``, destroying the half-built node (once) when it raises, then re-raising."""
-
-    @functools.wraps(init)
-    def build(self: GraphNode, *args: Any, **kwargs: Any) -> None:
-        try:
-            init(self, *args, **kwargs)
-        except BaseException:
-            if not getattr(self, "_refusal_cleaned", False):
-                self._refusal_cleaned = True
-                try:
-                    self.destroy_node()  # the subclass's: releases a device it opened
-                except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
-                    with suppress(Exception):
-                        Node.destroy_node(self)
-            raise
-
-    return build
-
-
-
 class GraphNode(Node):
     """Base of the graph's nodes: parameters, diagnostics and a completion future.
 
-    Subclasses call :meth:`start_diagnostics` once set up and implement
+    Subclasses set :attr:`NODE_NAME`, implement :meth:`configure`, :meth:`activate` and
     :meth:`diagnostic_status`. A node that finishes on its own (e.g. the end of a replayed
     file) sets :attr:`finished`; :func:`run_node` then returns its result as exit status.
     """
 
+    NODE_NAME: str = ""
+    """The node's default name."""
+
     WATCHED_TOPICS: tuple[str, ...] = ()
     """Topics with one rightful publisher that this node watches for a second one."""
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        if "__init__" in cls.__dict__:
-            cls.__init__ = _destroyed_if_refused(cls.__dict__["__init__"])  # type: ignore[method-assign]
-
-    def __init__(self, node_name: str, **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.intruders: dict[str, list[str]] = {}
-        """Watched topics with more than one publisher -> the publishers (last check)."""
-        self.started_ns = time.time_ns()
-        self.stale_messages = 0
-        """Messages ignored because they were published before this node started."""
-        self.parameters = ParameterReader(self)
-        self.fault_hold_s = self.parameters.number(
-            "fault_hold_s",
-            10.0,
-            "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
-            " its count stays among the values",
-            0.1,
-            3600.0,
-            "s",
-        )
-        self.diagnostics_period_s = self.parameters.number(
-            "diagnostics_period_s",
-            DIAGNOSTICS_PERIOD_S,
-            "Seconds between two diagnostics messages of this node on /diagnostics (each one"
-            " also checks the watched topics for a second publisher)",
-            0.05,
-            60.0,
-            "s",
-        )
-        if self.fault_hold_s < self.diagnostics_period_s:
-            self.get_logger().warning(
-                f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
-                f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
-                " diagnostics messages shows only in the counts"
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        try:
+            self.intruders: dict[str, list[str]] = {}
+            """Watched topics with more than one publisher -> the publishers (last check)."""
+            self.started_ns = time.time_ns()
+            self.stale_messages = 0
+            """Messages ignored because they were published before this node started."""
+            self.parameters = ParameterReader(self)
+            self.fault_hold_s = self.parameters.number(
+                "fault_hold_s",
+                10.0,
+                "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
+                " its count stays among the values",
+                0.1,
+                3600.0,
+                "s",
             )
-        self.finished: Future = Future()
-        self._quiet_until: dict[str, float] = {}
-        """Throttled log kind -> monotonic second until which it stays quiet."""
-        self.arrivals: dict[str, int] = {}
-        """Messages received per topic (as subscribed, relative names)."""
-        self.waiting_for = ""
-        """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
-        self._awaited: list[tuple[str, str]] = []
-        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.diagnostics_period_s = self.parameters.number(
+                "diagnostics_period_s",
+                DIAGNOSTICS_PERIOD_S,
+                "Seconds between two diagnostics messages of this node on /diagnostics (each one"
+                " also checks the watched topics for a second publisher)",
+                0.05,
+                60.0,
+                "s",
+            )
+            if self.fault_hold_s < self.diagnostics_period_s:
+                self.get_logger().warning(
+                    f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
+                    f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
+                    " diagnostics messages shows only in the counts"
+                )
+            self.finished: Future = Future()
+            self._quiet_until: dict[str, float] = {}
+            """Throttled log kind -> monotonic second until which it stays quiet."""
+            self.arrivals: dict[str, int] = {}
+            """Messages received per topic (as subscribed, relative names)."""
+            self.waiting_for = ""
+            """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
+            self._awaited: list[tuple[str, str]] = []
+            self._waiting_since_s: dict[str, float] = {}
+            """Topics waited for visibly, nothing received yet -> when the wait began (now_s)."""
+            self._visible_wait_since_s = 0.0
+            """When the first wait began (now_s); the WARN of check_waiting counts from it."""
+            self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.configure()
+            self.activate()
+        except BaseException:
+            # A refused node is destroyed (what it made goes with it) before the error goes on.
+            try:
+                self.destroy_node()  # the subclass's: releases a device it opened
+            except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
+                with suppress(Exception):
+                    Node.destroy_node(self)
+            raise
+        self.start_diagnostics()
+
+    def configure(self) -> None:
+        """Declare and check the node's parameters (ConfigError for a bad one)."""
+        raise NotImplementedError
+
+    def activate(self) -> None:
+        """Create the node's publishers, subscriptions, services and timers."""
+        raise NotImplementedError
 
     def subscribe(
         self,
@@ -182,6 +189,7 @@ class GraphNode(Node):
         pacer: LockstepPacer | None = None,
         on_timeout: Callable[[], None] | None = None,
         stalled_hint: str = "",
+        waiting_for: str = "",
     ) -> None:
         """Call ``start`` once ``ready()`` has held for ``delay_s`` seconds.
 
@@ -191,10 +199,12 @@ class GraphNode(Node):
         delay lets the rest of the graph connect too. Afterwards, with a lockstep ``pacer``,
         ``on_timeout`` is called whenever the pacer's timeout expires; while the first
         window waits for its decision (no timeout applies then) a warning with
-        ``stalled_hint`` is logged every few seconds.
+        ``stalled_hint`` is logged every few seconds. ``waiting_for`` is logged (INFO) now
+        and, with the time waited, when the gate opens.
         """
         ready_since: list[float] = []
         connected_since: list[float] = []
+        start = _announced_start(self.get_logger(), waiting_for, start) if waiting_for else start
 
         def check_timeout() -> None:
             now = time.monotonic()
@@ -233,18 +243,30 @@ class GraphNode(Node):
         gate = self.create_timer(_GATE_POLL_S, poll)
 
     def count_arrival(self, topic: str) -> None:
-        """Count one message received on ``topic`` (done by :meth:`subscribe`)."""
-        self.arrivals[topic] = self.arrivals.get(topic, 0) + 1
+        """Count one message received on ``topic`` (done by :meth:`subscribe`).
+
+        The first one on a topic waited for visibly is logged with the time waited.
+        """
+        count = self.arrivals[topic] = self.arrivals.get(topic, 0) + 1
+        if count == 1 and topic in self._waiting_since_s:
+            waited_s = self.now_s() - self._waiting_since_s.pop(topic)
+            self.get_logger().info(
+                f"'{self.resolve_topic_name(topic)}' received after {waited_s:.1f} s of waiting"
+            )
 
     def wait_visibly(self, topic: str, hint: str) -> None:
-        """Say so when nothing arrives on ``topic`` within :data:`WAITING_NOTICE_S` s.
+        """Log that this node waits for ``topic``, and again when it came (with the wait).
 
-        ``hint`` tells how to provide it (e.g. which node publishes it). Checked about
-        once a second by :meth:`check_waiting`.
+        When nothing arrives within :data:`WAITING_NOTICE_S` s, a warning says so with
+        ``hint``, how to provide it (e.g. which node publishes it). Checked by
+        :meth:`check_waiting` with each diagnostics message (every diagnostics_period_s).
         """
+        if not self._awaited:
+            self._visible_wait_since_s = self.now_s()
         self._awaited.append((topic, hint))
-        started_s = self.now_s()
-        self.create_timer(1.0, lambda: self.check_waiting(self.now_s() - started_s))
+        if not self.arrivals.get(topic):
+            self._waiting_since_s[topic] = self.now_s()
+            self.get_logger().info(f"waiting for '{self.resolve_topic_name(topic)}'")
 
     def check_waiting(self, waited_s: float) -> str:
         """After ``waited_s`` seconds: what is still awaited (logged once per topic)."""
@@ -336,13 +358,20 @@ class GraphNode(Node):
         raise NotImplementedError
 
     def publish_diagnostics(self) -> None:
-        """Check the watched topics for intruders, then publish this node's status."""
+        """Check the watched topics for intruders, then publish this node's status.
+
+        Also checks what the node still waits for (:meth:`wait_visibly`).
+        """
+        waited_s = self.now_s() - self._visible_wait_since_s
+        if self._awaited and waited_s >= WAITING_NOTICE_S:  # before, nothing to say
+            self.check_waiting(waited_s)
         self.intruders = self.extra_publishers(self.WATCHED_TOPICS)
         for topic, names in self.intruders.items():
             self.warn_intrusion(
                 f"{len(names)} publishers on '{topic}': {', '.join(names)}", f"publishers {topic}"
             )
         level, message, values = self.diagnostic_status()
+        values.update({f"publishers_{t}": ", ".join(names) for t, names in self.intruders.items()})
         if self.waiting_for and level == OK:
             level, message = WARN, self.waiting_for
         elif self.waiting_for and level == WARN:
@@ -373,6 +402,19 @@ class GraphNode(Node):
         """Ask :func:`run_node` to stop spinning and return ``exit_status``."""
         if not self.finished.done():
             self.finished.set_result(exit_status)
+
+
+def _announced_start(logger: Any, waiting_for: str, start: Callable[[], None]
+                     ) -> Callable[[], None]:
+    """Log that a start gate waits for ``waiting_for``; ``start`` logging the time waited."""
+    logger.info(f"waiting for {waiting_for}")
+    since_s = time.monotonic()
+
+    def announced() -> None:
+        logger.info(f"{waiting_for}: there after {time.monotonic() - since_s:.1f} s of waiting")
+        start()
+
+    return announced
 
 
 def _format_value(value: Any) -> str:
