@@ -50,25 +50,19 @@ class MemoryBudget:
     source: str
 
 
-def _meminfo_available(meminfo: Path) -> int | None:
+def _kilobytes_field(path: Path, field: str) -> int | None:
+    """``field`` of a ``/proc`` file in ``Name:  123 kB`` lines, in bytes; None if unknown.
+
+    ``MemAvailable`` of ``/proc/meminfo``: what the machine can give without swapping;
+    ``VmSize`` of ``/proc/self/status``: the address space this process maps now.
+    """
     try:
-        for line in meminfo.read_text().splitlines():
-            if line.startswith("MemAvailable:"):
+        for line in path.read_text().splitlines():
+            if line.startswith(f"{field}:"):
                 return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
     return None
-
-
-def _mapped_bytes(status: Path) -> int:
-    """The address space this process maps now (``VmSize``), bytes; 0 if unknown."""
-    try:
-        for line in status.read_text().splitlines():
-            if line.startswith("VmSize:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
 
 
 def _read_int(path: Path) -> int | None:
@@ -127,12 +121,12 @@ def memory_budget(meminfo: Path = Path("/proc/meminfo"),
         OSError: no limit could be read at all (no ``/proc``): one line, asking for one.
     """
     candidates: list[MemoryBudget] = []
-    available = _meminfo_available(meminfo)
+    available = _kilobytes_field(meminfo, "MemAvailable")
     if available is not None:
         candidates.append(MemoryBudget(available, "available memory"))
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
-        candidates.append(MemoryBudget(max(0, soft - _mapped_bytes(status)),
+        candidates.append(MemoryBudget(max(0, soft - (_kilobytes_field(status, "VmSize") or 0)),
                                        f"ulimit -v {soft // 1024}"))
     headroom = cgroup_headroom(cgroup_root, self_cgroup)
     if headroom is not None:
