@@ -189,40 +189,63 @@ def test_outbox_waits_for_a_listener_that_keeps_up_and_lets_a_stalled_one_go() -
         outbox.push(window)
     assert [s for s, _ in outbox.release(paced=True, now=0.0)] == [1, 2]
     assert outbox.acknowledged(7, 3, now=0.0) is Listening.REFUSED  # never handed out
-    assert outbox.acknowledged(7, 1, now=0.1) is Listening.WAITED_FOR  # from its first on
+    assert outbox.acknowledged(7, 1, now=0.1) is Listening.NOTED  # its first: maybe forged
     outbox.answered(2)
-    # the controller answered both, the listener took one: one more step may go
-    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [3]
-    assert outbox.in_flight == 2 and outbox.last_taken == 1
+    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [3, 4]  # the controller's pace
+    assert outbox.acknowledged(7, 2, now=0.3) is Listening.WAITED_FOR  # it takes steps
+    outbox.answered(4)
+    # the controller answered all, the listener took two: nothing more may go
     assert outbox.release(paced=True, now=0.3) == []
-    assert outbox.acknowledged(7, 3, now=1.0) is Listening.TAKEN
-    outbox.answered(3)
-    assert [s for s, _ in outbox.release(paced=True, now=1.0)] == [4, 5]
-    outbox.answered(5)
+    assert outbox.in_flight == 2 and outbox.last_taken == 2
+    assert outbox.acknowledged(7, 4, now=1.0) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=1.0)] == [5, 6]
+    outbox.answered(6)
     # the listener takes nothing more: waited for until listener_timeout_s has passed
     # since it had steps to take (from the release at 1.0)
     assert outbox.give_up_stalled(now=5.9) == [] and outbox.release(paced=True, now=5.9) == []
     assert outbox.give_up_stalled(now=6.0) == [7] and outbox.given_up == 1
-    assert [s for s, _ in outbox.release(paced=True, now=6.0)] == [6, 7]
-    outbox.answered(7)
-    assert [s for s, _ in outbox.release(paced=True, now=6.1)] == [8, 9]
+    assert [s for s, _ in outbox.release(paced=True, now=6.0)] == [7, 8]
+    outbox.answered(8)
+    assert [s for s, _ in outbox.release(paced=True, now=6.1)] == [9, 10]
     # it takes a step again: waited for until it has caught up
-    assert outbox.acknowledged(7, 3, now=6.2) is Listening.TAKEN  # an old one: no news
-    assert outbox.acknowledged(7, 4, now=6.2) is Listening.WAITED_FOR
-    outbox.answered(9)
+    assert outbox.acknowledged(7, 4, now=6.2) is Listening.TAKEN  # an old one: no news
+    assert outbox.acknowledged(7, 5, now=6.2) is Listening.WAITED_FOR
+    outbox.answered(10)
     assert outbox.release(paced=True, now=6.3) == [] and outbox.in_flight == 5
-    assert outbox.acknowledged(7, 8, now=6.4) is Listening.TAKEN
-    assert [s for s, _ in outbox.release(paced=True, now=6.4)] == [10]
+    assert outbox.acknowledged(7, 9, now=6.4) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=6.4)] == [11]
+
+
+def test_one_forged_acknowledgment_does_not_stall_the_graph() -> None:
+    """A step_applied of a listener that does not exist is no reason to wait (it was 5 s)."""
+    outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
+    for window in range(40):
+        outbox.push(window)
+    outbox.release(paced=True, now=0.0)
+    assert outbox.acknowledged(1, 1, now=0.0) is Listening.NOTED  # the true belief node
+    assert outbox.acknowledged(1, 2, now=0.0) is Listening.WAITED_FOR
+    outbox.answered(2)
+    assert [s for s, _ in outbox.release(paced=True, now=0.1)] == [3, 4]
+    assert outbox.acknowledged(666, 3, now=0.1) is Listening.NOTED  # forged, never again
+    outbox.answered(4)
+    assert outbox.acknowledged(1, 4, now=0.2) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [5, 6]  # no wait for 666
+    # a flood of forged listener ids does not make the outbox forget the true one
+    for forged in range(100, 100 + 2 * StepOutbox.MAX_LISTENERS):
+        outbox.acknowledged(forged, 5, now=0.3)
+    assert outbox.listeners[1].waited_for and outbox.in_flight == 2
 
 
 def test_a_listener_that_had_taken_everything_is_not_stalled_by_a_pause() -> None:
     outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
     outbox.push("a")
+    outbox.push("b")
     outbox.release(paced=True, now=0.0)
-    outbox.answered(1)
-    assert outbox.acknowledged(3, 1, now=0.0) is Listening.WAITED_FOR
-    outbox.push("b")  # the next window comes a minute later
-    assert outbox.release(paced=True, now=60.0) == [(2, "b")]
+    outbox.answered(2)
+    assert outbox.acknowledged(3, 1, now=0.0) is Listening.NOTED
+    assert outbox.acknowledged(3, 2, now=0.0) is Listening.WAITED_FOR
+    outbox.push("c")  # the next window comes a minute later
+    assert outbox.release(paced=True, now=60.0) == [(3, "c")]
     assert outbox.give_up_stalled(now=64.9) == [] and outbox.give_up_stalled(now=65.0) == [3]
 
 
