@@ -5,7 +5,8 @@
   mic_node publishes no more than ``max_steps_ahead`` steps beyond the last one the belief
   node acknowledged on ``step_applied``, so the graph slows down instead of losing steps.
 * One forged message on each stamped topic, with the true stream and controller ids and
-  a step 3000 ahead, is named and ignored by every node that reads it: the graph goes on
+  a step 3000 ahead, is named and ignored by every node that reads it, and so is a
+  decision with the true controller id on a stream nobody publishes: the graph goes on
   and the belief equals the offline recomputation from the true bits and decisions.
 
 The nodes run on hand-stepped executors (real DDS between them): every wait is a
@@ -148,6 +149,9 @@ def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
         forged_step = rec.sound_step[-1][1] + FORGED_AHEAD
         bits.publish(bit_message(StepBit(stream, forged_step, True, 500_000)))
         decisions.publish(decision_message(StepDecision(stream, forged_step, True, controller)))
+        # and a decision with the true controller id on a stream that does not exist
+        next_step = rec.sound_step[-1][1] + 1
+        decisions.publish(decision_message(StepDecision(stream + 1, next_step, True, controller)))
         # the graph goes on: the controller answers the true bits, the room hears them
         answered = len(rec.vocalize_step)
         graph.run_until(lambda: len(rec.vocalize_step) >= answered + 101, "100 more steps")
@@ -158,6 +162,9 @@ def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
                         "every node to see the forged messages")  # fmt: skip
         level, message, values = belief.diagnostic_status()
         assert level == ERROR and values["jumps_ignored"] == 2, (message, values)
+        graph.run_until(lambda: belief.foreign.count == 1, "the belief node to name the"
+                        " decision on a stream it never heard")  # fmt: skip
+        assert belief.stream == stream and belief.stream_changes == 0
         belief.intruders = {}  # once the forger's publishers are gone, the jump shows
         assert "pace" in belief.diagnostic_status()[1]
         assert control.diagnostic_status()[0] == room.diagnostic_status()[0] == ERROR
@@ -167,7 +174,7 @@ def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
         mic = graph.nodes["mic_node"]
         last = mic.outbox.last_step
         graph.run_until(lambda: belief.joiner.next_step == last + 1 and len(rec.belief) == last
-                        and len(rec.vocalize_step) == last + 1,  # with the forged one
+                        and len(rec.vocalize_step) == last + 2,  # with the two forged
                         "the belief node to apply every step")  # fmt: skip
         pairs = step_pairs(rec, stream, {controller}, 1, last)
         assert None not in [value for pair in pairs for value in pair]

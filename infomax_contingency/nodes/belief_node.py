@@ -12,7 +12,11 @@ published**, the decision advances the timer. The node follows one controller
 ignored; a followed one silent for ``source_timeout_s`` is replaced by the next one
 heard, a restarted node) and the stream that controller answers (one mic_node run): the
 bits of another stream are counted and kept aside, and used if the controller moves to
-that stream (a restarted mic_node). The fake room hears the same decisions.
+that stream (a restarted mic_node). The controller is taken to move only to a stream whose
+bits this node hears too: its decisions on a stream none of whose bits came are kept
+until they come, and named and ignored once it answers the followed stream again (one
+decision forged with the controller's id and a new stream id cannot move the node off
+its stream). The fake room hears the same decisions.
 
 A withheld bit (heard while the robot declared its own sound on ``self_sound``) is
 not counted: the belief is still published for its step.
@@ -81,6 +85,7 @@ from infomax_contingency.nodes.step_topics import (
     VOCALIZE_STEP,
     StepApplied,
     StepBit,
+    StepDecision,
     applied_message,
     new_source_id,
     parse_bit,
@@ -152,6 +157,10 @@ class BeliefNode(GraphNode):
         self.stream: int | None = None
         """The stream followed: the one the followed controller answers."""
         self._held: dict[int, deque[StepBit]] = {}
+        self._unheard: deque[tuple[StepDecision, float]] = deque(maxlen=HELD_BITS)
+        """Decisions of the followed controller on a stream none of whose bits came yet
+        (with their publication times): the stream is followed once its bits come; a
+        decision on the followed stream first shows they were forged."""
         self._joining = False
         self._bit_times = PublicationTimes(horizon_s=max(10.0, 4 * self.controllers.silence_s))
         """Publication times (s) of the followed stream's recent bits."""
@@ -219,6 +228,12 @@ class BeliefNode(GraphNode):
         held.append(bit)
         while len(self._held) > HELD_STREAMS:
             del self._held[next(iter(self._held))]
+        waiting = [(d, sent) for d, sent in self._unheard if d.stream == bit.stream]
+        if waiting:  # the controller moved to this stream before its bits came here
+            self._unheard.clear()
+            for decision, sent in waiting:
+                self._take_decision(decision, sent)
+            return
         if self.stream is not None:
             self.foreign.note(now)
             self.warn_intrusion(
@@ -260,6 +275,16 @@ class BeliefNode(GraphNode):
             )
         if arrival is not Arrival.FOLLOWED:
             self.decision_pace.restart()
+        if decision.stream != self.stream and self.stream is not None and not self._held.get(
+                decision.stream):  # fmt: skip
+            self._unheard.append((decision, sent))  # its bits may be on their way
+            return
+        if decision.stream == self.stream:
+            self._name_unheard(now)
+        self._take_decision(decision, sent)
+
+    def _take_decision(self, decision: StepDecision, sent: float) -> None:
+        """Apply a decision of the followed controller (following its stream)."""
         if decision.stream != self.stream:
             self._follow(decision.stream, decision.step)
             self.decision_pace.restart()
@@ -271,6 +296,21 @@ class BeliefNode(GraphNode):
                     f"decision for step {taken.step} repeats, goes backwards or answers no"
                     " bit received: ignored"
                 )
+
+    def _name_unheard(self, now: float) -> None:
+        """Name and drop the decisions kept for a stream whose bits never came.
+
+        The controller still answers the followed stream: they were not its own (forged
+        with its id).
+        """
+        for decision, _ in self._unheard:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"ignoring a decision for step {decision.step} of stream {decision.stream}"
+                f" with the id of controller {decision.controller}: no bit of that stream"
+                f" was heard, and the controller answers stream {self.stream} (forged?)"
+            )
+        self._unheard.clear()
 
     def _follow(self, stream: int, step: int) -> None:
         """The controller answers ``stream`` from ``step`` on: follow it from there.
