@@ -146,3 +146,14 @@ def test_the_session_types_are_the_recorders() -> None:
                 for name, (kind, _) in RECORDED_TOPICS.items()}
     assert recorded.items() <= SESSION_TYPES.items()
     assert SESSION_TYPES["/audio"] == "std_msgs/msg/Float32MultiArray"
+
+
+def test_controller_node_on_a_cut_bag_says_it_was_cut(tmp_path, capfd):
+    from infomax_contingency.nodes.controller_node import ControllerNode
+    from infomax_contingency.testing.stepped import nodes_on_their_own_executors
+
+    bag = _copy(tmp_path, "cut", MCAP.read_bytes()[:70_000], metadata=False)
+    with nodes_on_their_own_executors() as start:
+        node, _, _ = start(ControllerNode, controller=f"recorded:{bag}")
+        assert len(node.controller.decisions) == 55
+    assert "was cut (no metadata.yaml: was its recorder killed?)" in capfd.readouterr().err

@@ -10,7 +10,9 @@ counted observations. ``controller: interval:MIN_S-MAX_S`` replaces the table by
 paper's calibration protocol: vocalize at random intervals, uniform over MIN_S .. MAX_S
 seconds, whatever is heard (seeded by the controller id, which is logged);
 ``controller: recorded:BAG`` answers step t of the stream with the decision the robot
-recorded for step t in a session bag (for mic_node's ``source: bag``: a faithful replay).
+recorded for step t in a session bag (for mic_node's ``source: bag``: a faithful
+replay); a bag cut by a killed recorder is read up to its last chunk, with a WARN line
+naming the cut.
 
 Step clock: the node answers every bit on ``sound_step`` of the stream it follows
 (:class:`~infomax_contingency.core.stepclock.SourceLock`: a second mic_node is counted
@@ -37,6 +39,7 @@ per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -84,8 +87,13 @@ def _table_path(value: str) -> str:
         raise ConfigError(f"parameter 'policy_file' = {value!r}: {error}") from None
 
 
-def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
-    """The controller of parameter ``controller``: interval:MIN_S-MAX_S or recorded:BAG."""
+def _other_controller(spec: str, params: ModelParams, seed: int,
+                      warn: Callable[[str], None]) -> Controller:  # fmt: skip
+    """The controller of parameter ``controller``: interval:MIN_S-MAX_S or recorded:BAG.
+
+    ``warn`` is told what a bag cut by a killed recorder lacks (its steps after the cut
+    are answered False).
+    """
     kind, _, argument = spec.partition(":")
     try:
         if kind == "interval":
@@ -95,7 +103,7 @@ def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
             # this controller needs it (docs/ENVIRONMENT.md).
             from infomax_contingency.audio.bag_replay import recorded_decisions
 
-            return ReplayedDecisions(params, recorded_decisions(Path(argument)),
+            return ReplayedDecisions(params, recorded_decisions(Path(argument), warn),
                                      name=f"recorded:{argument}")
     except (ValueError, OSError, AudioError) as error:
         raise ConfigError(f"parameter 'controller' = {spec!r}: {error}") from None
@@ -140,7 +148,8 @@ class ControllerNode(GraphNode):
         self.controller_id = new_source_id()
         self.table_path = _table_path(path)
         if spec:
-            self.controller = _other_controller(spec, params, self.controller_id)
+            self.controller = _other_controller(spec, params, self.controller_id,
+                                                self.get_logger().warning)
         else:
             table = PolicyTable.load(self.table_path, expected_params=params)
             self.controller = PolicyController(table)
