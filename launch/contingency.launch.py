@@ -41,6 +41,8 @@ SIGINT and SIGTERM blocked (``env --block-signal``, GNU coreutils 9.1 or later; 
 it they start as they are) until their entry point takes the signals over, so a Ctrl-C
 while their interpreters start waits for that point and ends them quietly, never with a
 KeyboardInterrupt traceback from the interpreter's own start-up.
+The nodes end with the launch process however it dies (``kill -9`` included: a
+parent-death signal), so a killed launch leaves no node running the graph.
 mic_node ending by itself (status 0: ``max_windows`` bits published, or the end of a wav
 file with ``exit_at_end``) stops the other nodes of its robot with SIGINT, so the launch
 ends (status 0) once they are done; the last line says so.
@@ -72,6 +74,8 @@ from launch_ros.substitutions import FindPackageShare
 from launch import LaunchContext, LaunchDescription
 
 PACKAGE = "infomax_contingency"
+PARENT_PID_VARIABLE = "INFOMAX_CONTINGENCY_PARENT_PID"
+"""nodes/runtime.PARENT_PID_VARIABLE (a launch file imports nothing of the package)."""
 
 GRAPH_NODES = ("controller_node", "belief_node", "posture_node", "speaker_node")
 """Nodes started from ``params_file`` (controller_node also reads ``fake_room_file`` with the
@@ -231,6 +235,9 @@ def _graph(context: LaunchContext) -> list:
             arguments=["--ros-args", "--log-level", f"{logger}:={level}"],
             prefix=_prefix(context, executable),
             exec_name=executable,  # the process label, not the prefix's "env"
+            # The node ends with this process, however it dies (kill -9 included):
+            # nodes/runtime.end_with_parent.
+            additional_env={PARENT_PID_VARIABLE: str(os.getpid())},
             output="screen",
             emulate_tty=True,
         )

@@ -9,6 +9,7 @@ after ``. install/setup.sh``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shlex
@@ -26,6 +27,7 @@ import yaml
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from infomax_contingency.nodes.runtime import process_alive
 from infomax_contingency.testing.graph import SpinThread, StepRecorder
 from stepped_graph import stepped_graph
 
@@ -263,6 +265,38 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
         "launch ended: mic_node-1 finished by itself (max_windows or exit_at_end)"
     )
     assert "Traceback" not in output
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid``."""
+    children = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] not in ("Z", "X"):
+            children.append(int(stat.parent.name))
+    return children
+
+
+@pytest.mark.slow
+def test_a_launch_killed_with_sigkill_leaves_no_node_running(workspace: Path, launch) -> None:
+    """A ros2 launch killed with SIGKILL (an OOM kill, a CI timeout) takes its nodes along."""
+    graph = launch("contingency.launch.py use_fake_room:=true realtime:=false")
+    graph.wait_for("[mic_node]: listeners connected: starting the step clock")
+    nodes = _children(graph.process.pid)
+    assert len(nodes) == 6, nodes
+    graph.process.kill()  # the launch process alone, not its group
+    graph.process.wait()
+    deadline = time.monotonic() + 30.0
+    try:
+        while any(process_alive(pid) for pid in nodes):  # they ran on before
+            assert time.monotonic() < deadline, f"nodes still running: {nodes}"
+            time.sleep(0.2)  # polls /proc; the deadline above bounds it
+    finally:
+        with contextlib.suppress(ProcessLookupError):  # the nodes kept the launch's group
+            os.killpg(graph.process.pid, signal.SIGKILL)
 
 
 REQUEST_RETRY_S = 5.0
