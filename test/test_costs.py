@@ -307,3 +307,18 @@ def test_ctrl_c_of_an_experiment_with_workers_ends_them_all_in_one_line() -> Non
     status, err = _interrupt(process, workers_started)
     assert status in INTERRUPTED, err
     assert err.strip() == "infomax-contingency experiment: interrupted"
+
+
+def test_a_calibration_in_the_node_refuses_a_threshold_outside_the_range() -> None:
+    """mic_node's and replay's calibration (the Binarizer) took +48.7 dB from unscaled audio."""
+    from infomax_contingency.audio.bitsources.rules import Binarizer
+
+    unscaled = [30.0] * 12 + [67.0] * 8  # int16 values stored as floats: quiet and speech
+    rule = Binarizer(None, calibration_windows=20)
+    with pytest.raises(AudioError, match=r"threshold 48\.50 dB .* outside -150 \.\. 0 dB"):
+        rule.calibrate(unscaled)
+    assert rule.threshold_db is None and rule.state == "unseparated"
+    for energy in unscaled:  # a stream: refused, and calibrated again on the next windows
+        assert rule.push(energy) is None
+    assert rule.threshold_db is None and "outside -150 .. 0 dB" in rule.calibration_problem
+    assert rule.calibrate([x - 100.0 for x in unscaled]).threshold_db == pytest.approx(-51.5)
