@@ -322,3 +322,19 @@ def test_a_calibration_in_the_node_refuses_a_threshold_outside_the_range() -> No
         assert rule.push(energy) is None
     assert rule.threshold_db is None and "outside -150 .. 0 dB" in rule.calibration_problem
     assert rule.calibrate([x - 100.0 for x in unscaled]).threshold_db == pytest.approx(-51.5)
+
+
+def test_calibrate_on_constant_audio_far_outside_full_scale_names_the_scale(tmp_path, capsys):
+    """Audio of 3e38 has no boundary to find; the line said only that (not why)."""
+    samples = np.full(16_000 * 5, 3e38)
+    data = samples.astype("<f4").tobytes()
+    fmt = struct.pack("<HHIIHH", 3, 1, 16_000, 64_000, 4, 32)
+    body = (b"WAVE" + b"fmt " + struct.pack("<I", len(fmt)) + fmt + b"data"
+            + struct.pack("<I", len(data)) + data)  # fmt: skip
+    wav = tmp_path / "huge.wav"
+    wav.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
+    assert main(["calibrate", "--wav", str(wav), "--out", str(tmp_path / "t.yaml")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1
+    assert "10 of 10 windows of" in error and "outside [-1, 1]" in error
+    assert "no boundary between quiet and sound" in error
