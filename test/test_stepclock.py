@@ -25,6 +25,7 @@ from infomax_contingency.core.stepclock import (
     SourceLock,
     StepJoiner,
     StepPace,
+    WriterSequence,
 )
 
 ROBOT = ModelParams.named("robot")
@@ -471,3 +472,18 @@ def test_a_backlog_or_a_pause_does_not_make_a_controller_look_silent() -> None:
     assert lock.accept(1, 10.0) is Arrival.FIRST
     assert bits.unanswered_s(10.0, 14.6) == 4.0  # bits of 10.5 .. 14.5 s
     assert lock.accept(2, 14.6, unanswered_s=4.0) is Arrival.SWITCHED and lock.source == 2
+
+
+def test_a_writers_numbers_tell_its_steps_from_forged_ones_with_its_id() -> None:
+    writer = WriterSequence()
+    assert writer.same_writer(5, 105)  # the first message: any
+    assert writer.same_writer(6, 106) and writer.same_writer(9, 107)  # messages lost: fine
+    assert not writer.same_writer(19, 1)  # another writer's first message, 10 steps ahead
+    assert not writer.same_writer(10, 107)  # a number repeated: another writer
+    assert not writer.same_writer(11, 200)  # more messages than steps since: another writer
+    assert writer.same_writer(10, 108) and writer.refused == 3
+    assert writer.same_writer(10, 109)  # a step repeated: not judged (the caller's rules)
+    assert writer.same_writer(11, 110) and not writer.same_writer(12, 110)
+    assert writer.same_writer(11, None)  # no numbers from the middleware: nothing to tell
+    writer.restart()  # a new stream or controller followed
+    assert writer.same_writer(1, 1) and writer.same_writer(2, 2)

@@ -55,8 +55,15 @@ from infomax_contingency.core.controllers import (
 )
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace, WriterSequence
+from infomax_contingency.nodes.graph_node import (
+    ERROR,
+    OK,
+    WARN,
+    GraphNode,
+    take_from_writer,
+    take_on_pace,
+)
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -155,6 +162,8 @@ class ControllerNode(GraphNode):
             self.controller = PolicyController(table)
         self.window_us = window_us(params.dt)
         self.streams = SourceLock(timeout_s)
+        self.writer = WriterSequence()
+        """The writer of the stream followed (a forged bit with its id is another)."""
         self.pace = StepPace(1.0 / params.dt, timeout_s)
         self.jumps = self.recent_events()
         self.last_step = 0
@@ -206,6 +215,7 @@ class ControllerNode(GraphNode):
                if self.unanswered_bits else "")
         )
         if held is not None:
+            self.sequence = None  # its number is not known here: it is taken
             self._on_sound_step(*held)
 
     def _on_sound_step(self, msg: Int64MultiArray, stamp: int) -> None:
@@ -245,8 +255,12 @@ class ControllerNode(GraphNode):
             self.controller.missed(self.controller.params.timer_long_ago)
         if arrival is not Arrival.FOLLOWED:
             self.pace.restart()
-        for taken in take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
-                                  bit, "bit", f"stream {bit.stream}"):  # fmt: skip
+            self.writer.restart()
+        source = f"stream {bit.stream}"
+        on_pace = take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
+                               bit, "bit", source)  # fmt: skip
+        for taken in take_from_writer(self, self.writer, self.foreign, on_pace, bit.step,
+                                      self.sequence, source):  # fmt: skip
             self._answer(taken, now)
 
     def _answer(self, bit: StepBit, now: float) -> None:
