@@ -172,7 +172,7 @@ Generated from the nodes' own declarations: do not edit; regenerate with
 `{command}` (or `make params-doc`). `test/test_docs.py` fails when this file is stale.
 
 Set them in a parameter file (`config/robot.yaml` for the robot, `config/fake_room.yaml`
-for the simulated room) or with `-p node_name:name:=value`; `ros2 param describe NODE NAME`
+for the simulated room) or with `-p NODE:NAME:=VALUE`; `ros2 param describe NODE NAME`
 shows the same description and range. *live*: `ros2 param set` changes it while the node
 runs (checked as at start-up); every other parameter is read-only and needs a restart.
 A bad value stops the node at start-up with one line naming the parameter and what is

@@ -1,0 +1,175 @@
+"""The docs stay true: the parameter reference, the README's ROS API, every name they use.
+
+- docs/PARAMETERS.md equals what the nodes declare (regenerated here, diffed);
+- each README "ROS API" table equals what the running nodes subscribe to, publish and
+  serve, and names only parameters they declare (the whole graph in this process, on a
+  hand-stepped executor, a few steps against the fake room);
+- README.md and docs/*.md name no file, command, option, parameter or topic that does
+  not exist (``doc_references``).
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import doc_references as refs
+from doc_references import ROOT, Repository
+from graph_harness import room_nodes
+from infomax_contingency.cli.main import build_parser
+from infomax_contingency.nodes import parameter_reference
+from infomax_contingency.nodes.entry import NODES
+from stepped_graph import stepped_graph
+
+DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
+
+RCLPY_PUBLISHERS = frozenset({"/rosout", "/parameter_events"})
+"""What rclpy publishes for every node by itself."""
+
+RCLPY_SERVICES = frozenset({
+    "describe_parameters", "get_parameter_types", "get_parameters", "list_parameters",
+    "set_parameters", "set_parameters_atomically", "get_type_description",
+})
+"""The services rclpy gives every node (``~/<name>``) by itself."""
+
+
+def _relative(name: str) -> str:
+    """``~/reset`` -> ``reset``; ``/diagnostics`` -> ``diagnostics``."""
+    return name.removeprefix("~/").lstrip("/")
+
+
+@pytest.fixture(scope="module")
+def readme_api() -> dict[str, refs.NodeApi]:
+    return refs.ros_api_tables((ROOT / "README.md").read_text(), NODES)
+
+
+@pytest.fixture(scope="module")
+def repository(readme_api: dict[str, refs.NodeApi]) -> Repository:
+    declared = refs.parameter_reference((ROOT / "docs" / "PARAMETERS.md").read_text())
+    topics = {_relative(topic) for api in readme_api.values()
+              for topic in api.subscribes + api.publishes}
+    services = {node: {_relative(s) for s in api.services} for node, api in readme_api.items()}
+    names = {path.name for path in ROOT.rglob("*")
+             if not {".git", ".venv", "build", "install", "log"} & set(path.parts)}
+    return Repository(
+        parameters=declared, topics=topics, services=services,
+        executables=refs.console_scripts(), make_targets=refs.make_targets(),
+        cli=build_parser(), launch_arguments=refs.launch_arguments(), tracked_names=names,
+    )
+
+
+def test_the_parameter_reference_is_what_the_nodes_declare() -> None:
+    committed = (ROOT / "docs" / "PARAMETERS.md").read_text()
+    generated = parameter_reference.generate()
+    diff = "".join(difflib.unified_diff(
+        committed.splitlines(keepends=True), generated.splitlines(keepends=True),
+        "docs/PARAMETERS.md (committed)", "docs/PARAMETERS.md (the nodes now)", n=0))
+    assert not diff, (
+        f"docs/PARAMETERS.md is stale; regenerate it with `make params-doc`"
+        f" ({parameter_reference.COMMAND}):\n{diff[:3000]}")
+
+
+def test_every_node_has_a_ros_api_table(readme_api: dict[str, refs.NodeApi]) -> None:
+    missing = [node for node in NODES if node not in readme_api]
+    assert not missing, f"README.md has no '### `node`' ROS API table for {missing}"
+
+
+@pytest.fixture(scope="module")
+def running_graph(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
+    """Every node of the package, running together against the fake room (a few steps)."""
+    steps = 6
+    nodes = room_nodes({"room": "responsive", "seed": 1}, steps)
+    nodes["controller_node"]["wait_for_listeners"] += 1  # the recorder hears decisions too
+    nodes["speaker_node"] = {}
+    nodes["recorder_node"] = {"directory": str(tmp_path_factory.mktemp("bag") / "session")}
+    with stepped_graph(nodes, "fake_audio_node") as graph:
+        graph.run_steps(steps)
+        recorder = graph.nodes["recorder_node"]
+        graph.run_until(lambda: {"audio", "partner_present"} <= recorder.subscribed,
+                        "the recorder's subscriptions to the topics it waits for")
+        yield graph.nodes
+
+
+def _running_api(node) -> refs.NodeApi:  # noqa: ANN001 - an rclpy Node
+    own = f"{node.get_fully_qualified_name()}/"
+    return refs.NodeApi(
+        subscribes=sorted({s.topic_name for s in node.subscriptions}),
+        publishes=sorted({p.topic_name for p in node.publishers} - RCLPY_PUBLISHERS),
+        services=sorted({node.resolve_service_name(s.srv_name) for s in node.services}
+                        - {own + name for name in RCLPY_SERVICES}),
+    )
+
+
+@pytest.mark.parametrize("executable", NODES)
+def test_the_readme_ros_api_table_is_what_the_node_does(
+    executable: str, readme_api: dict[str, refs.NodeApi], running_graph: dict
+) -> None:
+    if executable not in readme_api:
+        pytest.fail(f"README.md has no ROS API table for {executable}")
+    node = running_graph[executable]
+    documented, running = readme_api[executable], _running_api(node)
+    for row in ("subscribes", "publishes"):
+        listed = sorted({node.resolve_topic_name(name) for name in getattr(documented, row)})
+        assert listed == getattr(running, row), (
+            f"README.md, {executable} {row}: lists {listed}, the node {row}"
+            f" {getattr(running, row)}")
+    listed = sorted({node.resolve_service_name(name) for name in documented.services})
+    assert listed == running.services, (
+        f"README.md, {executable} services: lists {listed}, the node serves {running.services}")
+    undeclared = [name for name in documented.parameters if not node.has_parameter(name)]
+    assert not undeclared, f"README.md, {executable} key parameters: not declared: {undeclared}"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda path: str(path.relative_to(ROOT)))
+def test_a_doc_names_only_what_exists(doc: Path, repository: Repository) -> None:
+    text = doc.read_text()
+    problems = (refs.missing_files(doc, text, repository)
+                + refs.missing_commands(text, repository)
+                + refs.missing_parameters_and_topics(text, repository))
+    assert not problems, f"{doc.relative_to(ROOT)} names what does not exist: " + ", ".join(
+        dict.fromkeys(problems))
+
+
+def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
+    """Each rule catches a name that is not there (and passes its existing twin)."""
+    doc = ROOT / "docs" / "EXAMPLE.md"
+    text = "\n".join([
+        "`config/robot.yaml` `config/robots.yaml` `core/model.py` `core/models.py`",
+        "`infomax_contingency.core.model.Statistic` `core.model.Statistics`",
+        "[model](MODEL.md) [gone](GONE.md)",
+        "```", "infomax-contingency simulate --steps 3 --stepz 3",
+        "infomax-contingency simulat", "infomax-contingency experiment baby10",
+        "ros2 run infomax_contingency mic_node --ros-args -p threshold_db:=-30 -p threshold:=1",
+        "ros2 run infomax_contingency mic_nod",
+        "ros2 launch infomax_contingency contingency.launch.py namespace:=r1 fake_rooms:=true",
+        "ros2 param set /robot1/posture_node bored_below 0.3",
+        "ros2 param set /posture_node bored_under 0.3",
+        "ros2 topic echo /robot1/belief", "ros2 topic echo /beliefs",
+        "ros2 service call /belief_node/reset std_srvs/srv/Trigger",
+        "ros2 service call /belief_node/restart std_srvs/srv/Trigger",
+        "make demo", "make demos", "bringup -p mic_node:source:=wav -p mic_node:sauce:=wav",
+        "```",
+        "`belief_node.memory_steps` `belief_node.memory` `mic_node.read_config`",
+        "| `threshold_mode` | x |", "|---|---|", "",
+        "| `thresh_mode` | x |", "|---|---|", "",
+        "| topic | type |", "|---|---|", "| `sound_step` | x |", "| `sound_steps` | x |",
+    ])
+    problems = (refs.missing_files(doc, text, repository)
+                + refs.missing_commands(text, repository)
+                + refs.missing_parameters_and_topics(text, repository))
+    assert sorted(problems) == sorted([
+        "file `config/robots.yaml`", "file `core/models.py`", "name `core.model.Statistics`",
+        "link `GONE.md`",
+        "option `infomax-contingency simulate --stepz`",
+        "command `infomax-contingency simulat`",
+        "command `infomax-contingency experiment baby10`",
+        "parameter `mic_node:threshold`", "executable `ros2 run infomax_contingency mic_nod`",
+        "launch argument `contingency.launch.py fake_rooms:=`",
+        "parameter `posture_node:bored_under`", "topic `/beliefs`",
+        "service `/belief_node/restart`", "make target `demos`", "parameter `mic_node:sauce`",
+        "parameter `belief_node.memory`", "parameter `thresh_mode` (table header)",
+        "topic `sound_steps` (table)",
+    ]), problems
