@@ -24,7 +24,10 @@ from infomax_contingency.nodes import parameter_reference
 from infomax_contingency.nodes.entry import NODES
 from stepped_graph import stepped_graph
 
-DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
+DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "policies" / "README.md")
+
+README_MAX_LINES, README_MAX_BYTES = 200, 10 * 1024
+"""The README fits on a screen or two; detail goes to docs/."""
 
 RCLPY_PUBLISHERS = frozenset({"/rosout", "/parameter_events"})
 """What rclpy publishes for every node by itself."""
@@ -70,6 +73,14 @@ def test_the_parameter_reference_is_what_the_nodes_declare() -> None:
     assert not diff, (
         f"docs/PARAMETERS.md is stale; regenerate it with `make params-doc`"
         f" ({parameter_reference.COMMAND}):\n{diff[:3000]}")
+
+
+def test_the_readme_fits_on_a_screen() -> None:
+    text = (ROOT / "README.md").read_bytes()
+    lines = text.count(b"\n")
+    assert lines <= README_MAX_LINES and len(text) <= README_MAX_BYTES, (
+        f"README.md has {lines} lines and {len(text)} bytes (at most {README_MAX_LINES} and"
+        f" {README_MAX_BYTES}): move detail to docs/ (map in the README)")
 
 
 def test_every_node_has_a_ros_api_table(readme_api: dict[str, refs.NodeApi]) -> None:
