@@ -14,7 +14,8 @@ and docs/*.md):
   infomax_contingency EXE`` an executable and its ``-p NAME:=`` parameters; ``ros2 launch
   infomax_contingency FILE`` a launch file and its ``ARG:=`` arguments; ``ros2 param
   get|set|describe /NODE NAME`` a node's parameter; ``ros2 topic ... /TOPIC`` a topic;
-  ``ros2 service call /NODE/SRV`` a service; ``make TARGET`` a Makefile target.
+  ``ros2 service call /NODE/SRV`` a service; ``make TARGET`` a Makefile target; a span
+  that is only ``NAME:=VALUE`` a launch argument of some launch file.
 - **Parameters**: ``NODE:NAME:=``, ``NODE.NAME``, "NODE's `NAME`" name a parameter of
   NODE (``NODE.NAME`` may also be an attribute of the node's module); a table header cell
   that is a backticked snake_case name, and the first column of a table headed
@@ -388,6 +389,9 @@ def missing_commands(text: str, repo: Repository) -> list[str]:
                 _check_cli(words, repo, problems)
             if words[0] == "experiment" and len(words) > 1:
                 _check_cli(words, repo, problems)
+        bare = re.fullmatch(r"(\w+):=\S*", span.strip())
+        if bare and bare.group(1) not in set().union(*repo.launch_arguments.values()):
+            problems.append(f"launch argument `{bare.group(1)}:=`")
         for node, name in re.findall(r"\b(\w+_node):(\w+):=", span):
             if node in repo.parameters and not _is_placeholder(name):
                 _check_parameter(node, name, repo, problems)
