@@ -5,7 +5,8 @@ and docs/*.md):
 
 - **Files**: a backticked or code-block path whose first part is a directory of the
   repository (``config/robot.yaml``) or of the package (``core/model.py``), a bare
-  ``name.py`` / ``name.md``, a Markdown link, or a dotted name under the package
+  ``name.py`` / ``name.md``, a test module or test named as ``test_x``, a Markdown link,
+  or a dotted name under the package
   (``infomax_contingency.audio.threshold.kmeans_split``, ``core.model.Statistic``) must
   exist. Paths with placeholders (``FILE``, ``<node>``, ``*``), absolute or home paths
   are examples, not checked.
@@ -247,6 +248,12 @@ def _inputs(span: str) -> list[str]:
             if before not in OUTPUT_OPTIONS]
 
 
+def _defined_in_tests(name: str) -> bool:
+    """A test function or helper ``name`` defined in some test module."""
+    pattern = re.compile(rf"^\s*def {re.escape(name)}\(", re.MULTILINE)
+    return any(pattern.search(path.read_text()) for path in (ROOT / "test").glob("*.py"))
+
+
 def _file_exists(token: str, doc: Path, repo: Repository) -> bool:
     token = token.rstrip("/") or token
     for base in (ROOT, doc.parent, ROOT / PACKAGE):
@@ -283,6 +290,9 @@ def missing_files(doc: Path, text: str, repo: Repository) -> list[str]:
                 continue
             if not _resolves_in_package(token):
                 problems.append(f"name `{token}`")
+    for name in re.findall(r"`(test_\w+)`", text):
+        if not (ROOT / "test" / f"{name}.py").exists() and not _defined_in_tests(name):
+            problems.append(f"test `{name}`")
     for target in re.findall(r"\]\(([^)\s]+)\)", text):
         path = target.split("#")[0]
         if path and not path.startswith(("http", "mailto")) and not (doc.parent / path).exists():

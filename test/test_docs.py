@@ -167,7 +167,7 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "| `threshold_mode` | x |", "|---|---|", "",
         "| `thresh_mode` | x |", "|---|---|", "",
         "| topic | type |", "|---|---|", "| `sound_step` | x |", "| `sound_steps` | x |",
-        "`realtime:=false` `real_time:=false`",
+        "`realtime:=false` `real_time:=false` `test_model` `test_modle`",
     ])
     problems = (refs.missing_files(doc, text, repository)
                 + refs.missing_commands(text, repository)
@@ -184,4 +184,5 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "service `/belief_node/restart`", "make target `demos`", "parameter `mic_node:sauce`",
         "parameter `belief_node.memory`", "parameter `thresh_mode` (table header)",
         "topic `sound_steps` (table)", "launch argument `real_time:=`",
+        "test `test_modle`",
     ]), problems
