@@ -139,6 +139,7 @@ def declared_parameters(executable: str, tmp: str) -> list[DeclaredParameter]:
     rclpy must be initialised. The node is constructed with its defaults (and
     :data:`VALUES_TO_START`) and destroyed.
     """
+    from rclpy.lifecycle import LifecycleNode
     from rclpy.parameter import Parameter
 
     start = {name: value.format(tmp=tmp) if isinstance(value, str) else value
@@ -146,6 +147,8 @@ def declared_parameters(executable: str, tmp: str) -> list[DeclaredParameter]:
     with _first_declarations() as declared:
         node = node_class(executable)(
             parameter_overrides=[Parameter(name, value=value) for name, value in start.items()])
+        if isinstance(node, LifecycleNode):  # a managed node may declare at configure
+            node.trigger_configure()
     try:
         found = []
         for name, (default, _first) in declared.items():
