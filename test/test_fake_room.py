@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
@@ -25,6 +25,10 @@ from infomax_contingency.sim.rooms import ROOMS
 
 ROBOT = ModelParams.named("robot")
 QUIET = {"event_rate_hz": 0.0}
+
+
+def fixed_at_40_db():
+    return make_bit_source("energy", 16000, 0.5, threshold_mode="fixed", threshold_db=-40.0)
 
 
 def energy(window) -> float:
@@ -143,7 +147,7 @@ def test_closed_loop_finds_the_partner_and_not_the_noise() -> None:
     results = {}
     for room in ("responsive", "noisy"):
         records = simulate_audio_loop(
-            PolicyController(table), FakeRoom(FakeRoomConfig.preset(room), 1), Binarizer(-40.0), 200
+            PolicyController(table), FakeRoom(FakeRoomConfig.preset(room), 1), fixed_at_40_db(), 200
         )
         results[room] = np.array([r.belief for r in records])
         assert [r.t for r in records] == list(range(1, 201))

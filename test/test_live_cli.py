@@ -18,12 +18,13 @@ import yaml
 from alsa_devices import VirtualAlsa
 from fake_portaudio import FakeBackend, FakeClock, Room, device
 from infomax_contingency.audio import devices as audio_devices
-from infomax_contingency.audio.bitsource import make_bit_source, window_levels_db
+from infomax_contingency.audio.bitsources import make_bit_source, window_levels_db
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.latency import measure_latency
 from infomax_contingency.audio.resample import load_mono
-from infomax_contingency.audio.threshold import kmeans_split, load_threshold
+from infomax_contingency.audio.threshold import kmeans_split
+from infomax_contingency.audio.threshold_file import load_threshold
 from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.cli import live as live_commands
 from infomax_contingency.cli import main as cli

@@ -21,7 +21,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiAr
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.threshold import kmeans_split
@@ -411,7 +411,7 @@ def test_mic_topic_source_windows_any_chunking_and_calibrates(run: Callable) -> 
     assert [p.step for p in parsed] == list(range(1, 13))
     assert [p.bit for p in parsed] == expected_bits
     assert {(p.stream, p.window_us) for p in parsed} == {(node.stream_id, WINDOW_US)}
-    assert node.dropped_chunks == 0 and node.windows == 12
+    assert node.source.dropped_chunks == 0 and node.windows == 12
 
 
 @pytest.mark.parametrize(

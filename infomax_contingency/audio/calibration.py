@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from infomax_contingency.audio.bitsource import WindowLevels
+from infomax_contingency.audio.bitsources import WindowLevels
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, check_positive
 from infomax_contingency.audio.devices import AudioBackend, AudioDeviceError, LogFunction
@@ -35,7 +35,7 @@ def energies_from_wav(
     The file is read block by block (:func:`~infomax_contingency.audio.energy.wav_energies`),
     so memory does not grow with its length; ``max_windows`` stops after the first ones.
     ``bit_source`` ``speech_band``: the speech-band levels instead
-    (:class:`~infomax_contingency.audio.bitsource.WindowLevels`).
+    (:class:`~infomax_contingency.audio.bitsources.WindowLevels`).
     """
     if bit_source == "energy":
         return wav_energies(path, window_s, channel, rate, max_windows=max_windows)

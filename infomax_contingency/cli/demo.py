@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
 
-from infomax_contingency.audio.bitsource import BIT_SOURCES
+from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS

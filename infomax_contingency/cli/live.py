@@ -29,8 +29,8 @@ from infomax_contingency.audio.threshold import (
     UnseparatedError,
     kmeans_split,
     require_separation,
-    save_threshold,
 )
+from infomax_contingency.audio.threshold_file import save_threshold
 from infomax_contingency.core.model import ModelParams
 
 

@@ -97,7 +97,7 @@ class ModelParams:
     b31: float = 1.0
     b32: float = 1.0
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # noqa: C901
         for name in ("ts1", "ts2", "ta1", "ta2"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from infomax_contingency.audio.bag import read_topics
-from infomax_contingency.audio.binarizer import Binarizer, WavReplay
+from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import wav_energies
 from infomax_contingency.audio.threshold import (
@@ -31,6 +31,7 @@ from infomax_contingency.audio.threshold import (
     kmeans_split,
     require_separation,
 )
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.stepclock import StepJoiner

@@ -28,6 +28,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
 
 
@@ -44,6 +45,8 @@ class ParameterReader:
 
     def __init__(self, node: Node) -> None:
         self._node = node
+        self.node = node
+        """The node whose parameters these are."""
         self._coercers: dict[str, Callable[[Any], Any]] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
@@ -300,6 +303,17 @@ class ParameterReader:
             allowed,
         )
 
+    def declared(self, spec: SettingSpec) -> Any:
+        """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text."""
+        read_only = not spec.live
+        if isinstance(spec.default, str):
+            return self.text(spec.name, spec.default, spec.description, spec.choices, read_only)
+        if isinstance(spec.default, int):
+            return self.integer(spec.name, spec.default, spec.description, int(spec.low),
+                                int(spec.high), read_only)  # fmt: skip
+        return self.number(spec.name, spec.default, spec.description, spec.low, spec.high,
+                           spec.unit, read_only)  # fmt: skip
+
     def model(self) -> ModelParams:
         """The ``params`` parameter: a named model parameter set or a YAML file."""
         name = self.text(
@@ -309,9 +323,33 @@ class ParameterReader:
             " dt, ts1, ts2, ta1, ta2, pi and optionally the Beta priors b11 .. b32",
         )
         try:
-            return ModelParams.load(name)
+            params = ModelParams.load(name)
         except ParameterError as error:
             raise ConfigError(f"parameter 'params' = {name!r}: {error}") from None
+        self._refuse_another_window(params.dt)
+        return params
+
+    def _refuse_another_window(self, dt: float) -> None:
+        """Refuse a ``window_s`` given for the node that is not the model's dt (seconds).
+
+        The window (one step) is always the model's dt; ``window_s`` is no parameter. A
+        parameter file that still sets it to dt works; another value would silently be
+        another window than the one meant, so the node stops and says so.
+        """
+        given = getattr(self._node, "_parameter_overrides", {}).get("window_s")
+        if given is None:
+            return
+        value = given.value
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if abs(value - dt) <= 1e-9:
+                return
+            shown = f"{value:g} s"
+        else:
+            shown = repr(value)
+        raise ConfigError(
+            f"parameter 'window_s' = {shown} differs from the model's dt = {dt:g} s (parameter"
+            " 'params'): one window is one step of the model; remove window_s"
+        )
 
 
 

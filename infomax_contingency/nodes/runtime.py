@@ -210,7 +210,7 @@ def await_acknowledgments(nodes: Sequence[Node], budget_s: float = ACK_BUDGET_S)
                 continue
 
 
-def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
+def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,  # noqa: C901
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
 
