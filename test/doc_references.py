@@ -14,7 +14,8 @@ and docs/*.md):
   span that starts with a subcommand) names a subcommand and its options; ``ros2 run
   infomax_contingency EXE`` an executable and its ``-p NAME:=`` parameters; ``ros2 launch
   infomax_contingency FILE`` a launch file and its ``ARG:=`` arguments; ``ros2 param
-  get|set|describe /NODE NAME`` a node's parameter; ``ros2 topic ... /TOPIC`` a topic;
+  get|set|describe /NODE NAME`` a node's parameter (``set``: a live one, unless the line
+  says it is refused); ``ros2 topic ... /TOPIC`` a topic;
   ``ros2 service call /NODE/SRV`` a service; ``make TARGET`` a Makefile target; a span
   that is only ``NAME:=VALUE`` a launch argument of some launch file.
 - **Parameters**: ``NODE:NAME:=``, ``NODE.NAME``, "NODE's `NAME`" name a parameter of
@@ -98,6 +99,20 @@ def parameter_reference(text: str) -> dict[str, set[str]]:
     return {node: names | common for node, names in sections.items()}
 
 
+def live_parameters(text: str) -> dict[str, set[str]]:
+    """docs/PARAMETERS.md -> node -> the parameters marked live."""
+    sections: dict[str, set[str]] = {}
+    current = ""
+    for line in text.splitlines():
+        if line.startswith("## "):
+            current = line[3:].strip()
+            sections[current] = set()
+        elif current and (row := re.match(r"\| `(\w+)` \|(?:[^|]*\|){3} live \|", line)):
+            sections[current].add(row.group(1))
+    common = sections.pop("Every node", set())
+    return {node: names | common for node, names in sections.items()}
+
+
 @dataclass
 class Repository:
     """What exists: files, executables, CLI, launch arguments, parameters, topics."""
@@ -112,6 +127,8 @@ class Repository:
     cli: argparse.ArgumentParser
     launch_arguments: dict[str, set[str]]
     tracked_names: set[str]
+    live: dict[str, set[str]] = field(default_factory=dict)
+    """Node -> the parameters ``ros2 param set`` may change."""
 
     @property
     def all_parameters(self) -> set[str]:
@@ -364,6 +381,9 @@ def _check_ros2(words: list[str], repo: Repository, problems: list[str]) -> None
             problems.append(f"node `{words[2]}`")
         elif len(words) >= 4 and not _is_placeholder(words[3]):
             _check_parameter(node, words[3], repo, problems)
+            declared = words[3] in repo.parameters.get(node, set())
+            if words[1] == "set" and declared and words[3] not in repo.live.get(node, set()):
+                problems.append(f"live parameter `{node}:{words[3]}`")
     elif len(words) >= 3 and words[0] == "topic" and words[1] in ("echo", "hz", "pub", "info"):
         topic = words[2].rstrip("/").split("/")[-1]
         if not _is_placeholder(topic) and topic not in repo.topics:
@@ -379,6 +399,8 @@ def missing_commands(text: str, repo: Repository) -> list[str]:
     problems: list[str] = []
     cli_names = set(_subparsers(repo.cli))
     for span in code_spans(text):
+        if re.search(r"ros2 param set .*#.*refused", span):
+            continue  # an example of a refusal
         for words in _commands(span):
             for index, word in enumerate(words):
                 tail = words[index + 1:]

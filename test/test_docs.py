@@ -26,6 +26,13 @@ from stepped_graph import stepped_graph
 
 DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "policies" / "README.md")
 
+KNOWN_STALE: dict[str, set[str]] = {
+    "docs/RESULTS.md": {"file `audio/bitsource.make_bit_source`"},
+}
+"""Today's stale names, by doc, that another change is rewriting (RESULTS.md section 7,
+the audio rooms): the list can only shrink — an entry that is fixed fails the test until
+it is removed here."""
+
 README_MAX_LINES, README_MAX_BYTES = 200, 10 * 1024
 """The README fits on a screen or two; detail goes to docs/."""
 
@@ -51,7 +58,8 @@ def readme_api() -> dict[str, refs.NodeApi]:
 
 @pytest.fixture(scope="module")
 def repository(readme_api: dict[str, refs.NodeApi]) -> Repository:
-    declared = refs.parameter_reference((ROOT / "docs" / "PARAMETERS.md").read_text())
+    reference = (ROOT / "docs" / "PARAMETERS.md").read_text()
+    declared = refs.parameter_reference(reference)
     topics = {_relative(topic) for api in readme_api.values()
               for topic in api.subscribes + api.publishes}
     services = {node: {_relative(s) for s in api.services} for node, api in readme_api.items()}
@@ -61,6 +69,7 @@ def repository(readme_api: dict[str, refs.NodeApi]) -> Repository:
         parameters=declared, topics=topics, services=services,
         executables=refs.console_scripts(), make_targets=refs.make_targets(),
         cli=build_parser(), launch_arguments=refs.launch_arguments(), tracked_names=names,
+        live=refs.live_parameters(reference),
     )
 
 
@@ -137,11 +146,15 @@ def test_the_readme_ros_api_table_is_what_the_node_does(
 @pytest.mark.parametrize("doc", DOCS, ids=lambda path: str(path.relative_to(ROOT)))
 def test_a_doc_names_only_what_exists(doc: Path, repository: Repository) -> None:
     text = doc.read_text()
-    problems = (refs.missing_files(doc, text, repository)
-                + refs.missing_commands(text, repository)
-                + refs.missing_parameters_and_topics(text, repository))
+    every_problem = (refs.missing_files(doc, text, repository)
+                     + refs.missing_commands(text, repository)
+                     + refs.missing_parameters_and_topics(text, repository))
+    known = KNOWN_STALE.get(str(doc.relative_to(ROOT)), set())
+    problems = [problem for problem in every_problem if problem not in known]
     assert not problems, f"{doc.relative_to(ROOT)} names what does not exist: " + ", ".join(
         dict.fromkeys(problems))
+    fixed = known - set(every_problem)
+    assert not fixed, f"{sorted(fixed)} fixed in {doc.relative_to(ROOT)}: remove from KNOWN_STALE"
 
 
 def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
@@ -158,6 +171,8 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "ros2 launch infomax_contingency contingency.launch.py namespace:=r1 fake_rooms:=true",
         "ros2 param set /robot1/posture_node bored_below 0.3",
         "ros2 param set /posture_node bored_under 0.3",
+        "ros2 param set /mic_node source wav  # refused: read-only",
+        "ros2 param set /mic_node threshold_mode fixed",
         "ros2 topic echo /robot1/belief", "ros2 topic echo /beliefs",
         "ros2 service call /belief_node/reset std_srvs/srv/Trigger",
         "ros2 service call /belief_node/restart std_srvs/srv/Trigger",
@@ -184,5 +199,5 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "service `/belief_node/restart`", "make target `demos`", "parameter `mic_node:sauce`",
         "parameter `belief_node.memory`", "parameter `thresh_mode` (table header)",
         "topic `sound_steps` (table)", "launch argument `real_time:=`",
-        "test `test_modle`",
+        "test `test_modle`", "live parameter `mic_node:threshold_mode`",
     ]), problems
