@@ -344,3 +344,29 @@ def test_demo_hands_its_bit_source_to_mic_node() -> None:
             assert nodes["mic_node"].get("bit_source") == expected
     with pytest.raises(SystemExit):
         build_parser().parse_args(["demo", "--bit-source", "silero"])
+
+
+# --------------------------------------------------------------------------- a new source
+
+
+def test_a_new_bit_source_is_one_class_and_one_registry_line() -> None:
+    """The toy source (test/toy_bit_source.py), registered, serves the offline loop and names."""
+    from infomax_contingency.eval.rooms import binarizer_options, make_binarizer
+    from toy_bit_source import registered_toy
+
+    with pytest.raises(ValueError, match="unknown binarizer"):
+        binarizer_options("toy:-20")
+    with registered_toy():
+        assert binarizer_options("toy:-20") == ("toy", {"toy_level_db": -20.0})
+        assert binarizer_options("toy") == ("toy", {})
+        with pytest.raises(ValueError, match=r"toy_level_db = 5.0 is not allowed"):
+            make_binarizer("toy:5", WINDOW_S)
+        toy = make_bit_source("toy", RATE, WINDOW_S, toy_level_db=-40.0)
+        room = FakeRoom(FakeRoomConfig.preset("responsive"), 3)
+        table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"))
+        records = simulate_audio_loop(PolicyController(table), room, toy, 40)
+        energies = [r.energy_db for r in records]
+        assert [r.y for r in records] == list(bits_from_energies(energies, -40.0))
+        toy.set_live("toy_level_db", -10.0)
+        assert toy.push_window(tone(1000, 0.5, 0.1)) is False  # -23 dB: quiet now
+    assert "toy" not in BIT_SOURCES

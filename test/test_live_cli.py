@@ -71,8 +71,12 @@ def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
     assert cli.main(["calibrate", "--wav", str(tmp_path / "none.wav"), "--out", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert not out.exists()
+    # the window is the model's dt: no --window-s, a model that cannot load is refused
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--params", str(tmp_path / "no.yaml"),
+                     "--out", str(out)]) == 2  # fmt: skip
+    assert "no.yaml" in capsys.readouterr().err and not out.exists()
     with pytest.raises(SystemExit):
-        cli.main(["calibrate", "--wav", str(room_wav), "--window-s", "0", "--out", str(out)])
+        cli.main(["calibrate", "--wav", str(room_wav), "--window-s", "0.5", "--out", str(out)])
 
 
 def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) -> None:

@@ -320,10 +320,11 @@ def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
 ) -> None:
     node, probe, executor = graph(MicNode, bit_source="vad", threshold_mode="fixed")
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
-    assert not result.successful and "no effect with bit_source vad" in result.reason
+    assert not result.successful
     assert node.bits.threshold_db is None and node.bits.name == "vad"
-    for name in ("bit_source", "noise_margin_db", "noise_window_s", "noise_percentile",
-                 "vad_aggressiveness", "vad_frame_ms", "vad_min_voiced_s"):  # fmt: skip
+    for name in ("threshold_db", "threshold_mode", "noise_margin_db"):
+        assert not node.has_parameter(name), f"{name}: not a setting of vad"
+    for name in ("bit_source", "vad_aggressiveness", "vad_frame_ms", "vad_min_voiced_s"):
         assert node.describe_parameter(name).read_only, name
     [result] = set_remotely(probe, executor, "mic_node", bit_source="energy")
     assert not result.successful and "read-only" in result.reason
@@ -472,3 +473,24 @@ def test_mic_calibrate_live_on_a_wav_file_reads_its_start_again(graph: Callable)
     assert not node.bits.calibrating
     [result] = set_remotely(probe, executor, "mic_node", min_separation_db=50.0)
     assert not result.successful and "read-only" in result.reason
+
+
+def test_a_new_bit_source_is_a_mic_node_bit_source_with_its_parameters(graph: Callable) -> None:
+    """The toy source (test/toy_bit_source.py), registered: its setting is a parameter."""
+    from toy_bit_source import registered_toy
+
+    with registered_toy():
+        node, probe, executor, play = _live_mic(graph, bit_source="toy", toy_level_db=-40.0)
+        descriptor = node.describe_parameter("toy_level_db")
+        assert descriptor.description.startswith("Energy above which a window is sound")
+        assert not descriptor.read_only
+        assert descriptor.floating_point_range[0].to_value == 0.0
+        assert not node.has_parameter("threshold_db")
+        assert play([-35.0, -45.0], 2) == [True, False]
+        [result] = set_remotely(probe, executor, "mic_node", toy_level_db=-30.0)
+        assert result.successful, result.reason
+        assert play([-35.0], 1) == [False]
+        [result] = set_remotely(probe, executor, "mic_node", toy_level_db=3.0)
+        assert result.reason == (
+            "parameter 'toy_level_db' = 3.0 is not allowed: a number in [-150, 0] dB"
+        )

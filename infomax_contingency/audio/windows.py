@@ -19,7 +19,8 @@ what comes out. Energies are dB (:mod:`infomax_contingency.audio.energy`); times
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -28,6 +29,7 @@ from numpy.typing import NDArray
 
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.devices import LogFunction, default_log
 from infomax_contingency.audio.energy import (
     WindowAssembler,
     frame_energies_db,
@@ -151,28 +153,56 @@ class TopicWindows(WindowSource):
 class MicrophoneWindows(WindowSource):
     """A live microphone (:class:`~infomax_contingency.audio.capture.MicrophoneStream`).
 
+    A gap before a window is logged (the step clock goes on without bits for the missing
+    time); windows that lost samples are counted; :meth:`published` measures the delay from
+    a window's last sample to its bit.
+
     Args:
         stream: the (not yet started) stream.
         samples: keep each window's samples.
+        log: ``log(level, message)``; default: the stream's.
+        clock: the stream's clock (monotonic seconds).
     """
 
-    def __init__(self, stream: MicrophoneStream, samples: bool = False) -> None:
+    def __init__(
+        self,
+        stream: MicrophoneStream,
+        samples: bool = False,
+        log: LogFunction | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.stream = stream
         self.samples = samples
+        self._log = log or default_log
+        self._clock = clock
+        self.windows_with_loss = 0
+        self.window_delay_s = self.max_window_delay_s = float("nan")
 
     def start(self) -> None:
         self.stream.start()
 
     def take(self) -> list[SourceWindow]:
-        return [
-            SourceWindow(w.energy_db, w.samples if self.samples else None, None, w.end_time,
-                         w.gap_s, w.intact, w.index)  # fmt: skip
-            for w in self.stream.read_windows(0.0)
-        ]
+        taken = []
+        for w in self.stream.read_windows(0.0):
+            if w.gap_s > 0:
+                self._log("warning", f"audio gap of {w.gap_s:.2f} s before window {w.index}: the"
+                          " step clock goes on, without bits for the missing time")  # fmt: skip
+            self.windows_with_loss += not w.intact
+            taken.append(SourceWindow(w.energy_db, w.samples if self.samples else None, None,
+                                      w.end_time, w.gap_s, w.intact, w.index))  # fmt: skip
+        return taken
+
+    def published(self, window: SourceWindow) -> None:
+        """``window``'s bit went out now: the delay from its last sample, seconds."""
+        self.window_delay_s = self._clock() - window.end_time
+        self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
 
     def status(self) -> dict[str, Any]:
         values = self.stream.status().as_dict()
         values["captured_windows"] = values.pop("windows")
+        values["windows_with_loss"] = self.windows_with_loss
+        values["window_delay_s"] = self.window_delay_s
+        values["max_window_delay_s"] = self.max_window_delay_s
         return values
 
     def close(self) -> None:

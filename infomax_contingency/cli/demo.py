@@ -13,7 +13,13 @@ threshold is the k-means calibration on the first ``--calibration-s`` seconds).
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
 arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
 (each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C)
-and end the demo with status 130 or 143 and "interrupted".
+and end the demo with status 130 or 143 and "interrupted". A demo killed outright (SIGKILL,
+an OOM kill) leaves no node running: each ends with it (the kernel's parent-death signal,
+:func:`~infomax_contingency.nodes.runtime.end_with_parent`).
+
+``--record DIR``: DIR must be new and writable (tried before any node starts); a
+recorder that stopped writing during the run (it keeps the graph running) makes the
+demo fail, with its error line (status 1).
 
 DDS stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a random
 ``ROS_DOMAIN_ID`` unless the environment sets them. The graph's processes announce
@@ -37,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES
+from infomax_contingency.cli.demo_checks import check_arguments, finite_number, recording_failure
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
@@ -71,7 +78,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--leave-at",
-        type=float,
+        type=finite_number,
         default=60.0,
         metavar="SECONDS",
         help="room time the partner leaves; negative: stays (default 60)",
@@ -87,7 +94,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--calibration-s",
-        type=float,
+        type=finite_number,
         default=10.0,
         help="seconds of the wav file to calibrate the threshold on (default 10)",
     )
@@ -220,19 +227,6 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     return nodes, "fake_audio_node"
 
 
-def _check(args: argparse.Namespace) -> None:
-    if args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    if args.memory < 0:
-        raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
-    if args.wav and not Path(args.wav).is_file():
-        raise ValueError(f"--wav {args.wav}: no such file")
-    if args.record and Path(args.record).exists():
-        raise ValueError(f"--record {args.record}: exists already; name a new directory")
-    if not args.calibration_s > 0:
-        raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
-
-
 class Interrupted(BaseException):
     """SIGINT or SIGTERM reached the demo: stop the nodes, exit 128 + the signal number."""
 
@@ -269,7 +263,7 @@ def run_demo(args: argparse.Namespace) -> int:
     Exit status 0 after a run, 1 if the graph failed, 2 for bad arguments, 130 / 143
     after SIGINT / SIGTERM (every node process is stopped first).
     """
-    _check(args)
+    check_arguments(args)
     domain = isolate_dds()
     profile = demo_dds_profile()
     nodes, clock = _nodes(args)
@@ -358,19 +352,30 @@ def _run_graph(
                 elapsed = time.monotonic() - start
                 _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
                 _wait_for_postures(recorder, steps)
-            return recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
+            outcome = recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
         finally:
-            # A signal now must not cut the stopping short: it waits until every node is
-            # stopped, then interrupts (and the demo still exits 130 / 143).
-            stop_signals = {signal.SIGINT, signal.SIGTERM}
-            signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
-            try:
-                processes.stop_all()
-                if recorder is not None:
-                    recorder.destroy_node()
-                rclpy.try_shutdown()
-            finally:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
+            _stop_graph(processes, recorder)
+        lost = args.record and recording_failure(Path(args.record), processes.log("recorder_node"))
+        return lost or outcome
+
+
+def _stop_graph(processes: Any, recorder: Any) -> None:
+    """Stop every node process, then the monitor and ROS.
+
+    A signal now must not cut the stopping short: it waits until every node is stopped,
+    then interrupts (and the demo still exits 130 / 143).
+    """
+    import rclpy
+
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+    try:
+        processes.stop_all()
+        if recorder is not None:
+            recorder.destroy_node()
+        rclpy.try_shutdown()
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
 
 
 def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,

@@ -27,9 +27,10 @@ Sources (parameter ``source``), each a window source of
   start-up stops the node with the list of input devices.
 
 Bit source (``bit_source``, one of
-:data:`~infomax_contingency.audio.bitsources.BIT_SOURCES`): every registered source's
-settings are parameters of the same names, declared once in the source's settings
-dataclass (description, range, whether live). ``sound_energy`` is the full-band window
+:data:`~infomax_contingency.audio.bitsources.BIT_SOURCES`): the chosen source's settings
+are parameters of the same names, declared once in the source's settings dataclass
+(description, range, whether live); another source's settings are not parameters of the
+node. ``sound_energy`` is the full-band window
 energy whatever the source. The source sees the audio at ``audio_rate_hz`` (topic and
 bag) or at 16 kHz (wav, sounddevice). A wav file or a session bag is calibrated by
 reading its first seconds ahead, so every window gets a bit; a stream's calibration
@@ -55,7 +56,6 @@ from infomax_contingency.audio.bitsources import (
     BIT_SOURCES,
     DEFAULT_BIT_SOURCE,
     BitSource,
-    all_setting_specs,
 )
 from infomax_contingency.audio.bitsources.base import SettingError
 from infomax_contingency.audio.capture import MicrophoneStream
@@ -189,13 +189,12 @@ def read_config(read: ParameterReader) -> MicConfig:
         + ", ".join(f"{name} ({kind.summary})" for name, kind in BIT_SOURCES.items()),
         tuple(BIT_SOURCES),
     )  # fmt: skip
-    values = {spec.name: read.declared(spec) for spec in all_setting_specs()}
     kind = BIT_SOURCES[bit_source]
     config = MicConfig(
         params=params,
         source=source,
         bit_source=bit_source,
-        bit_settings=kind.make_settings({spec.name: values[spec.name] for spec in kind.specs()}),
+        bit_settings=kind.make_settings({spec.name: read.declared(spec) for spec in kind.specs()}),
         **_read_step_clock(read),
         **_read_sources(read),
     )
@@ -250,7 +249,7 @@ def open_window_source(config: MicConfig, samples: bool, log: LogFunction) -> Wi
             raise ConfigError(f"parameter 'bag_dir' = {config.bag_dir!r}: {error}") from None
     if config.source == "topic":
         return TopicWindows(config.audio_rate_hz, config.window_s, samples)
-    return MicrophoneWindows(_microphone(config, channel, log), samples)
+    return MicrophoneWindows(_microphone(config, channel, log), samples, log)
 
 
 def _microphone(config: MicConfig, channel: int | None, log: LogFunction) -> MicrophoneStream:

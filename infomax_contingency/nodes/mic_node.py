@@ -1,9 +1,9 @@
 """mic_node: audio windows to bits — the step clock of the graph.
 
-Where the windows come from (``source``: a WAV file, the ``audio`` topic, a session bag,
-a live microphone) and how a window becomes a bit (``bit_source``) are its configuration:
-:mod:`~infomax_contingency.nodes.mic_config`. This module is the node: it takes windows
-from its window source, asks the bit source for their bits and publishes them.
+Where the windows come from (``source``) and how a window becomes a bit
+(``bit_source``) are its configuration (:mod:`~infomax_contingency.nodes.mic_config`); the
+node takes windows from its window source, asks the bit source for their bits and
+publishes them.
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -38,9 +38,10 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources import BIT_SOURCES, all_setting_specs
+from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import UNSEPARATED, SettingError
 from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
 from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, TopicWindows
 from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
@@ -76,21 +77,20 @@ class MicNode(GraphNode):
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = read_config(self.parameters)
         self.bits = make_bits(config, self._calibration_refused)
-        if config.bit_source != "energy":
+        if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
             self.get_logger().info(f"bit source {config.bit_source}: {summary}")
         self.source = open_window_source(config, self.bits.needs_samples, self.log_at)
         self.replay = self.source if self.source.replay else None
         self.recorded_bits = getattr(self.source, "has_audio", True) is False
-        if self.recorded_bits and config.bit_source != "energy":
-            self.get_logger().warning(
-                f"bit_source {config.bit_source} is not applied: the session"
-                f" {config.bag_dir} holds no audio, its recorded bits are replayed"
-            )
-        self._calibrate_ahead()
-        self.pacer = LockstepPacer(config.lockstep_timeout_s) if self.replay and config.lockstep \
-            else None  # fmt: skip
-        for spec in all_setting_specs():
+        if self.recorded_bits and config.bit_source != DEFAULT_BIT_SOURCE:
+            ignored = f"bit_source {config.bit_source} is not applied"
+            self.get_logger().warning(f"{ignored}: {self._no_audio}")
+        if calibrated := self._calibrate_ahead():
+            self.get_logger().info(calibrated)
+        lockstep = self.replay is not None and config.lockstep
+        self.pacer = LockstepPacer(config.lockstep_timeout_s) if lockstep else None
+        for spec in self.bits.specs():
             if spec.live:
                 self._make_live(spec.name)
         self.stream_id = new_source_id()
@@ -101,11 +101,12 @@ class MicNode(GraphNode):
         self.windows = 0
         self.last_energy_db = float("nan")
         self.bad_chunks = 0
-        self.windows_with_loss = 0
-        self.window_delay_s = self.max_window_delay_s = float("nan")
         self.started = self.ended = False
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
+        audio = self.resolve_topic_name("audio")
+        self.contract = AudioContract(config.audio_rate_hz, self.fault_hold_s, publishers=lambda: [
+            info.node_name for info in self.get_publishers_info_by_topic(audio)])
         if self.replay is not None:
             self.get_logger().info(
                 f"replaying {self.source.describe()},"
@@ -153,25 +154,23 @@ class MicNode(GraphNode):
     def _calibration_refused(self, message: str) -> None:
         self.get_logger().warning(message)
 
-    def _calibrate_ahead(self) -> None:
-        """Calibrate the bit source on a replay's first seconds, if it calibrates."""
+    @property
+    def _no_audio(self) -> str:
+        return f"the session {self.config.bag_dir} holds no audio, its recorded bits are replayed"
+
+    def _calibrate_ahead(self) -> str:
+        """Calibrate the bit source on a replay's first seconds if it calibrates; what it did."""
         if self.replay is None or self.recorded_bits or not self.bits.read_ahead_s:
-            return
-        energies, windows = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
-        self.get_logger().info(f"{self.bits.calibrate_ahead(energies, windows)} of the replay")
+            return ""
+        ahead = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
+        return f"{self.bits.calibrate_ahead(*ahead)} of the replay"
 
     def _make_live(self, name: str) -> None:
         """Let the bit-source setting ``name`` change live, checked by the bit source."""
 
         def check(value: Any) -> None:
             if self.recorded_bits:
-                raise ConfigError(
-                    f"parameter {name!r} = {value!r} has no effect: the session"
-                    f" {self.config.bag_dir} holds no audio, its recorded bits are replayed"
-                )
-            if name not in {spec.name for spec in self.bits.specs()}:
-                raise ConfigError(f"parameter {name!r} = {value!r} has no effect with"
-                                  f" bit_source {self.config.bit_source}")  # fmt: skip
+                raise ConfigError(f"parameter {name!r} = {value!r} has no effect: {self._no_audio}")
             try:
                 self.bits.check_live(name, value)
             except SettingError as error:
@@ -183,15 +182,11 @@ class MicNode(GraphNode):
         """Start the bit source's calibration again (a replay's first seconds again)."""
         response.success = False
         if self.recorded_bits:
-            response.message = (f"nothing to calibrate: the session {self.config.bag_dir}"
-                                " holds no audio, its recorded bits are replayed")  # fmt: skip
+            response.message = f"nothing to calibrate: {self._no_audio}"
             return response
         try:
             message = self.bits.recalibrate()
-            if self.replay is not None and self.bits.read_ahead_s:
-                energies, windows = self.replay.read_ahead(self.bits.read_ahead_s,
-                                                           self.config.window_s)  # fmt: skip
-                message = f"{self.bits.calibrate_ahead(energies, windows)} of the replay"
+            message = self._calibrate_ahead() or message
         except AudioError as error:
             response.message = str(error)
             return response
@@ -256,6 +251,9 @@ class MicNode(GraphNode):
         if 0 < int(info.get("source_timestamp", 0)) < self.started_ns:
             self.stale_messages += 1  # published before this node started
             return
+        sent_s = self.sent_s(int(info.get("source_timestamp", 0)), self.contract.clock())
+        for warning in self.contract.check(msg.data, msg.layout.dim, sent_s):
+            self.get_logger().warning(warning)
         sequence = info.get("publication_sequence_number")
         try:
             missed = self.source.feed(np.frombuffer(msg.data, dtype=np.float32),
@@ -267,6 +265,7 @@ class MicNode(GraphNode):
             return
         if missed:
             self.losses.note(self.now_s())
+            self.contract.chunks_lost()
         for window in self.source.take():
             self._window(window)
 
@@ -274,18 +273,10 @@ class MicNode(GraphNode):
         for window in self.source.take():
             if self.finished.done():
                 return
-            if window.gap_s > 0:
-                self.losses.note(self.now_s())
-                self.get_logger().warning(
-                    f"audio gap of {window.gap_s:.2f} s before window {window.index}: the step"
-                    " clock goes on, without bits for the missing time"
-                )
-            if not window.intact:
-                self.windows_with_loss += 1
+            if window.gap_s > 0 or not window.intact:
                 self.losses.note(self.now_s())
             self._window(window)
-            self.window_delay_s = time.monotonic() - window.end_time
-            self.max_window_delay_s = max(self.window_delay_s, self.max_window_delay_s)
+            self.source.published(window)
 
     def _window(self, window: SourceWindow) -> bool | None:
         """A window was made: its bit (after calibration) waits in the outbox to go out.
@@ -384,15 +375,12 @@ class MicNode(GraphNode):
             "bad_chunks": self.bad_chunks,
             **bits.diagnostic_values(),
             **self.source.status(),
+            **self.contract.values(),  # none before the first chunk of 'audio'
         }
         for topic, names in self.intruders.items():
             values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
-        if isinstance(self.source, MicrophoneWindows):
-            values["windows_with_loss"] = self.windows_with_loss
-            values["window_delay_s"] = self.window_delay_s
-            values["max_window_delay_s"] = self.max_window_delay_s
         if self.intruders:
             return ERROR, "another publisher on 'sound' or 'sound_step'", values
         if not self.started:
@@ -404,8 +392,10 @@ class MicNode(GraphNode):
             return ERROR, bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
-        if self.losses.recent(now) or self.timeouts.recent(now):
-            return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
+        problem = self.contract.problem()  # the 'audio' contract broken lately
+        if problem or self.losses.recent(now) or self.timeouts.recent(now):
+            problem = problem or "audio lost or lockstep timeouts lately (counts in the values)"
+            return WARN, problem, values
         return OK, f"{self.windows} windows", values
 
 

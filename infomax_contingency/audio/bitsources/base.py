@@ -291,12 +291,24 @@ class BitSource(ABC):
         raise AudioError(f"bit source {self.name!r} has nothing to calibrate")
 
     def check_live(self, name: str, value: Any) -> None:
-        """Raise SettingError if the live setting ``name`` cannot take ``value`` now."""
-        raise SettingError(name, f"= {value!r} has no effect with bit_source {self.name}")
+        """Raise SettingError if the live setting ``name`` cannot take ``value`` now.
+
+        By default any setting declared ``live=True`` may change (its range is checked
+        where it is declared).
+        """
+        spec = {spec.name: spec for spec in self.specs()}.get(name)
+        if spec is None or not spec.live:
+            raise SettingError(name, f"= {value!r} cannot change while bit_source {self.name}"
+                               " runs")  # fmt: skip
 
     def set_live(self, name: str, value: Any) -> None:
-        """Apply a live setting (declared ``live=True``) checked by :meth:`check_live`."""
+        """Apply a live setting checked by :meth:`check_live`: the next window uses it.
+
+        By default the settings are replaced (a source that reads :attr:`settings` for
+        every window needs nothing more).
+        """
         self.check_live(name, value)
+        self.settings = dataclasses.replace(self.settings, **{name: value})
 
     def ready_message(self) -> str:
         """One line for the log once the first bit comes."""

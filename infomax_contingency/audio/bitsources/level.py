@@ -311,15 +311,9 @@ class SpeechBandSource(LevelSource):
     name = "speech_band"
     summary = "energy of the 300-3400 Hz band against a threshold"
 
-    def __init__(
-        self,
-        settings: ThresholdSettings,
-        rate_hz: int,
-        window_s: float,
-        on_problem: Callable[[str], None] | None = None,
-    ) -> None:
-        super().__init__(settings, rate_hz, window_s, on_problem)
-        self.band = SpeechBandLevel(rate_hz)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.band = SpeechBandLevel(self.rate_hz)
 
     @classmethod
     def check_settings(cls, settings: ThresholdSettings, rate_hz: int, window_s: float) -> None:
