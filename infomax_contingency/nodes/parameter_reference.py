@@ -17,12 +17,13 @@ from :data:`VALUES_TO_START`; the reference shows the declared default, not that
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import inspect
 import os
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -133,20 +134,14 @@ def node_class(executable: str) -> type:
     return classes[0]
 
 
-def declared_parameters(executable: str, tmp: str) -> list[DeclaredParameter]:
-    """The parameters the node of ``executable`` declares, in declaration order.
-
-    rclpy must be initialised. The node is constructed with its defaults (and
-    :data:`VALUES_TO_START`) and destroyed.
-    """
+def _declared_by(executable: str, values: dict[str, Any]) -> list[DeclaredParameter]:
+    """What the node of ``executable`` declares when started with ``values``."""
     from rclpy.lifecycle import LifecycleNode
     from rclpy.parameter import Parameter
 
-    start = {name: value.format(tmp=tmp) if isinstance(value, str) else value
-             for name, value in VALUES_TO_START.get(executable, {}).items()}
     with _first_declarations() as declared:
         node = node_class(executable)(
-            parameter_overrides=[Parameter(name, value=value) for name, value in start.items()])
+            parameter_overrides=[Parameter(name, value=value) for name, value in values.items()])
         if isinstance(node, LifecycleNode):  # a managed node may declare at configure
             node.trigger_configure()
     try:
@@ -166,6 +161,47 @@ def declared_parameters(executable: str, tmp: str) -> list[DeclaredParameter]:
         return found
     finally:
         node.destroy_node()
+
+
+def declared_parameters(executable: str, tmp: str) -> list[DeclaredParameter]:
+    """The parameters the node of ``executable`` declares, in declaration order.
+
+    rclpy must be initialised. The node is constructed with its defaults (and
+    :data:`VALUES_TO_START`), configured if it is a managed (lifecycle) node, and
+    destroyed; once more for each value of a :data:`VARIANTS` choice. A parameter that
+    only some values declare says which at the start of its description (unless the
+    description already does).
+    """
+    start = {name: value.format(tmp=tmp) if isinstance(value, str) else value
+             for name, value in VALUES_TO_START.get(executable, {}).items()}
+    merged: dict[str, DeclaredParameter] = {
+        p.name: p for p in _declared_by(executable, start)}
+    for choice, values in VARIANTS.get(executable, {}).items():
+        by_value = {value: _declared_by(executable, {**start, choice: value})
+                    for value in values()}
+        for parameters in by_value.values():
+            for parameter in parameters:
+                merged.setdefault(parameter.name, parameter)
+        for name, parameter in list(merged.items()):
+            declaring = [value for value, ps in by_value.items() if name in {p.name for p in ps}]
+            said = all(f"{choice} {value}" in parameter.description for value in declaring)
+            if len(declaring) < len(by_value) and not said:
+                merged[name] = dataclasses.replace(parameter, description=(
+                    f"({choice} {', '.join(declaring)}) {parameter.description}"))
+    return list(merged.values())
+
+
+def _bit_sources() -> list[str]:
+    from infomax_contingency.audio.bitsources import BIT_SOURCES
+
+    return list(BIT_SOURCES)
+
+
+VARIANTS: dict[str, dict[str, Callable[[], list[Any]]]] = {
+    "mic_node": {"bit_source": _bit_sources},
+}
+"""Node -> a choice parameter whose value decides which other parameters the node
+declares -> its values (the reference lists the parameters of every value)."""
 
 
 HEADER = """\
