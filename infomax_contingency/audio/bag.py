@@ -23,23 +23,30 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any
 
-from rosbags.interfaces import (
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
-from rosbags.rosbag2.storage_mcap import (
-    McapWriter,
-    write_record,
-    write_uint16,
-    write_uint32,
-    write_uint64,
-)
-from rosbags.typesys import Stores, get_typestore
+from infomax_contingency.errors import MissingPackageError
+
+try:
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        write_record,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
+    from rosbags.typesys import Stores, get_typestore
+except ModuleNotFoundError:  # sessions are optional: say which package is missing
+    raise MissingPackageError(
+        "rosbags", "recording or reading a session (rosbag2 bag)", "python3-rosbags-pip"
+    ) from None
 
 BAG_VERSION = 9
 """rosbag2 metadata version (the one Jazzy writes)."""

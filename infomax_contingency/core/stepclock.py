@@ -37,6 +37,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
+from infomax_contingency.core.model import Withheld
+
 
 class Arrival(Enum):
     """What :meth:`SourceLock.accept` made of a message."""
@@ -234,7 +236,9 @@ class StepJoiner:
     that message can no longer arrive: the bits come from one microphone and the
     decisions from one controller, each in order, so a later message from the same
     source proves an earlier one lost. At most ``max_pending`` steps wait; beyond that
-    the oldest is applied without its decision.
+    the oldest is applied without its decision. A bit may be
+    :class:`~infomax_contingency.core.model.Withheld` (heard during the robot's own
+    sound): it is passed on as it came.
 
     Args:
         apply: called with ``(step, y, u)`` in step order.
@@ -242,7 +246,7 @@ class StepJoiner:
     """
 
     def __init__(
-        self, apply: Callable[[int, bool | None, bool | None], None], max_pending: int = 600
+        self, apply: Callable[[int, Any, bool | None], None], max_pending: int = 600
     ) -> None:
         if max_pending < 1:
             raise ValueError(f"max_pending must be >= 1 steps, got {max_pending}")
@@ -253,7 +257,7 @@ class StepJoiner:
 
     def restart(self) -> None:
         """Forget the pending steps: a new stream begins (its steps count from 1 again)."""
-        self._bits: dict[int, bool] = {}
+        self._bits: dict[int, bool | Withheld] = {}
         self._decisions: dict[int, bool] = {}
         self.next_step: int | None = None
         """The next step to apply (None before the first bit)."""
@@ -270,19 +274,20 @@ class StepJoiner:
         """Decisions received whose step has not been applied yet."""
         return len(self._decisions)
 
-    def bit(self, step: int, y: bool) -> bool:
+    def bit(self, step: int, y: bool | Withheld) -> bool:
         """Bit ``y`` of ``step`` arrived; False if it was stale (repeated or backwards)."""
+        y = y if isinstance(y, Withheld) else bool(y)
         if self.next_step is None:
             return self._before_join(self._bits, step, y)
         if step <= self.last_bit_step or step < self.next_step:
             self.counts.stale_bits += 1
             return False
-        self._bits[step] = bool(y)
+        self._bits[step] = y
         self.last_bit_step = step
         self._drain()
         return True
 
-    def _before_join(self, store: dict[int, bool], step: int, value: bool) -> bool:
+    def _before_join(self, store: dict[int, Any], step: int, value: Any) -> bool:
         """Keep a message that came before the join (any order); join once a step is whole."""
         is_bit = store is self._bits
         if step in store:
@@ -291,7 +296,7 @@ class StepJoiner:
             else:
                 self.counts.stale_decisions += 1
             return False
-        store[step] = bool(value)
+        store[step] = value
         if len(store) > self.max_pending:
             del store[min(store)]
             if is_bit:

@@ -14,6 +14,9 @@ heard, a restarted node) and the stream that controller answers (one mic_node ru
 bits of another stream are counted and kept aside, and used if the controller moves to
 that stream (a restarted mic_node). The fake room hears the same decisions.
 
+A withheld bit (heard while the robot declared its own sound on ``self_sound``) is
+not counted: the belief is still published for its step.
+
 Nothing is guessed: a step whose bit can no longer arrive is applied without it (not
 counted), a step whose decision can no longer arrive leaves the timer uncertain until it
 is known again (bits meanwhile are counted only where the period is certain), and a new
@@ -44,7 +47,7 @@ from typing import Any
 from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.core.model import StatisticTracker
+from infomax_contingency.core.model import StatisticTracker, Withheld
 from infomax_contingency.core.stepclock import (
     Arrival,
     PublicationTimes,
@@ -134,6 +137,10 @@ class BeliefNode(GraphNode):
         )
         self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
+        self.wait_visibly(
+            SOUND_STEP, "the bits of mic_node, read once a controller publishes decisions"
+        )
 
     def _subscribe_bits_when_ready(self) -> None:
         """Subscribe ``sound_step`` once a controller and the belief's listeners are there."""
@@ -167,7 +174,7 @@ class BeliefNode(GraphNode):
             self._hold(bit, now)
             return
         self._bit_times.note(self.sent_s(stamp, now))
-        if not self.joiner.bit(bit.step, bit.bit):
+        if not self.joiner.bit(bit.step, bit.observation):
             self.warn_intrusion(
                 f"bit for step {bit.step} of stream {bit.stream} repeats or goes backwards"
                 f" (last step {self.joiner.last_bit_step}): ignored"
@@ -248,11 +255,11 @@ class BeliefNode(GraphNode):
             )
         self.stream = stream
         for bit in held:
-            self.joiner.bit(bit.step, bit.bit)
+            self.joiner.bit(bit.step, bit.observation)
 
     # ------------------------------------------------------------------ steps
 
-    def _apply(self, step: int, y: bool | None, u: bool | None) -> None:
+    def _apply(self, step: int, y: bool | Withheld | None, u: bool | None) -> None:
         """Apply one step in order: count the bit, publish the belief, act."""
         if self._joining:
             self._joining = False
@@ -261,10 +268,7 @@ class BeliefNode(GraphNode):
             self.get_logger().info(f"joined stream {self.stream} at step {step}: {how}")
             if step > 1:  # the decisions before it are unknown
                 self.tracker.forget_timer_completely()
-        if y is None:
-            self.tracker.skip_observation()
-        else:
-            self.tracker.observe(y)
+        self.tracker.observe_window(y)
         self.belief = self.tracker.statistic.belief(self.params)
         self.belief_pub.publish(Float64(data=self.belief))
         if u is None:
@@ -300,6 +304,7 @@ class BeliefNode(GraphNode):
             "statistic": tuple(self.tracker.statistic),
             "timer_certain": self.tracker.timer_certain,
             "uncounted_bits": self.tracker.uncounted,
+            "withheld_bits": self.tracker.withheld,
             "memory_steps": self.tracker.memory,
             "stream": self.stream or "none yet",
             "controller": self.controllers.source or "none yet",

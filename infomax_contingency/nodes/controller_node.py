@@ -22,7 +22,9 @@ It answers once ``vocalize_step`` has ``wait_for_listeners`` subscribers, each c
 then answered, earlier ones are not (counted as ``unanswered_before_start``).
 Steps it never saw (it joined late, messages were lost) are counted, and their windows
 passed without a bit and without a vocalization; a bit that repeats or goes backwards is
-ignored. Bits whose window length is not the model's dt are refused.
+ignored. Bits whose window length is not the model's dt are refused. A withheld bit (the
+window overlapped the robot's declared own sound, ``self_sound``) is answered like any
+other, but the statistic does not count it.
 
 Subscribes ``sound_step`` (std_msgs/Int64MultiArray); publishes ``vocalize`` (Bool, one
 per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
@@ -143,6 +145,7 @@ class ControllerNode(GraphNode):
         self.steps = 0
         self.vocalizations = 0
         self.missed_steps = 0
+        self.withheld_bits = 0
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
@@ -164,7 +167,10 @@ class ControllerNode(GraphNode):
         self.answering = False
         self.unanswered_bits = 0
         self._last_unanswered: tuple[Int64MultiArray, int] | None = None
-        self.start_when_ready(self._listeners_ready, 0.0, self._start_answering)
+        self.start_when_ready(
+            self._listeners_ready, 0.0, self._start_answering,
+            waiting_for=f"{self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'",
+        )  # fmt: skip
         self.wait_visibly(
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )
@@ -233,7 +239,8 @@ class ControllerNode(GraphNode):
             self.missed_steps += missed
             self.controller.missed(missed)
         self.last_step = bit.step
-        u = bool(self.controller.step(int(bit.bit)))
+        u = bool(self.controller.step(bit.observation))
+        self.withheld_bits += bit.withheld
         self.steps += 1
         self.vocalizations += u
         self.vocalize_pub.publish(Bool(data=u))
@@ -251,6 +258,7 @@ class ControllerNode(GraphNode):
             "unanswered_before_start": self.unanswered_bits,
             "vocalizations": self.vocalizations,
             "missed_steps": self.missed_steps,
+            "withheld_bits": self.withheld_bits,
             "stream": self.streams.source or "none yet",
             "controller_id": self.controller_id,
             "foreign_messages": self.foreign.count,

@@ -43,7 +43,8 @@ replay's first seconds again; a stream's next windows, without bits; threshold_m
 reads its file again).
 
 Step clock (``max_steps_ahead``, ``max_backlog_s``, ``wait_for_listeners``,
-``start_delay_s``, ``max_windows``): see :mod:`~infomax_contingency.nodes.mic_node`.
+``start_delay_s``, ``max_windows``) and the robot's own sound (``self_sound_hold_s``):
+see :mod:`~infomax_contingency.nodes.mic_node`.
 """
 
 from __future__ import annotations
@@ -90,6 +91,7 @@ class MicConfig:
     max_windows: int
     max_steps_ahead: int
     max_backlog_s: float
+    self_sound_hold_s: float
     wav_file: str
     bag_dir: str
     channel: int
@@ -138,6 +140,11 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
             "max_backlog_s", 3600.0,
             "Audio whose windows may wait for the controller; more is dropped and counted",
             1.0, 86400.0, "s",
+        ),
+        "self_sound_hold_s": read.number(
+            "self_sound_hold_s", 0.15,
+            "While 'self_sound' has a publisher, each window waits this long past its end"
+            " for the robot's declared sound ranges that overlap it", 0.0, 10.0, "s",
         ),
     }
 

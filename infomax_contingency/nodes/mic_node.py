@@ -21,6 +21,10 @@ is connected, plus ``start_delay_s`` for the rest of the graph to connect; windo
 ``audio`` topic that arrive meanwhile wait, none is lost. ``max_windows > 0`` stops the
 node (exit status 0) after that many bits, once the subscribers have acknowledged them.
 
+Self-sound (:mod:`~infomax_contingency.nodes.self_sound`): a window that overlaps the
+robot's own sound declared on ``self_sound`` is published withheld (``sound_step``); while
+the topic has a publisher, windows wait ``self_sound_hold_s`` past their end for it.
+
 Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB),
 ``/diagnostics`` (for a live microphone also the device, its state, overflows, dropped
 blocks, lost samples, gaps and reconnections). Service ``~/recalibrate``
@@ -39,7 +43,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
-from infomax_contingency.audio.bitsources.base import UNSEPARATED, SettingError
+from infomax_contingency.audio.bitsources.base import UNSEPARATED, BitSource, SettingError
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -50,6 +54,7 @@ from infomax_contingency.nodes.mic_config import make_bits, open_window_source, 
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.self_sound import SelfSoundInput
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
     VOCALIZE_STEP,
@@ -66,6 +71,39 @@ MICROPHONE_POLL_S = 0.02
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
 
+NOISE_FLOOR_LOG_STEP_DB = 1.0
+"""A threshold that follows the noise floor is logged again once it moved this much, dB."""
+
+
+class ThresholdLog:
+    """Logs (INFO) the threshold in force, and where it came from, when it changed.
+
+    mic_node calls it wherever the threshold can change: at start-up, after each window
+    (the end of a calibration, an accepted refit, the noise floor), after a live set and a
+    ~/recalibrate. A threshold that follows the noise floor window by window is logged
+    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
+    """
+
+    def __init__(self, logger: Any, bit_source: str) -> None:
+        self.logger = logger
+        self.bit_source = bit_source
+        self.logged_db: float | None = None
+        """The threshold last logged, dB (set it when another line named the threshold)."""
+
+    def __call__(self, bits: BitSource) -> None:
+        """Log ``bits``' threshold in force if it changed since the last line."""
+        threshold_db, last = bits.threshold_db, self.logged_db
+        if threshold_db is None or threshold_db == last:
+            return  # no threshold (vad, calibrating: its end is logged), or the same one
+        origin = bits.threshold_origin()
+        if last is not None and origin.startswith("noise floor") and (
+            abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
+        ):
+            return
+        self.logged_db = threshold_db
+        self.logger.info(f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
+                         f" {self.bit_source})")  # fmt: skip
+
 
 class MicNode(GraphNode):
     """Microphone: audio windows to sound bits."""
@@ -76,6 +114,7 @@ class MicNode(GraphNode):
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = read_config(self.parameters)
+        self.threshold_log = ThresholdLog(self.get_logger(), config.bit_source)
         self.bits = make_bits(config, self._calibration_refused)
         if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
@@ -88,6 +127,7 @@ class MicNode(GraphNode):
             self.get_logger().warning(f"{ignored}: {self._no_audio}")
         if calibrated := self._calibrate_ahead():
             self.get_logger().info(calibrated)
+            self.threshold_log.logged_db = self.bits.threshold_db  # that line names it
         lockstep = self.replay is not None and config.lockstep
         self.pacer = LockstepPacer(config.lockstep_timeout_s) if lockstep else None
         for spec in self.bits.specs():
@@ -122,6 +162,8 @@ class MicNode(GraphNode):
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
+        self.self_sound = SelfSoundInput(self, self.config.self_sound_hold_s,
+                                         self.config.window_s, self._release)  # fmt: skip
         if isinstance(self.source, TopicWindows):
             self.create_subscription(Float32MultiArray, "audio", self._on_audio, AUDIO_QOS)
             self.wait_visibly(
@@ -139,8 +181,10 @@ class MicNode(GraphNode):
             self.pacer,
             self._on_timeout,
             "is controller_node running?",
+            f"{self.config.wait_for_listeners} listeners on '{SOUND_STEP}'",
         )
         self.get_logger().info(f"stream id {self.stream_id}")
+        self.threshold_log(self.bits)
 
     def destroy_node(self) -> None:
         """Release the microphone, then the node."""
@@ -176,7 +220,11 @@ class MicNode(GraphNode):
             except SettingError as error:
                 raise ConfigError(f"parameter {error}") from None
 
-        self.parameters.live(name, lambda value: self.bits.set_live(name, value), check)
+        def apply(value: Any) -> None:
+            self.bits.set_live(name, value)
+            self.threshold_log(self.bits)
+
+        self.parameters.live(name, apply, check)
 
     def _on_recalibrate(self, _request: Trigger.Request, response: Trigger.Response) -> Any:
         """Start the bit source's calibration again (a replay's first seconds again)."""
@@ -191,6 +239,7 @@ class MicNode(GraphNode):
             response.message = str(error)
             return response
         self.get_logger().info(f"recalibrate: {message}")
+        self.threshold_log(self.bits)
         response.success, response.message = True, message
         return response
 
@@ -256,8 +305,11 @@ class MicNode(GraphNode):
             self.get_logger().warning(warning)
         sequence = info.get("publication_sequence_number")
         try:
-            missed = self.source.feed(np.frombuffer(msg.data, dtype=np.float32),
-                                      sequence if isinstance(sequence, int) else None)  # fmt: skip
+            missed = self.source.feed(
+                np.frombuffer(msg.data, dtype=np.float32),
+                sequence if isinstance(sequence, int) else None,
+                int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds,
+            )
         except AudioError as error:
             self.bad_chunks += 1
             self.losses.note(self.now_s())
@@ -292,21 +344,14 @@ class MicNode(GraphNode):
             bit = self.bits.bit_of(window.energy_db, window.samples)
             energy_db = self.bits.last_energy_db
             if bit is not None and was_calibrating:
-                self.get_logger().info(self.bits.ready_message())
+                self.get_logger().info(self.bits.ready_message())  # names the threshold
+                self.threshold_log.logged_db = self.bits.threshold_db
+            self.threshold_log(self.bits)  # an accepted refit, a moving noise floor
         self.last_energy_db = energy_db
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))
             return None
-        dropped = self.outbox.dropped
-        self.outbox.push((energy_db, bit))
-        if self.outbox.dropped > dropped:
-            self.losses.note(self.now_s())
-            self.log_throttled(
-                "windows dropped",
-                "warning",
-                f"{self.outbox.dropped} windows dropped: more than"
-                f" {self.config.max_backlog_s:g} s waited for the controller",
-            )
+        self.self_sound.push(window, energy_db, bit)
         self._release()
         return bit
 
@@ -328,7 +373,19 @@ class MicNode(GraphNode):
         self._release()
 
     def _release(self) -> None:
-        """Publish the windows the outbox lets go now: energy, bit and stamped bit."""
+        """Publish the windows the outbox lets go now: energy, bit and stamped bit.
+
+        First the windows whose self-sound is known leave the self-sound gate for the
+        outbox.
+        """
+        dropped = self.outbox.dropped
+        for window in self.self_sound.release(replaying_in_lockstep=self.pacer is not None):
+            self.outbox.push(window)
+        if self.outbox.dropped > dropped:
+            self.losses.note(self.now_s())
+            self.log_throttled("windows dropped", "warning",
+                               f"{self.outbox.dropped} windows dropped: more than"
+                               f" {self.config.max_backlog_s:g} s waited for the controller")
         if not self.started or self.finished.done():
             return
         outbox = self.outbox
@@ -338,12 +395,12 @@ class MicNode(GraphNode):
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit) in self.outbox.release(paced):
+        for step, (energy_db, bit, withheld) in self.outbox.release(paced):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(
-                bit_message(StepBit(self.stream_id, step, bit, self.window_us))
+                bit_message(StepBit(self.stream_id, step, bit, self.window_us, withheld))
             )
             if self.config.max_windows and self.windows >= self.config.max_windows:
                 self.get_logger().info(f"{self.windows} bits published (max_windows): stopping")
@@ -375,6 +432,7 @@ class MicNode(GraphNode):
             "bad_chunks": self.bad_chunks,
             **bits.diagnostic_values(),
             **self.source.status(),
+            **self.self_sound.values(),
             **self.contract.values(),  # none before the first chunk of 'audio'
         }
         for topic, names in self.intruders.items():
@@ -393,8 +451,10 @@ class MicNode(GraphNode):
         if bits.calibrating:
             return OK, "calibrating the threshold", values
         problem = self.contract.problem()  # the 'audio' contract broken lately
-        if problem or self.losses.recent(now) or self.timeouts.recent(now):
-            problem = problem or "audio lost or lockstep timeouts lately (counts in the values)"
+        if problem or self.losses.recent(now) or self.timeouts.recent(now) or (
+                self.self_sound.faults.recent(now)):  # fmt: skip
+            problem = problem or ("audio lost, lockstep timeouts, or 'self_sound' ranges refused"
+                                  " or late lately (counts in the values)")  # fmt: skip
             return WARN, problem, values
         return OK, f"{self.windows} windows", values
 

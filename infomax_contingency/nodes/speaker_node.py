@@ -105,6 +105,7 @@ class SpeakerNode(GraphNode):
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
+        self.wait_visibly("vocalize", "the decisions of controller_node: is it running?")
 
     def _on_vocalize(self, msg: Bool, stamp: int) -> None:
         if not msg.data:

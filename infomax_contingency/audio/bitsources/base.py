@@ -314,6 +314,10 @@ class BitSource(ABC):
         """One line for the log once the first bit comes."""
         return f"bit source {self.name} ready"
 
+    def threshold_origin(self) -> str:
+        """Where :attr:`threshold_db` came from, for the log ("" for a source without one)."""
+        return ""
+
     def diagnostic_values(self) -> dict[str, Any]:
         """The source's state for diagnostics."""
         return {"calibration_state": self.state}

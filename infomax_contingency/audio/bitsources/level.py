@@ -276,6 +276,19 @@ class LevelSource(BitSource):
             f" dB, sound {fit.high_mean_db:.1f} dB)"
         )
 
+    def threshold_origin(self) -> str:
+        """The floor and margin, the k-means clusters, the file or the fixed value."""
+        rule, settings = self.rule, self.settings
+        if isinstance(rule, NoiseFloorBinarizer):
+            return f"noise floor {rule.floor_db:.1f} dB + margin {rule.margin_db:g} dB"
+        if rule.fit is not None:
+            fit = rule.fit
+            return (f"k-means of {fit.n_low + fit.n_high} windows: quiet {fit.low_mean_db:.1f}"
+                    f" dB, sound {fit.high_mean_db:.1f} dB")  # fmt: skip
+        if settings.threshold_mode == "file":
+            return f"threshold_file {settings.threshold_file}"
+        return f"threshold_db, threshold_mode {settings.threshold_mode}"
+
     def diagnostic_values(self) -> dict[str, Any]:
         """Threshold, refits and calibration state (and the floor)."""
         rule = self.rule
