@@ -97,10 +97,17 @@ def test_every_node_has_a_ros_api_table(readme_api: dict[str, refs.NodeApi]) -> 
 
 @pytest.fixture(scope="module")
 def running_graph(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
-    """Every node of the package, running together against the fake room (a few steps)."""
+    """Every node of the package, running together against the fake room (a few steps).
+
+    Every optional topic on: the room's robot speaks and declares it, posture_node
+    declares its moves (both on ``self_sound``).
+    """
     steps = 6
     nodes = room_nodes({"room": "responsive", "seed": 1}, steps)
     nodes["controller_node"]["wait_for_listeners"] += 1  # the recorder hears decisions too
+    # what some nodes publish only when asked to: the robot's own sound on self_sound
+    nodes["posture_node"]["declare_motion_sound"] = True
+    nodes["fake_audio_node"]["robot_speech_probability"] = 0.5
     nodes["speaker_node"] = {}
     nodes["recorder_node"] = {"directory": str(tmp_path_factory.mktemp("bag") / "session")}
     with stepped_graph(nodes, "fake_audio_node") as graph:
