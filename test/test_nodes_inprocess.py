@@ -346,10 +346,21 @@ def test_belief_names_a_second_publisher(run: Callable) -> None:
     intruder = other.talk("vocalize", Bool)
     controller = probe.talk("vocalize", Bool)
     graph.run_until(lambda: node.count_publishers("vocalize") == 2, "two publishers")
+    statuses = probe.listen("/diagnostics", DiagnosticArray)
     node.publish_diagnostics()
-    level, message, values = node.diagnostic_status()
+    level, message, _values = node.diagnostic_status()
     assert level == ERROR and "'vocalize'" in message
-    publishers = values["publishers_vocalize"]
+
+    def belief_values() -> dict[str, str]:
+        found = [s for m in statuses for s in m.status if s.name.startswith("belief_node")]
+        return {kv.key: kv.value for kv in found[-1].values} if found else {}
+
+    def published() -> dict[str, str]:
+        node.publish_diagnostics()  # again, until the probe's subscription is matched
+        return belief_values()
+
+    graph.run_until(lambda: "publishers_vocalize" in published(), "the named publishers")
+    publishers = belief_values()["publishers_vocalize"]  # every node's diagnostics name them
     assert "/intruder" in publishers and "/probe" in publishers
     other.destroy_publisher(intruder)
     graph.run_until(lambda: node.count_publishers("vocalize") == 1, "the intruder gone")
@@ -483,7 +494,7 @@ def test_mic_bit_sources_window_any_chunking_like_offline(
         audio.publish(_audio_message(chunk))
     graph.run_until(lambda: len(energies) == 16 and len(steps) == 16 - calibration,
                     "16 windows and their bits")  # fmt: skip
-    assert node.bad_chunks == 1
+    assert node.source.bad_chunks == 1
     offline = make_bit_source(bit_source, 16000, 0.5, **options)
     expected = [offline.push_window(w) for w in samples.reshape(16, 8000)]
     assert expected[:calibration] == [None] * calibration

@@ -494,3 +494,13 @@ def test_a_new_bit_source_is_a_mic_node_bit_source_with_its_parameters(graph: Ca
         assert result.reason == (
             "parameter 'toy_level_db' = 3.0 is not allowed: a number in [-150, 0] dB"
         )
+
+
+def test_mic_knows_the_settings_of_the_bit_sources_it_does_not_use(graph: Callable) -> None:
+    """robot.yaml gives every bit source's settings: none is reported as undeclared."""
+    from infomax_contingency.nodes.parameters import undeclared_parameters
+
+    node, _probe, _executor = graph(MicNode, bit_source="vad")
+    assert not node.has_parameter("threshold_mode") and "threshold_mode" in node.parameters.known
+    assert undeclared_parameters([str(ROOT / "config" / "robot.yaml")], [node]) == []
+    assert "treshold_mode" not in node.parameters.known

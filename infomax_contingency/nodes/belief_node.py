@@ -323,8 +323,6 @@ class BeliefNode(GraphNode):
             "resets": self.resets,
             "stale_messages": self.stale_messages,
         }
-        for topic, names in self.intruders.items():
-            values[f"publishers_{topic}"] = ", ".join(names)
         if self.intruders:
             topics = ", ".join(f"'{topic}'" for topic in self.intruders)
             return ERROR, f"more than one publisher on {topics}", values

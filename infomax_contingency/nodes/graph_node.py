@@ -371,6 +371,7 @@ class GraphNode(Node):
                 f"{len(names)} publishers on '{topic}': {', '.join(names)}", f"publishers {topic}"
             )
         level, message, values = self.diagnostic_status()
+        values.update({f"publishers_{t}": ", ".join(names) for t, names in self.intruders.items()})
         if self.waiting_for and level == OK:
             level, message = WARN, self.waiting_for
         elif self.waiting_for and level == WARN:

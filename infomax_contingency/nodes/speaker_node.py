@@ -173,8 +173,6 @@ class SpeakerNode(GraphNode):
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Device, vocalizations, sounds played, output errors, start delay, intruders."""
         values: dict[str, Any] = {"dry_run": self.dry_run, "requests": self.requests}
-        for topic, names in self.intruders.items():
-            values[f"publishers_{topic}"] = ", ".join(names)
         if self.intruders:
             return ERROR, "more than one publisher on 'vocalize'", values
         if self.speaker is None:
