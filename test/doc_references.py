@@ -17,7 +17,7 @@ and docs/*.md):
   get|set|describe /NODE NAME`` a node's parameter (``set``: a live one, unless the line
   says it is refused); ``ros2 topic ... /TOPIC`` a topic;
   ``ros2 service call /NODE/SRV`` a service; ``make TARGET`` a Makefile target; a span
-  that is only ``NAME:=VALUE`` a launch argument of some launch file.
+  that is only ``NAME:=VALUE`` a launch argument of some launch file or a parameter.
 - **Parameters**: ``NODE:NAME:=``, ``NODE.NAME``, "NODE's `NAME`" name a parameter of
   NODE (``NODE.NAME`` may also be an attribute of the node's module); a table header cell
   that is a backticked snake_case name, and the first column of a table headed
@@ -385,9 +385,10 @@ def _check_ros2(words: list[str], repo: Repository, problems: list[str]) -> None
             if words[1] == "set" and declared and words[3] not in repo.live.get(node, set()):
                 problems.append(f"live parameter `{node}:{words[3]}`")
     elif len(words) >= 3 and words[0] == "topic" and words[1] in ("echo", "hz", "pub", "info"):
-        topic = words[2].rstrip("/").split("/")[-1]
-        if not _is_placeholder(topic) and topic not in repo.topics:
-            problems.append(f"topic `{words[2]}`")
+        named = next((word for word in words[2:] if not word.startswith("-")), "")
+        topic = named.rstrip("/").split("/")[-1]
+        if topic and not _is_placeholder(topic) and topic not in repo.topics:
+            problems.append(f"topic `{named}`")
     elif len(words) >= 3 and words[0] == "service" and words[1] == "call":
         *_, node, service = words[2].split("/")
         if service not in repo.services.get(node, set()):
@@ -422,7 +423,8 @@ def missing_commands(text: str, repo: Repository) -> list[str]:
             if words[0] == "experiment" and len(words) > 1:
                 _check_cli(words, repo, problems)
         bare = re.fullmatch(r"(\w+):=\S*", span.strip())
-        if bare and bare.group(1) not in set().union(*repo.launch_arguments.values()):
+        arguments = set().union(*repo.launch_arguments.values()) | repo.all_parameters
+        if bare and bare.group(1) not in arguments:
             problems.append(f"launch argument `{bare.group(1)}:=`")
         for node, name in re.findall(r"\b(\w+_node):(\w+):=", span):
             if node in repo.parameters and not _is_placeholder(name):
