@@ -208,7 +208,7 @@ def _commands(span: str) -> Iterator[list[str]]:
 # ------------------------------------------------------------------ the checks
 
 
-PLACEHOLDER = re.compile(r"(^|[/._-])[A-Z][A-Z0-9_]*($|[/.])|[<>*{}$~]|\.\.\.")
+PLACEHOLDER = re.compile(r"(^|[/._-])[A-Z][A-Z0-9_]*($|[/.:,;])|[<>*{}$~]|\.\.\.")
 
 
 def _is_placeholder(token: str) -> bool:
