@@ -90,6 +90,13 @@ def test_the_readme_fits_on_a_screen() -> None:
         f" {README_MAX_BYTES}): move detail to docs/ (map in the README)")
 
 
+def test_the_readme_maps_every_doc() -> None:
+    readme = (ROOT / "README.md").read_text()
+    unmapped = [path.name for path in sorted((ROOT / "docs").glob("*.md"))
+                if f"](docs/{path.name})" not in readme]
+    assert not unmapped, f"README.md's map of docs/ lacks {unmapped}"
+
+
 def test_every_node_has_a_ros_api_table(readme_api: dict[str, refs.NodeApi]) -> None:
     missing = [node for node in NODES if node not in readme_api]
     assert not missing, f"README.md has no '### `node`' ROS API table for {missing}"
