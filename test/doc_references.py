@@ -22,7 +22,8 @@ and docs/*.md):
   NODE (``NODE.NAME`` may also be an attribute of the node's module); a table header cell
   that is a backticked snake_case name, and the first column of a table headed
   "parameter", name parameters of some node.
-- **Topics**: the first column of a table headed "topic".
+- **Topics**: the first column of a table headed "topic"; **commands**: of one headed
+  "command".
 
 The known topics, services and key parameters come from the README's "ROS API" tables
 (:func:`ros_api_tables`), which ``test_docs`` checks against the running nodes; the
@@ -152,7 +153,7 @@ def launch_arguments() -> dict[str, set[str]]:
     }
 
 
-def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+def subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             return dict(action.choices)
@@ -330,7 +331,7 @@ def _check_parameter(node: str, name: str, repo: Repository, problems: list[str]
 
 def _check_cli(words: list[str], repo: Repository, problems: list[str]) -> None:
     """``words`` after ``infomax-contingency``: a subcommand and its options."""
-    commands = _subparsers(repo.cli)
+    commands = subparsers(repo.cli)
     if not words or words[0].startswith("-") or _is_placeholder(words[0]):
         return
     if words[0] not in commands:
@@ -338,7 +339,7 @@ def _check_cli(words: list[str], repo: Repository, problems: list[str]) -> None:
         return
     parser = commands[words[0]]
     rest = words[1:]
-    experiments = _subparsers(parser)
+    experiments = subparsers(parser)
     if experiments and rest and not rest[0].startswith("-") and not _is_placeholder(rest[0]):
         if rest[0] not in experiments:
             problems.append(f"command `infomax-contingency {words[0]} {rest[0]}`")
@@ -398,7 +399,7 @@ def _check_ros2(words: list[str], repo: Repository, problems: list[str]) -> None
 def missing_commands(text: str, repo: Repository) -> list[str]:
     """Commands, options, parameters and topics in ``text`` that do not exist."""
     problems: list[str] = []
-    cli_names = set(_subparsers(repo.cli))
+    cli_names = set(subparsers(repo.cli))
     for span in code_spans(text):
         if re.search(r"ros2 param set .*#.*refused", span):
             continue  # an example of a refusal
@@ -458,11 +459,13 @@ def missing_parameters_and_topics(text: str, repo: Repository) -> list[str]:
         if set(cells[0]) <= set("-: "):
             continue
         kind = header[0].lower()
-        first = re.fullmatch(r"`([\w/~]+)`", cells[0])
+        first = re.fullmatch(r"`([\w/~-]+)`", cells[0])
         if first is None:
             continue
         if kind == "parameter" and first.group(1) not in repo.all_parameters:
             problems.append(f"parameter `{first.group(1)}` (table)")
         elif kind == "topic" and first.group(1).lstrip("/") not in repo.topics:
             problems.append(f"topic `{first.group(1)}` (table)")
+        elif kind == "command" and first.group(1) not in subparsers(repo.cli):
+            problems.append(f"command `{first.group(1)}` (table)")
     return problems

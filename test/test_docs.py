@@ -97,6 +97,13 @@ def test_the_readme_maps_every_doc() -> None:
     assert not unmapped, f"README.md's map of docs/ lacks {unmapped}"
 
 
+def test_the_readme_lists_every_command() -> None:
+    readme = (ROOT / "README.md").read_text()
+    commands = refs.subparsers(build_parser())
+    missing = [name for name in commands if f"| `{name}` |" not in readme]
+    assert not missing, f"README.md's command table lacks {missing}"
+
+
 def test_every_node_has_a_ros_api_table(readme_api: dict[str, refs.NodeApi]) -> None:
     missing = [node for node in NODES if node not in readme_api]
     assert not missing, f"README.md has no '### `node`' ROS API table for {missing}"
@@ -195,6 +202,7 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "| `thresh_mode` | x |", "|---|---|", "",
         "| topic | type |", "|---|---|", "| `sound_step` | x |", "| `sound_steps` | x |",
         "`realtime:=false` `real_time:=false` `test_model` `test_modle`",
+        "", "| command | what |", "|---|---|", "| `room-wav` | x |", "| `room-wave` | x |",
     ])
     problems = (refs.missing_files(doc, text, repository)
                 + refs.missing_commands(text, repository)
@@ -211,5 +219,6 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "service `/belief_node/restart`", "make target `demos`", "parameter `mic_node:sauce`",
         "parameter `belief_node.memory`", "parameter `thresh_mode` (table header)",
         "topic `sound_steps` (table)", "launch argument `real_time:=`",
-        "test `test_modle`", "live parameter `mic_node:threshold_mode`",
+        "test `test_modle`", "command `room-wave` (table)",
+        "live parameter `mic_node:threshold_mode`",
     ]), problems
