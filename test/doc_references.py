@@ -19,9 +19,10 @@ and docs/*.md):
   ``ros2 service call /NODE/SRV`` a service; ``make TARGET`` a Makefile target; a span
   that is only ``NAME:=VALUE`` a launch argument of some launch file or a parameter.
 - **Parameters**: ``NODE:NAME:=``, ``NODE.NAME``, "NODE's `NAME`" name a parameter of
-  NODE (``NODE.NAME`` may also be an attribute of the node's module); a table header cell
-  that is a backticked snake_case name, and the first column of a table headed
-  "parameter", name parameters of some node.
+  NODE (``NODE.NAME`` may also be an attribute of the node's module; "NODE's `NAME`" a
+  topic or a value of one of NODE's choice parameters); a table header cell that is a
+  backticked snake_case name, and the first column of a table headed "parameter", name
+  parameters of some node.
 - **Topics**: the first column of a table headed "topic"; **commands**: of one headed
   "command".
 
@@ -100,6 +101,20 @@ def parameter_reference(text: str) -> dict[str, set[str]]:
     return {node: names | common for node, names in sections.items()}
 
 
+def choice_values(text: str) -> dict[str, set[str]]:
+    """docs/PARAMETERS.md -> node -> the values its choice parameters allow ("one of ...")."""
+    values: dict[str, set[str]] = {}
+    current = ""
+    for line in text.splitlines():
+        if line.startswith("## "):
+            current = line[3:].strip()
+            values[current] = set()
+        elif current and (row := re.search(r"\| one of ([\w, +-]+) \|", line)):
+            values[current] |= {value.strip() for value in row.group(1).split(",")}
+    common = values.pop("Every node", set())
+    return {node: names | common for node, names in values.items()}
+
+
 def live_parameters(text: str) -> dict[str, set[str]]:
     """docs/PARAMETERS.md -> node -> the parameters marked live."""
     sections: dict[str, set[str]] = {}
@@ -128,6 +143,8 @@ class Repository:
     cli: argparse.ArgumentParser
     launch_arguments: dict[str, set[str]]
     tracked_names: set[str]
+    choices: dict[str, set[str]] = field(default_factory=dict)
+    """Node -> the values of its choice parameters (``calibrate``, ``vad``, ...)."""
     live: dict[str, set[str]] = field(default_factory=dict)
     """Node -> the parameters ``ros2 param set`` may change."""
 
@@ -441,7 +458,8 @@ def missing_parameters_and_topics(text: str, repo: Repository) -> list[str]:
             if not _resolves_in_package(f"nodes.{node}.{name}"):
                 problems.append(f"parameter `{node}.{name}`")
     for node, name in re.findall(r"\b(\w+_node)`?(?:'s)? `(\w+)`", text):
-        if node in repo.parameters and name not in repo.parameters[node] | repo.topics:
+        known = repo.parameters.get(node, set()) | repo.topics | repo.choices.get(node, set())
+        if node in repo.parameters and name not in known:
             problems.append(f"parameter `{name}` of {node}")
     header: list[str] | None = None
     for line in text.splitlines():

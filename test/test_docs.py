@@ -68,6 +68,7 @@ def repository(readme_api: dict[str, refs.NodeApi]) -> Repository:
         executables=refs.console_scripts(), make_targets=refs.make_targets(),
         cli=build_parser(), launch_arguments=refs.launch_arguments(), tracked_names=names,
         live=refs.live_parameters(reference),
+        choices=refs.choice_values(reference),
     )
 
 
@@ -198,6 +199,7 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "make demo", "make demos", "bringup -p mic_node:source:=wav -p mic_node:sauce:=wav",
         "```",
         "`belief_node.memory_steps` `belief_node.memory` `mic_node.MicNode`",
+        "mic_node's `calibrate`, mic_node's `calibration`",
         "| `threshold_mode` | x |", "|---|---|", "",
         "| `thresh_mode` | x |", "|---|---|", "",
         "| topic | type |", "|---|---|", "| `sound_step` | x |", "| `sound_steps` | x |",
@@ -219,6 +221,6 @@ def test_the_checks_find_what_does_not_exist(repository: Repository) -> None:
         "service `/belief_node/restart`", "make target `demos`", "parameter `mic_node:sauce`",
         "parameter `belief_node.memory`", "parameter `thresh_mode` (table header)",
         "topic `sound_steps` (table)", "launch argument `real_time:=`",
-        "test `test_modle`", "command `room-wave` (table)",
+        "test `test_modle`", "command `room-wave` (table)", "parameter `calibration` of mic_node",
         "live parameter `mic_node:threshold_mode`",
     ]), problems
