@@ -71,7 +71,7 @@ from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
 
-REPLY_VOICES = ("noise", "speech")
+REPLY_VOICES = ("noise", "speech", "tts")
 """How a partner's reply sounds (see the module docstring)."""
 
 BABBLE_UTTERANCE_S = (1.0, 4.0)
@@ -89,9 +89,14 @@ FOOTSTEPS_PER_WALK = (4, 10)
 FOOTSTEP_INTERVAL_S = (0.45, 0.6)
 """Shortest and longest time between two footsteps, seconds (uniform per walk)."""
 
-CONTINUOUS_SOURCES = ("floor", "babble", "tv")
+SPEECH_VOICES = ("synthetic", "tts")
+"""How distant talkers and the TV speak: ``synthetic`` (the speech-like bank of
+:func:`~infomax_contingency.sim.room_sounds.speech_bank`) or ``tts`` (sentences spoken by
+espeak-ng, :func:`~infomax_contingency.sim.room_sounds.tts_voices`)."""
+
+CONTINUOUS_SOURCES = ("floor", "babble", "tv", "music", "hum")
 """Sources whose level is their long-term RMS (pauses included)."""
-TRANSIENT_SOURCES = ("event", "door", "footstep", "self", "echo", "reply")
+TRANSIENT_SOURCES = ("event", "door", "footstep", "self", "echo", "reply", "traffic", "typing")
 """Sources whose level is the RMS over each sound's duration."""
 
 
@@ -134,6 +139,18 @@ class FakeRoomConfig:
     tv_level_db: float = -35.0
     reverb_rt60_s: float = 0.0
     reverb_level_db: float = -35.0
+    babble_voice: str = "synthetic"
+    babble_join_s: float = 0.0
+    tv_voice: str = "synthetic"
+    tv_start_s: float = 0.0
+    music_on: bool = False
+    music_level_db: float = -35.0
+    hum_on: bool = False
+    hum_level_db: float = -45.0
+    traffic_rate_hz: float = 0.0
+    traffic_level_db: float = -35.0
+    typing_rate_hz: float = 0.0
+    typing_level_db: float = -40.0
 
     def __post_init__(self) -> None:
         def fail(name: str, allowed: str) -> None:
@@ -147,8 +164,12 @@ class FakeRoomConfig:
             or not 0 <= self.babble_talkers <= 100
         ):
             fail("babble_talkers", "a whole number of talkers in 0 .. 100")
-        if not isinstance(self.tv_on, bool):
-            fail("tv_on", "true or false")
+        for name in ("tv_on", "music_on", "hum_on"):
+            if not isinstance(getattr(self, name), bool):
+                fail(name, "true or false")
+        for name in ("babble_voice", "tv_voice"):
+            if getattr(self, name) not in SPEECH_VOICES:
+                fail(name, f"one of {', '.join(SPEECH_VOICES)}")
         if self.floor_spectrum not in FLOOR_SPECTRA:
             fail("floor_spectrum", f"one of {', '.join(FLOOR_SPECTRA)}")
         if self.reply_voice not in REPLY_VOICES:
@@ -170,6 +191,10 @@ class FakeRoomConfig:
             "reply_delay_min_s",
             "door_rate_hz",
             "footsteps_rate_hz",
+            "babble_join_s",
+            "tv_start_s",
+            "traffic_rate_hz",
+            "typing_rate_hz",
         ):
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
@@ -187,6 +212,10 @@ class FakeRoomConfig:
             "babble_level_db",
             "tv_level_db",
             "reverb_level_db",
+            "music_level_db",
+            "hum_level_db",
+            "traffic_level_db",
+            "typing_level_db",
         ):
             if not -150.0 <= getattr(self, name) <= 0.0:
                 fail(name, "a level between -150 and 0 dB (full scale)")
@@ -217,7 +246,10 @@ class FakeRoomConfig:
 
 
 _NON_NUMBER_FIELDS = frozenset(
-    {"rate_hz", "babble_talkers", "tv_on", "floor_spectrum", "reply_voice"}
+    {
+        "rate_hz", "babble_talkers", "tv_on", "floor_spectrum", "reply_voice", "babble_voice",
+        "tv_voice", "music_on", "hum_on",
+    }
 )
 """Fields checked on their own in :meth:`FakeRoomConfig.__post_init__` (not plain numbers)."""
 
@@ -355,8 +387,8 @@ class FakeRoom:
         self.config = config
         self.rate = config.rate_hz
         self.window = window_samples(config.rate_hz, config.window_s)
-        streams = np.random.SeedSequence(seed).spawn(8)  # the first three: as ever
-        noise, events, replies, doors, steps, babble, tv, reverb = (
+        streams = np.random.SeedSequence(seed).spawn(11)  # the first eight: as ever
+        noise, events, replies, doors, steps, babble, tv, reverb, music, traffic, typing = (
             np.random.default_rng(stream) for stream in streams
         )
         self._event_rng = events
@@ -372,9 +404,15 @@ class FakeRoom:
             else None
         )
         self._partner_f0 = replies.uniform(100.0, 250.0) if config.reply_voice == "speech" else None
+        self._partner_tts = (
+            room_sounds.tts_voices(self.rate, self.rate)[int(replies.integers(6))]
+            if config.reply_voice == "tts"
+            else None
+        )
         self._floor = NoiseFloor(config.floor_spectrum, config.noise_floor_db, noise)
         self._sounds: list[_Sound] = []
         self._streams = self._background_streams(events, doors, steps, babble, tv)
+        self._streams += self._newer_streams(music, traffic, typing)
         self.windows_made = 0
         self.vocalizations = 0
         self.replies = 0
@@ -455,14 +493,68 @@ class FakeRoom:
             mean_on = 0.5 * sum(BABBLE_UTTERANCE_S)
             duty = mean_on / (mean_on + BABBLE_PAUSE_MEAN_S)
             level = config.babble_level_db - 10.0 * math.log10(config.babble_talkers * duty)
-            for _ in range(config.babble_talkers):
+            for k in range(config.babble_talkers):
                 talker = np.random.default_rng(babble.integers(2**63))
-                streams.append(self._talker(talker, level))
+                streams.append(self._talker(talker, level, k * config.babble_join_s))
         if config.tv_on:
             mean_on, mean_off = 0.5 * sum(TV_STRETCH_S), 0.5 * sum(TV_PAUSE_S)
             duty = mean_on / (mean_on + mean_off)
             streams.append(self._tv(tv, config.tv_level_db - 10.0 * math.log10(duty)))
         return streams
+
+    def _newer_streams(
+        self, music: np.random.Generator, traffic: np.random.Generator, typing: np.random.Generator
+    ) -> list[_SoundStream]:
+        """Music, the mains hum, traffic passing and typing (each only if the room has it)."""
+        config, rate = self.config, self.rate
+        streams = []
+        if config.music_on:
+            bar_samples = 4 * round(room_sounds.MUSIC_BEAT_S * rate)
+
+            def bar() -> list[tuple[int, np.ndarray]]:
+                return [(0, rms_scaled(room_sounds.music_bar(rate, music), config.music_level_db))]
+
+            streams.append(
+                _SoundStream(
+                    "music", lambda: -music.uniform(0.0, bar_samples), bar, lambda _: bar_samples
+                )
+            )
+        if config.hum_on:
+            block = rate  # 1 s: whole cycles of the hum
+            gain = 10.0 ** (config.hum_level_db / 20.0) / math.sqrt(
+                float(np.mean(room_sounds.mains_hum(block, rate, 0) ** 2))
+            )
+            position = [0]
+
+            def hum() -> list[tuple[int, np.ndarray]]:
+                samples = gain * room_sounds.mains_hum(block, rate, position[0])
+                position[0] += block
+                return [(0, samples)]
+
+            streams.append(_SoundStream("hum", lambda: 0.0, hum, lambda _: block))
+        if config.traffic_rate_hz > 0:
+            traffic_gap = self._poisson_gap(traffic, config.traffic_rate_hz)
+
+            def vehicle() -> list[tuple[int, np.ndarray]]:
+                sound = room_sounds.traffic_pass(rate, traffic)
+                return [(0, rms_scaled(sound, config.traffic_level_db))]
+
+            streams.append(_SoundStream("traffic", traffic_gap, vehicle, traffic_gap))
+        if config.typing_rate_hz > 0:
+            typing_gap = self._poisson_gap(typing, config.typing_rate_hz)
+
+            def burst() -> list[tuple[int, np.ndarray]]:
+                sound = room_sounds.typing_burst(rate, typing)
+                return [(0, rms_scaled(sound, config.typing_level_db))]
+
+            streams.append(_SoundStream("typing", typing_gap, burst, typing_gap))
+        return streams
+
+    def _voice_bank(self, voice: str, cutoff_hz: float) -> tuple[np.ndarray, ...]:
+        """The voices distant talkers or the TV speak with (:data:`SPEECH_VOICES`)."""
+        if voice == "tts":
+            return room_sounds.tts_voices(self.rate, cutoff_hz)
+        return room_sounds.speech_bank(self.rate, self.config.syllable_rate_hz, cutoff_hz)
 
     def _excerpt(
         self, rng: np.random.Generator, voice: np.ndarray, seconds: float, level: float
@@ -471,11 +563,12 @@ class FakeRoom:
         n = max(1, round(seconds * self.rate))
         return rms_scaled(room_sounds.speech_excerpt(voice, n, self.rate, rng), level)
 
-    def _talker(self, rng: np.random.Generator, level: float) -> _SoundStream:
-        """A distant talker: utterances of :data:`BABBLE_UTTERANCE_S` with exponential pauses."""
-        bank = room_sounds.speech_bank(
-            self.rate, self.config.syllable_rate_hz, self.config.babble_cutoff_hz
-        )
+    def _talker(self, rng: np.random.Generator, level: float, join_s: float = 0.0) -> _SoundStream:
+        """A distant talker: utterances of :data:`BABBLE_UTTERANCE_S` with exponential pauses.
+
+        ``join_s > 0``: the talker starts talking at that room time (a crowd that grows).
+        """
+        bank = self._voice_bank(self.config.babble_voice, self.config.babble_cutoff_hz)
         voice = bank[int(rng.integers(len(bank)))]
         low, high = BABBLE_UTTERANCE_S
         cycle = (0.5 * (low + high) + BABBLE_PAUSE_MEAN_S) * self.rate
@@ -486,12 +579,15 @@ class FakeRoom:
         def gap(parts: list[tuple[int, np.ndarray]]) -> float:
             return parts[0][1].size + rng.exponential(BABBLE_PAUSE_MEAN_S * self.rate)
 
+        if join_s > 0:
+            return _SoundStream("babble", lambda: join_s * self.rate, utterance, gap)
         return _SoundStream("babble", lambda: -rng.uniform(0.0, cycle), utterance, gap)
 
     def _tv(self, rng: np.random.Generator, level: float) -> _SoundStream:
         """The TV programme: stretches of :data:`TV_STRETCH_S`, pauses of :data:`TV_PAUSE_S`."""
-        bank = room_sounds.speech_bank(self.rate, self.config.syllable_rate_hz, TV_CUTOFF_HZ)
+        bank = self._voice_bank(self.config.tv_voice, TV_CUTOFF_HZ)
         voice = bank[int(rng.integers(len(bank)))]
+        start_s = self.config.tv_start_s
 
         def stretch() -> list[tuple[int, np.ndarray]]:
             return [(0, self._excerpt(rng, voice, rng.uniform(*TV_STRETCH_S), level))]
@@ -499,6 +595,8 @@ class FakeRoom:
         def gap(parts: list[tuple[int, np.ndarray]]) -> float:
             return parts[0][1].size + rng.uniform(*TV_PAUSE_S) * self.rate
 
+        if start_s > 0:  # switched on then
+            return _SoundStream("tv", lambda: start_s * self.rate, stretch, gap)
         return _SoundStream(
             "tv", lambda: -rng.uniform(0.0, TV_STRETCH_S[1] * self.rate), stretch, gap
         )
@@ -535,6 +633,10 @@ class FakeRoom:
 
     def _reply(self, length_s: float) -> np.ndarray:
         """The partner's reply of ``length_s`` at ``reply_level_db`` (``reply_voice``)."""
+        if self._partner_tts is not None:
+            n = max(1, round(length_s * self.rate))
+            voice = room_sounds.speech_excerpt(self._partner_tts, n, self.rate, self._reply_rng)
+            return rms_scaled(voice, self.config.reply_level_db)
         if self._partner_f0 is not None:
             n = max(1, round(length_s * self.rate))
             voice = room_sounds.speech_like(
@@ -567,7 +669,7 @@ class FakeRoom:
         x = self._floor.next(self.window)
         if self._meter is not None:
             self._measure("floor", x, self.window)
-            for source in ("babble", "tv"):  # continuous: every window counts
+            for source in ("babble", "tv", "music", "hum"):  # continuous: every window counts
                 if self._has(source):
                     self._measure(source, np.zeros(0), self.window)
         remaining = []
@@ -594,7 +696,13 @@ class FakeRoom:
 
     def _has(self, source: str) -> bool:
         """Does the room hold this continuous source."""
-        return self.config.babble_talkers > 0 if source == "babble" else self.config.tv_on
+        config = self.config
+        return {
+            "babble": config.babble_talkers > 0,
+            "tv": config.tv_on,
+            "music": config.music_on,
+            "hum": config.hum_on,
+        }[source]
 
     def _measure(self, source: str, part: np.ndarray, covered: int) -> None:
         """Add a part of a source's sound (its energy) and the samples it covers."""
