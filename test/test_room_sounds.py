@@ -58,8 +58,8 @@ DOCUMENTED_DB = {
     "tv-switched-on": {
         "floor": -56, "tv": -33.25, "footstep": -40, "self": -20, "echo": -36, "reply": -26,
     },
-    # talkers join every 4 s: talker k talks for 120 - 4k of the 120 s
-    "crowd-grows": {"floor": -50, "babble": -32.0, "self": -20, "echo": -32, "reply": -24},
+    # talkers join every 2 s: talker k talks for 120 - 2k of the 120 s (-31 dB - 0.42 dB)
+    "crowd-grows": {"floor": -50, "babble": -31.4, "self": -20, "echo": -32, "reply": -24},
     "kitchen": {
         "floor": -58, "music": -36, "hum": -45, "event": -28, "self": -20, "echo": -33,
         "reply": -25,

@@ -19,9 +19,12 @@ Sources (:data:`BIT_SOURCES`, made by :func:`make_bit_source`):
   at least ``vad_min_voiced_s``. It takes 8, 16, 32 or 48 kHz only.
 
 Threshold modes of ``energy`` and ``speech_band`` (:data:`THRESHOLD_MODES`): ``fixed``,
-``file`` and ``calibrate`` (k-means, optional online refresh: :class:`Binarizer`), and
+``file`` and ``calibrate`` (k-means, optional online refresh: :class:`Binarizer`),
 ``noise_floor``: a margin above a tracked floor
-(:class:`~infomax_contingency.audio.binarizer.NoiseFloorBinarizer`).
+(:class:`~infomax_contingency.audio.binarizer.NoiseFloorBinarizer`), and ``background``:
+a constant false-alarm rate on the windows the model calls background
+(:class:`~infomax_contingency.audio.background.BackgroundThreshold`), which needs the
+decisions (:meth:`LevelBitSource.note_decision`, :attr:`LevelBitSource.needs_decisions`).
 
 A window with NaN or infinite samples, or of the wrong length, is refused (AudioError);
 samples beyond [-1, 1] (clipping) are measured as they are, and clipped to full scale
@@ -37,6 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from infomax_contingency.audio.background import BackgroundThreshold, window_faults
 from infomax_contingency.audio.binarizer import (
     Binarizer,
     NoiseFloorBinarizer,
@@ -50,7 +54,7 @@ from infomax_contingency.audio.threshold import (
     load_threshold,
 )
 
-THRESHOLD_MODES = ("calibrate", "fixed", "file", "noise_floor")
+THRESHOLD_MODES = ("calibrate", "fixed", "file", "noise_floor", "background")
 """How ``energy`` and ``speech_band`` set their threshold."""
 
 SPEECH_BAND_HZ = (300.0, 3400.0)
@@ -75,6 +79,12 @@ _THRESHOLD_OPTIONS = {
     "noise_margin_db": 10.0,
     "noise_window_s": 30.0,
     "noise_percentile": 10.0,
+    "false_alarm": 0.05,
+    "background_window_s": 30.0,
+    "warmup_s": 4.0,
+    "background_margin_db": 0.0,
+    "reference_margin_db": 3.0,
+    "periods": (0, 1, 4),
     "on_calibration_refused": None,
 }
 _VAD_OPTIONS = {"vad_aggressiveness": 2, "vad_frame_ms": 30, "vad_min_voiced_s": 0.1}
@@ -157,7 +167,7 @@ class LevelBitSource:
         name: str,
         rate_hz: int,
         window_s: float,
-        rule: Binarizer | NoiseFloorBinarizer,
+        rule: Binarizer | NoiseFloorBinarizer | BackgroundThreshold,
         band: SpeechBandLevel | None = None,
     ) -> None:
         self.name = name
@@ -170,6 +180,24 @@ class LevelBitSource:
         """Full-band energy of the last window, dB."""
         self.last_level_db = math.nan
         """The level the last bit was decided on (energy or band energy), dB."""
+        self.clipped_windows = 0
+        """Windows with clipped samples (only counted from samples: :meth:`push_window`)."""
+        self.dc_offset_windows = 0
+        """Windows whose mean carried most of their energy (:meth:`push_window`)."""
+
+    @property
+    def needs_decisions(self) -> bool:
+        """True if the threshold needs the decision on every bit (:meth:`note_decision`)."""
+        return isinstance(self.rule, BackgroundThreshold)
+
+    def note_decision(self, u: int | None) -> None:
+        """The decision taken on the oldest bit that had none yet (1 = vocalize; None: lost).
+
+        Only the ``background`` threshold uses it (it labels windows by the timer); the
+        other rules ignore it.
+        """
+        if isinstance(self.rule, BackgroundThreshold):
+            self.rule.note_decision(u)
 
     @property
     def needs_samples(self) -> bool:
@@ -206,9 +234,32 @@ class LevelBitSource:
     def push_window(self, samples: ArrayLike) -> bool | None:
         """The bit of one window of mono samples; None while calibrating."""
         x = _window(samples, self.samples_per_window)
+        if isinstance(self.rule, BackgroundThreshold):
+            faults = window_faults(x)
+            self.clipped_windows += faults.clipped
+            self.dc_offset_windows += faults.dc_offset
         self.last_energy_db = _energy_db(x)
         self.last_level_db = self.last_energy_db if self.band is None else self.band.level_db(x)
         return self.rule.push(self.last_level_db)
+
+    def problems(self) -> list[str]:
+        """One line per problem seen in the input (the ``background`` rule's, clipping, DC)."""
+        out = []
+        if self.clipped_windows:
+            out.append(
+                f"{self.clipped_windows} windows were clipped (samples at full scale): lower"
+                " the input gain"
+            )
+        if self.dc_offset_windows:
+            advice = (
+                "the speech band removes it"
+                if self.band is not None
+                else "bit_source speech_band removes it"
+            )
+            out.append(f"{self.dc_offset_windows} windows had a DC offset ({advice})")
+        if isinstance(self.rule, BackgroundThreshold):
+            out.extend(self.rule.problems())
+        return out
 
     def calibrate_windows(self, windows: NDArray[np.float64]) -> ThresholdFit:
         """Set a k-means threshold from windows read ahead (rows), e.g. a file's start.
@@ -224,6 +275,12 @@ class LevelBitSource:
     def ready_message(self) -> str:
         """One line for the log once the first bit comes (after calibration or warm-up)."""
         rule = self.rule
+        if isinstance(rule, BackgroundThreshold):
+            return (
+                f"threshold {rule.threshold_db:.2f} dB after {len(rule.background)} background"
+                f" windows: {rule.rank}-th loudest of them (false alarms"
+                f" {rule.false_alarm_now:.3f}, target {rule.false_alarm:g})"
+            )
         if isinstance(rule, NoiseFloorBinarizer):
             return (
                 f"noise floor {rule.floor_db:.2f} dB after {rule.warmup_windows} windows:"
@@ -238,6 +295,14 @@ class LevelBitSource:
     def diagnostic_values(self) -> dict[str, Any]:
         """Threshold, refits and calibration state (and the floor / band level), for diagnostics."""
         rule = self.rule
+        if isinstance(rule, BackgroundThreshold):
+            values = rule.diagnostic_values()
+            values["clipped_windows"] = self.clipped_windows
+            values["dc_offset_windows"] = self.dc_offset_windows
+            values["problems"] = "; ".join(self.problems()) or "none"
+            if self.band is not None:
+                values["last_band_db"] = self.last_level_db
+            return values
         values: dict[str, Any] = {
             "threshold_db": rule.threshold_db if rule.threshold_db is not None else "calibrating",
             "refits_accepted": rule.refits_accepted,
@@ -271,6 +336,7 @@ class VadBitSource:
 
     name = "vad"
     needs_samples = True
+    needs_decisions = False
     calibrating = False
     state = "ready"
     calibration_problem = ""
@@ -341,6 +407,13 @@ class VadBitSource:
         self.voiced_windows += bit
         return bit
 
+    def note_decision(self, u: int | None) -> None:
+        """Decisions do not change the VAD's bits (the interface of :class:`LevelBitSource`)."""
+
+    def problems(self) -> list[str]:
+        """Problems seen in the input: none the VAD can tell."""
+        return []
+
     def ready_message(self) -> str:
         """One line for the log (the VAD needs no calibration)."""
         return f"voice-activity detection ready (aggressiveness {self.aggressiveness})"
@@ -361,14 +434,41 @@ BitSource = LevelBitSource | VadBitSource
 """What :func:`make_bit_source` returns."""
 
 
+def _background_rule(window_s: float, options: dict[str, Any]) -> BackgroundThreshold:
+    """The ``background`` threshold from the options (seconds -> windows)."""
+    if options["refresh_s"]:
+        raise AudioError(
+            "refresh_s refits a k-means threshold; threshold_mode background follows the"
+            " room by itself: set refresh_s to 0"
+        )
+    periods = options["periods"]
+    if not (isinstance(periods, tuple | list) and len(periods) == 3):
+        raise AudioError(f"periods must be (ts1, ts2, ta2) in steps, got {periods!r}")
+    history_s = check_positive_seconds(options["background_window_s"], "background_window_s")
+    warmup_s = check_positive_seconds(options["warmup_s"], "warmup_s")
+    ts1, ts2, ta2 = (int(v) for v in periods)
+    return BackgroundThreshold(
+        ts1,
+        ts2,
+        ta2,
+        options["false_alarm"],
+        max(2, round(history_s / window_s)),
+        max(1, round(warmup_s / window_s)),
+        options["background_margin_db"],
+        reference_margin_db=options["reference_margin_db"],
+    )
+
+
 def _threshold_rule(
     level: str, window_s: float, options: dict[str, Any]
-) -> Binarizer | NoiseFloorBinarizer:
+) -> Binarizer | NoiseFloorBinarizer | BackgroundThreshold:
     """The threshold rule that ``options['threshold_mode']`` asks for.
 
     ``level`` is the source's name: a threshold file must hold a threshold of its level.
     """
     mode = options["threshold_mode"]
+    if mode == "background":
+        return _background_rule(window_s, options)
     refresh_s = options["refresh_s"]
     if isinstance(refresh_s, bool) or not isinstance(refresh_s, int | float) or not refresh_s >= 0:
         raise AudioError(f"refresh_s must be a number of seconds >= 0, got {refresh_s!r}")

@@ -74,6 +74,7 @@ from infomax_contingency.sim.fake_room import (
 )
 from infomax_contingency.sim.loop import LoopStep, run_loop
 from infomax_contingency.sim.rooms import (
+    BACKGROUND_CHANGES_S,
     PARTNER_STATES,
     ROOM_CHANGE_S,
     ROOM_SOUNDS,
@@ -87,6 +88,7 @@ BINARIZERS = (
     "SOURCE:calibrate[:S]",
     "SOURCE:fixed:DB",
     "SOURCE:noise_floor[:MARGIN_DB[:WARMUP_S]]",
+    "SOURCE:background[:FALSE_ALARM[:MARGIN_DB[:HISTORY_S]]]",
     "SOURCE:file:PATH",
     "vad[:AGGRESSIVENESS[:MIN_VOICED_S]]",
 )
@@ -100,7 +102,11 @@ BINARIZERS = (
   calibrate``, ``calibration_s``); ``fixed:DB``: a fixed threshold, dB (``threshold_db``);
   ``noise_floor[:MARGIN_DB[:WARMUP_S]]``: MARGIN_DB (default 10, ``noise_margin_db``)
   above the tracked floor, which starts on the first WARMUP_S seconds (default 10,
-  ``calibration_s``); ``file:PATH``: a threshold file of the source's level.
+  ``calibration_s``); ``file:PATH``: a threshold file of the source's level;
+  ``background[:FALSE_ALARM[:MARGIN_DB[:HISTORY_S]]]``: the self-calibrating threshold at
+  a share FALSE_ALARM (default 0.05, ``false_alarm``) of the model's background windows
+  of the last HISTORY_S seconds (default 30, ``background_window_s``), plus MARGIN_DB
+  (default 0, ``background_margin_db``).
 * ``vad[:AGGRESSIVENESS[:MIN_VOICED_S]]``: WebRTC's voice-activity detector,
   aggressiveness 0-3 (default 2) and the voiced time a window needs, s (default 0.1).
 """
@@ -148,6 +154,20 @@ def _threshold_options(spec: str, mode: str, argument: str) -> dict[str, Any]:
         if warmup:
             options["calibration_s"] = _number(spec, warmup, "WARMUP_S")
         return options
+    if mode == "background":
+        options = {"threshold_mode": "background"}
+        parts = argument.split(":") if argument else []
+        if len(parts) > 3:
+            raise BinarizerNameError(spec, "background takes FALSE_ALARM, MARGIN_DB, HISTORY_S")
+        for text, name, what in zip(
+            parts,
+            ("false_alarm", "background_margin_db", "background_window_s"),
+            ("FALSE_ALARM", "MARGIN_DB", "HISTORY_S"),
+            strict=False,
+        ):
+            if text:
+                options[name] = _number(spec, text, what)
+        return options
     if mode == "file":
         if not argument:
             raise BinarizerNameError(spec, "file needs a path: file:PATH")
@@ -181,19 +201,29 @@ def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
             raise BinarizerNameError(spec, f"{head} needs a threshold mode, e.g. {head}:fixed:-40")
         mode, _, argument = rest.partition(":")
         return head, _threshold_options(spec, mode, argument)
-    if head in ("calibrate", "fixed", "noise_floor", "file"):
+    if head in ("calibrate", "fixed", "noise_floor", "file", "background"):
         return "energy", _threshold_options(spec, head, rest)
     raise BinarizerNameError(spec, "unknown binarizer")
 
 
-def make_binarizer(spec: str, window_s: float, rate_hz: int = PROCESSING_RATE_HZ) -> BitSource:
+def make_binarizer(
+    spec: str,
+    window_s: float,
+    rate_hz: int = PROCESSING_RATE_HZ,
+    params: ModelParams | None = None,
+) -> BitSource:
     """A fresh bit source from its name (:data:`BINARIZERS`) for windows of ``window_s`` s.
+
+    ``params``: the model whose periods label the windows of a ``background`` threshold
+    (default: the robot's).
 
     One implementation: the name is parsed by :func:`binarizer_options` and the source
     made by :func:`~infomax_contingency.audio.bitsource.make_bit_source`, as mic_node makes
     it from its parameters. A bad name or value: ValueError, one line with the grammar.
     """
     source, options = binarizer_options(spec)
+    if params is not None and options.get("threshold_mode") == "background":
+        options["periods"] = (params.ts1, params.ts2, params.ta2)
     try:
         return make_bit_source(source, rate_hz, window_s, **options)
     except AudioError as error:
@@ -414,7 +444,7 @@ def run_room(
     rng = np.random.default_rng([seed, 1, run])
     controller = experiment_controller(controller_spec, params, rng)
     world = TimedWorld(
-        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz)),
+        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz, params)),
         round(seconds / config.window_s),
     )
     steps: list[tuple[int, LoopStep[AudioObservation]]] = []
@@ -470,6 +500,11 @@ def settled_step(
     return start + int(sure[0]) if sure.size else None
 
 
+RECOVERY_S = 20.0
+"""In a room whose background changes (:data:`~infomax_contingency.sim.rooms.BACKGROUND_CHANGES_S`),
+the posture must be correct from this many seconds after the change to the end of the run."""
+
+
 def change_time_s(room: str) -> float:
     """When the run's clock starts: the partner's arrival or departure, else 0."""
     state = room[room.index("+") :] if "+" in room else ""
@@ -492,6 +527,11 @@ def run_metrics(
     settled = settled_step(attentive, run.partner, run.belief, bored_below, first)
     truth_at_end = FakeRoomConfig.preset(room).partner_present_at(seconds - dt)
     final_attentive = bool(attentive[-1]) if attentive.size else False
+    background_change = BACKGROUND_CHANGES_S.get(room.partition("+")[0])
+    correct_after_change = None
+    if background_change is not None:
+        late = run.window * dt >= background_change + RECOVERY_S - 1e-9
+        correct_after_change = bool(np.all(attentive[late] == run.partner[late]))
     periods = period_of(params, run.z) if run.z.size else np.zeros(0, dtype=int)
     agent = (periods == AGENT) & run.partner
     background = periods == BACKGROUND
@@ -504,6 +544,8 @@ def run_metrics(
         "partner_at_end": bool(truth_at_end),
         "false_attentive": bool(final_attentive and not truth_at_end),
         "missed_partner": bool(truth_at_end and not final_attentive),
+        "ever_attentive": bool(attentive.any()),
+        "correct_after_change": correct_after_change,
         "bits": {
             "agent": [int(run.y[agent].sum()), int(agent.sum())],
             "background": [int(run.y[background].sum()), int(background.sum())],
@@ -637,6 +679,10 @@ def summarise_room(rows: Sequence[dict], seed: int) -> dict[str, Any]:
         ]
     )
     settled = int(np.isfinite(seconds).sum())
+    ever = sum(r.get("ever_attentive", False) for r in rows)
+    after_change = [
+        r["correct_after_change"] for r in rows if r.get("correct_after_change") is not None
+    ]
     false_attentive = sum(r["false_attentive"] for r in rows)
     missed = sum(r["missed_partner"] for r in rows)
     median_s, ci_s = bootstrap_median(seconds, rng)
@@ -653,6 +699,12 @@ def summarise_room(rows: Sequence[dict], seed: int) -> dict[str, Any]:
         "wrong_at_end_ci": wilson_interval(false_attentive + missed, n),
         "false_attentive": false_attentive / n,
         "missed_partner": missed / n,
+        "ever_attentive": ever / n,
+        "ever_attentive_ci": wilson_interval(ever, n),
+        "correct_after_change": sum(after_change) / len(after_change) if after_change else None,
+        "correct_after_change_ci": wilson_interval(sum(after_change), len(after_change))
+        if after_change
+        else None,
         "vocalizations_per_run": float(np.mean([r["vocalizations"] for r in rows])),
         "steps_per_run": float(np.mean([r["steps"] for r in rows])),
         "p_active": {
@@ -804,7 +856,7 @@ def render_room(
     chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
     recording = _RecordingRoom(config, seed)
     windows = round(seconds / config.window_s)
-    bits = make_binarizer(binarizer, config.window_s, config.rate_hz)
+    bits = make_binarizer(binarizer, config.window_s, config.rate_hz, params)
     world = TimedWorld(AudioWorld(recording, bits), windows)
     actions = []
     try:

@@ -157,6 +157,10 @@ class MicConfig:
     noise_margin_db: float
     noise_window_s: float
     noise_percentile: float
+    false_alarm: float
+    background_window_s: float
+    warmup_s: float
+    background_margin_db: float
     vad_aggressiveness: int
     vad_frame_ms: int
     vad_min_voiced_s: float
@@ -180,9 +184,10 @@ class MicConfig:
 def _read_threshold(read: ParameterReader) -> dict[str, Any]:
     return {
         "threshold_mode": read.text(
-            "threshold_mode", "calibrate",
+            "threshold_mode", "background",
             "How the sound threshold is set (live: fixed and file apply at once, calibrate"
-            " starts a new calibration)", THRESHOLD_MODES, read_only=False,
+            " starts a new calibration, background and noise_floor start anew)",
+            THRESHOLD_MODES, read_only=False,
         ),
         "threshold_db": read.number(
             "threshold_db",
@@ -225,6 +230,25 @@ def _read_threshold(read: ParameterReader) -> dict[str, Any]:
             "noise_percentile", 10.0,
             "Percentile of recent levels that is the noise floor; 0 = the minimum"
             " (threshold_mode noise_floor)", 0.0, 50.0, "%",
+        ),
+        "false_alarm": read.number(
+            "false_alarm", 0.05,
+            "Share of the model's background windows that are active (threshold_mode"
+            " background); the model's prior on K3 should match it", 0.001, 0.5,
+        ),
+        "background_window_s": read.number(
+            "background_window_s", 30.0,
+            "Background windows of this much audio set the threshold (threshold_mode"
+            " background)", 1.0, 86400.0, "s",
+        ),
+        "warmup_s": read.number(
+            "warmup_s", 4.0,
+            "Background audio heard before the first bit (threshold_mode background)",
+            0.01, 3600.0, "s",
+        ),
+        "background_margin_db": read.number(
+            "background_margin_db", 0.0,
+            "Added to the background level (threshold_mode background)", 0.0, 100.0, "dB",
         ),
     }
 
@@ -400,10 +424,19 @@ def _check_bit_source(config: MicConfig) -> None:
             f" audio above {2 * SPEECH_BAND_HZ[1]:g} Hz (twice the band's upper edge,"
             f" {SPEECH_BAND_HZ[1]:g} Hz)"
         )
-    if config.threshold_mode == "noise_floor" and config.refresh_s > 0:
+    if config.threshold_mode in ("noise_floor", "background") and config.refresh_s > 0:
         raise ConfigError(
             f"parameter 'refresh_s' = {config.refresh_s:g}: refits a k-means threshold;"
-            " threshold_mode noise_floor follows the noise floor by itself: set it to 0"
+            f" threshold_mode {config.threshold_mode} follows the room by itself: set it to 0"
+        )
+    if (
+        config.threshold_mode == "background"
+        and config.bit_source != "vad"
+        and config.warmup_s > config.background_window_s
+    ):
+        raise ConfigError(
+            f"parameter 'warmup_s' = {config.warmup_s:g} s: must not exceed"
+            f" background_window_s ({config.background_window_s:g} s)"
         )
 
 
@@ -440,6 +473,11 @@ def make_binarizer(
             "noise_margin_db": config.noise_margin_db,
             "noise_window_s": config.noise_window_s,
             "noise_percentile": config.noise_percentile,
+            "false_alarm": config.false_alarm,
+            "background_window_s": config.background_window_s,
+            "warmup_s": config.warmup_s,
+            "background_margin_db": config.background_margin_db,
+            "periods": (config.params.ts1, config.params.ts2, config.params.ta2),
             "on_calibration_refused": on_refused,
         }
     return make_bit_source(config.bit_source, bit_rate_hz(config), config.window_s, **options)
@@ -460,6 +498,8 @@ class MicNode(GraphNode):
         self.max_windows = config.max_windows
         self.exit_at_end = config.exit_at_end
         self.bits = make_binarizer(config, self._calibration_refused)
+        self._generation = 0  # of self.bits: a live threshold change makes a new one
+        self._step_generation: dict[int, int] = {}  # released step -> generation of its bit
         if config.bit_source != "energy":
             self.get_logger().info(
                 f"bit source {config.bit_source}: {BIT_SOURCES[config.bit_source]}"
@@ -675,6 +715,7 @@ class MicNode(GraphNode):
         self.outbox.answered(decision.step)
         if self.outbox.last_answered == before:
             return  # a repeated answer (a second controller): it releases nothing
+        self._tell_decisions(before, decision.step, decision.vocalize)
         if (
             self.started
             and self.pacer is not None
@@ -683,6 +724,17 @@ class MicNode(GraphNode):
         ):
             self._emit_from_file()
         self._release()
+
+    def _tell_decisions(self, before: int, step: int, vocalize: bool) -> None:
+        """Hand the bit source the decisions on steps ``before + 1 .. step`` (in order).
+
+        A threshold that labels windows by the timer (``background``) needs them; the steps
+        skipped by this answer (their decisions never came) are lost decisions.
+        """
+        for answered in range(before + 1, step + 1):
+            generation = self._step_generation.pop(answered, None)
+            if generation == self._generation and self.bits.needs_decisions:
+                self.bits.note_decision(int(vocalize) if answered == step else None)
 
     def _on_audio(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
         if 0 < int(info.get("source_timestamp", 0)) < self.started_ns:
@@ -763,7 +815,9 @@ class MicNode(GraphNode):
         if was_calibrating:
             self.get_logger().info(self.bits.ready_message())
         dropped = self.outbox.dropped
-        self.outbox.push((energy_db, bit))
+        self.outbox.push((energy_db, bit, self._generation if recorded_bit is None else -1))
+        if self.outbox.dropped > dropped and self.bits.needs_decisions:
+            self.bits.note_decision(None)  # a dropped window gets no decision
         if self.outbox.dropped > dropped:
             self.losses.note(self.now_s())
             self.log_throttled(
@@ -786,8 +840,10 @@ class MicNode(GraphNode):
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit) in self.outbox.release(paced):
+        for step, (energy_db, bit, generation) in self.outbox.release(paced):
             self.windows += 1
+            if generation >= 0 and self.bits.needs_decisions:
+                self._step_generation[step] = generation
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(
@@ -862,6 +918,8 @@ class MicNode(GraphNode):
         if getattr(self.bits, "band", None) is not None:
             bits.band = self.bits.band
         self.bits = bits
+        self._generation += 1  # decisions on the old source's bits are not the new one's
+        self._step_generation.clear()
 
     def _check_threshold_mode(self, mode: str) -> None:
         """A live ``threshold_mode`` must make a bit source (else the set is refused)."""
@@ -899,8 +957,13 @@ class MicNode(GraphNode):
         self.config = dataclasses.replace(self.config, threshold_mode=mode)
         rule = self.binarizer
         if rule.calibrating:
-            windows = rule.warmup_windows if mode == "noise_floor" else rule.calibration_windows
-            what = "starting the noise floor" if mode == "noise_floor" else "calibrating"
+            windows = (
+                rule.calibration_windows if mode == "calibrate" else rule.warmup_windows
+            )
+            what = {
+                "noise_floor": "starting the noise floor",
+                "background": "hearing the room's background",
+            }.get(mode, "calibrating")
             self.get_logger().info(
                 f"{what} on the next {windows} windows: no bits until then (their energies"
                 " are published)"
@@ -1009,6 +1072,9 @@ class MicNode(GraphNode):
             return OK, "calibrating the threshold", values
         if self.losses.recent(now) or self.timeouts.recent(now):
             return WARN, "audio lost or lockstep timeouts lately (counts in the values)", values
+        problems = b.problems() if hasattr(b, "problems") else []
+        if problems:
+            return WARN, problems[0], values
         return OK, f"{self.windows} windows", values
 
 

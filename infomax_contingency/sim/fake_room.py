@@ -781,7 +781,10 @@ class AudioWorld:
         return AudioObservation(int(y), energy, window.partner_present)
 
     def act(self, u: int) -> None:
-        """Vocalize at the start of the next window if ``u`` is 1."""
+        """Vocalize at the start of the next window if ``u`` is 1 (the bit source hears of it)."""
+        note = getattr(self.binarizer, "note_decision", None)
+        if note is not None:
+            note(u)
         if u:
             self.room.vocalize()
 
