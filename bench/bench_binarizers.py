@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.controllers import FixedIntervalController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.sim.fake_room import AudioWorld, FakeRoom, FakeRoomConfig, as_transmitted

@@ -33,7 +33,7 @@ CHILD = """
 import json, resource, sys, time
 import numpy as np
 import scipy.signal  # loaded lazily by the resampler: count it as an import, not as the work
-from infomax_contingency.audio.binarizer import WavReplay
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.audio.energy import iter_wav_energies, window_energies_db
 from infomax_contingency.audio.resample import load_mono
 path, mode = sys.argv[1], sys.argv[2]

@@ -11,7 +11,7 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   (``/robot1/belief``, ``/robot1/belief_node/reset``); the shipped configs use
   ``/**/node:`` keys, so they apply in any namespace.
 - ``use_fake_room`` (default false): add fake_audio_node, a simulated room, and listen to
-  it; ``fake_room`` is its old name, still accepted with a deprecation line.
+  it.
 - ``realtime`` (default true): the fake room plays at the speed of the room (one 0.5 s
   window per 0.5 s); false runs lockstep, as fast as the graph answers.
 - ``room_seed`` (default empty = fake_room_file's): the simulated room's seed.
@@ -133,11 +133,6 @@ def _graph(context: LaunchContext) -> list:
     log_level = LaunchConfiguration("log_level")
     actions: list = []
     fake_room = _is_true(context, "use_fake_room")
-    if _is_true(context, "fake_room"):
-        actions.append(
-            LogInfo(msg="fake_room:=true is deprecated; use use_fake_room:=true (same effect)")
-        )
-        fake_room = True
     realtime = _is_true(context, "realtime")
     files = ["params_file"] + (["fake_room_file"] if fake_room else [])
     for argument in files:
@@ -212,9 +207,6 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
             "use_fake_room",
             default_value="false",
             description="true: add fake_audio_node, a simulated room, and listen to it",
-        ),
-        DeclareLaunchArgument(
-            "fake_room", default_value="false", description="deprecated name of use_fake_room"
         ),
         DeclareLaunchArgument(
             "fake_room_file",

@@ -28,7 +28,7 @@ from infomax_contingency.testing.graph import (
 STEP_TIMEOUT_S = 120.0
 """Seconds a graph may take to come up and run its steps before a test fails."""
 
-FIXED_THRESHOLD = {"threshold_mode": "fixed", "threshold_db": -40.0}
+FIXED_THRESHOLD = {"bit_source": "energy", "threshold_mode": "fixed", "threshold_db": -40.0}
 """The mic's threshold for the fake room (its floor is -60 dB, its sounds above -35 dB)."""
 
 

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.bitsources import make_bit_source
+from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.controllers import make_controller
 from infomax_contingency.core.model import ModelParams
@@ -41,8 +42,10 @@ def _room(partner: bool) -> FakeRoomConfig:
 
 def _session(directory: Path, partner: bool, seed: int) -> tuple[Path, list, list]:
     controller = make_controller("interval:3-6", ROBOT, np.random.default_rng(seed))
-    records = list(iter_audio_loop(controller, FakeRoom(_room(partner), seed=seed),
-                                   Binarizer(THRESHOLD_DB), STEPS))
+    bits_of = make_bit_source("energy", 16000, 0.5, threshold_mode="fixed",
+                              threshold_db=THRESHOLD_DB)  # fmt: skip
+    records = list(iter_audio_loop(controller, FakeRoom(_room(partner), seed=seed), bits_of,
+                                   STEPS))  # fmt: skip
     bits, decisions = [bool(r.y) for r in records], [bool(r.u) for r in records]
     write_offline_session(directory, bits, decisions, [r.belief for r in records], ROBOT.dt)
     return directory, bits, decisions

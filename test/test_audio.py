@@ -23,12 +23,14 @@ from infomax_contingency.audio.energy import (
 from infomax_contingency.audio.resample import StreamResampler, load_mono, resample
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.audio.threshold import (
-    THRESHOLD_FORMAT_VERSION,
     OnlineThreshold,
     ThresholdFit,
     bits_from_energies,
     kmeans_split,
     kmeans_threshold,
+)
+from infomax_contingency.audio.threshold_file import (
+    THRESHOLD_FORMAT_VERSION,
     load_threshold,
     save_threshold,
 )

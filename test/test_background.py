@@ -14,7 +14,7 @@ from infomax_contingency.audio.background import (
     rank_for,
     window_faults,
 )
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.eval.rooms import binarizer_options, make_binarizer
 
@@ -179,7 +179,7 @@ def test_a_room_louder_than_the_robot_is_said() -> None:
 
 
 def test_clipping_dc_offset_and_nan_samples_through_the_bit_source() -> None:
-    source = make_bit_source("energy", RATE, WINDOW_S, threshold_mode="background")
+    source = make_bit_source("background", RATE, WINDOW_S)
     rng = np.random.default_rng(4)
     with pytest.raises(AudioError):
         source.push_window(np.full(N, np.nan))
@@ -207,18 +207,18 @@ def test_bad_settings_are_refused_by_name() -> None:
     ):
         with pytest.raises(AudioError, match=message):
             BackgroundThreshold(TS1, TS2, TA2, **kwargs)
-    with pytest.raises(AudioError, match="set refresh_s to 0"):
-        make_bit_source("energy", RATE, WINDOW_S, threshold_mode="background", refresh_s=5.0)
+    with pytest.raises(AudioError, match="'warmup_s' = 40 s: must not exceed"):
+        make_bit_source("background", RATE, WINDOW_S, warmup_s=40.0)
 
 
 def test_the_binarizer_grammar_names_it() -> None:
-    assert binarizer_options("background") == ("energy", {"threshold_mode": "background"})
-    assert binarizer_options("speech_band:background:0.1:3") == (
-        "speech_band",
-        {"threshold_mode": "background", "false_alarm": 0.1, "background_margin_db": 3.0},
+    assert binarizer_options("background") == ("background", {})
+    assert binarizer_options("background:0.05:6") == (
+        "background",
+        {"false_alarm": 0.05, "reference_margin_db": 6.0},
     )
-    source = make_binarizer("speech_band:background:0.1", WINDOW_S)
-    assert source.needs_decisions and source.rule.false_alarm == 0.1
+    source = make_binarizer("background:0.2", WINDOW_S)
+    assert source.needs_decisions and source.rule.false_alarm == 0.2
     assert source.rule.history == 60 and source.rule.warmup_windows == 8
     assert not make_binarizer("fixed:-40", WINDOW_S).needs_decisions
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from infomax_contingency.audio.bag import BagWriter, encode, read_topics
 from infomax_contingency.audio.bag_replay import BagReplay, recorded_decisions
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.eval.sessions import load_session
 from stepped_graph import stepped_graph
 

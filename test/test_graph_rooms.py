@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from graph_harness import FIXED_THRESHOLD, Graph, graph_fixture, room_nodes
-from infomax_contingency.audio.binarizer import Binarizer
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
@@ -87,7 +87,7 @@ def _offline(seed: int, steps: int) -> list:
         resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=params
     )
     room = FakeRoom(FakeRoomConfig.preset("responsive"), seed)
-    binarizer = Binarizer(FIXED_THRESHOLD["threshold_db"])
+    binarizer = make_bit_source("energy", 16000, 0.5, **FIXED_THRESHOLD)
     return simulate_audio_loop(PolicyController(table), room, binarizer, steps)
 
 

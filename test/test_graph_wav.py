@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from infomax_contingency.audio.binarizer import WavReplay, calibration_window_count
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.resample import load_mono
-from infomax_contingency.audio.threshold import kmeans_threshold
+from infomax_contingency.audio.threshold import calibration_window_count, kmeans_threshold
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from stepped_graph import stepped_graph
 
@@ -40,6 +40,7 @@ def test_recorded_interaction_replays_like_the_offline_computation() -> None:
         "lockstep": True,
         "exit_at_end": True,
         "window_s": WINDOW_S,
+        "bit_source": "energy",
         "threshold_mode": "calibrate",
         "calibration_s": CALIBRATION_S,
         "wait_for_listeners": 3,
@@ -81,7 +82,7 @@ def test_recorded_interaction_replays_like_the_offline_bit_source(
     windows = WavReplay(WAV, WINDOW_S, samples=True)
     offline = make_bit_source(bit_source, 16000, WINDOW_S, **options)
     if options.get("threshold_mode") == "calibrate":  # a file is calibrated by reading ahead
-        offline.calibrate_windows(windows.calibration_windows(CALIBRATION_S, WINDOW_S))
+        offline.calibrate_ahead(*windows.read_ahead(CALIBRATION_S, WINDOW_S))
     bits = [offline.push_window(windows.next_window()) for _ in range(windows.n_windows)]
     expected = [bit for bit in bits if bit is not None]
     assert 0 < sum(expected) < len(expected)

@@ -18,12 +18,13 @@ import yaml
 from alsa_devices import VirtualAlsa
 from fake_portaudio import FakeBackend, FakeClock, Room, device
 from infomax_contingency.audio import devices as audio_devices
-from infomax_contingency.audio.bitsource import make_bit_source, window_levels_db
+from infomax_contingency.audio.bitsources import make_bit_source, window_levels_db
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.latency import measure_latency
 from infomax_contingency.audio.resample import load_mono
-from infomax_contingency.audio.threshold import kmeans_split, load_threshold
+from infomax_contingency.audio.threshold import kmeans_split
+from infomax_contingency.audio.threshold_file import load_threshold
 from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.cli import live as live_commands
 from infomax_contingency.cli import main as cli
@@ -70,8 +71,12 @@ def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
     assert cli.main(["calibrate", "--wav", str(tmp_path / "none.wav"), "--out", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert not out.exists()
+    # the window is the model's dt: no --window-s, a model that cannot load is refused
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--params", str(tmp_path / "no.yaml"),
+                     "--out", str(out)]) == 2  # fmt: skip
+    assert "no.yaml" in capsys.readouterr().err and not out.exists()
     with pytest.raises(SystemExit):
-        cli.main(["calibrate", "--wav", str(room_wav), "--window-s", "0", "--out", str(out)])
+        cli.main(["calibrate", "--wav", str(room_wav), "--window-s", "0.5", "--out", str(out)])
 
 
 def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) -> None:

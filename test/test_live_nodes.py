@@ -38,7 +38,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Bool, Float32, Int64MultiArray
 
 from alsa_devices import VirtualAlsa
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.synth import synthesize_chirp

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from infomax_contingency.nodes import entry
+from infomax_contingency.nodes import entry, runtime
 
 
 @pytest.mark.parametrize("module", ["belief_node", "bringup"])
@@ -121,3 +121,22 @@ def test_the_blas_thread_count_a_user_chose_is_kept() -> None:
     environment = {"OMP_NUM_THREADS": " "}  # set but empty: not a choice
     entry.use_one_blas_thread(environment)
     assert environment["OPENBLAS_NUM_THREADS"] == "1"
+
+
+def test_a_node_whose_parent_died_while_it_loaded_does_not_start() -> None:
+    """The parent named by the harness (or the demo) died before the node could follow it.
+
+    The node sets its parent-death signal only once loaded; a parent gone by then cannot
+    send it, so the node checks and ends at once, instead of running as an orphan.
+    """
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    env = {**os.environ, runtime.PARENT_PID_VARIABLE: str(gone.pid)}
+    result = subprocess.run(
+        [sys.executable, "-m", "infomax_contingency.nodes.entry", "posture_node"],
+        capture_output=True, text=True, timeout=60, env=env,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.strip() == (
+        "posture_node: the process that started it is gone; not starting"
+    )

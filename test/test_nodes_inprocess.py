@@ -17,11 +17,19 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter
-from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
+from std_msgs.msg import (
+    Bool,
+    Float32,
+    Float32MultiArray,
+    Float64,
+    Int64MultiArray,
+    MultiArrayDimension,
+    String,
+)
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from infomax_contingency.audio.bitsource import make_bit_source
+from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.threshold import kmeans_split
@@ -31,7 +39,7 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
-from infomax_contingency.nodes.graph_node import ERROR, OK, THROTTLE_S
+from infomax_contingency.nodes.graph_node import ERROR, OK, THROTTLE_S, WARN
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
@@ -411,7 +419,41 @@ def test_mic_topic_source_windows_any_chunking_and_calibrates(run: Callable) -> 
     assert [p.step for p in parsed] == list(range(1, 13))
     assert [p.bit for p in parsed] == expected_bits
     assert {(p.stream, p.window_us) for p in parsed} == {(node.stream_id, WINDOW_US)}
-    assert node.dropped_chunks == 0 and node.windows == 12
+    assert node.source.dropped_chunks == 0 and node.windows == 12
+
+
+def test_mic_says_once_when_the_audio_breaks_its_contract(
+    run: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Samples of 3e38 and a 2-channel layout were windowed without a word.
+
+    Counted, worded once, a WARN diagnostic; the audio is still windowed (nothing lost).
+    """
+    node, probe, graph = run(MicNode, source="topic", threshold_mode="fixed",
+                             wait_for_listeners=1, start_delay_s=0.0)  # fmt: skip
+    probe.listen("sound_step", Int64MultiArray)
+    energies = probe.listen("sound_energy", Float32)
+    audio = probe.talk("audio", Float32MultiArray)
+    graph.connected(audio)
+    graph.run_until(lambda: node.started, "the mic's start gate")
+    capfd.readouterr()
+    assert node.diagnostic_status()[0] == OK
+    loud = np.full(8000, 3e38, np.float32)
+    stereo = _audio_message(np.zeros(8000, np.float32))
+    stereo.layout.dim = [MultiArrayDimension(label="frames", size=4000, stride=8000),
+                         MultiArrayDimension(label="channels", size=2, stride=2)]  # fmt: skip
+    for message in (_audio_message(loud), _audio_message(loud), stereo, stereo):
+        audio.publish(message)
+    graph.run_until(lambda: len(energies) == 4, "4 windows")
+    err = capfd.readouterr().err
+    assert err.count("audio samples outside [-1, 1]") == 1, err
+    assert err.count("multi-channel audio on 'audio' (layout frames=4000 x channels=2)") == 1
+    level, message, values = node.diagnostic_status()
+    assert level == WARN, message
+    assert "outside [-1, 1] (up to 3e+38)" in message and "multi-channel" in message
+    assert values["chunks_out_of_range"] == 2 and values["samples_out_of_range"] == 16000
+    assert values["chunks_multichannel"] == 2
+    assert node.contract.rate.paced_by_source() is False  # the probe is no paced source
 
 
 @pytest.mark.parametrize(

@@ -37,12 +37,13 @@ CASES = {
     "window": (
         "mic_node",
         ["source:=topic", "window_s:=0.0"],
-        "parameter 'window_s' = 0.0 is not allowed: a number in [0.01, 10] s",
+        "parameter 'window_s' = 0 s differs from the model's dt = 0.5 s (parameter 'params'):"
+        " one window is one step of the model; remove window_s",
     ),
     "window_type": (
         "mic_node",
         ["source:=topic", "window_s:=half"],
-        "parameter 'window_s' = 'half' is not allowed: a number in [0.01, 10] s",
+        "parameter 'window_s' = 'half' differs from the model's dt = 0.5 s",
     ),
     "missing_wav": (
         "mic_node",

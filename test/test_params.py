@@ -22,11 +22,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray, String
+from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.binarizer import WavReplay
 from infomax_contingency.audio.devices import AudioDeviceError
 from infomax_contingency.audio.playback import PlayEvent
-from infomax_contingency.audio.threshold import ThresholdFit, kmeans_split, save_threshold
+from infomax_contingency.audio.threshold import ThresholdFit, kmeans_split
+from infomax_contingency.audio.threshold_file import save_threshold
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.nodes import speaker_node
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
@@ -100,24 +102,22 @@ def test_parameters_that_cannot_change_are_read_only_with_a_reason(graph: Callab
 def test_an_out_of_range_set_gets_the_start_up_message(graph: Callable) -> None:
     """The node's own check runs before rclpy's range check: the reason is the node's."""
     with pytest.raises(ConfigError) as start_up:
-        MicNode(namespace="start_up", parameter_overrides=[Parameter("threshold_db", value=5.0)])
-    node, probe, executor = graph(MicNode, threshold_mode="fixed", threshold_db=-40.0)
+        MicNode(namespace="start_up", parameter_overrides=[
+            Parameter("bit_source", value="energy"), Parameter("threshold_db", value=5.0)])
+    node, probe, executor = graph(
+        MicNode, bit_source="energy", threshold_mode="fixed", threshold_db=-40.0
+    )
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=5.0)
     assert not result.successful and result.reason == str(start_up.value)
     assert result.reason == (
         "parameter 'threshold_db' = 5.0 is not allowed: a number in [-150, 0] dB"
     )
     assert node.get_parameter("threshold_db").value == -40.0
-    assert node.binarizer.threshold_db == -40.0
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="bogus")
-    assert result.reason == (
-        "parameter 'threshold_mode' = 'bogus' is not allowed: one of calibrate, fixed, file,"
-        " noise_floor"
-    )
+    assert node.bits.threshold_db == -40.0
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30)  # an integer
     assert result.successful, result.reason
     assert node.get_parameter("threshold_db").value == -30.0
-    assert node.binarizer.threshold_db == -30.0
+    assert node.bits.threshold_db == -30.0
     [result] = set_remotely(probe, executor, "mic_node", threshold_db="loud")
     assert result.reason == (
         "parameter 'threshold_db' = 'loud' is not allowed: a number in [-150, 0] dB"
@@ -125,21 +125,23 @@ def test_an_out_of_range_set_gets_the_start_up_message(graph: Callable) -> None:
 
 
 def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
-    node, probe, executor = graph(MicNode, threshold_mode="fixed", threshold_db=-40.0)
+    node, probe, executor = graph(
+        MicNode, bit_source="energy", threshold_mode="fixed", threshold_db=-40.0
+    )
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
     assert result.successful, result.reason
-    assert node.binarizer.threshold_db == -5.0
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="bogus")
-    assert not result.successful
-    for name in ("source", "window_s", "device"):
+    assert node.bits.threshold_db == -5.0
+    for name in ("source", "device", "threshold_mode", "threshold_file", "refresh_s"):
         assert node.describe_parameter(name).read_only, name
+    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
+    assert not result.successful and "read-only" in result.reason
 
 
 def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:
-    node, probe, executor = graph(MicNode, threshold_mode="calibrate")
+    node, probe, executor = graph(MicNode, bit_source="energy", threshold_mode="calibrate")
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
     assert not result.successful and "threshold_mode fixed" in result.reason
-    assert node.binarizer.calibrating
+    assert node.bits.calibrating
 
 
 def _windows(levels_db: list[float], seed: int = 3) -> np.ndarray:
@@ -166,10 +168,10 @@ def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedEx
     ``play(levels_db, bits_expected)`` sends one 0.5 s noise window per level and returns
     the bits that came back.
     """
-    node, probe, executor = graph(
-        MicNode, source="topic", threshold_mode="fixed", threshold_db=-40.0,
-        calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0, **parameters,
-    )  # fmt: skip
+    defaults = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed",
+                "threshold_db": -40.0, "calibration_s": 1.0, "wait_for_listeners": 1,
+                "start_delay_s": 0.0}  # fmt: skip
+    node, probe, executor = graph(MicNode, **{**defaults, **parameters})
     bits = probe.listen("sound", Bool)
     probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
     energies = probe.listen("sound_energy", Float32)
@@ -189,39 +191,59 @@ def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedEx
     return node, probe, executor, play
 
 
-def test_mic_threshold_mode_and_refresh_are_live(graph: Callable, tmp_path: Path) -> None:
-    node, probe, executor, play = _live_mic(graph)
-    assert play([-20.0, -60.0], 2) == [True, False]  # fixed at -40 dB
+def recalibrate(probe: Probe, executor: SteppedExecutor) -> Trigger.Response:
+    """Call mic_node's ~/recalibrate; its answer."""
+    client = probe.create_client(Trigger, "/mic_node/recalibrate")
+    executor.run_until(client.service_is_ready, "mic_node's recalibrate service")
+    future = client.call_async(Trigger.Request())
+    executor.run_until(future.done, "the answer of mic_node/recalibrate")
+    return future.result()
+
+
+def test_mic_recalibrate_reads_the_file_again_or_calibrates_anew(
+    graph: Callable, tmp_path: Path
+) -> None:
+    """~/recalibrate replaces the live threshold_mode set: the file again, a new calibration."""
     threshold = _threshold_file(tmp_path / "threshold.yaml", -10.0)
-    [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(threshold))
-    assert result.successful, result.reason  # kept: the mode is still fixed
-    assert play([-20.0], 1) == [True]
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="file")
-    assert result.successful, result.reason
-    assert play([-20.0, -5.0], 2) == [False, True]  # the file's -10 dB, at once
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("just text")
-    [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(bad))
-    assert not result.successful and "threshold file" in result.reason and str(bad) in result.reason
-    assert play([-20.0], 1) == [False]  # still the good file
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
-    assert result.successful, result.reason
+    node, probe, executor, play = _live_mic(graph, threshold_mode="file",
+                                            threshold_file=str(threshold))  # fmt: skip
+    assert play([-20.0, -5.0], 2) == [False, True]  # the file's -10 dB
+    _threshold_file(threshold, -30.0)  # a new calibration written by the CLI
+    answer = recalibrate(probe, executor)
+    assert answer.success and "-30.00 dB" in answer.message, answer.message
+    assert play([-20.0, -40.0], 2) == [True, False]  # the file's new -30 dB, at once
+    threshold.write_text("just text")
+    answer = recalibrate(probe, executor)
+    assert not answer.success and "threshold file" in answer.message
+    assert str(threshold) in answer.message
+    assert play([-20.0], 1) == [True]  # still the good threshold
+    for name, value in (("threshold_mode", "calibrate"), ("refresh_s", 2.0)):
+        [result] = set_remotely(probe, executor, "mic_node", **{name: value})
+        assert not result.successful and "read-only" in result.reason, name
+
+
+def test_mic_recalibrate_starts_a_new_calibration_on_a_stream(graph: Callable) -> None:
+    node, probe, executor, play = _live_mic(graph, threshold_mode="calibrate", refresh_s=2.0)
     # calibration_s 1 s = 2 windows without bits, then the k-means threshold (-40 dB here)
     assert play([-60.0, -20.0, -30.0, -50.0], 2) == [True, False]
-    assert abs(node.binarizer.threshold_db - (-40.0)) < 1.0
-    [result] = set_remotely(probe, executor, "mic_node", refresh_s=0.5)
-    assert not result.successful
-    assert result.reason.startswith("parameter 'refresh_s' = 0.5: must be 0 (off) or at least")
-    [result] = set_remotely(probe, executor, "mic_node", refresh_s=2.0)
-    assert result.successful, result.reason
-    assert node.binarizer.refresh_windows == 4 and node.binarizer.threshold_db is not None
+    assert abs(node.bits.threshold_db - (-40.0)) < 1.0
+    answer = recalibrate(probe, executor)
+    assert answer.success and "calibrating on the next 2 windows" in answer.message
+    assert node.bits.calibrating and node.bits.rule.refresh_windows == 4
+    assert play([-70.0, -10.0, -35.0, -45.0], 2) == [True, False]  # about -40 dB again
     # a full refresh buffer of quiet -60 and sound -10 dB moves the threshold from about
     # -40 to about -35 dB: a -37 dB window after it is quiet
     assert play([-60.0, -10.0, -60.0, -10.0, -37.0], 5) == [False, True, False, True, False]
-    assert node.binarizer.refits_accepted >= 1
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="fixed")
+    assert node.bits.rule.refits_accepted >= 1
+
+
+def test_mic_recalibrate_in_fixed_mode_keeps_the_live_threshold(graph: Callable) -> None:
+    node, probe, executor, play = _live_mic(graph)
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30.0)
     assert result.successful, result.reason
-    assert play([-35.0, -45.0], 2) == [True, False]  # threshold_db -40 again
+    answer = recalibrate(probe, executor)
+    assert answer.success and "threshold -30.00 dB" in answer.message, answer.message
+    assert play([-25.0, -35.0], 2) == [True, False]
 
 
 # ------------------------------------------------------------------ speaker, fake room
@@ -304,13 +326,16 @@ def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
 ) -> None:
     node, probe, executor = graph(MicNode, bit_source="vad", threshold_mode="fixed")
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
-    assert not result.successful and "no effect with bit_source vad" in result.reason
-    assert node.binarizer is None and node.bits.name == "vad"
-    for name in ("bit_source", "noise_margin_db", "noise_window_s", "noise_percentile",
-                 "vad_aggressiveness", "vad_frame_ms", "vad_min_voiced_s"):  # fmt: skip
+    assert not result.successful
+    assert node.bits.threshold_db is None and node.bits.name == "vad"
+    for name in ("threshold_db", "threshold_mode", "noise_margin_db"):
+        assert not node.has_parameter(name), f"{name}: not a setting of vad"
+    for name in ("bit_source", "vad_aggressiveness", "vad_frame_ms", "vad_min_voiced_s"):
         assert node.describe_parameter(name).read_only, name
     [result] = set_remotely(probe, executor, "mic_node", bit_source="energy")
     assert not result.successful and "read-only" in result.reason
+    answer = recalibrate(probe, executor)
+    assert not answer.success and answer.message == "bit source 'vad' has nothing to calibrate"
 
 
 def test_mic_speech_band_threshold_is_live_in_fixed_mode(graph: Callable) -> None:
@@ -320,48 +345,25 @@ def test_mic_speech_band_threshold_is_live_in_fixed_mode(graph: Callable) -> Non
     assert node.bits.threshold_db == -30.0
 
 
-def test_mic_noise_floor_mode_is_live_without_a_refresh(graph: Callable) -> None:
-    node, probe, executor, play = _live_mic(graph, noise_margin_db=10.0)
-    assert play([-35.0, -45.0], 2) == [True, False]  # fixed at -40 dB
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="noise_floor")
-    assert result.successful, result.reason
-    assert node.bits.name == "energy" and node.binarizer.calibrating
+def test_mic_noise_floor_recalibrate_starts_a_new_floor(graph: Callable) -> None:
+    node, probe, executor, play = _live_mic(graph, threshold_mode="noise_floor",
+                                            noise_margin_db=10.0)  # fmt: skip
     # calibration_s 1 s = 2 windows start the floor (-60 dB), then 10 dB above it
     assert play([-60.0, -60.0, -45.0, -55.0], 2) == [True, False]
-    [result] = set_remotely(probe, executor, "mic_node", refresh_s=2.0)
-    assert not result.successful and "noise_floor" in result.reason
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="fixed")
-    assert result.successful, result.reason
-    [result] = set_remotely(probe, executor, "mic_node", refresh_s=2.0)
-    assert result.successful, result.reason
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="noise_floor")
-    assert not result.successful and result.reason.startswith("parameter 'refresh_s' = 2")
-    assert play([-35.0, -45.0], 2) == [True, False]  # still fixed at -40 dB
+    [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30.0)
+    assert not result.successful and "threshold_mode fixed" in result.reason
+    answer = recalibrate(probe, executor)
+    assert answer.success and "noise floor on the next 2 windows" in answer.message
+    assert node.bits.name == "energy" and node.bits.calibrating
+    assert play([-40.0, -40.0, -25.0, -35.0], 2) == [True, False]  # the floor at -40 dB
 
 
-def test_mic_vad_refuses_every_live_threshold_parameter(graph: Callable) -> None:
-    node, probe, executor = graph(MicNode, bit_source="vad")
-    for name, value in (("threshold_mode", "fixed"), ("threshold_file", "/x.yaml"),
-                        ("refresh_s", 2.0)):  # fmt: skip
-        [result] = set_remotely(probe, executor, "mic_node", **{name: value})
-        assert not result.successful and "no effect with bit_source vad" in result.reason, name
-    assert node.bits.name == "vad"
-
-
-def test_mic_speech_band_keeps_its_kind_and_filter_on_live_changes(
-    graph: Callable, tmp_path: Path
-) -> None:
-    node, probe, executor = graph(MicNode, bit_source="speech_band", threshold_mode="fixed")
+def test_mic_speech_band_keeps_its_filter_when_recalibrated(graph: Callable) -> None:
+    node, probe, executor = graph(MicNode, bit_source="speech_band", threshold_mode="calibrate")
     band = node.bits.band
-    energy_file = _threshold_file(tmp_path / "energy.yaml", -10.0)  # level energy
-    [result] = set_remotely(probe, executor, "mic_node", threshold_file=str(energy_file))
-    assert result.successful, result.reason  # kept: the mode is still fixed
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="file")
-    assert not result.successful and "speech_band" in result.reason
-    for values in ({"refresh_s": 2.0}, {"threshold_mode": "calibrate"}):
-        [result] = set_remotely(probe, executor, "mic_node", **values)
-        assert result.successful, result.reason
-        assert node.bits.name == "speech_band" and node.bits.band is band, values
+    answer = recalibrate(probe, executor)
+    assert answer.success, answer.message
+    assert node.bits.name == "speech_band" and node.bits.band is band
 
 
 @pytest.mark.parametrize(
@@ -427,8 +429,9 @@ def test_fake_room_partner_and_replies_are_live(graph: Callable) -> None:
     windows([False])
     last = np.frombuffer(audio[-1].data, np.float32).astype(np.float64)
     assert abs(10 * np.log10(np.mean(last**2)) - (-30.0)) < 0.5, "the new floor at once"
-    [result] = set_remotely(probe, executor, "fake_audio_node", window_s=0.25)
+    [result] = set_remotely(probe, executor, "fake_audio_node", rate_hz=8000)
     assert not result.successful and "read-only" in result.reason
+    assert not node.has_parameter("window_s"), "the window is the model's dt"
 
 
 def test_fake_room_lockstep_timeout_is_live(graph: Callable) -> None:
@@ -467,13 +470,34 @@ def test_mic_calibrate_live_on_a_wav_file_reads_its_start_again(graph: Callable)
     """A wav source is calibrated again on its first seconds: no window goes without a bit."""
     wav = ROOT / "test" / "data" / "interaction.wav"
     node, probe, executor = graph(
-        MicNode, source="wav", wav_file=str(wav), threshold_mode="fixed", threshold_db=0.0,
+        MicNode, source="wav", wav_file=str(wav), bit_source="energy", threshold_mode="calibrate",
         calibration_s=4.0,
     )  # fmt: skip
-    [result] = set_remotely(probe, executor, "mic_node", threshold_mode="calibrate")
-    assert result.successful, result.reason
+    answer = recalibrate(probe, executor)
+    assert answer.success, answer.message
     energies = WavReplay(wav, 0.5).calibration_energies(4.0, 0.5)
-    assert node.binarizer.threshold_db == kmeans_split(energies).threshold_db
-    assert not node.binarizer.calibrating
+    assert node.bits.threshold_db == kmeans_split(energies).threshold_db
+    assert not node.bits.calibrating
     [result] = set_remotely(probe, executor, "mic_node", min_separation_db=50.0)
     assert not result.successful and "read-only" in result.reason
+
+
+def test_a_new_bit_source_is_a_mic_node_bit_source_with_its_parameters(graph: Callable) -> None:
+    """The toy source (test/toy_bit_source.py), registered: its setting is a parameter."""
+    from toy_bit_source import registered_toy
+
+    with registered_toy():
+        node, probe, executor, play = _live_mic(graph, bit_source="toy", toy_level_db=-40.0)
+        descriptor = node.describe_parameter("toy_level_db")
+        assert descriptor.description.startswith("Energy above which a window is sound")
+        assert not descriptor.read_only
+        assert descriptor.floating_point_range[0].to_value == 0.0
+        assert not node.has_parameter("threshold_db")
+        assert play([-35.0, -45.0], 2) == [True, False]
+        [result] = set_remotely(probe, executor, "mic_node", toy_level_db=-30.0)
+        assert result.successful, result.reason
+        assert play([-35.0], 1) == [False]
+        [result] = set_remotely(probe, executor, "mic_node", toy_level_db=3.0)
+        assert result.reason == (
+            "parameter 'toy_level_db' = 3.0 is not allowed: a number in [-150, 0] dB"
+        )

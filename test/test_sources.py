@@ -6,12 +6,18 @@ import numpy as np
 import pytest
 from scipy.io import wavfile
 
-from infomax_contingency.audio.binarizer import Binarizer, WavReplay, calibration_window_count
+from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.resample import load_mono
-from infomax_contingency.audio.threshold import UnseparatedError, bits_from_energies, kmeans_split
+from infomax_contingency.audio.threshold import (
+    UnseparatedError,
+    bits_from_energies,
+    calibration_window_count,
+    kmeans_split,
+)
 from infomax_contingency.audio.wav import write_wav_int16
+from infomax_contingency.audio.windows import WavReplay
 
 WAV = Path(__file__).parent / "data" / "interaction.wav"
 

@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from infomax_contingency.audio.common import AudioError
-from infomax_contingency.audio.energy import ENERGY_FLOOR_DB
+from infomax_contingency.audio.energy import ENERGY_FLOOR, ENERGY_FLOOR_DB
 
 SILENCE_DB = ENERGY_FLOOR_DB + 1.0
 """Window levels at or below this are digital silence (all-zero samples), dB."""
@@ -93,19 +93,64 @@ class WindowFaults(NamedTuple):
 
 def window_faults(samples: NDArray[np.float64]) -> WindowFaults:
     """Clipping, DC offset and digital silence of one window of mono samples."""
-    if samples.size == 0:
-        return WindowFaults(False, False, True)
-    mean_square = float(np.mean(samples * samples))
-    mean = float(np.mean(samples))
-    clipped = float(np.mean(np.abs(samples) >= CLIPPED_SAMPLE)) > CLIPPED_SHARE
-    return WindowFaults(
-        clipped, mean_square > 0 and mean * mean > DC_SHARE * mean_square, mean_square == 0
+    return level_and_faults(samples)[1]
+
+
+def level_and_faults(samples: NDArray[np.float64]) -> tuple[float, WindowFaults]:
+    """The window's energy without its mean, dB, and its faults (one pass of sums).
+
+    The level is ``10 log10(mean(x**2) - mean(x)**2 + ENERGY_FLOOR)``: the energy of the
+    window with its DC removed (:data:`~infomax_contingency.audio.energy.ENERGY_FLOOR` as
+    in every energy).
+    """
+    n = samples.size
+    if n == 0:
+        return ENERGY_FLOOR_DB, WindowFaults(False, False, True)
+    mean_square = float(np.dot(samples, samples)) / n
+    mean = float(samples.sum()) / n
+    clipped = False
+    if samples.max() >= CLIPPED_SAMPLE or samples.min() <= -CLIPPED_SAMPLE:
+        clipped = np.count_nonzero(np.abs(samples) >= CLIPPED_SAMPLE) > CLIPPED_SHARE * n
+    alternating = max(mean_square - mean * mean, 0.0)
+    faults = WindowFaults(
+        bool(clipped), mean_square > 0 and mean * mean > DC_SHARE * mean_square, mean_square == 0
     )
+    return 10.0 * math.log10(alternating + ENERGY_FLOOR), faults
 
 
-def rank_for(false_alarm: float, known: int) -> int:
-    """``k``: the largest whole number with ``k / (known + 1) <= false_alarm``, at least 1."""
-    return max(1, math.floor(false_alarm * (known + 1) + 1e-9))
+def _check_settings(false_alarm: float, history: int, warmup_windows: int, max_undecided: int
+                    ) -> None:
+    """AudioError naming the first setting of :class:`BackgroundThreshold` that is wrong."""
+    if isinstance(false_alarm, bool) or not isinstance(false_alarm, int | float):
+        raise AudioError(f"false_alarm must be a number in (0, 0.5], got {false_alarm!r}")
+    if not 0.0 < false_alarm <= 0.5:
+        raise AudioError(f"false_alarm must be in (0, 0.5], got {false_alarm!r}")
+    for name, value, least in (
+        ("history", history, 2),
+        ("warmup_windows", warmup_windows, 1),
+        ("max_undecided", max_undecided, 1),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or value < least:
+            raise AudioError(f"{name} must be a whole number >= {least}, got {value!r}")
+    if warmup_windows > history:
+        raise AudioError(f"warmup_windows ({warmup_windows}) must not exceed history ({history})")
+
+
+def _check_margin(name: str, margin_db: float) -> None:
+    """AudioError unless ``margin_db`` is a finite number >= 0."""
+    if isinstance(margin_db, bool) or not isinstance(margin_db, int | float):
+        raise AudioError(f"{name} must be a finite number >= 0 dB, got {margin_db!r}")
+    if not (math.isfinite(margin_db) and margin_db >= 0):
+        raise AudioError(f"{name} must be a finite number >= 0 dB, got {margin_db!r}")
+
+
+def rank_for(false_alarm: float, known: int, least: int = 1) -> int:
+    """``k`` of the threshold among ``known`` background windows.
+
+    The largest whole number with ``k / (known + 1) <= false_alarm``, at least ``least``
+    (and at most ``known``).
+    """
+    return min(max(1, known), max(least, math.floor(false_alarm * (known + 1) + 1e-9)))
 
 
 class BackgroundThreshold:
@@ -122,6 +167,13 @@ class BackgroundThreshold:
         margin_db: added to the order statistic, dB (>= 0; 0: the pure rank rule).
         max_undecided: windows that may wait for their decisions; beyond it the oldest
             awaited decision is taken as lost (counted in :attr:`decisions_lost`).
+        ta1: the first timer value of the agent period (default ``ts2 + 1``).
+        reference: hold every window to the level of an earlier window too
+            (:meth:`reference_db`).
+        reference_margin_db: by this much, dB.
+        least_rank: ``k`` is at least this (2: the loudest background window alone, a
+            door slam, never sets the threshold; the false-alarm share is then
+            ``2 / (n + 1)`` until ``n + 1 >= 2 / false_alarm``).
 
     It has the attributes of :class:`~infomax_contingency.audio.binarizer.Binarizer` a
     node reports (``threshold_db``, ``state``, ``calibrating``, ``calibration_problem``,
@@ -142,26 +194,11 @@ class BackgroundThreshold:
         ta1: int | None = None,
         reference: bool = True,
         reference_margin_db: float = 0.0,
+        least_rank: int = 1,
     ) -> None:
-        if isinstance(false_alarm, bool) or not isinstance(false_alarm, int | float):
-            raise AudioError(f"false_alarm must be a number in (0, 0.5], got {false_alarm!r}")
-        if not 0.0 < false_alarm <= 0.5:
-            raise AudioError(f"false_alarm must be in (0, 0.5], got {false_alarm!r}")
-        for name, value, least in (
-            ("history", history, 2),
-            ("warmup_windows", warmup_windows, 1),
-            ("max_undecided", max_undecided, 1),
-        ):
-            if isinstance(value, bool) or not isinstance(value, int) or value < least:
-                raise AudioError(f"{name} must be a whole number >= {least}, got {value!r}")
-        if warmup_windows > history:
-            raise AudioError(
-                f"warmup_windows ({warmup_windows}) must not exceed history ({history})"
-            )
-        if isinstance(margin_db, bool) or not isinstance(margin_db, int | float):
-            raise AudioError(f"margin_db must be a finite number >= 0 dB, got {margin_db!r}")
-        if not (math.isfinite(margin_db) and margin_db >= 0):
-            raise AudioError(f"margin_db must be a finite number >= 0 dB, got {margin_db!r}")
+        _check_settings(false_alarm, history, warmup_windows, max_undecided)
+        _check_margin("margin_db", margin_db)
+        _check_margin("reference_margin_db", reference_margin_db)
         if not 0 <= ts1 <= ts2 < ta2:
             raise AudioError(f"need 0 <= ts1 <= ts2 < ta2, got {ts1}, {ts2}, {ta2}")
         self.ts1, self.ts2, self.ta2 = ts1, ts2, ta2
@@ -174,6 +211,9 @@ class BackgroundThreshold:
             raise AudioError(f"need ts2 < ta1 <= ta2, got {ts2}, {self.ta1}, {ta2}")
         self.reference = bool(reference)
         self.reference_margin_db = float(reference_margin_db)
+        if isinstance(least_rank, bool) or not isinstance(least_rank, int) or least_rank < 1:
+            raise AudioError(f"least_rank must be a whole number >= 1, got {least_rank!r}")
+        self.least_rank = least_rank
         self._recent_levels: deque[float] = deque(maxlen=ta2 + 2)  # of the last windows
         self.false_alarm = float(false_alarm)
         self.history = history
@@ -213,7 +253,7 @@ class BackgroundThreshold:
     @property
     def rank(self) -> int:
         """``k`` of the threshold now (:func:`rank_for` of the background windows known)."""
-        return rank_for(self.false_alarm, len(self.background))
+        return rank_for(self.false_alarm, len(self.background), self.least_rank)
 
     @property
     def false_alarm_now(self) -> float | None:
@@ -228,7 +268,7 @@ class BackgroundThreshold:
         if self.calibrating:
             return None
         known = self.background
-        kth = heapq.nlargest(rank_for(self.false_alarm, len(known)), known)[-1]
+        kth = heapq.nlargest(rank_for(self.false_alarm, len(known), self.least_rank), known)[-1]
         return kth + self.margin_db
 
     @property

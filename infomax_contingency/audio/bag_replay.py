@@ -10,7 +10,7 @@ the microphone stream it heard (``/sound_step``, with ``/sound_energy`` beside t
   replay can try another threshold; the bits equal the recorded ones for the threshold
   the session used. With ``samples=True`` each window's samples are kept as well
   (:attr:`BagReplay.last_samples`), for a bit source that looks at the samples
-  (:mod:`~infomax_contingency.audio.bitsource`);
+  (:mod:`~infomax_contingency.audio.bitsources`);
 * without audio: the recorded energy and the **recorded bit** of each step of the first
   stream heard, in step order.
 
@@ -29,6 +29,8 @@ import numpy as np
 from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import WindowAssembler, frame_energies_db
+from infomax_contingency.audio.threshold import calibration_window_count
+from infomax_contingency.audio.windows import SourceWindow, WindowSource
 
 BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
 """Topics a bag replay reads."""
@@ -59,7 +61,7 @@ def _first_stream(directory: Path, sound_steps: list) -> tuple[int, int]:
     return stream, max(int(m.data[1]) for _, m in sound_steps if int(m.data[0]) == stream)
 
 
-class BagReplay:
+class BagReplay(WindowSource):
     """The windows of a session bag, one at a time (see the module docstring).
 
     Args:
@@ -112,6 +114,34 @@ class BagReplay:
             raise AudioError(f"the session {self.directory} holds no complete window of audio")
         self.position = 0
 
+    replay = True
+
+    def take(self) -> list[SourceWindow]:
+        """The next window (its samples if kept, its recorded bit if no audio); [] at the end."""
+        found = self.next_window()
+        if found is None:
+            return []
+        energy, bit = found
+        return [SourceWindow(energy, self.last_samples, bit)]
+
+    @property
+    def finished(self) -> bool:
+        """True once the last window was served."""
+        return self.position >= len(self.windows)
+
+    def read_ahead(
+        self, seconds: float, window_s: float
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Energies and (if kept) samples of the first ``seconds``' windows."""
+        energies = self.calibration_energies(seconds, window_s)
+        if self.window_samples is None:
+            return energies, None
+        return energies, self.calibration_windows(seconds, window_s)
+
+    def describe(self) -> str:
+        what = "its audio" if self.has_audio else "its recorded bits (no audio recorded)"
+        return f"the session {self.directory}: {self.n_windows} windows from {what}"
+
     @property
     def n_windows(self) -> int:
         """Windows in the session."""
@@ -133,7 +163,7 @@ class BagReplay:
 
     def calibration_energies(self, calibration_s: float, window_s: float) -> np.ndarray:
         """Energies of the first ``calibration_s`` seconds (for ``threshold_mode`` calibrate)."""
-        count = _calibration_count(calibration_s, window_s)
+        count = calibration_window_count(calibration_s, window_s)
         return np.array([energy for energy, _ in self.windows[:count]])
 
     def calibration_windows(self, calibration_s: float, window_s: float) -> np.ndarray:
@@ -144,9 +174,4 @@ class BagReplay:
         """
         if self.window_samples is None:
             raise AudioError(f"the replay of {self.directory} keeps no samples of audio")
-        return self.window_samples[: _calibration_count(calibration_s, window_s)]
-
-
-def _calibration_count(calibration_s: float, window_s: float) -> int:
-    """Windows of the calibration read ahead: ``calibration_s`` seconds, at least 2."""
-    return max(2, round(calibration_s / window_s))
+        return self.window_samples[: calibration_window_count(calibration_s, window_s)]

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from infomax_contingency.audio.bitsource import WindowLevels
+from infomax_contingency.audio.bitsources import WindowLevels
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, check_positive
 from infomax_contingency.audio.devices import AudioBackend, AudioDeviceError, LogFunction
-from infomax_contingency.audio.energy import iter_wav_windows, wav_energies
+from infomax_contingency.audio.energy import iter_wav_windows
 
 
 def energies_from_wav(
@@ -30,15 +30,13 @@ def energies_from_wav(
     max_windows: int | None = None,
     bit_source: str = "energy",
 ) -> NDArray[np.float64]:
-    """Window energies (dB) of a WAV file, exactly as the wav source computes them.
+    """Window levels (dB) of a WAV file, exactly as the wav source computes them.
 
-    The file is read block by block (:func:`~infomax_contingency.audio.energy.wav_energies`),
+    The file is read block by block (:func:`~infomax_contingency.audio.energy.iter_wav_windows`),
     so memory does not grow with its length; ``max_windows`` stops after the first ones.
-    ``bit_source`` ``speech_band``: the speech-band levels instead
-    (:class:`~infomax_contingency.audio.bitsource.WindowLevels`).
+    The level is ``bit_source``'s (:class:`~infomax_contingency.audio.bitsources.WindowLevels`):
+    the window energy for ``energy``, the speech band's for ``speech_band``.
     """
-    if bit_source == "energy":
-        return wav_energies(path, window_s, channel, rate, max_windows=max_windows)
     levels = WindowLevels(bit_source, rate)
     parts: list[NDArray[np.float64]] = []
     count = 0

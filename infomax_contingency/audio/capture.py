@@ -22,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import queue
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -30,8 +29,8 @@ from typing import Any
 import numpy as np
 
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError, check_positive
+from infomax_contingency.audio.device_stream import Clock, DeviceStream, Sleep
 from infomax_contingency.audio.devices import (
-    CLOSE_WAIT_S,
     CLOSED,
     CONNECTED,
     DISCONNECTED,
@@ -40,24 +39,12 @@ from infomax_contingency.audio.devices import (
     AudioDeviceError,
     DeviceInfo,
     LogFunction,
-    backend_or_default,
-    close_stream,
-    default_log,
     negotiate_format,
-    open_and_start,
-    other_streams_open,
-    register_stream,
     resolve_device,
-    unregister_stream,
 )
 from infomax_contingency.audio.timeline import AudioChunk, Window, WindowTimeline
 
 __all__ = ["AudioChunk", "MicrophoneStatus", "MicrophoneStream", "Window"]
-
-Clock = Callable[[], float]
-"""Monotonic seconds now."""
-Sleep = Callable[[float], None]
-"""Wait this many seconds (on the matching clock)."""
 
 
 def check_channels(channel: int | None, channels: int | None) -> int:
@@ -72,14 +59,6 @@ def check_channels(channel: int | None, channels: int | None) -> int:
     if channel is not None and channels is not None and channel >= channels:
         raise AudioError(f"channel {channel} does not exist among {channels} channel(s)")
     return wanted
-
-
-def check_backoff(backoff_s: tuple[float, float]) -> tuple[float, float]:
-    """``(first, longest)`` reopening waits, seconds, both > 0 and first <= longest."""
-    low, high = (check_positive(b, "backoff_s") for b in backoff_s)
-    if high < low:
-        raise AudioError(f"backoff_s must be (first, longest) with first <= longest: {backoff_s}")
-    return low, high
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,7 +121,7 @@ class _Block:
         self.overflow = overflow
 
 
-class MicrophoneStream:
+class MicrophoneStream(DeviceStream):
     """A live microphone cut into windows, with reconnection when the device vanishes.
 
     The PortAudio callback copies each block into a bounded queue (a full queue drops the
@@ -194,6 +173,8 @@ class MicrophoneStream:
             fake clock's advance so that nothing really sleeps.
     """
 
+    kind = "microphone stream"
+
     def __init__(
         self,
         device: int | str | None = None,
@@ -210,7 +191,7 @@ class MicrophoneStream:
         clock: Clock = time.monotonic,
         sleep: Sleep | None = None,
     ) -> None:
-        self.spec = device
+        super().__init__(device, backoff_s, log, backend, clock, sleep)
         self.window_s = check_positive(window_s, "window_s")
         self.rate = int(rate)
         self._timeline = WindowTimeline(self.rate, self.window_s)
@@ -220,84 +201,22 @@ class MicrophoneStream:
         self.block_s = check_positive(block_s, "block_s")
         self.queue_s = check_positive(queue_s, "queue_s")
         self.stall_timeout_s = check_positive(stall_timeout_s, "stall_timeout_s")
-        self.backoff_s = check_backoff(backoff_s)
-        self._log = log or default_log
-        self._backend_arg = backend
-        self._backend: AudioBackend | None = None
-        self._clock = clock
-        self._sleep = sleep
-        self._init_stream_state()
-
-    def _init_stream_state(self) -> None:
-        """The stream, its callback-side state and the counters, before :meth:`start`."""
-        self._lock = threading.Lock()
         self._queue: queue.Queue[_Block] = queue.Queue()
-        self._stream: Any = None
-        self._generation = 0
-        self._state = CLOSED
-        self._device: DeviceInfo | None = None
         self._open_channels = 0
-        self._offset = 0.0  # clock() - stream clock
-        self._closers: list[threading.Thread] = []
-        self._backoff = self.backoff_s[0]
-        self._next_attempt = 0.0
         # callback-side state (written by the callback thread only)
         self._pending_dropped = 0
         self._last_data = 0.0
-        self._finished = False
         self._overflows = 0
         self._dropped_blocks = 0
         # reader-side counters
         self._disconnects = 0
         self._reconnects = 0
         self._attempts = 0
-        self._last_error = ""
-
-    # ------------------------------------------------------------------ life cycle
-
-    def start(self) -> MicrophoneStream:
-        """Open and start the device.
-
-        Raises:
-            AudioDeviceError: the device is missing (the message lists the input devices),
-                opens with no usable format, or PortAudio is not installed.
-        """
-        if self._state != CLOSED:
-            raise AudioError("the microphone stream is already started")
-        self._backend = backend_or_default(self._backend_arg)
-        self._open()
-        return self
-
-    def close(self) -> None:
-        """Stop capturing and release the device (safe to call twice)."""
-        with self._lock:
-            self._state = CLOSED
-            self._generation += 1
-            stream, self._stream = self._stream, None
-        unregister_stream(self)
-        if stream is not None:
-            close_stream(stream, wait_s=CLOSE_WAIT_S)
-
-    def __enter__(self) -> MicrophoneStream:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @property
-    def device(self) -> DeviceInfo | None:
-        """The device in use (None before :meth:`start`)."""
-        return self._device
 
     @property
     def device_rate(self) -> int:
         """Rate the device is opened at, Hz (0 before :meth:`start`)."""
         return self._timeline.device_rate
-
-    @property
-    def state(self) -> str:
-        """``"connected"``, ``"disconnected"`` or ``"closed"``."""
-        return self._state
 
     def status(self) -> MicrophoneStatus:
         """A snapshot of the counters (cheap; call it for every diagnostics message)."""
@@ -336,29 +255,11 @@ class MicrophoneStream:
         blocksize = max(1, round(self.block_s * rate))
         capacity = max(2, math.ceil(self.queue_s / (blocksize / rate)))
         with self._lock:
-            self._generation += 1
-            generation = self._generation
             self._queue = queue.Queue(maxsize=capacity)
             self._pending_dropped = 0
-            self._finished = False
-
-        def callback(indata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
-            self._on_block(generation, indata, frames, time_info, status)
-
-        def finished() -> None:
-            if generation == self._generation:
-                self._finished = True
-
         self._last_data = self._clock()
-        stream, self._offset = open_and_start(
-            backend, INPUT, device, rate, channels, blocksize, callback, finished, self._clock
-        )
-        with self._lock:
-            self._stream = stream
-            self._device = device
-            self._open_channels = channels
-            self._state = CONNECTED
-        register_stream(self)
+        self._start_stream(INPUT, device, rate, channels, blocksize, self._on_block)
+        self._open_channels = channels
         self._timeline.start_stream(rate)
         self._log_opened(device, rate, channels, refusals)
 
@@ -430,7 +331,7 @@ class MicrophoneStream:
         deadline = self._clock() + max(0.0, timeout)
         got = False
         while True:
-            if self._state == DISCONNECTED and self._clock() >= self._next_attempt:
+            if self._state == DISCONNECTED and self._retry_due():
                 self._reconnect()
             if self._state == CONNECTED:
                 generation = self._generation
@@ -469,46 +370,28 @@ class MicrophoneStream:
         return blocks
 
     def _check_health(self) -> None:
-        stream = self._stream
-        if stream is None or self._state != CONNECTED:
+        if self._stream is None or self._state != CONNECTED:
             return
         name = self._device.name if self._device else "the microphone"
-        if self._finished or not stream.active:
+        if self._stream_stopped():
             self._disconnect(f"the audio stream of {name} stopped (device unplugged?)")
         elif self._clock() - self._last_data > self.stall_timeout_s:
             self._disconnect(f"no audio from {name} for {self.stall_timeout_s:g} s")
 
     def _disconnect(self, reason: str) -> None:
-        with self._lock:
-            self._state = DISCONNECTED
-            self._generation += 1
-            stream, self._stream = self._stream, None
-        unregister_stream(self)
+        self._lose(reason)
         self._disconnects += 1
-        self._last_error = reason
-        self._backoff = self.backoff_s[0]
-        self._next_attempt = self._clock() + self._backoff
         self._log("warning", f"microphone disconnected: {reason}; retrying")
-        if stream is not None:
-            closer = close_stream(stream, wait_s=CLOSE_WAIT_S)
-            if closer is not None:
-                self._closers.append(closer)
 
     def _reconnect(self) -> None:
         self._attempts += 1
-        self._closers = [t for t in self._closers if t.is_alive()]
-        try:
-            if not self._closers and not other_streams_open(self):
-                self._backend.rescan()
-            self._open()
-        except Exception as exc:  # any failure: wait longer and try again
-            self._last_error = f"reconnect failed: {exc}"
-            self._backoff = min(2.0 * self._backoff, self.backoff_s[1])
-            self._next_attempt = self._clock() + self._backoff
+        failure = self._try_reopen()
+        if failure is not None:
+            self._last_error = f"reconnect failed: {failure}"
             self._log(
                 "warning",
                 f"microphone still unavailable (attempt {self._attempts}, next in"
-                f" {self._backoff:g} s): {exc}",
+                f" {self._backoff:g} s): {failure}",
             )
             return
         self._reconnects += 1

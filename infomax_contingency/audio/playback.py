@@ -26,24 +26,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from infomax_contingency.audio.common import AudioError, check_positive
+from infomax_contingency.audio.device_stream import DeviceStream
 from infomax_contingency.audio.devices import (
-    CLOSE_WAIT_S,
     CLOSED,
     CONNECTED,
-    DISCONNECTED,
     OUTPUT,
     AudioBackend,
-    DeviceInfo,
     LogFunction,
-    backend_or_default,
-    close_stream,
-    default_log,
     negotiate_format,
-    open_and_start,
-    other_streams_open,
-    register_stream,
     resolve_device,
-    unregister_stream,
 )
 from infomax_contingency.audio.resample import resample
 from infomax_contingency.audio.synth import synthesize_chirp
@@ -117,7 +108,7 @@ def load_sound(path: str | Path, rate: int) -> NDArray[np.float64]:
     return resample(to_mono(samples), file_rate, rate)
 
 
-class SpeakerOutput:
+class SpeakerOutput(DeviceStream):
     """The robot's loudspeaker: plays one sound on command, without blocking.
 
     An output stream runs continuously and plays silence; :meth:`play` asks the callback
@@ -151,6 +142,8 @@ class SpeakerOutput:
             default None: wait on the queue.
     """
 
+    kind = "speaker"
+
     def __init__(
         self,
         device: int | str | None = None,
@@ -173,7 +166,7 @@ class SpeakerOutput:
             )
         if sound is not None and not isinstance(sound, str | Path) and sound_rate is None:
             raise AudioError("sound samples need their sound_rate (Hz)")
-        self.spec = device
+        super().__init__(device, (retry_s, retry_s), log, backend, clock, sleep)
         self.overlap = overlap
         self._sound_arg = sound
         self._sound_rate = sound_rate
@@ -182,23 +175,8 @@ class SpeakerOutput:
         self._rate_arg = rate
         self.block_s = check_positive(block_s, "block_s")
         self.retry_s = check_positive(retry_s, "retry_s")
-        self._log = log or default_log
-        self._backend_arg = backend
-        self._backend: AudioBackend | None = None
-        self._clock = clock
-        self._sleep = sleep
-        self._init_play_state()
-
-    def _init_play_state(self) -> None:
-        """The stream, the command handoff and the counters, before :meth:`start`."""
-        self._stream: Any = None
-        self._state = CLOSED
-        self._device: DeviceInfo | None = None
         self._device_rate = 0
         self._channels = 0
-        self._offset = 0.0
-        self._generation = 0
-        self._next_attempt = 0.0
         self._events: queue.Queue[PlayEvent] = queue.Queue(maxsize=256)
         self._source: NDArray[np.float64] = np.empty(0)
         self._sound: NDArray[np.float32] = np.empty(0, np.float32)
@@ -209,7 +187,6 @@ class SpeakerOutput:
         self._served = 0
         self._pos = -1  # sample of the sound to play next; -1 = silent
         self._blocks_served = 0
-        self._finished = False
         self._requests = 0
         self._played = 0
         self._interrupted = 0
@@ -217,7 +194,6 @@ class SpeakerOutput:
         self._underflows = 0
         self._errors = 0
         self._lost_events = 0
-        self._last_error = ""
 
     @staticmethod
     def _check_volume(volume: float) -> float:
@@ -229,20 +205,6 @@ class SpeakerOutput:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> SpeakerOutput:
-        """Open the device and start playing silence.
-
-        Raises:
-            AudioDeviceError: the device is missing (the message lists the output devices)
-                or unusable, or PortAudio is not installed.
-            AudioError: the sound file cannot be read.
-        """
-        if self._state != CLOSED:
-            raise AudioError("the speaker is already started")
-        self._backend = backend_or_default(self._backend_arg)
-        self._open()
-        return self
-
     def close(self) -> None:
         """Stop the stream and release the device (safe to call twice).
 
@@ -250,22 +212,8 @@ class SpeakerOutput:
         (PortAudio's close aborts: draining a dead or shared ALSA device can block). To
         let a sound end first, wait until :meth:`drained`, then for a block or two more.
         """
-        self._state = CLOSED
-        self._drop_stream()
-
-    def _drop_stream(self) -> None:
-        self._generation += 1
-        self._pos = -1  # a sound cut by a dead stream is not resumed on the next one
-        stream, self._stream = self._stream, None
-        unregister_stream(self)
-        if stream is not None:
-            close_stream(stream, wait_s=CLOSE_WAIT_S)
-
-    def __enter__(self) -> SpeakerOutput:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        self._pos = -1
+        super().close()
 
     @property
     def device_rate(self) -> int:
@@ -334,31 +282,14 @@ class SpeakerOutput:
         source = self._make_sound(rate)
         if source.size == 0:
             raise AudioError("the robot's sound is empty")
-        self._generation += 1
-        generation = self._generation
-        self._finished = False
-
-        def callback(outdata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
-            self._on_block(generation, outdata, frames, time_info, status)
-
-        def finished() -> None:
-            if generation == self._generation:
-                self._finished = True
-
         blocksize = max(1, round(self.block_s * rate))
         self._source = source
         self._sound = (source * self._volume).astype(np.float32)
         self._pos = -1
         self._served = self._requested
-        stream, self._offset = open_and_start(
-            backend, OUTPUT, device, rate, channels, blocksize, callback, finished, self._clock
-        )
-        self._stream = stream
-        self._device = device
         self._device_rate = rate
+        self._start_stream(OUTPUT, device, rate, channels, blocksize, self._on_block)
         self._channels = channels
-        self._state = CONNECTED
-        register_stream(self)
         self._log(
             "info",
             f"speaker: {device.describe(OUTPUT)} at {rate} Hz, {channels} channel(s);"
@@ -385,28 +316,20 @@ class SpeakerOutput:
 
     def _healthy(self) -> bool:
         """True if the stream runs; otherwise try to reopen it (rate-limited)."""
-        stream = self._stream
-        if stream is not None and not self._finished and stream.active:
+        if not self._stream_stopped():
             return True
         if self._state == CONNECTED:
             self._errors += 1
-            self._last_error = "the output stream stopped (device unplugged?)"
+            self._pos = -1  # a sound cut by a dead stream is not resumed on the next one
+            self._lose("the output stream stopped (device unplugged?)", wait_first=False)
             self._log("warning", f"speaker: {self._last_error}")
-            self._state = DISCONNECTED
-            self._drop_stream()
-            self._next_attempt = 0.0
-        now = self._clock()
-        if now < self._next_attempt:
+        if not self._retry_due():
             self._errors += 1
             return False
-        self._next_attempt = now + self.retry_s
-        try:
-            if not other_streams_open(self):
-                self._backend.rescan()
-            self._open()
-        except Exception as exc:  # device still gone
+        failure = self._try_reopen()
+        if failure is not None:
             self._errors += 1
-            self._last_error = f"cannot reopen the speaker: {exc}"
+            self._last_error = f"cannot reopen the speaker: {failure}"
             self._log("warning", self._last_error)
             return False
         return True

@@ -1,31 +1,25 @@
-"""The sound threshold: exact two-cluster k-means, the bit rule, online refits, threshold files.
+"""The sound threshold's mathematics: exact two-cluster k-means, the bit rule, the noise floor.
 
 The threshold theta is the boundary (halfway between the means) of an exact two-cluster
 k-means of calibration window energies (dB); the bit of a window is ``energy > theta``
 (:func:`bits_from_energies`, the one bit rule). A calibration whose cluster means lie
 closer than a least separation cannot tell sound from quiet (:func:`require_separation`).
-Threshold files are small YAML files (:func:`save_threshold`, :func:`load_threshold`).
 :class:`NoiseFloorTracker` follows the noise floor (a low percentile of recent levels).
+No I/O: threshold files are :mod:`infomax_contingency.audio.threshold_file`; the rules that
+use this to give bits are :mod:`infomax_contingency.audio.bitsources`.
 """
 
 from __future__ import annotations
 
 import bisect
 import dataclasses
-import datetime
 import math
-import os
 from collections import deque
-from pathlib import Path
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
-
-THRESHOLD_FORMAT_VERSION = 1
-"""Version of the threshold file layout written by :func:`save_threshold`."""
+from infomax_contingency.audio.common import AudioError
 
 DEFAULT_MIN_SEPARATION_DB = 10.0
 """Least distance between the two cluster means (dB) for a calibration to be used."""
@@ -114,9 +108,9 @@ def kmeans_threshold(energies_db: ArrayLike) -> float:
 def bits_from_energies(energies_db: ArrayLike, threshold_db: float) -> NDArray[np.bool_]:
     """The bit rule, elementwise: ``y = energy > threshold`` (strict).
 
-    This is the one place the rule lives (:class:`~infomax_contingency.audio.binarizer.Binarizer`
-    calls it for every window). Tie convention: an energy exactly equal to the threshold
-    is quiet (``y = 0``).
+    This is the one place the rule lives (the threshold rules of
+    :mod:`infomax_contingency.audio.bitsources.rules` call it for every window). Tie
+    convention: an energy exactly equal to the threshold is quiet (``y = 0``).
 
     Args:
         energies_db: window energies, dB (scalar or any shape).
@@ -128,6 +122,18 @@ def bits_from_energies(energies_db: ArrayLike, threshold_db: float) -> NDArray[n
     if not math.isfinite(threshold_db):
         raise AudioError(f"threshold_db must be finite, got {threshold_db!r}")
     return np.asarray(energies_db, dtype=np.float64) > threshold_db
+
+
+def calibration_window_count(calibration_s: float, window_s: float) -> int:
+    """Windows in ``calibration_s`` seconds of audio.
+
+    That is ``round(calibration_s / window_s)``, at least 2 (k-means needs two values).
+    """
+    if not calibration_s > 0 or not window_s > 0:
+        raise AudioError(
+            f"calibration_s and window_s must be > 0 seconds, got {calibration_s} and {window_s}"
+        )
+    return max(2, round(calibration_s / window_s))
 
 
 class UnseparatedError(AudioError):
@@ -189,117 +195,6 @@ class OnlineThreshold:
     def refit(self) -> ThresholdFit:
         """Two-cluster k-means of the buffered energies; AudioError if they have no boundary."""
         return kmeans_split(np.fromiter(self._energies, dtype=np.float64))
-
-
-# --------------------------------------------------------------------------- threshold file
-
-_REQUIRED_FIELDS = ("format_version", "threshold_db")
-
-
-def save_threshold(
-    path: str | os.PathLike[str],
-    fit: ThresholdFit,
-    *,
-    window_s: float,
-    rate: int,
-    source: str,
-    level: str = "energy",
-) -> None:
-    """Write a calibrated threshold to a small YAML file (replaced atomically).
-
-    Args:
-        path: file to write; missing parent directories are created.
-        fit: the k-means fit.
-        window_s: window length used for the energies, seconds.
-        rate: processing sample rate, Hz.
-        source: where the calibration audio came from (file name, device, ...).
-        level: the window level the threshold applies to: ``energy`` (the window
-            energy; the field is then left out, as in files before levels existed) or
-            another bit source's level (``speech_band``), written as the field ``level``.
-    """
-    window_s = check_positive_seconds(window_s, "window_s")
-    rate = check_rate(rate)
-    values = (fit.threshold_db, fit.low_mean_db, fit.high_mean_db)
-    if not all(math.isfinite(v) for v in values):
-        raise AudioError(f"cannot save a threshold fit with non-finite values: {fit}")
-    record = {
-        "format_version": THRESHOLD_FORMAT_VERSION,
-        "threshold_db": float(fit.threshold_db),
-        "window_s": window_s,
-        "sample_rate_hz": rate,
-        "low_mean_db": float(fit.low_mean_db),
-        "high_mean_db": float(fit.high_mean_db),
-        "n_low": int(fit.n_low),
-        "n_high": int(fit.n_high),
-        "source": str(source),
-        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-    }
-    if level != "energy":
-        record["level"] = str(level)
-    what = "energy" if level == "energy" else f"{level} level"
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(
-        f"# Sound threshold: a window is 'sound' (y = 1) iff its {what} > threshold_db.\n"
-        + yaml.safe_dump(record, sort_keys=False),
-        encoding="utf-8",
-    )
-    tmp.replace(path)
-
-
-def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:
-    """Read the threshold (dB) from a file written by :func:`save_threshold`.
-
-    Args:
-        path: the threshold file.
-        level: the window level it must apply to (a file without the field ``level``
-            applies to ``energy``).
-
-    Raises:
-        AudioError: the file is missing, is not a YAML mapping, has another format
-            version, lacks ``format_version`` or ``threshold_db``, the threshold is
-            not a finite number, or it applies to another level.
-    """
-    path = Path(path)
-    if not path.is_file():
-        what = "is a directory" if path.is_dir() else "does not exist"
-        raise AudioError(
-            f"threshold file {path} {what}; create it by calibrating on audio that "
-            "contains both quiet and sound"
-        )
-    try:
-        record = yaml.safe_load(path.read_bytes())
-    except OSError as exc:
-        raise AudioError(f"cannot read threshold file {path}: {exc.strerror or exc}") from exc
-    except yaml.YAMLError as exc:
-        raise AudioError(f"threshold file {path} is not valid YAML: {exc}") from exc
-    if not isinstance(record, dict):
-        raise AudioError(
-            f"threshold file {path} must hold a YAML mapping with {', '.join(_REQUIRED_FIELDS)}; "
-            f"got {type(record).__name__}"
-        )
-    for field in _REQUIRED_FIELDS:
-        if field not in record:
-            raise AudioError(f"threshold file {path} is missing the field '{field}'")
-    version = record["format_version"]
-    if isinstance(version, bool) or version != THRESHOLD_FORMAT_VERSION:
-        raise AudioError(
-            f"threshold file {path} has format_version {version!r}; this package reads "
-            f"format_version {THRESHOLD_FORMAT_VERSION}. Recalibrate to rewrite it."
-        )
-    file_level = record.get("level", "energy")
-    if file_level != level:
-        raise AudioError(
-            f"threshold file {path} holds a threshold of the {file_level} level, not of the"
-            f" {level} level: calibrate again with --bit-source {level}"
-        )
-    value = record["threshold_db"]
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
-    return float(value)
 
 
 # --------------------------------------------------------------------------- noise floor

@@ -125,7 +125,7 @@ def _parse_fmt(body: bytes, endian: str, path: Path) -> tuple[int, int, int, str
     return channels, rate, sample_bytes, "uint" if sample_bytes == 1 else "int"
 
 
-def open_wav_info(path: str | os.PathLike[str]) -> WavInfo:
+def open_wav_info(path: str | os.PathLike[str]) -> WavInfo:  # noqa: C901
     """Parse a WAV header without reading the samples.
 
     Raises:

@@ -7,13 +7,23 @@ process: one line per step (room time, bit, vocalization, belief, posture, groun
 and a verdict. By default a partner answers for the first 60 s and then leaves; the
 graph runs in lockstep, so 120 s of room time take a few seconds.
 
-``--wav FILE`` replays a recording through mic_node instead of the simulated room (the
-threshold is the k-means calibration on the first ``--calibration-s`` seconds).
+``--wav FILE`` replays a recording through mic_node instead of the simulated room, with
+mic_node's default bit source (``background``: the threshold the model calibrates itself
+on the recording's background windows); with ``--bit-source energy`` or ``speech_band``
+the threshold is the k-means calibration of the first ``--calibration-s`` seconds. The
+simulated room runs in lockstep with config/fake_room.yaml's fixed threshold (a source
+that first hears the room would wait for decisions that come only after its bits).
 
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
 arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
 (each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C)
-and end the demo with status 130 or 143 and "interrupted".
+and end the demo with status 130 or 143 and "interrupted". A demo killed outright (SIGKILL,
+an OOM kill) leaves no node running: each ends with it (the kernel's parent-death signal,
+:func:`~infomax_contingency.nodes.runtime.end_with_parent`).
+
+``--record DIR``: DIR must be new and writable (tried before any node starts); a
+recorder that stopped writing during the run (it keeps the graph running) makes the
+demo fail, with its error line (status 1).
 
 DDS stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a random
 ``ROS_DOMAIN_ID`` unless the environment sets them. The graph's processes announce
@@ -36,7 +46,8 @@ from collections.abc import Callable, Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
 
-from infomax_contingency.audio.bitsource import BIT_SOURCES
+from infomax_contingency.audio.bitsources import BIT_SOURCES
+from infomax_contingency.cli.demo_checks import check_arguments, finite_number, recording_failure
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
@@ -71,7 +82,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--leave-at",
-        type=float,
+        type=finite_number,
         default=60.0,
         metavar="SECONDS",
         help="room time the partner leaves; negative: stays (default 60)",
@@ -87,16 +98,17 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--calibration-s",
-        type=float,
+        type=finite_number,
         default=10.0,
-        help="seconds of the wav file to calibrate the threshold on (default 10)",
+        help="--wav with --bit-source energy or speech_band: seconds of the wav file to"
+        " calibrate the threshold on (default 10)",
     )
     parser.add_argument(
         "--bit-source",
         choices=tuple(BIT_SOURCES),
-        default="energy",
-        help="how mic_node turns a window into a bit (default energy; see README"
-        " 'Choosing a bit source')",
+        default=None,
+        help="how mic_node turns a window into a bit (default: a wav file mic_node's default,"
+        " background; the simulated room config/fake_room.yaml's, energy at -40 dB)",
     )
     parser.add_argument(
         "--record",
@@ -164,9 +176,16 @@ def describe_dds_profile(profile: str) -> str:
 
 
 def _choose_bit_source(mic: dict[str, Any], args: argparse.Namespace) -> None:
-    """Set mic_node's ``bit_source`` when ``--bit-source`` is not the default."""
-    if args.bit_source != "energy":
-        mic["bit_source"] = args.bit_source
+    """Set mic_node's ``bit_source`` when ``--bit-source`` is given.
+
+    A threshold source on a wav file is calibrated on its first ``--calibration-s`` seconds.
+    """
+    if args.bit_source is None:
+        return
+    mic["bit_source"] = args.bit_source
+    if args.wav and args.bit_source in ("energy", "speech_band"):
+        mic["threshold_mode"] = "calibrate"
+        mic["calibration_s"] = args.calibration_s
 
 
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
@@ -194,8 +213,6 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
             "wav_file": str(Path(args.wav).resolve()),
             "lockstep": True,
             "exit_at_end": True,
-            "threshold_mode": "calibrate",
-            "calibration_s": args.calibration_s,
             "wait_for_listeners": listeners,
             "lockstep_timeout_s": LOCKSTEP_TIMEOUT_S,
         }
@@ -218,19 +235,6 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     _choose_bit_source(nodes["mic_node"], args)
     nodes["fake_audio_node"] = room
     return nodes, "fake_audio_node"
-
-
-def _check(args: argparse.Namespace) -> None:
-    if args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    if args.memory < 0:
-        raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
-    if args.wav and not Path(args.wav).is_file():
-        raise ValueError(f"--wav {args.wav}: no such file")
-    if args.record and Path(args.record).exists():
-        raise ValueError(f"--record {args.record}: exists already; name a new directory")
-    if not args.calibration_s > 0:
-        raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
 
 
 class Interrupted(BaseException):
@@ -269,7 +273,7 @@ def run_demo(args: argparse.Namespace) -> int:
     Exit status 0 after a run, 1 if the graph failed, 2 for bad arguments, 130 / 143
     after SIGINT / SIGTERM (every node process is stopped first).
     """
-    _check(args)
+    check_arguments(args)
     domain = isolate_dds()
     profile = demo_dds_profile()
     nodes, clock = _nodes(args)
@@ -358,19 +362,30 @@ def _run_graph(
                 elapsed = time.monotonic() - start
                 _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
                 _wait_for_postures(recorder, steps)
-            return recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
+            outcome = recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
         finally:
-            # A signal now must not cut the stopping short: it waits until every node is
-            # stopped, then interrupts (and the demo still exits 130 / 143).
-            stop_signals = {signal.SIGINT, signal.SIGTERM}
-            signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
-            try:
-                processes.stop_all()
-                if recorder is not None:
-                    recorder.destroy_node()
-                rclpy.try_shutdown()
-            finally:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
+            _stop_graph(processes, recorder)
+        lost = args.record and recording_failure(Path(args.record), processes.log("recorder_node"))
+        return lost or outcome
+
+
+def _stop_graph(processes: Any, recorder: Any) -> None:
+    """Stop every node process, then the monitor and ROS.
+
+    A signal now must not cut the stopping short: it waits until every node is stopped,
+    then interrupts (and the demo still exits 130 / 143).
+    """
+    import rclpy
+
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+    try:
+        processes.stop_all()
+        if recorder is not None:
+            recorder.destroy_node()
+        rclpy.try_shutdown()
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
 
 
 def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.audio.bitsources import BIT_SOURCES
+from infomax_contingency.audio.bitsources.level import LevelSource
 from infomax_contingency.audio.calibration import (
     energies_from_wav,
     energy_histogram,
@@ -29,9 +31,12 @@ from infomax_contingency.audio.threshold import (
     UnseparatedError,
     kmeans_split,
     require_separation,
-    save_threshold,
 )
+from infomax_contingency.audio.threshold_file import save_threshold
 from infomax_contingency.core.model import ModelParams
+
+LEVEL_SOURCES = tuple(n for n, s in BIT_SOURCES.items() if issubclass(s, LevelSource))
+"""Bit sources with a threshold: what ``calibrate --bit-source`` fits."""
 
 
 def _print_log(level: str, message: str) -> None:
@@ -99,6 +104,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     """Fit, show and save the threshold; exit status 1 if the clusters do not separate."""
     if args.wav is not None and (args.device is not None or args.seconds is not None):
         raise ValueError("calibrate from --wav FILE or from --device/--seconds, not both")
+    args.window_s = ModelParams.load(args.params).dt  # one window is one step of the model
     energies, source, what = _calibration_energies(args)
     if energies.size < 2:
         raise AudioError(
@@ -178,7 +184,10 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
         "--seconds", type=_positive(float), help="seconds to record live (default: 10)"
     )
     parser.add_argument(
-        "--window-s", type=_positive(float), default=0.5, help="window length, s (default: 0.5)"
+        "--params",
+        default="robot",
+        metavar="NAME|FILE",
+        help="model parameters whose dt is the window length (default: robot, 0.5 s)",
     )
     parser.add_argument(
         "--channel", type=int, help="use this 0-based channel (default: mix all channels)"
@@ -201,10 +210,11 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--bit-source",
-        choices=("energy", "speech_band"),
+        choices=LEVEL_SOURCES,
         default="energy",
         help="the level the threshold applies to: energy (the window energy, default) or"
-        " speech_band (the 300-3400 Hz band energy), as mic_node's bit_source",
+        " another bit source with a threshold (speech_band: the 300-3400 Hz band energy),"
+        " as mic_node's bit_source",
     )
     parser.add_argument("--out", type=Path, required=True, help="threshold file to write (YAML)")
     parser.set_defaults(run=_run_calibrate)
@@ -215,7 +225,7 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
 
 def _run_measure_latency(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
-    window_s = params.dt if args.window_s is None else args.window_s
+    window_s = params.dt
     if not (args.tail_s >= 0 and math.isfinite(args.tail_s)):
         raise ValueError(f"--tail-s must be >= 0 seconds, got {args.tail_s}")
     report = measure_latency(
@@ -294,9 +304,6 @@ def register_measure_latency(subparsers: argparse._SubParsersAction) -> None:
         default="robot",
         metavar="NAME|FILE",
         help="model parameters to compare with (default: robot)",
-    )
-    parser.add_argument(
-        "--window-s", type=_positive(float), help="window length dt, s (default: the params' dt)"
     )
     parser.add_argument(
         "--tail-s",

@@ -94,7 +94,7 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run_replay)
 
 
-def _check_replay(args: argparse.Namespace, is_wav: bool) -> str:
+def _check_replay(args: argparse.Namespace, is_wav: bool) -> str:  # noqa: C901
     """The ``--actions`` kind after checking the arguments (ValueError: one line)."""
     if args.memory is not None and args.memory < 0:
         raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")

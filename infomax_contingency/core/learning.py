@@ -248,7 +248,7 @@ class LearningCurve:
         return record
 
 
-def learn(
+def learn(  # noqa: C901
     params: ModelParams,
     horizon: int,
     method: str | LearningSettings,

@@ -29,7 +29,7 @@ Measures per run (times are seconds of room time at the end of a window; the clo
 
 Binarizers are made from a name by :func:`make_binarizer` (:data:`BINARIZERS`): every bit
 source and threshold mode of mic_node, through the same
-:func:`~infomax_contingency.audio.bitsource.make_bit_source`. Results are plain
+:func:`~infomax_contingency.audio.bitsources.make_bit_source`. Results are plain
 JSON-serialisable dicts.
 """
 
@@ -45,7 +45,8 @@ from typing import Any
 
 import numpy as np
 
-from infomax_contingency.audio.bitsource import BitSource, make_bit_source
+from infomax_contingency.audio.bitsources import BIT_SOURCES, BitSource, make_bit_source
+from infomax_contingency.audio.bitsources.base import NameArgument, SettingSpec
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.core.model import (
     AGENT,
@@ -82,18 +83,35 @@ from infomax_contingency.sim.rooms import (
     room_kind,
 )
 
-BINARIZERS = (
-    "calibrate[:S]",
-    "fixed:DB",
-    "SOURCE:calibrate[:S]",
-    "SOURCE:fixed:DB",
-    "SOURCE:noise_floor[:MARGIN_DB[:WARMUP_S]]",
-    "SOURCE:background[:FALSE_ALARM[:MARGIN_DB[:HISTORY_S]]]",
-    "SOURCE:file:PATH",
-    "vad[:AGGRESSIVENESS[:MIN_VOICED_S]]",
-)
-"""Binarizer names (the grammar of :func:`binarizer_options`), each a bit source of
-:func:`~infomax_contingency.audio.bitsource.make_bit_source` with mic_node's parameters:
+SHORT_NAME_SOURCE = "energy"
+"""The source of a name that starts with a threshold mode (``calibrate``, ``fixed:-40``)."""
+
+
+def _placeholders(arguments: tuple[NameArgument, ...]) -> str:
+    """``:DB`` / ``[:S]`` / ``[:MARGIN_DB[:WARMUP_S]]`` of a mode's arguments."""
+    required = "".join(f":{a.placeholder}" for a in arguments if a.required)
+    optional = [a.placeholder for a in arguments if not a.required]
+    return required + ("[:" + "[:".join(optional) + "]" * len(optional) if optional else "")
+
+
+def _grammar() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(the binarizer names of every registered source, the sources that share ``SOURCE``)."""
+    shared = [n for n, s in BIT_SOURCES.items() if s.mode_setting is not None
+              and s.name_modes == BIT_SOURCES[SHORT_NAME_SOURCE].name_modes]  # fmt: skip
+    short = BIT_SOURCES[SHORT_NAME_SOURCE].name_modes
+    names = [f"{mode}{_placeholders(args)}" for mode, args in short.items()]
+    names += [f"SOURCE:{mode}{_placeholders(args)}" for mode, args in short.items()]
+    for name, source in BIT_SOURCES.items():
+        if name not in shared:
+            names += [f"{name}{':' + mode if mode else ''}{_placeholders(args)}"
+                      for mode, args in source.name_modes.items()]  # fmt: skip
+    return tuple(names), tuple(shared)
+
+
+BINARIZERS, LEVEL_SOURCES = _grammar()
+"""Binarizer names (the grammar of :func:`binarizer_options`), made from the bit sources'
+declarations (:data:`~infomax_contingency.audio.bitsources.BIT_SOURCES`: each source's
+``name_modes`` and settings), and the sources that are ``SOURCE`` in them:
 
 * ``SOURCE`` is ``energy`` (the window energy, the paper's rule) or ``speech_band`` (the
   300-3400 Hz band's energy); without it (``calibrate``, ``fixed:-40``, ...) the source is
@@ -109,10 +127,9 @@ BINARIZERS = (
   (default 0, ``background_margin_db``).
 * ``vad[:AGGRESSIVENESS[:MIN_VOICED_S]]``: WebRTC's voice-activity detector,
   aggressiveness 0-3 (default 2) and the voiced time a window needs, s (default 0.1).
-"""
 
-LEVEL_SOURCES = ("energy", "speech_band")
-"""Bit sources with a threshold: the ``SOURCE`` of :data:`BINARIZERS`."""
+A new source's names come with its registration.
+"""
 
 
 class BinarizerNameError(ValueError):
@@ -125,85 +142,82 @@ class BinarizerNameError(ValueError):
         )
 
 
-def _number(spec: str, text: str, what: str) -> float:
+def _value(spec: str, text: str, argument: NameArgument, declared: SettingSpec) -> Any:
+    """The setting an argument's text gives, in its declared type and range."""
+    value: Any = text
+    if isinstance(declared.default, int):
+        try:
+            value = int(text)
+        except ValueError:
+            raise BinarizerNameError(spec, f"bad whole number {text!r} for"
+                                     f" {argument.placeholder}") from None  # fmt: skip
+    elif isinstance(declared.default, float):
+        try:
+            value = float(text)
+        except ValueError:
+            raise BinarizerNameError(
+                spec, f"bad number {text!r} for {argument.placeholder}"
+            ) from None
+        if not math.isfinite(value):
+            raise BinarizerNameError(spec, f"{argument.placeholder} must be finite, got {text!r}")
     try:
-        value = float(text)
-    except ValueError:
-        raise BinarizerNameError(spec, f"bad number {text!r} for {what}") from None
-    if not math.isfinite(value):
-        raise BinarizerNameError(spec, f"{what} must be finite, got {text!r}")
-    return value
+        return declared.check(value)
+    except AudioError as error:
+        raise BinarizerNameError(spec, f"{argument.placeholder}: {error}") from None
 
 
-def _threshold_options(spec: str, mode: str, argument: str) -> dict[str, Any]:
-    """make_bit_source options of one threshold part (``mode[:argument]``)."""
-    if mode == "calibrate":
-        options: dict[str, Any] = {"threshold_mode": "calibrate"}
-        if argument:
-            options["calibration_s"] = _number(spec, argument, "the calibration seconds S")
-        return options
-    if mode == "fixed":
-        if not argument:
-            raise BinarizerNameError(spec, "fixed needs a threshold: fixed:DB (e.g. fixed:-40)")
-        return {"threshold_mode": "fixed", "threshold_db": _number(spec, argument, "DB")}
-    if mode == "noise_floor":
-        options = {"threshold_mode": "noise_floor"}
-        margin, _, warmup = argument.partition(":")
-        if margin:
-            options["noise_margin_db"] = _number(spec, margin, "MARGIN_DB")
-        if warmup:
-            options["calibration_s"] = _number(spec, warmup, "WARMUP_S")
-        return options
-    if mode == "background":
-        options = {"threshold_mode": "background"}
-        parts = argument.split(":") if argument else []
-        if len(parts) > 3:
-            raise BinarizerNameError(spec, "background takes FALSE_ALARM, MARGIN_DB, HISTORY_S")
-        for text, name, what in zip(
-            parts,
-            ("false_alarm", "background_margin_db", "background_window_s"),
-            ("FALSE_ALARM", "MARGIN_DB", "HISTORY_S"),
-            strict=False,
-        ):
-            if text:
-                options[name] = _number(spec, text, what)
-        return options
-    if mode == "file":
-        if not argument:
-            raise BinarizerNameError(spec, "file needs a path: file:PATH")
-        return {"threshold_mode": "file", "threshold_file": argument}
-    raise BinarizerNameError(spec, f"unknown threshold mode {mode!r}")
+def _source_and_words(spec: str) -> tuple[str, list[str]]:
+    """The source a name stands for and the words after it (a short name is energy's)."""
+    words = spec.split(":")
+    if words[0] in BIT_SOURCES:
+        return words[0], words[1:]
+    if words[0] not in BIT_SOURCES[SHORT_NAME_SOURCE].name_modes:
+        raise BinarizerNameError(spec, "unknown binarizer")
+    return SHORT_NAME_SOURCE, words
+
+
+def _mode_and_words(spec: str, name: str, words: list[str]) -> tuple[str, list[str]]:
+    """The mode word of a source that has modes ("" for one without) and the arguments."""
+    source = BIT_SOURCES[name]
+    if source.mode_setting is None:
+        return "", words
+    if not words or not words[0]:
+        raise BinarizerNameError(spec, f"{name} needs a {source.mode_setting}, e.g."
+                                 f" {name}:{next(iter(source.name_modes))}")  # fmt: skip
+    if words[0] not in source.name_modes:
+        raise BinarizerNameError(spec, f"unknown {source.mode_setting} {words[0]!r}")
+    return words[0], words[1:]
 
 
 def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
     """The bit source and the :func:`make_bit_source` options a binarizer name stands for.
 
+    The name is ``SOURCE[:MODE][:ARGUMENT...]`` as the source declares it
+    (:attr:`~infomax_contingency.audio.bitsources.base.BitSource.name_modes`); a name that
+    starts with a mode of :data:`SHORT_NAME_SOURCE` is that source's.
+
     Raises:
         BinarizerNameError: the name is outside the grammar of :data:`BINARIZERS`.
     """
-    head, _, rest = spec.partition(":")
-    if head == "vad":
-        parts = rest.split(":") if rest else []
-        if len(parts) > 2:
-            raise BinarizerNameError(spec, "vad takes at most AGGRESSIVENESS and MIN_VOICED_S")
-        options: dict[str, Any] = {}
-        if parts and parts[0]:
-            if parts[0] not in ("0", "1", "2", "3"):
-                raise BinarizerNameError(
-                    spec, f"AGGRESSIVENESS must be 0, 1, 2 or 3, got {parts[0]!r}"
-                )
-            options["vad_aggressiveness"] = int(parts[0])
-        if len(parts) == 2:
-            options["vad_min_voiced_s"] = _number(spec, parts[1], "MIN_VOICED_S")
-        return "vad", options
-    if head in LEVEL_SOURCES:
-        if not rest:
-            raise BinarizerNameError(spec, f"{head} needs a threshold mode, e.g. {head}:fixed:-40")
-        mode, _, argument = rest.partition(":")
-        return head, _threshold_options(spec, mode, argument)
-    if head in ("calibrate", "fixed", "noise_floor", "file", "background"):
-        return "energy", _threshold_options(spec, head, rest)
-    raise BinarizerNameError(spec, "unknown binarizer")
+    name, words = _source_and_words(spec)
+    mode, words = _mode_and_words(spec, name, words)
+    source = BIT_SOURCES[name]
+    options: dict[str, Any] = {source.mode_setting: mode} if source.mode_setting else {}
+    arguments = source.name_modes[mode]
+    declared = {s.name: s for s in source.specs()}
+    last = len(arguments) - 1
+    if 0 <= last < len(words) - 1 and isinstance(declared[arguments[-1].setting].default, str):
+        words = [*words[:last], ":".join(words[last:])]  # a path may hold ':'
+    if len(words) > len(arguments):
+        takes = " and ".join(a.placeholder for a in arguments) or "no argument"
+        raise BinarizerNameError(spec, f"{name}{':' + mode if mode else ''} takes at most {takes}")
+    for argument, text in zip(arguments, words + [""] * len(arguments), strict=False):
+        if text:
+            options[argument.setting] = _value(spec, text, argument, declared[argument.setting])
+        elif argument.required:
+            raise BinarizerNameError(spec, f"{mode or name} needs {argument.placeholder}:"
+                                     f" {mode or name}:{argument.placeholder}")  # fmt: skip
+    return name, options
 
 
 def make_binarizer(
@@ -214,20 +228,22 @@ def make_binarizer(
 ) -> BitSource:
     """A fresh bit source from its name (:data:`BINARIZERS`) for windows of ``window_s`` s.
 
-    ``params``: the model whose periods label the windows of a ``background`` threshold
-    (default: the robot's).
+    ``params``: the model whose periods label the windows of a source that
+    :attr:`~infomax_contingency.audio.bitsources.base.BitSource.needs_decisions`
+    (``background``; default: the robot's).
 
     One implementation: the name is parsed by :func:`binarizer_options` and the source
-    made by :func:`~infomax_contingency.audio.bitsource.make_bit_source`, as mic_node makes
+    made by :func:`~infomax_contingency.audio.bitsources.make_bit_source`, as mic_node makes
     it from its parameters. A bad name or value: ValueError, one line with the grammar.
     """
     source, options = binarizer_options(spec)
-    if params is not None and options.get("threshold_mode") == "background":
-        options["periods"] = (params.ts1, params.ts2, params.ta2)
     try:
-        return make_bit_source(source, rate_hz, window_s, **options)
+        bits = make_bit_source(source, rate_hz, window_s, **options)
     except AudioError as error:
         raise BinarizerNameError(spec, str(error)) from None
+    if params is not None and bits.needs_decisions:
+        bits.follow_model(params)
+    return bits
 
 
 LISTENING_BINARIZER = "fixed:-40"
@@ -317,7 +333,7 @@ class RoomsConfig:
     curve_priors: tuple[float, ...] = (0.01, 0.05, 0.2, 0.5)
     jobs: int = 2
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # noqa: C901
         def fail(name: str, allowed: str) -> None:
             raise ValueError(
                 f"experiment rooms: {name} = {getattr(self, name)!r}: must be {allowed}"

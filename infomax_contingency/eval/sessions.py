@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from infomax_contingency.audio.bag import read_topics
-from infomax_contingency.audio.binarizer import Binarizer, WavReplay
+from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.energy import wav_energies
 from infomax_contingency.audio.threshold import (
@@ -31,6 +31,7 @@ from infomax_contingency.audio.threshold import (
     kmeans_split,
     require_separation,
 )
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.stepclock import StepJoiner
@@ -198,8 +199,8 @@ def wav_background_bits(
     window ``k``, from an actions file or a reference channel) label its windows, so the
     threshold of window ``k`` is that of the background windows before it, as mic_node's
     would have been in the session. Windows of the warm-up give None (no step).
-    ``options``: :func:`~infomax_contingency.audio.bitsource.make_bit_source` options of
-    the ``background`` mode (``false_alarm``, ``background_window_s``, ...).
+    ``options``: settings of the ``background`` bit source (``false_alarm``, ...:
+    :mod:`~infomax_contingency.audio.bitsources.background`).
 
     Returns:
         the bits (None for a warm-up window) and one line saying what set the threshold.
@@ -207,22 +208,16 @@ def wav_background_bits(
     Raises:
         AudioError: unreadable file or missing channel.
     """
-    from infomax_contingency.audio.bitsource import make_bit_source
+    from infomax_contingency.audio.bitsources import make_bit_source
 
-    replay = WavReplay(path, params.dt, channel)
-    source = make_bit_source(
-        "energy",
-        PROCESSING_RATE_HZ,
-        params.dt,
-        threshold_mode="background",
-        periods=(params.ts1, params.ts2, params.ta2),
-        **options,
-    )
+    replay = WavReplay(path, params.dt, channel, samples=True)
+    source = make_bit_source("background", PROCESSING_RATE_HZ, params.dt, **options)
+    source.follow_model(params)
     rule = source.rule
     bits: list[bool | None] = []
-    while (energy := replay.next_energy()) is not None:
+    while (window := replay.next_window()) is not None:
         decision = int(decisions[len(bits)]) if len(bits) < len(decisions) else 0
-        bits.append(rule.push(energy, decision=decision))
+        bits.append(source.push_recorded(window, decision))
     what = (
         f"sound threshold: {rule.rank}-th loudest of the last {len(rule.background)} background"
         f" windows (now {rule.threshold_db:.1f} dB; false alarms {rule.false_alarm_now:.3f})"
@@ -247,19 +242,17 @@ class _WavLevels:
 
     def __init__(self, path: Path, params: ModelParams, channel: int | None, **options: object
                  ) -> None:
-        from infomax_contingency.audio.bitsource import make_bit_source
+        from infomax_contingency.audio.bitsources import make_bit_source
 
-        self.replay = WavReplay(path, params.dt, channel)
-        self.source = make_bit_source(
-            "energy", PROCESSING_RATE_HZ, params.dt, threshold_mode="background",
-            periods=(params.ts1, params.ts2, params.ta2), **options,
-        )  # fmt: skip
+        self.replay = WavReplay(path, params.dt, channel, samples=True)
+        self.source = make_bit_source("background", PROCESSING_RATE_HZ, params.dt, **options)
+        self.source.follow_model(params)
 
     def observe(self) -> BitObservation | None:
-        energy = self.replay.next_energy()
-        if energy is None:
+        window = self.replay.next_window()
+        if window is None:
             raise _EndOfRecordingError
-        bit = self.source.push(energy)
+        bit = self.source.push_window(window)
         return None if bit is None else BitObservation(int(bit))
 
     def act(self, u: int) -> None:

@@ -52,7 +52,6 @@ from infomax_contingency.core.stepclock import (
     StepJoiner,
 )
 from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
-from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
@@ -80,20 +79,10 @@ class BeliefNode(GraphNode):
     NODE_NAME = "belief_node"
     WATCHED_TOPICS = ("sound", SOUND_STEP, "vocalize", VOCALIZE_STEP)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         self.params = read.model()
-        window_s = read.number(
-            "window_s", self.params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - self.params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {self.params.dt:g} s (parameter 'params'): the steps would not be the"
-                " model's"
-            )
         memory = read.integer(
             "memory_steps",
             60,
@@ -136,13 +125,15 @@ class BeliefNode(GraphNode):
         self._joining = False
         self._bit_times = PublicationTimes(horizon_s=max(10.0, 4 * self.controllers.silence_s))
         """Publication times (s) of the followed stream's recent bits."""
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS
         )
         self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
-        self.start_diagnostics()
 
     def _subscribe_bits_when_ready(self) -> None:
         """Subscribe ``sound_step`` once a controller and the belief's listeners are there."""

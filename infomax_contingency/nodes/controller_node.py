@@ -103,19 +103,10 @@ class ControllerNode(GraphNode):
     NODE_NAME = "controller_node"
     WATCHED_TOPICS = (SOUND_STEP,)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         params = read.model()
-        window_s = read.number(
-            "window_s", params.dt, "Window (step) length; must equal the model's dt",
-            0.01, 10.0, "s",
-        )
-        if abs(window_s - params.dt) > 1e-9:
-            raise ConfigError(
-                f"parameter 'window_s' = {window_s:g} s differs from the model's dt ="
-                f" {params.dt:g} s (parameter 'params' and the policy table)"
-            )
         path = read.text(
             "policy_file",
             "",
@@ -155,6 +146,18 @@ class ControllerNode(GraphNode):
         self.stale_bits = self.recent_events()
         self.foreign = self.recent_events()
         self.bad = self.recent_events()
+        if spec:
+            self.get_logger().info(f"controller {self.controller.name} (no table);"
+                                   f" controller id {self.controller_id}")
+        else:
+            self.get_logger().info(
+                f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
+                + (f", memory {table.memory}" if table.mode == "receding" else "")
+                + f"; controller id {self.controller_id}"
+            )
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.vocalize_pub = self.create_publisher(Bool, "vocalize", STREAM_QOS)
         self.step_pub = self.create_publisher(Int64MultiArray, VOCALIZE_STEP, STREAM_QOS)
         self.subscribe(Int64MultiArray, SOUND_STEP, self._on_sound_step, STEP_READER_QOS)
@@ -165,16 +168,6 @@ class ControllerNode(GraphNode):
         self.wait_visibly(
             SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
         )
-        self.start_diagnostics()
-        if spec:
-            self.get_logger().info(f"controller {self.controller.name} (no table);"
-                                   f" controller id {self.controller_id}")
-        else:
-            self.get_logger().info(
-                f"policy {self.table_path}: {table.mode}, horizon {table.horizon}"
-                + (f", memory {table.memory}" if table.mode == "receding" else "")
-                + f"; controller id {self.controller_id}"
-            )
 
     def _listeners_ready(self) -> bool:
         return self.step_pub.get_subscription_count() >= self.wait_for_listeners

@@ -4,12 +4,13 @@ The room (:class:`~infomax_contingency.sim.fake_room.FakeRoom`) is chosen by ``r
 (responsive | silent | noisy) and every one of its parameters can be overridden (noise
 floor, background events, the robot's own sound, the partner's arrival, departure,
 reply probability, delays and level; see :mod:`infomax_contingency.sim.fake_room`).
-Deterministic for a given ``seed``. Every room parameter but ``rate_hz`` and
-``window_s`` is live (``ros2 param set``): it is checked as at start-up and applies from
-the next window on (:meth:`~infomax_contingency.sim.fake_room.FakeRoom.reconfigure`):
-the partner's schedule (``partner_arrive_s``, ``partner_leave_s``, in room time), the
-reply probability, levels, delays and the rate of background events; sounds already
-playing or scheduled play out as they were made.
+Deterministic for a given ``seed``. The room's window is the model's dt (``params``).
+Every room parameter but ``rate_hz`` is live (``ros2 param set``): it is checked as at
+start-up and applies from the next window on
+(:meth:`~infomax_contingency.sim.fake_room.FakeRoom.reconfigure`): the partner's schedule
+(``partner_arrive_s``, ``partner_leave_s``, in room time), the reply probability, levels,
+delays and the rate of background events; sounds already playing or scheduled play out
+as they were made.
 
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
 decision on window t arrived on ``vocalize_step`` (or after ``lockstep_timeout_s``;
@@ -59,13 +60,6 @@ from infomax_contingency.sim.fake_room import (
 )
 
 ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
-    (
-        "window_s",
-        "Window length; must equal the mic's window_s and the model's dt",
-        0.01,
-        10.0,
-        "s",
-    ),
     ("noise_floor_db", "RMS level of the background hiss", -150.0, 0.0, "dB"),
     ("event_rate_hz", "Background sound events per second", 0.0, 100.0, "1/s"),
     ("event_level_db", "RMS level of a background event", -150.0, 0.0, "dB"),
@@ -85,8 +79,6 @@ ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
 )
 """(name, description, low, high, unit) of the room's floating-point parameters."""
 
-FIXED_ROOM_PARAMETERS = ("window_s",)
-"""Room parameters that cannot change while the room runs (with ``rate_hz``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,22 +100,25 @@ class FakeAudioConfig:
     source_timeout_s: float
 
 
-def _read_room(read: ParameterReader) -> tuple[str, dict[str, Any]]:
-    """The room preset's name and the values that override it (rate_hz, ROOM_PARAMETERS)."""
+def _read_room(read: ParameterReader, window_s: float) -> tuple[str, dict[str, Any]]:
+    """The room preset's name and the values that override it (rate_hz, ROOM_PARAMETERS).
+
+    The room's window is ``window_s`` (the model's dt, seconds).
+    """
     room_name = read.text(
         "room", "responsive", "Room preset the other parameters start from", tuple(PRESETS)
     )
     defaults = FakeRoomConfig.preset(room_name)
     values: dict[str, Any] = {
+        "window_s": window_s,
         "rate_hz": read.integer(
             "rate_hz", defaults.rate_hz, "Sample rate of the audio", 1000, 384000
-        )
+        ),
     }
     for name, description, low, high, unit in ROOM_PARAMETERS:
-        live = name not in FIXED_ROOM_PARAMETERS
         values[name] = read.number(
-            name, getattr(defaults, name), description + (" (live)" if live else ""),
-            low, high, unit, read_only=not live,
+            name, getattr(defaults, name), description + " (live)", low, high, unit,
+            read_only=False,
         )  # fmt: skip
     return room_name, values
 
@@ -172,7 +167,7 @@ def read_config(node: GraphNode) -> FakeAudioConfig:
     """Declare and check fake_audio_node's parameters."""
     read: ParameterReader = node.parameters
     params = read.model()
-    room_name, values = _read_room(read)
+    room_name, values = _read_room(read, params.dt)
     seed = read.integer("seed", 0, "Random seed (same seed, same room)", 0, 2**31 - 1)
     pacing = _read_pacing(read)
     try:
@@ -196,9 +191,9 @@ class FakeAudioNode(GraphNode):
 
     NODE_NAME = "fake_audio_node"
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
-        config = read_config(self)
+    def configure(self) -> None:
+        """Declare and check the parameters; the room they describe."""
+        self.config = config = read_config(self)
         for warning in timing_warnings(config.room, config.params):
             self.get_logger().warning(f"room timing vs model parameters: {warning}")
         self.params = config.params
@@ -210,6 +205,20 @@ class FakeAudioNode(GraphNode):
         self.max_windows = config.max_windows
         self.wait_for_listeners = config.wait_for_listeners
         self.wait_for_truth_listeners = config.wait_for_truth_listeners
+        self.started = False
+        self.controllers = SourceLock(config.source_timeout_s)
+        self._window_sent_s: float | None = None
+        """When the newest window was published (s, system clock)."""
+        self.timeouts = self.recent_events()
+        self.foreign = self.recent_events()
+        self._answered: tuple[int, int] = (0, 0)
+        self.get_logger().info(
+            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
+        )
+
+    def activate(self) -> None:
+        """Publishers, the decisions' subscription, the start gate and the held-window timer."""
+        config = self.config
         self._held_window: Timer | None = None
         """The timer that publishes the next window ``window_s / lockstep_max_speed`` after
         its decision (None: no cap, the decision publishes it)."""
@@ -218,15 +227,8 @@ class FakeAudioNode(GraphNode):
                 config.room.window_s / config.lockstep_max_speed, self._release_held_window,
                 autostart=False,
             )  # fmt: skip
-        self.started = False
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
-        self.controllers = SourceLock(config.source_timeout_s)
-        self._window_sent_s: float | None = None
-        """When the newest window was published (s, system clock)."""
-        self.timeouts = self.recent_events()
-        self.foreign = self.recent_events()
-        self._answered: tuple[int, int] = (0, 0)
         self.vocalize_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
@@ -241,10 +243,6 @@ class FakeAudioNode(GraphNode):
             " calibrating, or warming up a noise floor, on this stream would wait for"
             " windows that only come after a decision",
         )
-        self.get_logger().info(
-            f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
-        )
-        self.start_diagnostics()
 
     def _ready(self) -> bool:
         return (
@@ -323,14 +321,13 @@ class FakeAudioNode(GraphNode):
         self.truth_pub.publish(Bool(data=window.partner_present))
 
     def _live_room_parameters(self) -> None:
-        """Let every room parameter but rate_hz and window_s change while the room runs."""
+        """Let every room parameter but rate_hz change while the room runs."""
         for name, *_ in ROOM_PARAMETERS:
-            if name not in FIXED_ROOM_PARAMETERS:
-                self.parameters.live(
-                    name,
-                    lambda value, name=name: self._reconfigure(name, value),
-                    lambda value, name=name: self._room_config(name, value),
-                )
+            self.parameters.live(
+                name,
+                lambda value, name=name: self._reconfigure(name, value),
+                lambda value, name=name: self._room_config(name, value),
+            )
 
     def _room_config(self, name: str, value: float) -> FakeRoomConfig:
         """The room's parameters with ``name`` = ``value``; ConfigError as at start-up."""

@@ -15,15 +15,19 @@ Intruders: a node that listens to a topic with one rightful publisher (``sound``
 the publishers on it (:meth:`GraphNode.extra_publishers`) and reports a second one by
 name, in a throttled WARN and an ERROR diagnostic while it lasts.
 
-A refused node leaves nothing behind: when a subclass's ``__init__`` raises (a bad
-parameter, a missing file or device), the half-built node is destroyed before the error
-goes on, so its publishers and services do not outlive it in a process that carries on
-(an in-process test, a composed bringup that reports the refusal).
+A node is built in two steps, as a managed node's configure and activate (ros2/demos'
+``lifecycle_py/talker.py``), called in that order by :class:`GraphNode`'s constructor:
+:meth:`GraphNode.configure` declares and checks the parameters (a bad one raises
+:class:`~infomax_contingency.nodes.parameters.ConfigError`), :meth:`GraphNode.activate`
+creates the publishers, subscriptions, services and timers; then the diagnostics start.
+A refused node leaves nothing behind: when either step raises (a bad parameter, a missing
+file or device), the half-built node is destroyed before the error goes on, so its
+publishers and services do not outlive it in a process that carries on (an in-process
+test, a composed bringup that reports the refusal).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Callable
@@ -71,84 +75,81 @@ WAITING_NOTICE_S = 5.0
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
-def _destroyed_if_refused(init: Callable[..., None]) -> Callable[..., None]:
-    """``init``, destroying the half-built node (once) when it raises, then re-raising."""
-
-    @functools.wraps(init)
-    def build(self: GraphNode, *args: Any, **kwargs: Any) -> None:
-        try:
-            init(self, *args, **kwargs)
-        except BaseException:
-            if not getattr(self, "_refusal_cleaned", False):
-                self._refusal_cleaned = True
-                try:
-                    self.destroy_node()  # the subclass's: releases a device it opened
-                except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
-                    with suppress(Exception):
-                        Node.destroy_node(self)
-            raise
-
-    return build
-
-
-
 class GraphNode(Node):
     """Base of the graph's nodes: parameters, diagnostics and a completion future.
 
-    Subclasses call :meth:`start_diagnostics` once set up and implement
+    Subclasses set :attr:`NODE_NAME`, implement :meth:`configure`, :meth:`activate` and
     :meth:`diagnostic_status`. A node that finishes on its own (e.g. the end of a replayed
     file) sets :attr:`finished`; :func:`run_node` then returns its result as exit status.
     """
 
+    NODE_NAME: str = ""
+    """The node's default name."""
+
     WATCHED_TOPICS: tuple[str, ...] = ()
     """Topics with one rightful publisher that this node watches for a second one."""
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        if "__init__" in cls.__dict__:
-            cls.__init__ = _destroyed_if_refused(cls.__dict__["__init__"])  # type: ignore[method-assign]
-
-    def __init__(self, node_name: str, **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.intruders: dict[str, list[str]] = {}
-        """Watched topics with more than one publisher -> the publishers (last check)."""
-        self.started_ns = time.time_ns()
-        self.stale_messages = 0
-        """Messages ignored because they were published before this node started."""
-        self.parameters = ParameterReader(self)
-        self.fault_hold_s = self.parameters.number(
-            "fault_hold_s",
-            10.0,
-            "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
-            " its count stays among the values",
-            0.1,
-            3600.0,
-            "s",
-        )
-        self.diagnostics_period_s = self.parameters.number(
-            "diagnostics_period_s",
-            DIAGNOSTICS_PERIOD_S,
-            "Seconds between two diagnostics messages of this node on /diagnostics (each one"
-            " also checks the watched topics for a second publisher)",
-            0.05,
-            60.0,
-            "s",
-        )
-        if self.fault_hold_s < self.diagnostics_period_s:
-            self.get_logger().warning(
-                f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
-                f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
-                " diagnostics messages shows only in the counts"
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        try:
+            self.intruders: dict[str, list[str]] = {}
+            """Watched topics with more than one publisher -> the publishers (last check)."""
+            self.started_ns = time.time_ns()
+            self.stale_messages = 0
+            """Messages ignored because they were published before this node started."""
+            self.parameters = ParameterReader(self)
+            self.fault_hold_s = self.parameters.number(
+                "fault_hold_s",
+                10.0,
+                "A diagnostic shows a fault (WARN or ERROR) for this long after it last happened;"
+                " its count stays among the values",
+                0.1,
+                3600.0,
+                "s",
             )
-        self.finished: Future = Future()
-        self._quiet_until: dict[str, float] = {}
-        """Throttled log kind -> monotonic second until which it stays quiet."""
-        self.arrivals: dict[str, int] = {}
-        """Messages received per topic (as subscribed, relative names)."""
-        self.waiting_for = ""
-        """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
-        self._awaited: list[tuple[str, str]] = []
-        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.diagnostics_period_s = self.parameters.number(
+                "diagnostics_period_s",
+                DIAGNOSTICS_PERIOD_S,
+                "Seconds between two diagnostics messages of this node on /diagnostics (each one"
+                " also checks the watched topics for a second publisher)",
+                0.05,
+                60.0,
+                "s",
+            )
+            if self.fault_hold_s < self.diagnostics_period_s:
+                self.get_logger().warning(
+                    f"fault_hold_s ({self.fault_hold_s:g} s) is shorter than diagnostics_period_s"
+                    f" ({self.diagnostics_period_s:g} s): a fault that starts and ends between two"
+                    " diagnostics messages shows only in the counts"
+                )
+            self.finished: Future = Future()
+            self._quiet_until: dict[str, float] = {}
+            """Throttled log kind -> monotonic second until which it stays quiet."""
+            self.arrivals: dict[str, int] = {}
+            """Messages received per topic (as subscribed, relative names)."""
+            self.waiting_for = ""
+            """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
+            self._awaited: list[tuple[str, str]] = []
+            self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.configure()
+            self.activate()
+        except BaseException:
+            # A refused node is destroyed (what it made goes with it) before the error goes on.
+            try:
+                self.destroy_node()  # the subclass's: releases a device it opened
+            except Exception:  # noqa: BLE001 - set up only in part: the rclpy node alone
+                with suppress(Exception):
+                    Node.destroy_node(self)
+            raise
+        self.start_diagnostics()
+
+    def configure(self) -> None:
+        """Declare and check the node's parameters (ConfigError for a bad one)."""
+        raise NotImplementedError
+
+    def activate(self) -> None:
+        """Create the node's publishers, subscriptions, services and timers."""
+        raise NotImplementedError
 
     def subscribe(
         self,

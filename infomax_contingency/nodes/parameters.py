@@ -9,15 +9,22 @@ A live set (``ros2 param set``) is checked by the same rule and refused with the
 message: rclpy checks a descriptor's type and range before any set-parameters callback,
 so the check runs in a pre-set callback (:meth:`ParameterReader._check_first`), ahead
 of rclpy's.
+
+A parameter file's keys that no node declares are ignored by rcl without a word (a
+misspelled key, a misspelled node section): :func:`undeclared_parameters` names them,
+and ``runtime.run_nodes`` warns about them once its nodes are up.
 """
 
 from __future__ import annotations
 
 import array
 import math
-from collections.abc import Callable, Sequence
-from typing import Any
+import re
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, Protocol
 
+import yaml
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -28,7 +35,9 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
+from infomax_contingency.nodes.entry import NODES as PACKAGE_NODES
 
 
 class ConfigError(ValueError):
@@ -44,6 +53,8 @@ class ParameterReader:
 
     def __init__(self, node: Node) -> None:
         self._node = node
+        self.node = node
+        """The node whose parameters these are."""
         self._coercers: dict[str, Callable[[Any], Any]] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
@@ -300,6 +311,17 @@ class ParameterReader:
             allowed,
         )
 
+    def declared(self, spec: SettingSpec) -> Any:
+        """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text."""
+        read_only = not spec.live
+        if isinstance(spec.default, str):
+            return self.text(spec.name, spec.default, spec.description, spec.choices, read_only)
+        if isinstance(spec.default, int):
+            return self.integer(spec.name, spec.default, spec.description, int(spec.low),
+                                int(spec.high), read_only)  # fmt: skip
+        return self.number(spec.name, spec.default, spec.description, spec.low, spec.high,
+                           spec.unit, read_only)  # fmt: skip
+
     def model(self) -> ModelParams:
         """The ``params`` parameter: a named model parameter set or a YAML file."""
         name = self.text(
@@ -309,9 +331,33 @@ class ParameterReader:
             " dt, ts1, ts2, ta1, ta2, pi and optionally the Beta priors b11 .. b32",
         )
         try:
-            return ModelParams.load(name)
+            params = ModelParams.load(name)
         except ParameterError as error:
             raise ConfigError(f"parameter 'params' = {name!r}: {error}") from None
+        self._refuse_another_window(params.dt)
+        return params
+
+    def _refuse_another_window(self, dt: float) -> None:
+        """Refuse a ``window_s`` given for the node that is not the model's dt (seconds).
+
+        The window (one step) is always the model's dt; ``window_s`` is no parameter. A
+        parameter file that still sets it to dt works; another value would silently be
+        another window than the one meant, so the node stops and says so.
+        """
+        given = getattr(self._node, "_parameter_overrides", {}).get("window_s")
+        if given is None:
+            return
+        value = given.value
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if abs(value - dt) <= 1e-9:
+                return
+            shown = f"{value:g} s"
+        else:
+            shown = repr(value)
+        raise ConfigError(
+            f"parameter 'window_s' = {shown} differs from the model's dt = {dt:g} s (parameter"
+            " 'params'): one window is one step of the model; remove window_s"
+        )
 
 
 
@@ -337,3 +383,122 @@ def device_parameter(node: Node, what: str) -> str:
     return str(value).strip()
 
 
+SHARED_PARAMETERS = frozenset({"params", "fault_hold_s", "diagnostics_period_s", "use_sim_time"})
+"""Parameters a ``/**`` section may give every node although some nodes do not declare
+them (``config/robot.yaml``: the model, the diagnostics' timing)."""
+
+CHECKED_UNDECLARED = frozenset({"window_s"})
+"""Keys no node declares that the nodes read themselves: ``window_s``, no parameter any
+more, which a file may still set to the model's dt (:meth:`ParameterReader.model`)."""
+
+_PARAMETERS_KEY = "ros__parameters"
+
+
+def params_files(args: Sequence[str]) -> list[str]:
+    """The files named by ``--params-file`` in the ``--ros-args`` parts of ``args``."""
+    files, inside = [], False
+    for index, token in enumerate(args):
+        if token == "--ros-args":
+            inside = True
+        elif token == "--":
+            inside = False
+        elif inside and token == "--params-file" and index + 1 < len(args):
+            files.append(args[index + 1])
+    return files
+
+
+def parameter_sections(document: Any) -> Iterator[tuple[str, list[str]]]:
+    """``(node pattern, parameter names)`` of each section of a ROS parameter file.
+
+    A section is the path of keys down to ``ros__parameters`` (``/**/mic_node``, or
+    ``ns: {mic_node: ...}`` for ``/ns/mic_node``); nested parameters are dotted names,
+    as rcl reads them (``a: {b: 1}`` is ``a.b``).
+    """
+
+    def names(tree: Any, prefix: str = "") -> Iterator[str]:
+        for key, value in (tree or {}).items() if isinstance(tree, dict) else ():
+            if isinstance(value, dict):
+                yield from names(value, f"{prefix}{key}.")
+            else:
+                yield f"{prefix}{key}"
+
+    def walk(tree: Any, path: tuple[str, ...]) -> Iterator[tuple[str, list[str]]]:
+        if not isinstance(tree, dict):
+            return
+        for key, value in tree.items():
+            if key == _PARAMETERS_KEY:
+                tokens = [t for part in path for t in str(part).split("/") if t]
+                yield "/" + "/".join(tokens), list(names(value))
+            else:
+                yield from walk(value, (*path, str(key)))
+
+    yield from walk(document, ())
+
+
+def section_matches(pattern: str, node_name: str) -> bool:
+    """True when the section ``pattern`` applies to the node ``node_name`` (fully qualified).
+
+    rcl's rule: ``*`` stands for one name token, ``**`` for any number of them.
+    """
+    regex = ""
+    for token in pattern.strip("/").split("/"):
+        regex += {"**": r"(/[^/]+)*", "*": r"/[^/]+"}.get(token, "/" + re.escape(token))
+    return re.fullmatch(regex, node_name) is not None
+
+
+class DeclaringNode(Protocol):
+    """What :func:`undeclared_parameters` asks of a node (an rclpy ``Node`` has both)."""
+
+    def get_fully_qualified_name(self) -> str: ...  # noqa: D102
+
+    def has_parameter(self, name: str) -> bool: ...  # noqa: D102
+
+
+def undeclared_parameters(files: Sequence[str], nodes: Sequence[DeclaringNode]
+                          ) -> list[tuple[DeclaringNode | None, str]]:  # fmt: skip
+    """What of the parameter ``files`` no node of ``nodes`` (one process's) takes.
+
+    Returns ``(node, message)``: ``node`` the node a key was meant for but does not
+    declare, or None for a section that matches no node of this process and is not
+    named after a node of the package (``entry.NODES``): a misspelled node name (one
+    named after a node of the package belongs to another process, as in a launch's one
+    file). A key of a section for every node (its last name token a wildcard, ``/**``)
+    counts only if none of ``nodes`` declares it and it is not one of
+    :data:`SHARED_PARAMETERS`. Unreadable files are skipped (rcl refused them already).
+    """
+    found: list[tuple[DeclaringNode | None, str]] = []
+    for file in files:
+        try:
+            sections = list(parameter_sections(yaml.safe_load(Path(file).read_text())))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError):
+            continue  # rcl read it, this check cannot: it says nothing rather than fail
+        for pattern, keys in sections:
+            found += [(node, f"parameter file {file}: {message}")
+                      for node, message in _section_findings(pattern, keys, nodes)]  # fmt: skip
+    return found
+
+
+def _section_findings(pattern: str, keys: list[str], nodes: Sequence[DeclaringNode]
+                      ) -> list[tuple[DeclaringNode | None, str]]:  # fmt: skip
+    """:func:`undeclared_parameters` of one section ``pattern`` holding ``keys``."""
+    matched = [n for n in nodes if section_matches(pattern, n.get_fully_qualified_name())]
+    last = pattern.rsplit("/", 1)[-1]
+    wildcard = last in ("*", "**")
+    if not matched:
+        own = {node.get_fully_qualified_name().rsplit("/", 1)[-1] for node in nodes}
+        if wildcard or last in PACKAGE_NODES or last in own or not keys:
+            return []  # another namespace's, or another process's
+        return [(None, f"section '{pattern}' matches no node (the package's nodes:"
+                       f" {', '.join(PACKAGE_NODES)}); its parameters {', '.join(keys)} are"
+                       " ignored")]  # fmt: skip
+    found: list[tuple[DeclaringNode | None, str]] = []
+    for key in (key for key in keys if key not in CHECKED_UNDECLARED):
+        if wildcard:  # for every node: some take it, others need not
+            shared = key in SHARED_PARAMETERS or any(n.has_parameter(key) for n in nodes)
+            targets = [] if shared else matched
+        else:
+            targets = [n for n in matched if not n.has_parameter(key)]
+        found += [(node, f"'{key}' (section '{pattern}') is not a parameter of"
+                         f" {node.get_fully_qualified_name()}: ignored")
+                  for node in targets]  # fmt: skip
+    return found

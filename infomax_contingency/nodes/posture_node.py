@@ -35,8 +35,8 @@ class PostureNode(GraphNode):
 
     NODE_NAME = "posture_node"
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         attentive_above = read.number(
             "attentive_above",
@@ -83,11 +83,14 @@ class PostureNode(GraphNode):
         self._make_live()
         self.changes = 0
         self.belief = float("nan")
+        self._initial = initial
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
         self.joints_pub = self.create_publisher(JointTrajectory, "joint_targets", LATCHED_QOS)
         self.subscribe(Float64, "belief", self._on_belief)
-        self._publish(initial)
-        self.start_diagnostics()
+        self._publish(self._initial)
 
     def _check_positions(self, posture: str, positions: list[float]) -> None:
         if len(positions) != len(self.joint_names):

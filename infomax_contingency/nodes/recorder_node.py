@@ -132,14 +132,14 @@ class RecorderNode(GraphNode):
 
     NODE_NAME = "recorder_node"
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         directory = read.text("directory", "", "Bag directory to create (must not exist)")
         files = read.text(
             "session_files", "", "Parameter and threshold files to store (comma-separated)"
         )
-        flush_period_s = read.number(
+        self.flush_period_s = read.number(
             "flush_period_s", 1.0, "Seconds between flushes of the bag (one chunk)", 0.05,
             3600.0, "s",
         )
@@ -152,10 +152,13 @@ class RecorderNode(GraphNode):
         self.subscribed: set[str] = set()
         self._waiting: dict[str, tuple[type, QoSProfile]] = {}
         """Topics to subscribe to once they have a publisher (see SUBSCRIBED_ONCE_PUBLISHED)."""
-        description = session_description([f.strip() for f in files.split(",") if f.strip()])
+        self.description = session_description([f.strip() for f in files.split(",") if f.strip()])
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.writer: BagWriter | None = None
         try:
-            self.writer = BagWriter(self.directory, custom_data={"session": description})
+            self.writer = BagWriter(self.directory, custom_data={"session": self.description})
         except BagWriteError as error:
             self._fail(str(error))
         self._add_topic(SESSION_TOPIC, String, STREAM_QOS)
@@ -164,11 +167,10 @@ class RecorderNode(GraphNode):
         # Announced only now that every subscription exists: a graph that waits for
         # 'session_info' (the demo's monitor) starts once nothing can be missed.
         self._session_pub = self.create_publisher(String, SESSION_TOPIC, LATCHED_QOS)
-        self._write_own(SESSION_TOPIC, String(data=description))
-        self._session_pub.publish(String(data=description))
+        self._write_own(SESSION_TOPIC, String(data=self.description))
+        self._session_pub.publish(String(data=self.description))
         self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
-        self.create_timer(flush_period_s, self._flush)
-        self.start_diagnostics()
+        self.create_timer(self.flush_period_s, self._flush)
 
     def _fail(self, message: str) -> None:
         """Stop writing after an error (logged once, shown in the diagnostics)."""

@@ -3,14 +3,21 @@
 :func:`run_node` spins the node until it is done or interrupted (Ctrl-C, SIGTERM) and
 ends with ``rclpy.try_shutdown()``; :func:`run_nodes` does the same for several nodes in
 one process (``bringup``). Neither leaks memory per callback (:func:`spin_until_done`).
+
+A node process started by another process that must not outlive it (the demo, the test
+harness: :data:`PARENT_PID_VARIABLE` names that parent) ends when the parent dies, for any
+reason, SIGKILL included (:func:`end_with_parent`).
 """
 
 from __future__ import annotations
 
+import ctypes
+import os
 import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -22,6 +29,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.nodes.parameters import params_files, undeclared_parameters
 
 SPIN_TIMEOUT_S = 0.1
 """Seconds one executor wait may block, so that a finished node is noticed."""
@@ -58,6 +66,63 @@ def init_ros(args: Sequence[str] | None, program: str) -> bool:
               file=sys.stderr)
         return False
     return True
+
+
+PARENT_PID_VARIABLE = "INFOMAX_CONTINGENCY_PARENT_PID"
+"""Environment variable by which a process that starts nodes (the demo, the test harness)
+names itself: the node then ends with it (:func:`end_with_parent`)."""
+
+_PR_SET_PDEATHSIG = 1
+"""``prctl`` option (linux/prctl.h): the signal this process gets when its parent dies."""
+
+
+def end_with_parent(environ: MutableMapping[str, str] = os.environ) -> bool:
+    """Get SIGTERM when the parent named by :data:`PARENT_PID_VARIABLE` dies; False if it has.
+
+    Without the variable (a node started by hand, by ``ros2 run`` or a launch that does
+    not set it) nothing changes and the result is True. With it, the kernel sends this
+    process SIGTERM (:class:`StopSignals`: a clean stop) when its parent dies, however
+    it dies (Linux ``prctl(PR_SET_PDEATHSIG)``; the parent is the thread that started
+    this process, which for the demo and the harness is their main thread). The signal is
+    set before the parent is checked, so a parent that died before (while this process
+    was still loading: it then has another parent) is seen here, and one that dies after
+    sends the signal. A wrapper between the two (``ros2 run`` starts the executable as
+    its child) is this process's parent then, and the named process must be alive. The
+    variable is removed, so that no process this one starts takes it for its own parent.
+
+    Returns False when the parent is already gone: the caller ends at once.
+    """
+    text = environ.pop(PARENT_PID_VARIABLE, "").strip()
+    if not text.isdigit():
+        return True
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    parent = int(text)
+    return os.getppid() == parent or process_alive(parent)
+
+
+def process_alive(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie, dead but not yet reaped, does not count)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    except OSError:  # no /proc: ask the kernel (a zombie then counts as alive)
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
+        return True
+    return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+
+
+def parent_pid_environment(environ: MutableMapping[str, str]) -> MutableMapping[str, str]:
+    """``environ`` naming this process as the parent its node processes end with."""
+    environ[PARENT_PID_VARIABLE] = str(os.getpid())
+    return environ
 
 
 class StopSignals:
@@ -210,7 +275,19 @@ def await_acknowledgments(nodes: Sequence[Node], budget_s: float = ACK_BUDGET_S)
                 continue
 
 
-def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
+def warn_undeclared_parameters(nodes: Sequence[Node], program: str, args: Sequence[str]
+                               ) -> None:  # fmt: skip
+    """Warn about the keys of the ``--params-file`` files in ``args`` that no node takes.
+
+    rcl ignores them silently (a misspelled key or node section): each is named once, by
+    the node it was meant for, or by ``program`` for a section that matches no node.
+    """
+    for node, message in undeclared_parameters(params_files(args), nodes):
+        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(program)
+        logger.warning(message)
+
+
+def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,  # noqa: C901
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
 
@@ -219,6 +296,10 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
     when they arrive again during shutdown; no traceback either way.
     """
     stop = StopSignals().install()
+    if not end_with_parent():
+        print(f"{program}: the process that started it is gone; not starting", file=sys.stderr)
+        stop.restore()
+        return 0
     if not init_ros(args, program):
         stop.restore()
         return 2
@@ -231,6 +312,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
             nodes.append(factory())
             executor.add_node(nodes[-1])
         current = program
+        warn_undeclared_parameters(nodes, program, sys.argv if args is None else args)
         any_finished = Future()
         for node in nodes:
             finished = getattr(node, "finished", None)

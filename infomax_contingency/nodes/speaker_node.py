@@ -53,8 +53,8 @@ class SpeakerNode(GraphNode):
     NODE_NAME = "speaker_node"
     WATCHED_TOPICS = ("vocalize",)
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(self.NODE_NAME, **kwargs)
+    def configure(self) -> None:
+        """Declare and check the parameters; the state they set."""
         read = self.parameters
         self.dry_run = read.flag(
             "dry_run", True, "Only count vocalizations, play nothing (live)", read_only=False
@@ -89,10 +89,14 @@ class SpeakerNode(GraphNode):
         self.speaker: SpeakerOutput | None = None
         self._opened: SpeakerOutput | None = None
         """A loudspeaker opened by a live ``dry_run`` false, until the set applies."""
+        if self.dry_run and sound_file:
+            read_wav(sound_file)  # a bad file is refused in a dry run too
+        self.output_errors = self.recent_events()
+
+    def activate(self) -> None:
+        """Publishers, subscriptions, services and timers."""
         self.started_pub = self.create_publisher(TimeMsg, "speaker_started", STREAM_QOS)
         if self.dry_run:
-            if sound_file:
-                read_wav(sound_file)  # a bad file is refused in a dry run too
             self.get_logger().info("dry run: vocalizations are counted, not played")
         else:
             self.speaker = self._open_speaker()
@@ -101,8 +105,6 @@ class SpeakerNode(GraphNode):
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
         self.subscribe(Bool, "vocalize", self._on_vocalize)
-        self.output_errors = self.recent_events()
-        self.start_diagnostics()
 
     def _on_vocalize(self, msg: Bool, stamp: int) -> None:
         if not msg.data:

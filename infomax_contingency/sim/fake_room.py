@@ -56,10 +56,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from infomax_contingency.audio.binarizer import Binarizer
-from infomax_contingency.audio.bitsource import BitSource
+from infomax_contingency.audio.bitsources import BitSource
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ
-from infomax_contingency.audio.energy import window_energies_db, window_samples
+from infomax_contingency.audio.energy import window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams
@@ -152,7 +151,7 @@ class FakeRoomConfig:
     typing_rate_hz: float = 0.0
     typing_level_db: float = -40.0
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # noqa: C901
         def fail(name: str, allowed: str) -> None:
             raise ValueError(f"room parameter {name} = {getattr(self, name)!r}: must be {allowed}")
 
@@ -747,44 +746,36 @@ class AudioObservation(NamedTuple):
 
 
 class AudioWorld:
-    """The fake room heard through energies and a binarizer, as a loop world.
+    """The fake room heard through a bit source, as a loop world.
 
-    Each window's audio is rounded to float32 as on the ``audio`` topic before its
-    energy is taken; a window the binarizer spends calibrating (no threshold yet) yields
-    no step, as in the mic node. A vocalization is played at the start of the next window.
+    Each window's audio is rounded to float32 as on the ``audio`` topic before the bit
+    source sees it; a window the bit source spends calibrating (no bit yet) yields no
+    step, as in the mic node. A vocalization is played at the start of the next window.
 
     Args:
         room: the simulated room.
-        binarizer: window energy to bit (a :class:`Binarizer`), or a bit source of
-            :func:`~infomax_contingency.audio.bitsource.make_bit_source` (one that needs
-            the samples gets them; its ``last_energy_db`` is the window's energy).
+        binarizer: a bit source of
+            :func:`~infomax_contingency.audio.bitsources.make_bit_source` (its
+            ``last_energy_db`` is the window's energy).
     """
 
-    def __init__(self, room: FakeRoom, binarizer: Binarizer | BitSource) -> None:
+    def __init__(self, room: FakeRoom, binarizer: BitSource) -> None:
         self.room = room
         self.binarizer = binarizer
 
     def observe(self) -> AudioObservation | None:
         """The next window's bit, energy and ground truth (None while calibrating)."""
         window = self.room.next_window()
-        samples = as_transmitted(window.samples).astype(np.float64)
-        if getattr(self.binarizer, "needs_samples", False):
-            y = self.binarizer.push_window(samples)
-            energy = self.binarizer.last_energy_db
-        else:
-            energy = float(
-                window_energies_db(samples, self.room.rate, self.room.config.window_s)[0]
-            )
-            y = self.binarizer.push(energy)
+        y = self.binarizer.push_window(as_transmitted(window.samples).astype(np.float64))
+        energy = self.binarizer.last_energy_db
         if y is None:
             return None
         return AudioObservation(int(y), energy, window.partner_present)
 
     def act(self, u: int) -> None:
         """Vocalize at the start of the next window if ``u`` is 1 (the bit source hears of it)."""
-        note = getattr(self.binarizer, "note_decision", None)
-        if note is not None:
-            note(u)
+        if getattr(self.binarizer, "needs_decisions", False):
+            self.binarizer.note_decision(u)
         if u:
             self.room.vocalize()
 
@@ -813,7 +804,7 @@ class AudioStepRecord:
 def iter_audio_loop(
     controller: Controller,
     room: FakeRoom,
-    binarizer: Binarizer | BitSource,
+    binarizer: BitSource,
     steps: int | None,
     memory: int = 0,
 ) -> Iterator[AudioStepRecord]:
@@ -834,7 +825,7 @@ def iter_audio_loop(
 def simulate_audio_loop(
     controller: Controller,
     room: FakeRoom,
-    binarizer: Binarizer | BitSource,
+    binarizer: BitSource,
     steps: int,
     memory: int = 0,
 ) -> list[AudioStepRecord]:

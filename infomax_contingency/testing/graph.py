@@ -3,7 +3,8 @@
 * :class:`GraphProcesses` starts nodes as child processes (by default ``python -m
   infomax_contingency.nodes.<node>``, the same code as the console scripts), with their
   parameters in one ROS parameter file, their output in log files, and stops them with
-  SIGINT (then SIGTERM, then SIGKILL).
+  SIGINT (then SIGTERM, then SIGKILL). They end when this process dies, however it dies
+  (SIGKILL included: :func:`~infomax_contingency.nodes.runtime.end_with_parent`).
 * :class:`StepRecorder` is a node that records the step-clock topics (``sound``,
   ``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
   ``posture``, ``partner_present``) with the
@@ -35,6 +36,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiAr
 
 from infomax_contingency.nodes.entry import NODES
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.runtime import parent_pid_environment
 
 PUBLISHES: dict[str, tuple[str, ...]] = {
     "mic_node": ("sound", "sound_step", "sound_energy"),
@@ -81,6 +83,12 @@ class GraphProcesses:
         own_process_group: start every node in a process group of its own, so a Ctrl-C
             in the terminal reaches only this process, which then stops the nodes itself
             (the demo); default: the nodes share this process's group.
+
+    Every node ends when this process dies, however it dies (a SIGKILL, an OOM kill, a
+    CI timeout): it gets SIGTERM from the kernel (``env`` names this process as its
+    parent, :func:`~infomax_contingency.nodes.runtime.end_with_parent`). Start the nodes
+    from a thread that lives as long as they should: the kernel takes the end of the
+    thread that started a process for its parent's death.
     """
 
     def __init__(
@@ -98,7 +106,7 @@ class GraphProcesses:
         )
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
-        self.env = dict(os.environ if env is None else env)
+        self.env = parent_pid_environment(dict(os.environ if env is None else env))
         self.processes: dict[str, subprocess.Popen] = {}
         self.stopped: set[str] = set()
         """Nodes stopped on purpose (not reported by :meth:`dead`)."""

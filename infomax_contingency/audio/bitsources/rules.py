@@ -1,35 +1,26 @@
-"""The microphone's side of the step clock: where windows come from and how they become bits.
+"""Threshold rules: a window level (dB) to a bit with a threshold that is kept up to date.
 
-* :class:`WavReplay` — the window energies of a WAV file (any PCM/float format, rate and
-  channel count), read block by block through
-  :func:`~infomax_contingency.audio.energy.iter_wav_energies` (constant memory whatever
-  the file length), so a replay yields exactly the energies of the offline computation.
-* :class:`Binarizer` — window energy to bit with a threshold that is fixed, loaded from
-  a threshold file, or calibrated by k-means on the first windows, optionally refreshed
-  online on a rolling buffer. A calibration whose clusters lie closer than
-  ``min_separation_db`` is refused (:attr:`Binarizer.state` ``"unseparated"``).
-* :class:`NoiseFloorBinarizer` — window level to bit with a threshold a margin above a
-  tracked noise floor (``threshold_mode noise_floor``).
+* :class:`Binarizer` — ``y = level > threshold`` with a threshold that is given, or
+  calibrated by k-means on the first windows, optionally refreshed online on a rolling
+  buffer. A calibration whose clusters lie closer than ``min_separation_db`` is refused
+  (:attr:`Binarizer.state` ``"unseparated"``).
+* :class:`NoiseFloorBinarizer` — a margin above a tracked noise floor.
 
-Energies are in dB (see :mod:`infomax_contingency.audio.energy`); durations in seconds.
+The mathematics (k-means, the bit rule, the floor tracker) is
+:mod:`infomax_contingency.audio.threshold`; the bit sources that use these rules are
+:mod:`infomax_contingency.audio.bitsources.level`. Levels are in dB.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
-from infomax_contingency.audio.energy import (
-    iter_wav_energies,
-    iter_wav_windows,
-    wav_energies,
-    wav_window_count,
-)
+from infomax_contingency.audio.bitsources.base import CALIBRATING, READY, UNSEPARATED
+from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.threshold import (
     DEFAULT_MIN_SEPARATION_DB,
     NoiseFloorTracker,
@@ -40,145 +31,6 @@ from infomax_contingency.audio.threshold import (
     kmeans_split,
     require_separation,
 )
-from infomax_contingency.audio.wav import WavReader, to_mono
-
-CALIBRATING = "calibrating"
-"""Binarizer state: collecting calibration windows, no threshold yet."""
-UNSEPARATED = "unseparated"
-"""Binarizer state: the last calibration could not separate sound from quiet; collecting
-the next calibration windows (no bits until one succeeds)."""
-READY = "ready"
-"""Binarizer state: a threshold is in force; every window gets a bit."""
-
-
-def calibration_window_count(calibration_s: float, window_s: float) -> int:
-    """Windows in ``calibration_s`` seconds of audio.
-
-    That is ``round(calibration_s / window_s)``, at least 2 (k-means needs two values).
-    """
-    if not calibration_s > 0 or not window_s > 0:
-        raise AudioError(
-            f"calibration_s and window_s must be > 0 seconds, got {calibration_s} and {window_s}"
-        )
-    return max(2, round(calibration_s / window_s))
-
-
-class WavReplay:
-    """The window energies of a WAV file, served one at a time, optionally looping.
-
-    The file is read block by block as windows are served (and read again from the
-    start when looping), so memory does not depend on its length.
-
-    Args:
-        path: the WAV file.
-        window_s: window length, seconds.
-        channel: ``None`` to mix all channels, or the 0-based channel to use.
-        loop: start again from the first window after the last one.
-        rate: processing rate the file is resampled to, Hz.
-        samples: serve each window's samples (:meth:`next_window`) instead of its
-            energy (:meth:`next_energy`), for bit sources that look at the samples.
-
-    Raises:
-        AudioError: the file cannot be read, the channel does not exist, or the file
-            holds less than one window.
-    """
-
-    def __init__(
-        self,
-        path: str | Path,
-        window_s: float,
-        channel: int | None = None,
-        loop: bool = False,
-        rate: int = PROCESSING_RATE_HZ,
-        samples: bool = False,
-    ) -> None:
-        self.path = Path(path)
-        self.samples = samples
-        self.loop = loop
-        self.window_s = window_s
-        self.channel = channel
-        self.rate = rate
-        with WavReader(self.path) as reader:
-            info = reader.info
-        to_mono(np.empty((0, info.channels)), channel)  # a missing channel fails here
-        self._n_windows = wav_window_count(info, window_s, rate)
-        if self._n_windows == 0:
-            raise AudioError(
-                f"{self.path} lasts {info.duration_s:.3f} s, shorter than one window"
-                f" ({window_s} s)"
-            )
-        self._blocks: Iterator[np.ndarray] | None = None
-        self._block = np.empty(0)
-        self._in_block = 0
-        self.position = 0
-        """Windows served so far (counting every loop)."""
-
-    @property
-    def n_windows(self) -> int:
-        """Complete windows in the file (a trailing partial window is dropped)."""
-        return self._n_windows
-
-    @property
-    def finished(self) -> bool:
-        """True once every window was served (never, when looping)."""
-        return not self.loop and self.position >= self.n_windows
-
-    def next_energy(self) -> float | None:
-        """Energy (dB) of the next window, or None at the end of a non-looping file."""
-        if self.samples:
-            raise AudioError("this replay serves samples (samples=True): use next_window()")
-        item = self._next_item()
-        return None if item is None else float(item)
-
-    def next_window(self) -> np.ndarray | None:
-        """Samples of the next window (float64, mono), or None at the end of a non-looping file."""
-        if not self.samples:
-            raise AudioError("this replay serves energies (samples=False): use next_energy()")
-        return self._next_item()
-
-    def _next_item(self) -> np.ndarray | float | None:
-        """The next window's energy or samples (as the replay serves), None at the end."""
-        if self.finished:
-            return None
-        if self.position % self.n_windows == 0:
-            blocks = iter_wav_windows if self.samples else iter_wav_energies
-            self._blocks = blocks(self.path, self.window_s, self.channel, self.rate)
-            self._block, self._in_block = np.empty(0), 0
-        while self._in_block >= len(self._block):
-            block = next(self._blocks, None)
-            if block is None:
-                raise AudioError(
-                    f"{self.path} ended after {self.position % self.n_windows} of its"
-                    f" {self.n_windows} windows: the file changed while it was replayed"
-                )
-            self._block, self._in_block = block, 0
-        item = self._block[self._in_block]
-        self._in_block += 1
-        self.position += 1
-        return item
-
-    def calibration_energies(self, calibration_s: float, window_s: float) -> np.ndarray:
-        """Energies of the first ``calibration_s`` seconds (the whole file if shorter).
-
-        Reads only the start of the file (block by block), whatever its length.
-        """
-        count = calibration_window_count(calibration_s, window_s)
-        return wav_energies(self.path, self.window_s, self.channel, self.rate, max_windows=count)
-
-    def calibration_windows(self, calibration_s: float, window_s: float) -> np.ndarray:
-        """Samples of the first ``calibration_s`` seconds, one window per row.
-
-        The whole file if shorter; reads only the start of the file, block by block.
-        """
-        count = calibration_window_count(calibration_s, window_s)
-        parts: list[np.ndarray] = []
-        rows = 0
-        for windows in iter_wav_windows(self.path, self.window_s, self.channel, self.rate):
-            parts.append(windows)
-            rows += len(windows)
-            if rows >= count:
-                break
-        return np.concatenate(parts)[:count]
 
 
 class Binarizer:

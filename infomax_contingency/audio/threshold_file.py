@@ -1,0 +1,129 @@
+"""Threshold files: a calibrated threshold in a small YAML file, written and read back.
+
+:func:`save_threshold` writes what a calibration found (replaced atomically);
+:func:`load_threshold` reads the threshold of one level (``energy``, or another bit
+source's level such as ``speech_band``) and refuses anything else in one line.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import os
+from pathlib import Path
+
+import yaml
+
+from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
+from infomax_contingency.audio.threshold import ThresholdFit
+
+THRESHOLD_FORMAT_VERSION = 1
+"""Version of the threshold file layout written by :func:`save_threshold`."""
+
+_REQUIRED_FIELDS = ("format_version", "threshold_db")
+
+
+def save_threshold(
+    path: str | os.PathLike[str],
+    fit: ThresholdFit,
+    *,
+    window_s: float,
+    rate: int,
+    source: str,
+    level: str = "energy",
+) -> None:
+    """Write a calibrated threshold to a small YAML file (replaced atomically).
+
+    Args:
+        path: file to write; missing parent directories are created.
+        fit: the k-means fit.
+        window_s: window length used for the energies, seconds.
+        rate: processing sample rate, Hz.
+        source: where the calibration audio came from (file name, device, ...).
+        level: the window level the threshold applies to: ``energy`` (the window
+            energy; the field is then left out, as in files before levels existed) or
+            another bit source's level (``speech_band``), written as the field ``level``.
+    """
+    window_s = check_positive_seconds(window_s, "window_s")
+    rate = check_rate(rate)
+    values = (fit.threshold_db, fit.low_mean_db, fit.high_mean_db)
+    if not all(math.isfinite(v) for v in values):
+        raise AudioError(f"cannot save a threshold fit with non-finite values: {fit}")
+    record = {
+        "format_version": THRESHOLD_FORMAT_VERSION,
+        "threshold_db": float(fit.threshold_db),
+        "window_s": window_s,
+        "sample_rate_hz": rate,
+        "low_mean_db": float(fit.low_mean_db),
+        "high_mean_db": float(fit.high_mean_db),
+        "n_low": int(fit.n_low),
+        "n_high": int(fit.n_high),
+        "source": str(source),
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+    if level != "energy":
+        record["level"] = str(level)
+    what = "energy" if level == "energy" else f"{level} level"
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(
+        f"# Sound threshold: a window is 'sound' (y = 1) iff its {what} > threshold_db.\n"
+        + yaml.safe_dump(record, sort_keys=False),
+        encoding="utf-8",
+    )
+    tmp.replace(path)
+
+
+def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:  # noqa: C901
+    """Read the threshold (dB) from a file written by :func:`save_threshold`.
+
+    Args:
+        path: the threshold file.
+        level: the window level it must apply to (a file without the field ``level``
+            applies to ``energy``).
+
+    Raises:
+        AudioError: the file is missing, is not a YAML mapping, has another format
+            version, lacks ``format_version`` or ``threshold_db``, the threshold is
+            not a finite number, or it applies to another level.
+    """
+    path = Path(path)
+    if not path.is_file():
+        what = "is a directory" if path.is_dir() else "does not exist"
+        raise AudioError(
+            f"threshold file {path} {what}; create it by calibrating on audio that "
+            "contains both quiet and sound"
+        )
+    try:
+        record = yaml.safe_load(path.read_bytes())
+    except OSError as exc:
+        raise AudioError(f"cannot read threshold file {path}: {exc.strerror or exc}") from exc
+    except yaml.YAMLError as exc:
+        raise AudioError(f"threshold file {path} is not valid YAML: {exc}") from exc
+    if not isinstance(record, dict):
+        raise AudioError(
+            f"threshold file {path} must hold a YAML mapping with {', '.join(_REQUIRED_FIELDS)}; "
+            f"got {type(record).__name__}"
+        )
+    for field in _REQUIRED_FIELDS:
+        if field not in record:
+            raise AudioError(f"threshold file {path} is missing the field '{field}'")
+    version = record["format_version"]
+    if isinstance(version, bool) or version != THRESHOLD_FORMAT_VERSION:
+        raise AudioError(
+            f"threshold file {path} has format_version {version!r}; this package reads "
+            f"format_version {THRESHOLD_FORMAT_VERSION}. Recalibrate to rewrite it."
+        )
+    file_level = record.get("level", "energy")
+    if file_level != level:
+        raise AudioError(
+            f"threshold file {path} holds a threshold of the {file_level} level, not of the"
+            f" {level} level: calibrate again with --bit-source {level}"
+        )
+    value = record["threshold_db"]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
+    return float(value)

@@ -1,0 +1,98 @@
+"""What ``infomax-contingency demo`` refuses: arguments it cannot run, a recording it lost.
+
+The checks run before any node starts (one line, status 2) and, for ``--record``, after
+the run (the recorder keeps the graph running when it cannot write, so the demo looks at
+what it left).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import tempfile
+from pathlib import Path
+
+
+def finite_number(text: str) -> float:
+    """An argparse type: a finite number (``nan`` and ``inf`` mean nothing here)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+MAX_STEPS = MAX_SEED = 2**31 - 1
+"""Largest ``--steps`` and ``--seed``: the room's ``max_windows`` and ``seed`` parameters."""
+
+MAX_LEAVE_AT_S = 1e9
+"""Largest ``--leave-at``: the room's ``partner_leave_s`` parameter."""
+
+MAX_CALIBRATION_S = 3600.0
+"""Largest ``--calibration-s``: mic_node's ``calibration_s`` parameter."""
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Refuse what the graph cannot run, before a node starts (ValueError: one line)."""
+    if not 1 <= args.steps <= MAX_STEPS:
+        raise ValueError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
+    if not 0 <= args.seed <= MAX_SEED:
+        raise ValueError(f"--seed must be in [0, {MAX_SEED}], got {args.seed}")
+    if not math.isfinite(args.leave_at) or args.leave_at > MAX_LEAVE_AT_S:
+        raise ValueError(
+            f"--leave-at must be at most {MAX_LEAVE_AT_S:g} s (negative: the partner stays),"
+            f" got {args.leave_at}"
+        )
+    if args.memory < 0:
+        raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
+    if args.wav and not Path(args.wav).is_file():
+        raise ValueError(f"--wav {args.wav}: no such file")
+    if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
+        raise ValueError(
+            f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
+            f" got {args.calibration_s}"
+        )
+    if args.record:
+        check_record_directory(Path(args.record))
+
+
+def check_record_directory(directory: Path) -> None:
+    """Refuse a ``--record`` directory that exists or that cannot be created and written.
+
+    Tried for real (the directory and a file in it are made, then removed): a path the
+    permissions allow on paper may still refuse (``/proc``, a read-only mount, a full disk).
+    """
+    if directory.exists() or directory.is_symlink():
+        raise ValueError(f"--record {directory}: exists already; name a new directory")
+    try:
+        directory.mkdir()
+    except OSError as error:
+        raise ValueError(f"--record {directory}: cannot create it: {error.strerror}") from None
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as error:
+        raise ValueError(f"--record {directory}: cannot write in it: {error.strerror}") from None
+    finally:
+        with contextlib.suppress(OSError):
+            directory.rmdir()
+
+
+def recording_failure(directory: Path, recorder_log: str) -> str:
+    """Why the stopped recorder left no whole bag in ``directory``; "" when it did.
+
+    ``recorder_log``: what recorder_node printed (its ERROR line names the reason).
+
+    The recorder keeps the graph running when it cannot write (it logs an ERROR and
+    says so in its diagnostics), and writes ``metadata.yaml`` on a clean stop only after
+    writing everything: without it the bag is missing or cut short.
+    """
+    if (directory / "metadata.yaml").is_file():
+        return ""
+    lines = recorder_log.splitlines()
+    errors = [line.split("]: ", 1)[-1].strip() for line in lines if "[ERROR]" in line]
+    reason = errors[0] if errors else "it wrote no metadata.yaml"
+    return f"--record {directory}: the session was not recorded whole: {reason}"
