@@ -28,7 +28,7 @@ from infomax_contingency.testing.graph import (
 STEP_TIMEOUT_S = 120.0
 """Seconds a graph may take to come up and run its steps before a test fails."""
 
-FIXED_THRESHOLD = {"bit_source": "energy", "threshold_mode": "fixed", "threshold_db": -40.0}
+FIXED_THRESHOLD = {"threshold_mode": "fixed", "threshold_db": -40.0}
 """The mic's threshold for the fake room (its floor is -60 dB, its sounds above -35 dB)."""
 
 
@@ -75,7 +75,9 @@ def room_nodes(
 ) -> dict[str, dict[str, Any]]:
     """The graph against the fake room in lockstep (recorder included in the listeners)."""
     return {
-        "mic_node": {"source": "topic", **FIXED_THRESHOLD, "wait_for_listeners": listeners},
+        # energy at -40 dB: in lockstep the room waits for a decision on every window
+        "mic_node": {"source": "topic", "bit_source": "energy", **FIXED_THRESHOLD,
+                     "wait_for_listeners": listeners},
         # mic, belief, room and the recorder hear every decision
         "controller_node": {"wait_for_listeners": listeners + 1},
         "belief_node": {"memory_steps": memory_steps},

@@ -130,7 +130,7 @@ def test_self_calibrating_threshold_in_the_graph_equals_the_offline_loop(tmp_pat
     assert any(r.u for r in offline) and 0 < sum(r.y for r in offline) < steps
 
     mic = {"source": "wav", "wav_file": str(wav), "lockstep": True, "exit_at_end": True,
-           "window_s": WINDOW_S, "threshold_mode": "background", "wait_for_listeners": 3}
+           "window_s": WINDOW_S, "bit_source": "background", "wait_for_listeners": 3}
     nodes = {"controller_node": {"wait_for_listeners": 3}, "belief_node": {"memory_steps": 0},
              "mic_node": mic}  # fmt: skip
     with stepped_graph(nodes, "mic_node") as graph:

@@ -144,6 +144,12 @@ def _check_margin(name: str, margin_db: float) -> None:
         raise AudioError(f"{name} must be a finite number >= 0 dB, got {margin_db!r}")
 
 
+def ordinal(k: int) -> str:
+    """``1st``, ``2nd``, ``3rd``, ``4th``, ... ``11th``, ``21st``."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
+
+
 def rank_for(false_alarm: float, known: int, least: int = 1) -> int:
     """``k`` of the threshold among ``known`` background windows.
 

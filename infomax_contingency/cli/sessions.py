@@ -27,6 +27,7 @@ import yaml
 
 from infomax_contingency.audio.energy import wav_window_count
 from infomax_contingency.audio.wav import open_wav_info
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import ReplayedDecisions, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
@@ -178,6 +179,7 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
     """A wav file's steps with mic_node's default threshold (``background``)."""
     options = {"false_alarm": args.false_alarm}
     if kind == "controller":
+        WavReplay(path, params.dt, mic)  # the file and its channel first (one-line errors)
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
                                      memory=memory)
         records = wav_background_loop(path, params, mic, controller, memory, **options)

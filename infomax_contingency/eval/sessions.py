@@ -22,6 +22,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from infomax_contingency.audio.background import ordinal
 from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
@@ -219,8 +220,10 @@ def wav_background_bits(
         decision = int(decisions[len(bits)]) if len(bits) < len(decisions) else 0
         bits.append(source.push_recorded(window, decision))
     what = (
-        f"sound threshold: {rule.rank}-th loudest of the last {len(rule.background)} background"
-        f" windows (now {rule.threshold_db:.1f} dB; false alarms {rule.false_alarm_now:.3f})"
+        f"sound threshold: the {ordinal(rule.rank)} loudest of the last {len(rule.background)}"
+        " background"
+        f" windows ({rule.threshold_db:.1f} dB at the end; false alarms"
+        f" {rule.false_alarm_now:.3f})"
         if rule.threshold_db is not None
         else "sound threshold: the recording is shorter than the warm-up, no bit"
     )

@@ -30,7 +30,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from infomax_contingency.audio.background import BackgroundThreshold, level_and_faults
+from infomax_contingency.audio.background import (
+    BackgroundThreshold,
+    level_and_faults,
+    ordinal,
+)
 from infomax_contingency.audio.bitsources.base import (
     CALIBRATING,
     READY,
@@ -194,7 +198,7 @@ class BackgroundSource(BitSource):
         rule = self.rule
         return (
             f"threshold {rule.threshold_db:.2f} dB from {len(rule.background)} background"
-            f" windows ({rule.rank}-th loudest: false alarms {rule.false_alarm_now:.3f},"
+            f" windows ({ordinal(rule.rank)} loudest: false alarms {rule.false_alarm_now:.3f},"
             f" target {rule.false_alarm:g})"
         )
 
