@@ -18,6 +18,14 @@ would on a robot. The room holds (the sounds themselves are made in
 * a TV (``tv_on``): a speech-like programme in stretches of 1.5 .. 6 s with pauses of
   0.2 .. 1.2 s, low-passed at 4 kHz (a small loudspeaker), at a long-term level of
   ``tv_level_db``;
+* (the newer rooms) distant talkers and a TV that speak sentences rendered by espeak-ng
+  (``babble_voice`` / ``tv_voice`` ``tts``, :mod:`~infomax_contingency.sim.tts`), talkers
+  who join one every ``babble_join_s`` seconds (a crowd that grows), a TV switched on at
+  ``tv_start_s``; music (``music_on``, bars of chords, bass and hi-hat at
+  ``music_level_db``), a mains hum (``hum_on``, 50 Hz and harmonics at ``hum_level_db``),
+  traffic passing (``traffic_rate_hz`` swells of 3-8 s at ``traffic_level_db``) and
+  typing (``typing_rate_hz`` bursts of 2-8 s of key clicks at ``typing_level_db``); a
+  partner who speaks espeak-ng sentences (``reply_voice`` ``tts``);
 * the robot hearing itself: after each vocalization, its 200 ms chirp
   (:func:`~infomax_contingency.audio.synth.synthesize_chirp`) starts ``self_delay_s`` after the
   start of the next window, at ``self_level_db``; with ``reverb_rt60_s > 0`` followed by

@@ -35,7 +35,11 @@ poster-session -45 p  -30 x 12 --   -30    --    -36       -20   -32/0.6 s
 tv-on          -55 p  --       -33  -32    --    -40       -20   -36/0.4 s
 ============== ====== ======== ==== ====== ===== ========= ===== =========
 
-(p: pink floor, h: hvac floor; babble: long-term level x talkers.) The partner's replies
+(p: pink floor, h: hvac floor; babble: long-term level x talkers.) Eight more rooms
+(:data:`_NEWER_ROOMS`: open-office, cafe, living-room, tv-switched-on, crowd-grows and the
+held-out kitchen, street, home-office) are built from sources unlike these: espeak-ng
+speech, music, a mains hum, traffic, typing; their levels are in docs/RESULTS.md
+section 7. The partner's replies
 are speech-like (``reply_voice`` ``speech``) at -26 dB (-24 dB in the poster session,
 where people speak up), answering 90 % of vocalizations 1.0 .. 1.4 s after them, for
 0.6 .. 1.0 s: inside the agent period of the ``robot`` parameters.
