@@ -15,20 +15,32 @@ Arguments (``ros2 launch ... --show-args`` lists them):
 - ``realtime`` (default true): the fake room plays at the speed of the room (one 0.5 s
   window per 0.5 s); false runs lockstep, as fast as the graph answers.
 - ``room_seed`` (default empty = fake_room_file's): the simulated room's seed.
-- ``log_level`` (default info): debug, info, warn, error or fatal, for every node.
+- ``log_level`` (default info): debug, info, warn, error or fatal: the level of the
+  package's node loggers (``--log-level <namespace>.<node>:=<level>``); rcl, rmw and DDS
+  keep their own (INFO), so ``debug`` shows the nodes' debug lines, not ROS internals.
 - ``params_file`` (default: the installed config/robot.yaml) is read by every node;
   ``fake_room_file`` (default config/fake_room.yaml) by mic_node and fake_audio_node
   with the fake room.
 - ``record`` (default false) / ``record_dir``: true adds this package's recorder_node
-  with parameter ``directory`` = ``record_dir``; mic_node then waits for it as a third
-  listener of ``sound_step`` (and the fake room for its ``partner_present``), so the bag
-  holds the session from its first step.
+  with parameter ``directory`` = ``record_dir`` (default: a new
+  ``session_YYYY_MM_DD-HH_MM_SS`` in the current directory, as ``ros2 bag record`` names
+  its bags; a ``record_dir`` that exists already is refused and ends the launch);
+  mic_node then waits for it as a third listener of ``sound_step`` (and the fake room
+  for its ``partner_present``), so the bag holds the session from its first step.
 - ``controller`` (default empty: the policy table): ``interval:MIN_S-MAX_S`` makes
   controller_node follow the calibration protocol, sounds at random intervals uniform over
   MIN_S .. MAX_S seconds; with ``record:=true`` that is a calibration session for
   ``infomax-contingency analyze`` (``calibration-session`` does it in one command).
 
-A node that exits with an error ends the whole launch with a final line naming it.
+``use_fake_room``, ``realtime`` and ``record`` take ``true`` or ``false``;
+any other value ends the launch before a node starts, naming the valid values.
+
+A node that exits with an error ends the whole launch with a final line naming it; a
+Ctrl-C ends it with ``launch interrupted (ctrl-c (SIGINT)): ...``. The nodes start with
+SIGINT and SIGTERM blocked (``env --block-signal``, GNU coreutils 9.1 or later; without
+it they start as they are) until their entry point takes the signals over, so a Ctrl-C
+while their interpreters start waits for that point and ends them quietly, never with a
+KeyboardInterrupt traceback from the interpreter's own start-up.
 mic_node ending by itself (status 0: ``max_windows`` bits published, or the end of a wav
 file with ``exit_at_end``) stops the other nodes of its robot with SIGINT, so the launch
 ends (status 0) once they are done; the last line says so.
@@ -36,8 +48,12 @@ ends (status 0) once they are done; the last line says so.
 ``bringup`` runs the same graph in one process.
 """
 
+import functools
 import os
+import re
 import signal
+import subprocess
+import time
 
 from launch.actions import (
     DeclareLaunchArgument,
@@ -46,7 +62,7 @@ from launch.actions import (
     OpaqueFunction,
     RegisterEventHandler,
 )
-from launch.event_handlers import OnProcessExit
+from launch.event_handlers import OnProcessExit, OnShutdown
 from launch.events import Shutdown, matches_action
 from launch.events.process import SignalProcess
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
@@ -61,11 +77,53 @@ GRAPH_NODES = ("controller_node", "belief_node", "posture_node", "speaker_node")
 """Nodes started from ``params_file`` (controller_node also reads ``fake_room_file`` with the
 fake room); mic_node (and the fake room) are added apart."""
 
-TRUE_WORDS = ("true", "1", "yes", "on")
+BOOLEAN_CHOICES = ["true", "false"]
+"""The values of the true/false launch arguments; ``ros2 launch`` refuses any other."""
+
+BLOCK_STOP_SIGNALS = ("env", "--block-signal=INT,TERM")
+"""Prefix that starts a node with SIGINT and SIGTERM blocked (GNU env, coreutils >= 9.1);
+the node's entry point unblocks them once it handles them (nodes/entry.py)."""
 
 
 def _is_true(context: LaunchContext, name: str) -> bool:
-    return LaunchConfiguration(name).perform(context).strip().lower() in TRUE_WORDS
+    return LaunchConfiguration(name).perform(context) == "true"
+
+
+@functools.cache
+def _can_block_signals() -> bool:
+    """True where ``env --block-signal`` exists (GNU coreutils 9.1 or later)."""
+    try:
+        return subprocess.run([*BLOCK_STOP_SIGNALS, "true"], capture_output=True,
+                              timeout=10).returncode == 0  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return False
+
+
+def _prefix(context: LaunchContext, executable: str) -> str:
+    """The command put before ``executable``.
+
+    The user's ``--launch-prefix`` where it applies (``--launch-prefix-filter``), else the
+    signal-blocking ``env`` where there is one.
+    """
+    user_prefix = LaunchConfiguration("launch-prefix", default="").perform(context).strip()
+    only = LaunchConfiguration("launch-prefix-filter", default="").perform(context)
+    if user_prefix and (not only or re.match(only, executable)):
+        return user_prefix
+    return " ".join(BLOCK_STOP_SIGNALS) if _can_block_signals() else ""
+
+
+def _room_seed(context: LaunchContext) -> dict:
+    """``{"seed": N}`` from ``room_seed:=N``; ``{}`` when empty (fake_room_file's seed)."""
+    seed = LaunchConfiguration("room_seed").perform(context).strip()
+    if seed and not seed.isdigit():
+        raise ValueError(f"room_seed:={seed} is not allowed: a whole number >= 0, or empty for"
+                         " the seed of fake_room_file")  # fmt: skip
+    return {"seed": int(seed)} if seed else {}
+
+
+def node_logger(namespace: str, name: str) -> str:
+    """The logger name of node ``name`` in ``namespace`` (``robot1.mic_node``), as rcl makes it."""
+    return ".".join(part for part in (*namespace.strip("/").split("/"), name) if part)
 
 
 class _ExitWatch:
@@ -79,6 +137,13 @@ class _ExitWatch:
         self.nodes: list = []
         """This robot's node actions (another robot's launch has a watch of its own)."""
         self.mic = None
+        self.interrupted = ""
+        """The reason of a shutdown the user asked for (Ctrl-C), once it came."""
+
+    def on_shutdown(self, event, context: LaunchContext) -> None:
+        """Remember a Ctrl-C: the last line then says the launch was interrupted."""
+        if getattr(event, "due_to_sigint", False) and not self.failure and not self.finished:
+            self.interrupted = event.reason or "ctrl-c (SIGINT)"
 
     def owns(self, action) -> bool:
         """True for a node process of this robot."""
@@ -112,12 +177,19 @@ class _ExitWatch:
         failed = event.returncode not in (0, None, -2, -15, 130, 143)
         if failed and not self.failure:
             self.failure = f"{event.action.name} exited with status {event.returncode}"
-            actions.append(
-                LogInfo(msg=f"{self.failure}: stopping the whole launch (its error is above)")
-            )
+            if not self.interrupted:
+                actions.append(LogInfo(
+                    msg=f"{self.failure}: stopping the whole launch (its error is above)"
+                ))  # fmt: skip
             if not context.is_shutdown:
                 actions.append(EmitEvent(event=Shutdown(reason=self.failure)))
-        if self.failure and self.exited >= self.started:
+        if self.exited < self.started:
+            return actions
+        if self.interrupted:
+            failed_too = f"; {self.failure} (its error is above)" if self.failure else ""
+            actions.append(LogInfo(msg=f"launch interrupted ({self.interrupted}):"
+                                       f" {self.started} nodes stopped{failed_too}"))  # fmt: skip
+        elif self.failure:
             actions.append(LogInfo(msg=f"launch stopped: {self.failure} (its error is above)"))
         return actions
 
@@ -144,14 +216,21 @@ def _graph(context: LaunchContext) -> list:
                 EmitEvent(event=Shutdown(reason=reason)),
             ]
 
+    namespace_text = namespace.perform(context)
+    level = log_level.perform(context)
+
     def node(executable: str, parameters: list) -> Node:
+        # The level of this node's logger only: rcl's, rmw's and DDS's stay at INFO.
+        logger = node_logger(namespace_text, executable)
         return Node(
             package=PACKAGE,
             executable=executable,
             name=executable,
             namespace=namespace,
             parameters=parameters,
-            arguments=["--ros-args", "--log-level", log_level],
+            arguments=["--ros-args", "--log-level", f"{logger}:={level}"],
+            prefix=_prefix(context, executable),
+            exec_name=executable,  # the process label, not the prefix's "env"
             output="screen",
             emulate_tty=True,
         )
@@ -164,9 +243,7 @@ def _graph(context: LaunchContext) -> list:
         # Lockstep on request; paced at the room's speed (speed 1.0) by default.
         pacing = {"lockstep": not realtime}
         room = dict(pacing)
-        seed = LaunchConfiguration("room_seed").perform(context).strip()
-        if seed:
-            room["seed"] = int(seed)
+        room.update(_room_seed(context))
         if record:
             room["wait_for_truth_listeners"] = 1
         _WATCH.mic = node("mic_node", [params_file, fake_room_file, {**pacing, **mic}])
@@ -179,15 +256,16 @@ def _graph(context: LaunchContext) -> list:
     spec = LaunchConfiguration("controller").perform(context).strip()
     if spec:
         controller["controller"] = spec
-    if record:
-        # The decisions' listeners: mic, belief (and the room), and the recorder.
-        controller["wait_for_listeners"] = 4 if fake_room else 3
+    # The decisions' listeners: mic, belief and the speaker (which follows 'vocalize_step'),
+    # the room in lockstep, and the recorder: the first decision waits for all of them.
+    controller["wait_for_listeners"] = 3 + int(fake_room) + int(record)
     actions += [node(name, [params_file] + ([fake_room_file] if fake_room and
                                             name == "controller_node" else [])
                      + ([controller] if controller and name == "controller_node" else []))
                 for name in GRAPH_NODES]
     if record:
-        directory = LaunchConfiguration("record_dir")
+        directory = LaunchConfiguration("record_dir").perform(context).strip()
+        directory = directory or time.strftime("session_%Y_%m_%d-%H_%M_%S")
         actions.append(node("recorder_node", [params_file, {"directory": directory}]))
     _WATCH.nodes = [a for a in actions if isinstance(a, Node)]
     _WATCH.started = len(_WATCH.nodes)
@@ -206,6 +284,7 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
         DeclareLaunchArgument(
             "use_fake_room",
             default_value="false",
+            choices=BOOLEAN_CHOICES,
             description="true: add fake_audio_node, a simulated room, and listen to it",
         ),
         DeclareLaunchArgument(
@@ -216,6 +295,7 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
         DeclareLaunchArgument(
             "realtime",
             default_value="true",
+            choices=BOOLEAN_CHOICES,
             description="fake room: true = at the room's speed, false = lockstep, as fast as"
             " the graph answers",
         ),
@@ -228,10 +308,13 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
             "log_level",
             default_value="info",
             choices=["debug", "info", "warn", "error", "fatal"],
-            description="log level of every node",
+            description="log level of the package's node loggers (rcl and DDS keep theirs)",
         ),
         DeclareLaunchArgument(
-            "record", default_value="false", description="true: add recorder_node"
+            "record",
+            default_value="false",
+            choices=BOOLEAN_CHOICES,
+            description="true: add recorder_node",
         ),
         DeclareLaunchArgument(
             "controller",
@@ -241,8 +324,9 @@ def launch_arguments(share: FindPackageShare) -> list[DeclareLaunchArgument]:
         ),
         DeclareLaunchArgument(
             "record_dir",
-            default_value="sessions",
-            description="directory of recorder_node (with record:=true)",
+            default_value="",
+            description="bag directory of recorder_node (with record:=true), new; empty ="
+            " session_YYYY_MM_DD-HH_MM_SS in the current directory",
         ),
     ]
 
@@ -254,6 +338,7 @@ def generate_launch_description() -> LaunchDescription:
         [
             *launch_arguments(share),
             RegisterEventHandler(OnProcessExit(target_action=_WATCH.owns, on_exit=_WATCH.on_exit)),
+            RegisterEventHandler(OnShutdown(on_shutdown=_WATCH.on_shutdown)),
             OpaqueFunction(function=_graph),
         ]
     )

@@ -53,9 +53,17 @@ def generate_launch_description() -> LaunchDescription:
         [
             DeclareLaunchArgument("robots", default_value="2", description="number of robots"),
             DeclareLaunchArgument(
-                "realtime", default_value="true", description="rooms at the room's speed"
+                "realtime",
+                default_value="true",
+                choices=["true", "false"],
+                description="rooms at the room's speed",
             ),
-            DeclareLaunchArgument("log_level", default_value="info", description="log level"),
+            DeclareLaunchArgument(
+                "log_level",
+                default_value="info",
+                choices=["debug", "info", "warn", "error", "fatal"],
+                description="log level of the package's node loggers",
+            ),
             DeclareLaunchArgument(
                 "params_file",
                 default_value=PathJoinSubstitution([share, "config", "robot.yaml"]),

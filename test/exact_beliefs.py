@@ -19,6 +19,7 @@ from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.selfsound import recorded_observation
 from infomax_contingency.resources import resource_path
 from infomax_contingency.testing.graph import StepRecorder
 
@@ -39,7 +40,8 @@ def step_pairs(recorder: StepRecorder, stream: int, controllers: set[int], first
     Decisions count only from ``controllers``; a rogue's are left out. Fails if a step
     has two bits, or two decisions of those controllers.
     """
-    bit_steps = [(s, bool(y)) for st, s, y, _ in recorder.sound_step if st == stream]
+    bit_steps = [(fields[1], recorded_observation(fields))
+                 for fields in recorder.sound_step if fields[0] == stream]
     decision_steps = [(s, bool(u)) for st, s, u, c in recorder.vocalize_step
                       if st == stream and c in controllers]  # fmt: skip
     bits, decisions = dict(bit_steps), dict(decision_steps)
@@ -50,6 +52,8 @@ def step_pairs(recorder: StepRecorder, stream: int, controllers: set[int], first
 
 def offline_beliefs(segments: list[tuple[list, str]]) -> list[float]:
     """Beliefs from ``(steps, how)`` segments of ``(y, u)`` pairs (None: missing).
+
+    ``y`` may be :class:`~infomax_contingency.core.model.Withheld`: not counted.
 
     ``how`` is ``"start"`` (a stream's first step), ``"joined"`` (in the middle of a
     stream: the timer unknown until the next vocalization) or ``"new stream"`` (counts
@@ -64,7 +68,7 @@ def offline_beliefs(segments: list[tuple[list, str]]) -> list[float]:
         elif how == "new stream":
             tracker.forget_timer()
         for y, u in pairs:
-            tracker.skip_observation() if y is None else tracker.observe(y)
+            tracker.observe_window(y)  # a bit; None (missing) or Withheld: not counted
             beliefs.append(tracker.statistic.belief(ROBOT))
             tracker.act_unknown() if u is None else tracker.act(u)
     return beliefs
@@ -106,7 +110,7 @@ def assert_offline_run(recorder: StepRecorder, samples: np.ndarray,
     """
     energies = window_energies_db(samples.astype(np.float64), 16000, 0.5)
     bits = [bool(e > threshold_db) for e in energies]
-    assert [y for _, _, y, _ in recorder.sound_step] == bits
+    assert [y for _, _, y, *_ in recorder.sound_step] == bits
     controller = PolicyController(PolicyTable.load(resource_path(
         "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
     decisions = [bool(controller.step(int(y))) for y in bits]

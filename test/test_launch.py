@@ -10,6 +10,7 @@ after ``. install/setup.sh``.
 from __future__ import annotations
 
 import os
+import re
 import shlex
 import shutil
 import signal
@@ -137,7 +138,8 @@ def launch(workspace: Path, tmp_path: Path) -> Iterator:
 @pytest.mark.slow
 @pytest.mark.dds_defaults  # as a robot's user runs it
 def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path, launch) -> None:
-    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true")
+    # log_level sets the nodes' loggers only: rcl's debug lines (thousands) stay out.
+    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true log_level:=debug")
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
     # realtime:=true is the default: the room runs at the speed of the room, not lockstep.
     graph.wait_for("[robot7.fake_audio_node]: room 'responsive' (seed 1), real time x1")
@@ -149,6 +151,8 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
         "refused": (ros2_once_known,
                     "param set --no-daemon /robot7/posture_node bored_below 0.99"),
         "reset": (ros2, "service call /robot7/belief_node/reset std_srvs/srv/Trigger"),
+        "threshold": (ros2_once_known,
+                      "param set --no-daemon /robot7/mic_node threshold_db -30.0"),
     }  # fmt: skip
     with ThreadPoolExecutor(len(commands)) as pool:
         running = {key: pool.submit(run, workspace, arguments)
@@ -161,8 +165,48 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path,
     # or 0.5); read-only parameters give theirs the same way (test_params.py)
     assert "must be below 'attentive_above'" in answers["refused"], answers["refused"]
     assert "statistic reset after" in answers["reset"], answers["reset"]
+    graph.wait_for("[robot7.speaker_node]: vocalize (dry run)")  # a debug line of a node
+    # The threshold in force, at start-up and set live; what posture_node waited for.
+    graph.wait_for("[robot7.mic_node]: threshold in force: -30.00 dB (threshold_db,")
+    assert "[robot7.mic_node]: threshold in force: -40.00 dB (threshold_db," in graph.output()
+    assert "[robot7.posture_node]: waiting for '/robot7/belief'" in graph.output()
+    graph.wait_for("[robot7.posture_node]: '/robot7/belief' received after")
     assert graph.stop() == 0
     assert "Traceback" not in graph.output()
+    assert "[rcl]" not in graph.output() and "[rmw" not in graph.output()
+    last_line = graph.output().strip().splitlines()[-1]
+    assert last_line.endswith("launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped")
+
+
+@pytest.mark.slow
+def test_ctrl_c_as_the_nodes_start_and_a_bad_choice_end_the_launch_in_one_clear_line(
+    workspace: Path, launch
+) -> None:
+    """Ctrl-C the moment every node process exists: no traceback, "interrupted" last.
+
+    The nodes' interpreters are then still starting (a second or more for the six of
+    them): the launch starts them with SIGINT and SIGTERM blocked until their entry point
+    takes the signals over. A true/false argument refuses any other value.
+    """
+    graph = launch("contingency.launch.py use_fake_room:=true")
+    maybe = launch("contingency.launch.py use_fake_room:=maybe")  # at once, beside it
+    for index, node in enumerate(("mic_node", "fake_audio_node", "controller_node",
+                                  "belief_node", "posture_node", "speaker_node"), 1):
+        graph.wait_for(f"[{node}-{index}]: process started")  # fmt: skip
+    assert graph.stop() == 0
+    output = graph.output()
+    assert "Traceback" not in output, output[-3000:]
+    # A node whose `env` had not blocked the signals yet (its first millisecond) is ended
+    # by the signal itself (-2): nothing of it ran. Any other status would be a failure.
+    statuses = re.findall(r"exit code (-?\d+)", output)
+    assert set(statuses) <= {"-2"}, output[-3000:]
+    assert output.strip().splitlines()[-1].endswith(
+        "launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped"
+    ), output[-3000:]
+    assert maybe.process.wait(timeout=60) != 0
+    refusal = """provided value "maybe" is not valid. Valid options are: ['true', 'false']"""
+    assert refusal in maybe.output(), maybe.output()
+    assert "process started" not in maybe.output()
 
 
 @pytest.mark.slow
@@ -173,6 +217,8 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
     graph = launch(f"contingency.launch.py params_file:={bad}")
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
+    (tmp_path / "old_session").mkdir()
+    recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
     assert graph.process.wait(timeout=60) is not None
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
@@ -181,6 +227,13 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     )
     assert missing.process.wait(timeout=60) is not None
     assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in missing.output()
+    # a recorder refuses a directory that exists: the launch ends, naming it
+    assert recorded.process.wait(timeout=60) is not None
+    assert "old_session' exists already" in recorded.output(), recorded.output()[-3000:]
+    assert recorded.output().strip().splitlines()[-1].endswith(
+        "launch stopped: recorder_node-6 exited with status 2 (its error is above)"
+    )
+    assert list((tmp_path / "old_session").iterdir()) == []
 
 
 def robot_params(tmp_path: Path, name: str, **sections: dict) -> Path:
@@ -315,7 +368,7 @@ def record_robot2(
                 assert time.monotonic() < deadline, graph.output()[-3000:]
                 time.sleep(0.1)  # polls the recorder; the deadline above bounds it
             with recorder.lock:
-                bits = [(step, bit) for _stream, step, bit, _us in recorder.sound_step[:steps]]
+                bits = [(step, bit) for _stream, step, bit, *_ in recorder.sound_step[:steps]]
                 beliefs = recorder.belief[:steps]
             while_running(graph, recorder)
             assert graph.stop() == 0
@@ -365,7 +418,7 @@ def robot2_alone_in_process(params: Path, fake_room: Path, steps: int) -> tuple[
     with stepped_graph(nodes, "fake_audio_node", (str(params), str(fake_room))) as graph:
         graph.run_steps(steps)
         rec = graph.recorder
-        bits = [(step, bit) for _stream, step, bit, _us in rec.sound_step[:steps]]
+        bits = [(step, bit) for _stream, step, bit, *_ in rec.sound_step[:steps]]
         return bits, rec.belief[:steps]
 
 

@@ -32,8 +32,16 @@ EXEC_DEPENDS = {
     "python3-scipy",
     "python3-yaml",
     "python3-sounddevice-pip",
-    "python3-webrtcvad-wheels-pip",
+    "python3-rosbags-pip",
+    "portaudio19-dev",
 }
+NO_SUCH_ROSDEP_KEYS = {
+    "python3-webrtcvad-wheels-pip",
+    "python3-mcap-pip",
+    "python3-mcap-ros2-support-pip",
+}
+"""Keys that the rosdistro rules do not define: `rosdep install` stops at them
+(.ci/run checks every key with ../shared/tools/rosdep/check.sh)."""
 EXECUTABLES = {"infomax-contingency", *entry.NODE_MODULES}
 """The console scripts setup.py must declare: the command line and every node program."""
 
@@ -75,7 +83,9 @@ def test_package_xml_dependencies(package_xml: ET.Element) -> None:
     exec_depends = {element.text for element in package_xml.findall("exec_depend")}
     assert EXEC_DEPENDS <= exec_depends, f"missing: {sorted(EXEC_DEPENDS - exec_depends)}"
     test_depends = {element.text for element in package_xml.findall("test_depend")}
-    assert "python3-pytest" in test_depends
+    assert {"python3-pytest", "mcap-ros2-support"} <= test_depends
+    keys = {element.text for element in package_xml.iter() if element.tag.endswith("depend")}
+    assert not keys & NO_SUCH_ROSDEP_KEYS
 
 
 def test_versions_agree(package_xml: ET.Element) -> None:
@@ -98,7 +108,7 @@ def test_setup_py_entry_points_and_name() -> None:
         (name.strip(), target.strip()) for name, target in (s.split("=") for s in scripts)
     )
     assert set(parsed) == EXECUTABLES
-    assert parsed["infomax-contingency"] == f"{PKG}.cli.main:main"
+    assert parsed["infomax-contingency"] == f"{PKG}.cli:run"  # quiet on an early Ctrl-C
     for node in EXECUTABLES - {"infomax-contingency"}:
         assert parsed[node] == f"{PKG}.nodes.entry:{node}"  # quiet when stopped starting
 
@@ -245,3 +255,22 @@ def test_colcon_build_layout(colcon_workspace: Path) -> None:
         env=env, capture_output=True, text=True, check=True,
     ).stdout.split()
     assert out == [str(prefix), str(prefix / "share" / PKG)]
+
+
+# --- optional packages: asked for and missing, one line naming the package --------------
+
+
+def test_the_vad_bit_source_without_webrtcvad_names_the_package(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from infomax_contingency.audio.bitsources import make_bit_source
+    from infomax_contingency.errors import USER_ERRORS, MissingPackageError
+
+    monkeypatch.setitem(sys.modules, "webrtcvad", None)  # the import then fails
+    with pytest.raises(MissingPackageError) as missing:
+        make_bit_source("vad", 16000, 0.5)
+    assert isinstance(missing.value, USER_ERRORS)
+    assert str(missing.value) == (
+        "bit source 'vad' needs the Python package 'webrtcvad-wheels', which is not"
+        " installed: pip install webrtcvad-wheels"
+    )

@@ -139,3 +139,33 @@ def test_a_node_names_the_keys_of_its_params_file_it_does_not_take(tmp_path: Pat
     assert "section '/postur_node' matches no node" in text
     assert "bored_below are ignored" in text
     assert process.returncode == 0
+
+
+@pytest.mark.parametrize("extra", ["fake_room.yaml", "paper.yaml"])
+def test_the_shipped_configs_name_nothing_for_any_node(extra: str) -> None:
+    """config/robot.yaml sets every bit source's settings: none is a misspelling."""
+    import rclpy
+    from rclpy.context import Context
+
+    from infomax_contingency.nodes.belief_node import BeliefNode
+    from infomax_contingency.nodes.controller_node import ControllerNode
+    from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
+    from infomax_contingency.nodes.mic_node import MicNode
+    from infomax_contingency.nodes.posture_node import PostureNode
+    from infomax_contingency.nodes.speaker_node import SpeakerNode
+
+    files = [str(ROOT / "config" / "robot.yaml"), str(ROOT / "config" / extra)]
+    context = Context()
+    arguments = ["--params-file", files[0], "--params-file", files[1], "-p", "dry_run:=true"]
+    rclpy.init(context=context, args=["test", "--ros-args", *arguments])
+    nodes = []
+    try:
+        for node_class in (MicNode, ControllerNode, BeliefNode, PostureNode, FakeAudioNode,
+                           SpeakerNode):  # fmt: skip
+            nodes.append(node_class(context=context))
+            assert undeclared_parameters(files, nodes[-1:]) == [], node_class.NODE_NAME
+        assert undeclared_parameters(files, nodes) == []
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

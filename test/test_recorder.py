@@ -10,6 +10,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+# mcap reads the bags back independently of the recorder's library (test_depend
+# mcap-ros2-support); without it these tests skip, with this reason.
+pytest.importorskip("mcap", reason="mcap is not installed (pip install mcap-ros2-support)")
+
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from mcap.exceptions import EndOfFile
@@ -21,6 +26,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, Float64, Int64MultiArray
 
 from infomax_contingency.audio.bag import BagWriteError, BagWriter
+from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.recorder_node import (
     RECORDED_TOPICS,
     SUBSCRIBED_ONCE_PUBLISHED,
@@ -82,9 +88,20 @@ def _record(directory: Path, steps: int) -> tuple[RecorderNode, SteppedExecutor]
     return recorder, executor
 
 
-def test_a_recorded_run_reads_back_with_the_mcap_reader(ros: None, tmp_path: Path) -> None:
+def test_a_recorded_run_reads_back_with_the_mcap_reader(
+    ros: None, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
     recorder, executor = _record(tmp_path / "session", 30)
     executor.close()  # closes the bag: metadata.yaml is written
+    # The log says where, what it waited for and when it came, and what the bag holds.
+    log = [line.split("[recorder_node]: ")[1] for line in capfd.readouterr().err.splitlines()
+           if "[recorder_node]: " in line]  # fmt: skip
+    assert log[:2] == [f"recording to {tmp_path / 'session'}", "waiting for '/sound_step'"]
+    assert log[2].startswith("'/sound_step' received after ")
+    assert log[-1].startswith(
+        f"recorded 61 messages to {tmp_path / 'session'}: /session_info 1, /sound_step 30,"
+        " /belief 30; nothing on /sound, /sound_energy, "
+    ), log
     assert (tmp_path / "session" / "metadata.yaml").exists()
     messages = _read_mcap(tmp_path / "session" / "session.mcap")
     steps = [m for topic, _, m in messages if topic == "/sound_step"]
@@ -158,6 +175,15 @@ def test_an_unwritable_directory_is_one_clear_error(tmp_path: Path) -> None:
     (tmp_path / "exists").mkdir()
     with pytest.raises(BagWriteError, match="exists already"):
         BagWriter(tmp_path / "exists")
+
+
+def test_an_existing_directory_is_refused_at_start_up(ros: None, tmp_path: Path) -> None:
+    """As ``ros2 bag record -o DIR``: a session is never written into an existing one."""
+    (tmp_path / "session").mkdir()
+    with pytest.raises(ConfigError, match="'directory' = '.*session' exists already"):
+        RecorderNode(parameter_overrides=[
+            Parameter("directory", value=str(tmp_path / "session"))])  # fmt: skip
+    assert list((tmp_path / "session").iterdir()) == []
 
 
 def test_the_recorder_keeps_running_when_the_bag_cannot_be_made(ros: None, tmp_path: Path

@@ -85,6 +85,60 @@ def test_ros2_run_layout_runs_the_graph(
         assert beside == recorder.belief  # robot2 beside robot1 equals the graph alone
 
 
+OPTIONAL_MODULES = ("rosbags", "mcap", "mcap_ros2", "webrtcvad")
+"""Modules of pip packages a robot may lack after a plain ``colcon build``: sessions
+(rosbags), the tests' bag readers (mcap) and the vad bit source (webrtcvad)."""
+
+
+def without_optional_modules(directory: Path) -> Path:
+    """A directory that, first on PYTHONPATH, makes :data:`OPTIONAL_MODULES` missing."""
+    for module in OPTIONAL_MODULES:
+        (directory / module).mkdir(parents=True)
+        (directory / module / "__init__.py").write_text(
+            f"raise ModuleNotFoundError(\"No module named '{module}'\", name='{module}')\n"
+        )
+    return directory
+
+
+@pytest.mark.slow
+def test_the_command_line_through_ros2_run_without_optional_packages(
+    tmp_path: Path, colcon_workspace: Path
+) -> None:
+    """``ros2 run infomax_contingency infomax-contingency``: help, and one line for a bag.
+
+    With ``ros2`` on PATH the real ``ros2 run`` after ``. install/setup.sh``; without, what
+    it does (the package prefix from the ament index, then exec ``lib/PKG/EXE``).
+    """
+    blocked = without_optional_modules(tmp_path / "blocked")
+    install = colcon_workspace / "install"
+    ros2 = shutil.which("ros2")
+
+    def run(arguments: str) -> subprocess.CompletedProcess:
+        if ros2 is not None:
+            env_script = Path(ros2).resolve().parent.parent / "ros2-env.sh"
+            setup = f". {env_script} && " if env_script.is_file() else ""
+            command = (f"{setup}. {install}/setup.sh && PYTHONPATH={blocked}:$PYTHONPATH"
+                       f" exec ros2 run {PKG} infomax-contingency {arguments}")
+        else:
+            prefix = install / PKG
+            site_packages = next(prefix.glob("lib/python3*/site-packages"))
+            command = (f"AMENT_PREFIX_PATH={prefix}:$AMENT_PREFIX_PATH"
+                       f" PYTHONPATH={blocked}:{site_packages}:$PYTHONPATH"
+                       f" exec {prefix}/lib/{PKG}/infomax-contingency {arguments}")
+        return subprocess.run(["bash", "-c", command], capture_output=True, text=True,
+                              timeout=120)  # fmt: skip
+
+    helped = run("--help")
+    assert helped.returncode == 0 and "usage: infomax-contingency" in helped.stdout, helped
+    replayed = run(f"replay {tmp_path}")
+    assert replayed.returncode == 2, replayed
+    assert replayed.stderr.strip().splitlines() == [
+        "infomax-contingency replay: error: recording or reading a session (rosbag2 bag) needs"
+        " the Python package 'rosbags', which is not installed: pip install rosbags; rosdep"
+        " key python3-rosbags-pip"
+    ]
+
+
 def two_namespaced_graphs(workdir: Path, env: dict, prefix: Path, steps: int) -> list[float]:
     """Graphs /robot1 and /robot2 from the installed config/robot.yaml; robot2's beliefs."""
     workdir.mkdir()

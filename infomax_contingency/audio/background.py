@@ -341,6 +341,12 @@ class BackgroundThreshold:
             return -math.inf
         return self._recent_levels[-back]
 
+    @property
+    def awaited_decisions(self) -> int:
+        """Bits given whose decisions have not come yet."""
+        awaiting = sum(awaits for _, awaits, _, _ in self._waiting)
+        return awaiting - len(self._decisions)
+
     def note_decision(self, u: int | None) -> None:
         """The decision on the oldest window that gave a bit and had none yet.
 

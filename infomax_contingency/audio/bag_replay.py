@@ -14,6 +14,10 @@ the microphone stream it heard (``/sound_step``, with ``/sound_energy`` beside t
 * without audio: the recorded energy and the **recorded bit** of each step of the first
   stream heard, in step order.
 
+Either way a window the session recorded as withheld (heard during the robot's declared
+own sound) is served withheld again (:attr:`BagReplay.last_withheld`); with audio, the
+recorded steps are the last windows of the audio (calibration windows come first).
+
 The robot's recorded decisions for the same steps are :attr:`BagReplay.decisions`
 (controller_node's ``controller: recorded:BAG`` answers with them, for a faithful
 replay). Nothing here imports rclpy: the bag is read with ``rosbags``.
@@ -22,6 +26,7 @@ replay). Nothing here imports rclpy: the bag is read with ``rosbags``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -31,21 +36,27 @@ from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import WindowAssembler, frame_energies_db
 from infomax_contingency.audio.threshold import calibration_window_count
 from infomax_contingency.audio.windows import SourceWindow, WindowSource
+from infomax_contingency.core.model import Withheld
+from infomax_contingency.core.selfsound import recorded_observation
 
 BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
-"""Topics a bag replay reads."""
+"""Topics a bag replay reads (their types: :data:`~infomax_contingency.audio.bag.SESSION_TYPES`)."""
 
 
-def recorded_decisions(directory: Path) -> list[bool]:
+def recorded_decisions(directory: Path, warn: Callable[[str], None] | None = None
+                       ) -> list[bool]:
     """The robot's recorded decision for each step (from 1) of the session's first stream.
 
     ``decisions[t - 1]`` answers step ``t``; a step without a recorded decision is False.
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk).
 
     Raises:
-        BagReadError: the bag cannot be read.
-        AudioError: it holds no ``sound_step`` (no stream to follow).
+        BagReadError: the bag cannot be read, is damaged, or is not a session (no
+            ``sound_step``, or topics of other types).
+        AudioError: it holds no ``sound_step`` message (no stream to follow).
     """
-    topics = read_topics(directory, ("/sound_step", "/vocalize_step"))
+    topics = read_topics(directory, ("/sound_step", "/vocalize_step"),
+                         required=("/sound_step", "/vocalize_step"), warn=warn)
     stream, steps = _first_stream(directory, topics["/sound_step"])
     decided = {int(d[1]): bool(d[2]) for d in (list(m.data) for _, m in topics["/vocalize_step"])
                if d[0] == stream}
@@ -71,20 +82,31 @@ class BagReplay(WindowSource):
         samples: keep each window's samples (a bag with audio only; a bag without
             audio has none to keep).
 
+    A bag cut by a killed recorder is replayed up to its last complete chunk; what was
+    cut is in :attr:`warnings` (to be logged by the caller).
+
     Raises:
-        BagReadError: the bag cannot be read.
-        AudioError: it holds neither audio nor bits.
+        BagReadError: the bag cannot be read, is damaged, or holds neither audio nor
+            bits (topics of other types, or another robot's: named in the message).
+        AudioError: it holds no complete window.
     """
 
     def __init__(
         self, directory: Path, window_s: float, audio_rate_hz: int, samples: bool = False
     ) -> None:
         self.directory = Path(directory)
-        topics = read_topics(self.directory, BAG_TOPICS)
+        self.warnings: list[str] = []
+        """What the replay lacks (a bag cut by a killed recorder), one line each."""
+        topics = read_topics(self.directory, BAG_TOPICS, required=[("/audio", "/sound_step")],
+                             warn=self.warnings.append)
         self.has_audio = bool(topics["/audio"])
         self.windows: list[tuple[float, bool | None]]
         self.window_samples: np.ndarray | None = None
         """The windows' samples, one per row (``samples=True`` and audio), else None."""
+        stream, _ = _first_stream(self.directory, topics["/sound_step"]) if topics[
+            "/sound_step"] else (None, 0)
+        recorded = sorted((int(m.data[1]), recorded_observation(list(m.data)))
+                          for _, m in topics["/sound_step"] if int(m.data[0]) == stream)
         if self.has_audio:
             assembler = WindowAssembler(audio_rate_hz, window_s)
             energies: list[float] = []
@@ -101,15 +123,18 @@ class BagReplay(WindowSource):
                 energies = list(frame_energies_db(self.window_samples))
             self.windows = [(float(e), None) for e in energies]
         else:
-            stream, _ = _first_stream(self.directory, topics["/sound_step"])
-            steps = [(int(m.data[1]), bool(m.data[2])) for _, m in topics["/sound_step"]
-                     if int(m.data[0]) == stream]
+            if stream is None:
+                raise AudioError(f"the session {directory} holds no sound_step messages:"
+                                 " nothing to replay")
             # Calibration windows (energy, no bit) come first: the last energies are the
             # steps' (an energy not recorded is nan).
-            energies = [float(m.data) for _, m in topics["/sound_energy"]][-len(steps):]
-            energies = [math.nan] * (len(steps) - len(energies)) + energies
-            self.windows = [(energy, bit) for energy, (_, bit) in
-                            zip(energies, sorted(steps), strict=True)]
+            energies = [float(m.data) for _, m in topics["/sound_energy"]][-len(recorded):]
+            energies = [math.nan] * (len(recorded) - len(energies)) + energies
+            self.windows = [(energy, y.bit if isinstance(y, Withheld) else y) for energy, (_, y)
+                            in zip(energies, recorded, strict=True)]
+        withheld = [isinstance(y, Withheld) for _, y in recorded][-len(self.windows):]
+        self.withheld = [False] * (len(self.windows) - len(withheld)) + withheld
+        """Per window: recorded as withheld."""
         if not self.windows:
             raise AudioError(f"the session {self.directory} holds no complete window of audio")
         self.position = 0
@@ -122,7 +147,7 @@ class BagReplay(WindowSource):
         if found is None:
             return []
         energy, bit = found
-        return [SourceWindow(energy, self.last_samples, bit)]
+        return [SourceWindow(energy, self.last_samples, bit, withheld=self.last_withheld)]
 
     @property
     def finished(self) -> bool:
@@ -153,6 +178,11 @@ class BagReplay(WindowSource):
             return None
         self.position += 1
         return self.windows[self.position - 1]
+
+    @property
+    def last_withheld(self) -> bool:
+        """Was the window :meth:`next_window` served last recorded as withheld."""
+        return self.position > 0 and self.withheld[self.position - 1]
 
     @property
     def last_samples(self) -> np.ndarray | None:

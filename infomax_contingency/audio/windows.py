@@ -40,6 +40,7 @@ from infomax_contingency.audio.energy import (
 )
 from infomax_contingency.audio.threshold import calibration_window_count
 from infomax_contingency.audio.wav import WavReader, to_mono
+from infomax_contingency.core.selfsound import ChunkClock
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +55,11 @@ class SourceWindow:
         gap_s: audio missing right before it, seconds (> 0: a gap; a live device).
         intact: False if samples were lost inside it (a live device).
         index: windows the source made before it (a live device), else 0.
+        start_time: monotonic time of its first sample (a live device), else None.
+        span_ns: its time range ``[start, end)`` on the clock of the chunks'
+            publication times, ns (the ``audio`` topic:
+            :class:`~infomax_contingency.core.selfsound.ChunkClock`), else None.
+        withheld: a session recorded it withheld (heard during the robot's own sound).
     """
 
     energy_db: float
@@ -63,6 +69,26 @@ class SourceWindow:
     gap_s: float = 0.0
     intact: bool = True
     index: int = 0
+    start_time: float | None = None
+    span_ns: tuple[int, int] | None = None
+    withheld: bool = False
+
+    def time_range_ns(self, now_ns: int, monotonic_now_ns: int,
+                      window_s: float) -> tuple[int, int]:  # fmt: skip
+        """The window's time range ``[start, end)`` on the clock of ``now_ns`` (ns).
+
+        For the robot's own sound (:mod:`~infomax_contingency.core.selfsound`): the
+        chunks' publication times (:attr:`span_ns`), else a live device's ADC times moved
+        from the monotonic clock (``monotonic_now_ns`` is that clock's now), else the
+        ``window_s`` up to now (a replay: the window is served now).
+        """
+        if self.span_ns is not None:
+            return self.span_ns
+        if self.start_time is not None and self.end_time is not None:
+            offset_ns = now_ns - monotonic_now_ns
+            return (round(self.start_time * 1e9) + offset_ns,
+                    round(self.end_time * 1e9) + offset_ns)  # fmt: skip
+        return now_ns - round(window_s * 1e9), now_ns
 
 
 class WindowSource:
@@ -104,7 +130,9 @@ class TopicWindows(WindowSource):
     """Chunks of mono samples (the ``audio`` topic) windowed as they come.
 
     A chunk found missing (a gap in the publication sequence numbers) drops the
-    incomplete window: the next window starts with the next chunk.
+    incomplete window: the next window starts with the next chunk. Each window gets its
+    time range from the chunks' publication times
+    (:class:`~infomax_contingency.core.selfsound.ChunkClock`), when they are given.
 
     Args:
         rate_hz: sample rate of the chunks, Hz.
@@ -116,13 +144,20 @@ class TopicWindows(WindowSource):
         self.rate_hz = rate_hz
         self.samples = samples
         self._assembler = WindowAssembler(rate_hz, window_s)
+        self._clock = ChunkClock(rate_hz)
+        self._windows_since_gap = 0
         self._last_sequence: int | None = None
         self._ready: list[SourceWindow] = []
         self.dropped_chunks = 0
         """Chunks found missing."""
+        self.bad_chunks = 0
+        """Chunks of bad samples, ignored."""
 
-    def feed(self, chunk: NDArray[np.float32], sequence: int | None = None) -> int:
+    def feed(self, chunk: NDArray[np.float32], sequence: int | None = None,
+             published_ns: int | None = None) -> int:
         """Add one chunk (``sequence``: its publication number, if known); chunks missed before.
+
+        ``published_ns``: when the chunk was published (ns; its windows' time ranges).
 
         Raises:
             AudioError: a chunk of bad samples (it is ignored; nothing else changes).
@@ -133,13 +168,23 @@ class TopicWindows(WindowSource):
                 missed = sequence - self._last_sequence - 1
                 self.dropped_chunks += missed
                 self._assembler.reset()
+                self._clock.reset()
+                self._windows_since_gap = 0
             self._last_sequence = sequence
-        windows = self._assembler.push_windows(chunk)
+        try:
+            windows = self._assembler.push_windows(chunk)
+        except AudioError:
+            self.bad_chunks += 1
+            raise
         energies = frame_energies_db(windows)
-        self._ready += [
-            SourceWindow(float(e), w if self.samples else None)
-            for e, w in zip(energies, windows, strict=True)
-        ]
+        if published_ns is not None:
+            self._clock.add(len(chunk), published_ns)
+        n = self._assembler.samples_per_window
+        for e, w in zip(energies, windows, strict=True):
+            first = self._windows_since_gap * n
+            self._windows_since_gap += 1
+            span = self._clock.window_ns(first, n) if published_ns is not None else None
+            self._ready.append(SourceWindow(float(e), w if self.samples else None, span_ns=span))
         return missed
 
     def take(self) -> list[SourceWindow]:
@@ -148,6 +193,9 @@ class TopicWindows(WindowSource):
 
     def describe(self) -> str:
         return f"the 'audio' topic at {self.rate_hz} Hz"
+
+    def status(self) -> dict[str, Any]:
+        return {"dropped_chunks": self.dropped_chunks, "bad_chunks": self.bad_chunks}
 
 
 class MicrophoneWindows(WindowSource):
@@ -189,7 +237,8 @@ class MicrophoneWindows(WindowSource):
                           " step clock goes on, without bits for the missing time")  # fmt: skip
             self.windows_with_loss += not w.intact
             taken.append(SourceWindow(w.energy_db, w.samples if self.samples else None, None,
-                                      w.end_time, w.gap_s, w.intact, w.index))  # fmt: skip
+                                      w.end_time, w.gap_s, w.intact, w.index,
+                                      w.start_time))  # fmt: skip
         return taken
 
     def published(self, window: SourceWindow) -> None:

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from infomax_contingency.core import model
-from infomax_contingency.core.model import ModelParams, Statistic, StatisticTracker
+from infomax_contingency.core.model import ModelParams, Statistic, StatisticTracker, Withheld
 from infomax_contingency.core.policy_table import EPISODIC, PolicyTable
 
 CONTROLLER_KINDS = (
@@ -67,9 +67,13 @@ class Controller:
         """The decision for the current statistic (after the bit has been counted)."""
         raise NotImplementedError
 
-    def step(self, y: int) -> int:
-        """Count bit ``y``, decide, advance the timer with the decision; returns u."""
-        statistic = self.tracker.observe(y)
+    def step(self, y: int | Withheld) -> int:
+        """Count bit ``y``, decide, advance the timer with the decision; returns u.
+
+        A :class:`~infomax_contingency.core.model.Withheld` bit is not counted (the robot
+        made the sound); the controller still decides on the window.
+        """
+        statistic = self.tracker.observe_window(y)
         u = int(self.decide(statistic))
         self.tracker.act(u)
         return u
@@ -97,7 +101,7 @@ class PolicyController(Controller):
         self.name = f"policy:{table.mode}"
         self.episode_step = 0
 
-    def step(self, y: int) -> int:
+    def step(self, y: int | Withheld) -> int:
         """As :meth:`Controller.step`; an episodic table starts a new episode at its horizon."""
         if self.table.mode == EPISODIC:
             self.episode_step += 1

@@ -15,6 +15,10 @@ Conventions:
       3 = background). Self-period bits are not counted (they carry no information
       about S).
     * Entropies are in bits; log odds are natural logarithms.
+    * A window's observation is its bit (0 or 1), ``None`` when the bit is missing, or a
+      :class:`Withheld` bit: heard while the robot declared sound of its own (speech,
+      motors), observed but not evidence. Both of the last two are left out of the counts,
+      which is exact (:class:`StatisticTracker`).
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ from types import ModuleType
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from infomax_contingency.core.selfsound import Withheld
+from infomax_contingency.limits import load_yaml
 
 
 @functools.cache
@@ -189,16 +196,18 @@ class ModelParams:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> ModelParams:
-        """Load from a YAML file holding the fields (optionally under a ``model:`` key)."""
-        import yaml
+        """Load from a YAML file holding the fields (optionally under a ``model:`` key).
 
+        The file's size and nesting are bounded before it is parsed
+        (:func:`~infomax_contingency.limits.load_yaml`).
+        """
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
+            data = load_yaml(path, "parameter file")
         except FileNotFoundError:
             raise ParameterError(f"parameter file {path} does not exist") from None
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-            raise ParameterError(f"cannot read parameter file {path}: {error}") from None
+        except ValueError as error:
+            raise ParameterError(str(error)) from None
         if isinstance(data, Mapping) and isinstance(data.get("model"), Mapping):
             data = data["model"]
         if not isinstance(data, Mapping):
@@ -460,8 +469,13 @@ class StatisticTracker:
       window in the same period (so its likelihood is known). The timer is certain again
       after the next known vocalization, or once ``ta2 + 1`` silent steps have passed.
 
+    A withheld bit (:class:`Withheld`: the window overlapped sound the robot declared as
+    its own) is not counted either, for the same reason as a missing one:
+    :meth:`observe_window` takes any observation of a step.
+
     Attributes:
         uncounted: bits not counted because the period of their window was uncertain.
+        withheld: bits not counted because they were withheld.
     """
 
     def __init__(self, params: ModelParams, memory: int = 0, z_initial: int | None = None):
@@ -475,6 +489,7 @@ class StatisticTracker:
                 f"z_initial must lie in 0 .. {params.timer_long_ago}, got {self._z_initial}"
             )
         self.uncounted = 0
+        self.withheld = 0
         self.reset()
 
     def reset(self) -> None:
@@ -518,6 +533,19 @@ class StatisticTracker:
     def skip_observation(self) -> Statistic:
         """The bit of this step is missing: nothing is counted (exact, see the class)."""
         return self.statistic
+
+    def observe_window(self, y: int | bool | Withheld | None) -> Statistic:
+        """Count what a step observed (a bit); skip a withheld or a missing one.
+
+        A bit is counted as by :meth:`observe`; a :class:`Withheld` bit (counted in
+        :attr:`withheld`) and a missing one (``None``) are not.
+        """
+        if y is None:
+            return self.skip_observation()
+        if isinstance(y, Withheld):
+            self.withheld += 1
+            return self.skip_observation()
+        return self.observe(y)
 
     def act(self, u: int | bool) -> Statistic:
         """Advance the timer with decision ``u``; returns the new statistic."""

@@ -18,12 +18,11 @@ or from a channel carrying the robot's own output
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from infomax_contingency.audio.background import ordinal
-from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.energy import wav_energies
@@ -34,7 +33,8 @@ from infomax_contingency.audio.threshold import (
 )
 from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams, StatisticTracker
+from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
+from infomax_contingency.core.selfsound import recorded_observation
 from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import BitObservation, StepRecord, step_record
@@ -54,26 +54,34 @@ class RecordedSession:
         memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
     """
 
-    bits: list[tuple[int, bool]]
+    bits: list[tuple[int, bool | Withheld]]
     decisions: list[tuple[int, bool]]
     beliefs: list[float]
     memory_steps: int
 
 
-def load_session(directory: Path) -> RecordedSession:
+def load_session(directory: Path, warn: Callable[[str], None] | None = None
+                 ) -> RecordedSession:
     """Read the steps of the first mic stream of a session bag.
 
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk).
+
     Raises:
-        BagReadError: the bag cannot be read.
-        ValueError: it holds no ``sound_step`` (nothing to replay).
+        BagReadError: the bag cannot be read, is damaged, or is not a session (no
+            ``sound_step`` and ``vocalize_step``, or topics of other types).
+        ValueError: it holds no ``sound_step`` message (nothing to replay).
     """
-    topics = read_topics(directory, SESSION_TOPICS)
+    # Imported here: sessions need the optional rosbags; the other commands start without it.
+    from infomax_contingency.audio.bag import read_topics
+
+    topics = read_topics(directory, SESSION_TOPICS,
+                         required=("/sound_step", "/vocalize_step"), warn=warn)
     steps = [list(m.data) for _, m in topics["/sound_step"]]
     if not steps:
         raise ValueError(f"the session {directory} holds no sound_step messages: nothing to"
                          " replay (was mic_node running while it was recorded?)")
     stream = steps[0][0]
-    bits = [(int(s[1]), bool(s[2])) for s in steps if s[0] == stream]
+    bits = [(int(s[1]), recorded_observation(s)) for s in steps if s[0] == stream]
     decisions = [(int(d[1]), bool(d[2])) for d in (list(m.data) for _, m in
                  topics["/vocalize_step"]) if d[0] == stream]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
@@ -102,15 +110,12 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
                                memory)
     out: list[StepRecord] = []
 
-    def apply(step: int, y: bool | None, u: bool | None) -> None:
+    def apply(step: int, y: bool | Withheld | None, u: bool | None) -> None:
         z = tracker.statistic.z
-        if y is None:
-            tracker.skip_observation()
-        else:
-            tracker.observe(y)
-        statistic = tracker.statistic
+        statistic = tracker.observe_window(y)  # a withheld or missing bit is not counted
+        heard = y.bit if isinstance(y, Withheld) else bool(y)
         out.append(StepRecord(
-            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(bool(y)),
+            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(heard),
             u=int(bool(u)), belief=statistic.belief(params),
             entropy=statistic.entropy(params), ratio=statistic.variance_ratio(params),
         ))
@@ -342,13 +347,15 @@ OFFLINE_CONTROLLER = 2
 
 
 def write_offline_session(directory: Path, bits: Sequence[bool], decisions: Sequence[bool],
-                          beliefs: Sequence[float], dt: float, start_ns: int = 0) -> Path:
+                          beliefs: Sequence[float], dt: float, start_ns: int = 0,
+                          withheld: Sequence[bool] = ()) -> Path:
     """A session bag of an offline run (e.g. the audio-level fake room's loop).
 
     It holds what a recorded graph run holds for replay and ``analyze``: ``/sound_step``
     and ``/sound`` (the bits), ``/vocalize_step`` and ``/vocalize`` (the decisions) and
     ``/belief``, message ``t`` (from 0) stamped ``start_ns + t dt`` (receive and publish
     time alike). No ``/diagnostics``: replays use the whole history unless told a memory.
+    ``withheld[t]`` (default: none): window t was heard during the robot's own sound.
     """
     from infomax_contingency.audio.bag import BagWriter, encode
 
@@ -360,12 +367,13 @@ def write_offline_session(directory: Path, bits: Sequence[bool], decisions: Sequ
     for topic, kind in topics.items():
         writer.add_topic(topic, kind, stream_qos)
     window_us = round(dt * 1e6)
-    for t, (y, u, belief) in enumerate(zip(bits, decisions, beliefs, strict=True)):
+    withheld = list(withheld) or [False] * len(bits)
+    for t, (y, u, belief, w) in enumerate(zip(bits, decisions, beliefs, withheld, strict=True)):
         time_ns = start_ns + round(t * dt * 1e9)
         step = t + 1
         writer.write("/sound", encode("std_msgs/msg/Bool", data=bool(y)), time_ns)
         writer.write("/sound_step", encode("std_msgs/msg/Int64MultiArray",
-                     data=[OFFLINE_STREAM, step, int(y), window_us]), time_ns)
+                     data=[OFFLINE_STREAM, step, int(y), window_us, int(w)]), time_ns)
         writer.write("/vocalize", encode("std_msgs/msg/Bool", data=bool(u)), time_ns + 1)
         writer.write("/vocalize_step", encode("std_msgs/msg/Int64MultiArray",
                      data=[OFFLINE_STREAM, step, int(u), OFFLINE_CONTROLLER]), time_ns + 1)

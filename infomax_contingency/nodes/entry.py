@@ -58,20 +58,30 @@ def use_one_blas_thread(environ: MutableMapping[str, str] = os.environ) -> None:
 
 
 def _stopped_while_starting(signum: int, frame: Any) -> None:
+    # The process ends: a second stop signal (the terminal's Ctrl-C and ros2 launch's
+    # both reach a node) must not raise a KeyboardInterrupt on the way out.
+    for stop_signal in STOP_SIGNALS:
+        signal.signal(stop_signal, signal.SIG_IGN)
     raise SystemExit(0)
 
 
 def run_module(module: str) -> int:
     """Import ``module`` and return what its ``main()`` returns (the exit status).
 
-    A stop signal before ``main()`` takes the signals over raises ``SystemExit(0)``.
+    A stop signal before ``main()`` takes the signals over raises ``SystemExit(0)``; so
+    does one that arrived while the process started with the signals blocked (a launcher
+    may block them across ``exec``: they wait until this function unblocks them).
     Afterwards each signal goes back to its previous handler, unless ``main()`` left it
     with another one: a node that ends ignores both (``StopSignals.ignore_from_now_on``),
     so a second Ctrl-C while the interpreter shuts down raises nothing.
     """
     previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
-    use_one_blas_thread()
     try:
+        # contingency.launch.py starts the nodes with both signals blocked, so that a Ctrl-C
+        # while the interpreter itself starts (before this line) waits instead of raising a
+        # KeyboardInterrupt there; one that came meanwhile is delivered now, to the handler.
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+        use_one_blas_thread()
         main = importlib.import_module(module).main
         return main()
     finally:

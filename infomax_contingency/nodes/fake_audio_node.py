@@ -24,13 +24,28 @@ subscribers, ``partner_present`` ``wait_for_truth_listeners`` (and, in lockstep,
 ``vocalize`` a publisher) and every subscriber seen on its topics is connected; it
 stops after ``max_windows`` windows (0 = never).
 
+The room's robot may speak after its vocalizations (``robot_speech_probability``, a
+TTS-like utterance, see :mod:`~infomax_contingency.sim.fake_room`); with
+``declare_self_sound`` (the default) the node declares that speech on ``self_sound``, as a
+robot's speech node would: just before the audio of each window the speech overlaps, the
+time since the previous window's audio went out, which is the time mic_node gives that
+window (:class:`~infomax_contingency.core.selfsound.ChunkClock`: room time runs faster
+than the clock in lockstep, so the room declares window by window). mic_node then
+publishes the window withheld; with ``declare_self_sound`` false the robot's speech is
+heard like anyone's.
+
 The room hears the robot through the decisions of one controller (the first heard on
 ``vocalize_step``; a second one is counted and ignored, a silent one replaced after
-``source_timeout_s``), each step once: the same decisions the belief node follows.
+``source_timeout_s``), each step once: the same decisions the belief node follows. A
+decision whose step jumps further ahead than the stream's pace allows
+(:class:`~infomax_contingency.core.stepclock.StepPace`: a forged message) is named and
+ignored (diagnostics ERROR), so it cannot make the room drop the true decisions as
+repeats.
 
 Subscribes ``vocalize_step`` (std_msgs/Int64MultiArray); publishes ``audio``
 (Float32MultiArray, mono samples in [-1, 1] at ``rate_hz``), ``partner_present`` (Bool,
-the ground truth of each window, right after its audio) and ``/diagnostics``.
+the ground truth of each window, right after its audio), ``self_sound``
+(Int64MultiArray ``[start_ns, end_ns]``) and ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -41,16 +56,36 @@ import sys
 import time
 from typing import Any
 
+from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
-from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
+from infomax_contingency.core.stepclock import (
+    Arrival,
+    LockstepPacer,
+    SourceLock,
+    StepPace,
+)
+from infomax_contingency.nodes.graph_node import (
+    ERROR,
+    OK,
+    RELEASED_WINDOW,
+    WARN,
+    GraphNode,
+    take_on_pace,
+)
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
-from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP, parse_decision
+from infomax_contingency.nodes.step_topics import (
+    SELF_SOUND,
+    SOUND_STEP,
+    VOCALIZE_STEP,
+    StepDecision,
+    parse_decision,
+    self_sound_message,
+)
 from infomax_contingency.sim.fake_room import (
     PRESETS,
     FakeRoom,
@@ -76,6 +111,16 @@ ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
     ("reply_min_s", "Shortest reply", 0.001, 60.0, "s"),
     ("reply_max_s", "Longest reply", 0.001, 60.0, "s"),
     ("syllable_rate_hz", "Syllables per second in a reply", 0.1, 50.0, "1/s"),
+    ("robot_speech_probability", "Probability that the robot speaks after a vocalization",
+     0.0, 1.0, ""),
+    ("robot_speech_rate_hz", "Utterances per second the robot says on its own", 0.0, 100.0,
+     "1/s"),
+    ("robot_speech_delay_s", "Start of the robot's speech after its vocalization", 0.0, 60.0,
+     "s"),
+    ("robot_speech_min_s", "Shortest utterance of the robot", 0.001, 60.0, "s"),
+    ("robot_speech_max_s", "Longest utterance of the robot", 0.001, 60.0, "s"),
+    ("robot_speech_level_db", "RMS level of the robot's speech at the microphone", -150.0,
+     0.0, "dB"),
 )
 """(name, description, low, high, unit) of the room's floating-point parameters."""
 
@@ -98,6 +143,7 @@ class FakeAudioConfig:
     wait_for_truth_listeners: int
     start_delay_s: float
     source_timeout_s: float
+    declare_self_sound: bool
 
 
 def _read_room(read: ParameterReader, window_s: float) -> tuple[str, dict[str, Any]]:
@@ -160,6 +206,10 @@ def _read_pacing(read: ParameterReader) -> dict[str, Any]:
             "A followed controller silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         ),
+        "declare_self_sound": read.flag(
+            "declare_self_sound", True,
+            "Declare the robot's speech on 'self_sound' (false: it is heard like a partner's)",
+        ),
     }  # fmt: skip
 
 
@@ -207,11 +257,17 @@ class FakeAudioNode(GraphNode):
         self.wait_for_truth_listeners = config.wait_for_truth_listeners
         self.started = False
         self.controllers = SourceLock(config.source_timeout_s)
+        self.pace = StepPace(1.0 / config.room.window_s, config.source_timeout_s)
+        self.jumps = self.recent_events()
         self._window_sent_s: float | None = None
         """When the newest window was published (s, system clock)."""
         self.timeouts = self.recent_events()
         self.foreign = self.recent_events()
         self._answered: tuple[int, int] = (0, 0)
+        self.declare_self_sound = config.declare_self_sound
+        self.self_sound_declared = 0
+        self._audio_sent_ns: int | None = None
+        """ROS time (ns) just after the newest window's audio was published."""
         self.get_logger().info(
             f"room '{config.room_name}' (seed {config.seed}), {pacing_description(config)}"
         )
@@ -229,6 +285,10 @@ class FakeAudioNode(GraphNode):
             )  # fmt: skip
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
+        self.self_sound_pub: Publisher | None = None
+        """On ``self_sound`` once the room's robot may speak (and declares it): mic_node
+        holds its windows while the topic has a publisher, so there is none before."""
+        self._publish_self_sound_if_needed(config.room)
         self.vocalize_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
@@ -242,6 +302,10 @@ class FakeAudioNode(GraphNode):
             " lockstep mic_node needs threshold_mode fixed or file (or bit_source vad):"
             " calibrating, or warming up a noise floor, on this stream would wait for"
             " windows that only come after a decision",
+            f"{config.wait_for_listeners} listeners on 'audio'"
+            + (f", {config.wait_for_truth_listeners} on 'partner_present'"
+               if config.wait_for_truth_listeners else "")
+            + (" and a controller on 'vocalize_step'" if self.pacer is not None else ""),
         )
 
     def _ready(self) -> bool:
@@ -292,6 +356,15 @@ class FakeAudioNode(GraphNode):
                 f" controller_node?): the room hears controller {self.controllers.source}"
             )
             return
+        if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
+            self.pace.restart()
+        for taken in take_on_pace(self, self.pace, self.jumps, decision.step,
+                                  self.sent_s(stamp, now), decision, "decision",
+                                  f"controller {decision.controller}"):  # fmt: skip
+            self._hear(taken)
+
+    def _hear(self, decision: StepDecision) -> None:
+        """The followed controller's decision on a step: the robot's sound, the next window."""
         stream, step = self._answered
         if decision.stream == stream and decision.step <= step:
             return  # an answer repeated
@@ -316,9 +389,35 @@ class FakeAudioNode(GraphNode):
         message.data = array.array("f", as_transmitted(window.samples).tobytes())
         if self.pacer is not None:
             self.pacer.sent(time.monotonic())
+        if window.robot_sound and self.self_sound_pub is not None:
+            self._declare_robot_sound()
         self.audio_pub.publish(message)
+        self._audio_sent_ns = self.get_clock().now().nanoseconds
         self._window_sent_s = time.time()
         self.truth_pub.publish(Bool(data=window.partner_present))
+
+    def _publish_self_sound_if_needed(self, room: FakeRoomConfig) -> None:
+        """The ``self_sound`` publisher, once the robot may speak and its speech is declared.
+
+        Made at start-up when the room's robot speaks; a live set that makes it speak
+        makes it then (the first declarations may reach mic_node late: it says so).
+        """
+        speaks = room.robot_speech_probability > 0 or room.robot_speech_rate_hz > 0
+        if self.declare_self_sound and speaks and self.self_sound_pub is None:
+            self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
+
+    def _declare_robot_sound(self) -> None:
+        """Declare the window about to go out as the robot's sound (see the module doc).
+
+        The range lies strictly between the previous window's publication and this
+        one's: inside the time mic_node gives this window and no other.
+        """
+        now_ns = self.get_clock().now().nanoseconds
+        window_ns = round(self.room.config.window_s * 1e9)
+        start_ns = now_ns - window_ns if self._audio_sent_ns is None else self._audio_sent_ns + 1
+        end_ns = max(start_ns, now_ns - 1)
+        self.self_sound_pub.publish(self_sound_message(start_ns, end_ns))
+        self.self_sound_declared += 1
 
     def _live_room_parameters(self) -> None:
         """Let every room parameter but rate_hz change while the room runs."""
@@ -340,6 +439,7 @@ class FakeAudioNode(GraphNode):
         """The room goes on with ``name`` = ``value`` from the next window on."""
         config = self._room_config(name, value)
         self.room.reconfigure(config)
+        self._publish_self_sound_if_needed(config)
         self.get_logger().info(
             f"room: {name} = {value:g} from window {self.room.windows_made + 1} on (room time"
             f" {self.room.now_s:g} s; partner present then:"
@@ -363,14 +463,19 @@ class FakeAudioNode(GraphNode):
             "vocalizations": room.vocalizations,
             "replies": room.replies,
             "events": room.events,
+            "robot_utterances": room.robot_utterances,
+            "self_sound_declared": self.self_sound_declared,
         }
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
         if not self.started:
             return WARN, "waiting for a listener on 'audio'", values
         values["foreign_decisions"] = self.foreign.count
+        values["jumps_ignored"] = self.pace.jumps
         if self.foreign.recent(self.now_s()):
             return ERROR, "decisions from a second controller (ignored)", values
+        if self.jumps.recent(self.now_s()):
+            return ERROR, "decisions jumping ahead of the stream's pace (ignored)", values
         if self.timeouts.recent(self.now_s()):
             return WARN, f"lockstep timeouts lately: {self._who_is_missing()}", values
         return OK, f"{room.windows_made} windows", values

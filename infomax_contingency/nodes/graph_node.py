@@ -6,9 +6,11 @@ Diagnostics: each node publishes a ``diagnostic_msgs/DiagnosticArray`` on
 ``fault_hold_s``; its count stays among the values.
 
 Waiting is visible: a node that waits for an input (mic_node for ``audio``,
-controller_node for ``sound_step``) calls :meth:`GraphNode.wait_visibly`; when nothing
-has arrived after :data:`WAITING_NOTICE_S` seconds it logs once what it waits for and
-how to provide it, and its diagnostics say WARN "waiting for ..." until it arrives.
+controller_node for ``sound_step``, belief_node for both step topics, posture_node for
+``belief``, ...) calls :meth:`GraphNode.wait_visibly`: it logs at once (INFO) what it
+waits for and again when the first message came, with the time waited; when nothing
+has arrived after :data:`WAITING_NOTICE_S` seconds it logs once (WARN) how to provide
+it, and its diagnostics say WARN "waiting for ..." until it arrives.
 
 Intruders: a node that listens to a topic with one rightful publisher (``sound`` and
 ``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
@@ -40,7 +42,7 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
-from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents
+from infomax_contingency.core.stepclock import LockstepPacer, Pace, RecentEvents, StepPace
 from infomax_contingency.nodes.parameters import ParameterReader
 from infomax_contingency.nodes.qos import STREAM_QOS
 
@@ -130,6 +132,10 @@ class GraphNode(Node):
             self.waiting_for = ""
             """What the node waits for (shown as a WARN diagnostic); empty when nothing."""
             self._awaited: list[tuple[str, str]] = []
+            self._waiting_since_s: dict[str, float] = {}
+            """Topics waited for visibly, nothing received yet -> when the wait began (now_s)."""
+            self._visible_wait_since_s = 0.0
+            """When the first wait began (now_s); the WARN of check_waiting counts from it."""
             self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             self.configure()
             self.activate()
@@ -183,6 +189,7 @@ class GraphNode(Node):
         pacer: LockstepPacer | None = None,
         on_timeout: Callable[[], None] | None = None,
         stalled_hint: str = "",
+        waiting_for: str = "",
     ) -> None:
         """Call ``start`` once ``ready()`` has held for ``delay_s`` seconds.
 
@@ -192,10 +199,12 @@ class GraphNode(Node):
         delay lets the rest of the graph connect too. Afterwards, with a lockstep ``pacer``,
         ``on_timeout`` is called whenever the pacer's timeout expires; while the first
         window waits for its decision (no timeout applies then) a warning with
-        ``stalled_hint`` is logged every few seconds.
+        ``stalled_hint`` is logged every few seconds. ``waiting_for`` is logged (INFO) now
+        and, with the time waited, when the gate opens.
         """
         ready_since: list[float] = []
         connected_since: list[float] = []
+        start = _announced_start(self.get_logger(), waiting_for, start) if waiting_for else start
 
         def check_timeout() -> None:
             now = time.monotonic()
@@ -234,18 +243,30 @@ class GraphNode(Node):
         gate = self.create_timer(_GATE_POLL_S, poll)
 
     def count_arrival(self, topic: str) -> None:
-        """Count one message received on ``topic`` (done by :meth:`subscribe`)."""
-        self.arrivals[topic] = self.arrivals.get(topic, 0) + 1
+        """Count one message received on ``topic`` (done by :meth:`subscribe`).
+
+        The first one on a topic waited for visibly is logged with the time waited.
+        """
+        count = self.arrivals[topic] = self.arrivals.get(topic, 0) + 1
+        if count == 1 and topic in self._waiting_since_s:
+            waited_s = self.now_s() - self._waiting_since_s.pop(topic)
+            self.get_logger().info(
+                f"'{self.resolve_topic_name(topic)}' received after {waited_s:.1f} s of waiting"
+            )
 
     def wait_visibly(self, topic: str, hint: str) -> None:
-        """Say so when nothing arrives on ``topic`` within :data:`WAITING_NOTICE_S` s.
+        """Log that this node waits for ``topic``, and again when it came (with the wait).
 
-        ``hint`` tells how to provide it (e.g. which node publishes it). Checked about
-        once a second by :meth:`check_waiting`.
+        When nothing arrives within :data:`WAITING_NOTICE_S` s, a warning says so with
+        ``hint``, how to provide it (e.g. which node publishes it). Checked by
+        :meth:`check_waiting` with each diagnostics message (every diagnostics_period_s).
         """
+        if not self._awaited:
+            self._visible_wait_since_s = self.now_s()
         self._awaited.append((topic, hint))
-        started_s = self.now_s()
-        self.create_timer(1.0, lambda: self.check_waiting(self.now_s() - started_s))
+        if not self.arrivals.get(topic):
+            self._waiting_since_s[topic] = self.now_s()
+            self.get_logger().info(f"waiting for '{self.resolve_topic_name(topic)}'")
 
     def check_waiting(self, waited_s: float) -> str:
         """After ``waited_s`` seconds: what is still awaited (logged once per topic)."""
@@ -337,13 +358,20 @@ class GraphNode(Node):
         raise NotImplementedError
 
     def publish_diagnostics(self) -> None:
-        """Check the watched topics for intruders, then publish this node's status."""
+        """Check the watched topics for intruders, then publish this node's status.
+
+        Also checks what the node still waits for (:meth:`wait_visibly`).
+        """
+        waited_s = self.now_s() - self._visible_wait_since_s
+        if self._awaited and waited_s >= WAITING_NOTICE_S:  # before, nothing to say
+            self.check_waiting(waited_s)
         self.intruders = self.extra_publishers(self.WATCHED_TOPICS)
         for topic, names in self.intruders.items():
             self.warn_intrusion(
                 f"{len(names)} publishers on '{topic}': {', '.join(names)}", f"publishers {topic}"
             )
         level, message, values = self.diagnostic_status()
+        values.update({f"publishers_{t}": ", ".join(names) for t, names in self.intruders.items()})
         if self.waiting_for and level == OK:
             level, message = WARN, self.waiting_for
         elif self.waiting_for and level == WARN:
@@ -374,6 +402,39 @@ class GraphNode(Node):
         """Ask :func:`run_node` to stop spinning and return ``exit_status``."""
         if not self.finished.done():
             self.finished.set_result(exit_status)
+
+
+def take_on_pace(node: GraphNode, pace: StepPace, jumps: RecentEvents, step: int,
+                 sent_s: float, message: Any, kind: str, source: str) -> list[Any]:  # fmt: skip
+    """The messages ``node`` takes now, after the pace of the step clock judged ``message``.
+
+    ``message`` of ``source`` (e.g. "stream 4"), a ``kind`` (e.g. "bit") for ``step``
+    published at ``sent_s``: itself if on pace; none if it jumps too far ahead (named in a
+    WARN, counted in ``jumps``); the run it confirms, oldest first (logged).
+    """
+    verdict = pace.check(step, sent_s, message)
+    if verdict is Pace.JUMP:
+        jumps.note(node.now_s())
+        node.warn_intrusion(pace.jump_message(f"{kind} for step {step} of {source}"), "jump")
+        return []
+    if verdict is Pace.CONFIRMED:
+        taken = pace.take_confirmed()
+        node.get_logger().warning(pace.run_message(source, taken[0].step))
+        return taken
+    return [message]
+
+
+def _announced_start(logger: Any, waiting_for: str, start: Callable[[], None]
+                     ) -> Callable[[], None]:
+    """Log that a start gate waits for ``waiting_for``; ``start`` logging the time waited."""
+    logger.info(f"waiting for {waiting_for}")
+    since_s = time.monotonic()
+
+    def announced() -> None:
+        logger.info(f"{waiting_for}: there after {time.monotonic() - since_s:.1f} s of waiting")
+        start()
+
+    return announced
 
 
 def _format_value(value: Any) -> str:

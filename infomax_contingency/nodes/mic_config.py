@@ -42,8 +42,9 @@ Live: only the settings declared live (``threshold_db``, in threshold_mode fixed
 replay's first seconds again; a stream's next windows, without bits; threshold_mode file
 reads its file again).
 
-Step clock (``max_steps_ahead``, ``max_backlog_s``, ``wait_for_listeners``,
-``start_delay_s``, ``max_windows``): see :mod:`~infomax_contingency.nodes.mic_node`.
+Step clock (``max_steps_ahead``, ``max_backlog_s``, ``listener_timeout_s``,
+``wait_for_listeners``, ``start_delay_s``, ``max_windows``) and the robot's own sound
+(``self_sound_hold_s``): see :mod:`~infomax_contingency.nodes.mic_node`.
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ from infomax_contingency.audio.windows import (
     WindowSource,
 )
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.stepclock import MAX_STEP_JUMP
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 
 SOURCES = ("wav", "topic", "sounddevice", "bag")
@@ -90,6 +92,8 @@ class MicConfig:
     max_windows: int
     max_steps_ahead: int
     max_backlog_s: float
+    listener_timeout_s: float
+    self_sound_hold_s: float
     wav_file: str
     bag_dir: str
     channel: int
@@ -131,13 +135,25 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
         ),
         "max_steps_ahead": read.integer(
             "max_steps_ahead", 16,
-            "Steps that may be out unanswered while a controller answers on 'vocalize_step'",
-            1, 1000,
+            "Steps that may be out unanswered (by the controller on 'vocalize_step') or not"
+            " taken (by a listener on 'step_applied', e.g. belief_node)",
+            1, MAX_STEP_JUMP,
+        ),
+        "listener_timeout_s": read.number(
+            "listener_timeout_s", 5.0,
+            "A listener on 'step_applied' (belief_node) that takes nothing this long is no"
+            " longer waited for (killed, hung) until it keeps up again",
+            0.1, 3600.0, "s",
         ),
         "max_backlog_s": read.number(
             "max_backlog_s", 3600.0,
             "Audio whose windows may wait for the controller; more is dropped and counted",
             1.0, 86400.0, "s",
+        ),
+        "self_sound_hold_s": read.number(
+            "self_sound_hold_s", 0.15,
+            "While 'self_sound' has a publisher, each window waits this long past its end"
+            " for the robot's declared sound ranges that overlap it", 0.0, 10.0, "s",
         ),
     }
 
@@ -220,11 +236,14 @@ def check_bit_settings(config: MicConfig) -> None:
 def make_bits(config: MicConfig, on_problem: Any = None) -> BitSource:
     """The bit source the configuration asks for (a threshold file is read now)."""
     try:
-        return BIT_SOURCES[config.bit_source](
+        bits = BIT_SOURCES[config.bit_source](
             config.bit_settings, config.rate_hz, config.window_s, on_problem
         )
     except AudioError as error:
         raise ConfigError(str(error)) from None
+    if bits.needs_decisions:  # it labels windows by the model's timer
+        bits.follow_model(config.params)
+    return bits
 
 
 def open_window_source(config: MicConfig, samples: bool, log: LogFunction) -> WindowSource:
@@ -244,9 +263,13 @@ def open_window_source(config: MicConfig, samples: bool, log: LogFunction) -> Wi
         from infomax_contingency.audio.bag_replay import BagReplay
 
         try:
-            return BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz, samples)
+            replay = BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz,
+                               samples)
         except (OSError, AudioError) as error:
             raise ConfigError(f"parameter 'bag_dir' = {config.bag_dir!r}: {error}") from None
+        for warning in replay.warnings:  # a bag cut by a killed recorder
+            log("warning", warning)
+        return replay
     if config.source == "topic":
         return TopicWindows(config.audio_rate_hz, config.window_s, samples)
     return MicrophoneWindows(_microphone(config, channel, log), samples, log)

@@ -35,6 +35,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from infomax_contingency.audio.bitsources import all_setting_specs
 from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.nodes.entry import NODES as PACKAGE_NODES
@@ -59,6 +60,9 @@ class ParameterReader:
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
         self._refusal = ""
+        self.known: set[str] = set()
+        """Names the node takes in another configuration though it does not declare them
+        now (another bit source's settings): not a misspelling (:func:`undeclared_parameters`)."""
         node.add_pre_set_parameters_callback(self._check_first)
         node.add_on_set_parameters_callback(self._on_set)
 
@@ -312,7 +316,12 @@ class ParameterReader:
         )
 
     def declared(self, spec: SettingSpec) -> Any:
-        """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text."""
+        """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text.
+
+        The other sources' settings become :attr:`known`: a file may set them for a switch
+        of ``bit_source`` (config/robot.yaml does).
+        """
+        self.known.update(other.name for other in all_setting_specs())
         read_only = not spec.live
         if isinstance(spec.default, str):
             return self.text(spec.name, spec.default, spec.description, spec.choices, read_only)
@@ -478,6 +487,12 @@ def undeclared_parameters(files: Sequence[str], nodes: Sequence[DeclaringNode]
     return found
 
 
+def _takes(node: DeclaringNode, key: str) -> bool:
+    """True when ``node`` declares ``key`` or knows it (:attr:`ParameterReader.known`)."""
+    reader = getattr(node, "parameters", None)
+    return node.has_parameter(key) or key in getattr(reader, "known", ())
+
+
 def _section_findings(pattern: str, keys: list[str], nodes: Sequence[DeclaringNode]
                       ) -> list[tuple[DeclaringNode | None, str]]:  # fmt: skip
     """:func:`undeclared_parameters` of one section ``pattern`` holding ``keys``."""
@@ -494,10 +509,10 @@ def _section_findings(pattern: str, keys: list[str], nodes: Sequence[DeclaringNo
     found: list[tuple[DeclaringNode | None, str]] = []
     for key in (key for key in keys if key not in CHECKED_UNDECLARED):
         if wildcard:  # for every node: some take it, others need not
-            shared = key in SHARED_PARAMETERS or any(n.has_parameter(key) for n in nodes)
+            shared = key in SHARED_PARAMETERS or any(_takes(n, key) for n in nodes)
             targets = [] if shared else matched
         else:
-            targets = [n for n in matched if not n.has_parameter(key)]
+            targets = [n for n in matched if not _takes(n, key)]
         found += [(node, f"'{key}' (section '{pattern}') is not a parameter of"
                          f" {node.get_fully_qualified_name()}: ignored")
                   for node in targets]  # fmt: skip

@@ -7,7 +7,15 @@ On every change (and once at start-up, with the initial posture) the node publis
 one point, ``joint_names`` at ``attentive_positions`` or ``bored_positions``, reached in
 ``move_duration_s``), both transient-local so a late joiner gets the current posture.
 
-Subscribes ``belief`` (Float64); publishes ``posture``, ``joint_targets``, ``/diagnostics``.
+With ``declare_motion_sound`` (live; off by default) every move is also declared as
+the robot's own sound on ``self_sound`` (``[now, now + move_duration_s]`` on the ROS
+clock, see :mod:`~infomax_contingency.core.selfsound`): the microphone hears the motors,
+and the windows of the move are then not taken as evidence. Turn it on for a robot
+whose microphone hears its motors; not against the simulated room, whose lockstep time
+runs faster than the clock (and which has no motors).
+
+Subscribes ``belief`` (Float64); publishes ``posture``, ``joint_targets``,
+``self_sound`` (Int64MultiArray, with ``declare_motion_sound``), ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -16,14 +24,16 @@ import sys
 from typing import Any
 
 from builtin_interfaces.msg import Duration
-from std_msgs.msg import Float64, String
+from rclpy.publisher import Publisher
+from std_msgs.msg import Float64, Int64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from infomax_contingency.core.posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
 from infomax_contingency.nodes.graph_node import OK, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
-from infomax_contingency.nodes.qos import LATCHED_QOS
+from infomax_contingency.nodes.qos import LATCHED_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.step_topics import SELF_SOUND, self_sound_message
 
 DEFAULT_JOINTS = ("head_pan", "head_tilt", "left_arm_lift", "right_arm_lift")
 DEFAULT_ATTENTIVE = (0.0, 0.15, 0.3, 0.3)
@@ -76,6 +86,11 @@ class PostureNode(GraphNode):
             "move_duration_s", 1.0, "Time to reach a new posture (live)", 0.0, 60.0, "s",
             read_only=False,
         )
+        self.declare_motion_sound = read.flag(
+            "declare_motion_sound", False,
+            f"Declare every move on '{SELF_SOUND}' as the robot's own sound (live)",
+            read_only=False,
+        )
         for posture, positions in self.positions.items():
             self._check_positions(posture, positions)
         _check_thresholds(attentive_above, bored_below)
@@ -89,7 +104,13 @@ class PostureNode(GraphNode):
         """Publishers, subscriptions, services and timers."""
         self.posture_pub = self.create_publisher(String, "posture", LATCHED_QOS)
         self.joints_pub = self.create_publisher(JointTrajectory, "joint_targets", LATCHED_QOS)
+        self.self_sound_pub: Publisher | None = None
+        """On ``self_sound`` while moves are declared: mic_node holds its windows while
+        the topic has a publisher, so there is none otherwise."""
+        self.motions_declared = 0
+        self._set_declare_motion_sound(self.declare_motion_sound)
         self.subscribe(Float64, "belief", self._on_belief)
+        self.wait_visibly("belief", "P(S=1) from belief_node: is it running?")
         self._publish(self._initial)
 
     def _check_positions(self, posture: str, positions: list[float]) -> None:
@@ -126,6 +147,16 @@ class PostureNode(GraphNode):
         set_positions(ATTENTIVE)
         set_positions(BORED)
         read.live("move_duration_s", lambda value: setattr(self, "move_duration_s", value))
+        read.live("declare_motion_sound", self._set_declare_motion_sound)
+
+    def _set_declare_motion_sound(self, declare: bool) -> None:
+        """Declare the moves from now on (or not): the publisher exists only then."""
+        self.declare_motion_sound = declare
+        if declare and self.self_sound_pub is None:
+            self.self_sound_pub = self.create_publisher(Int64MultiArray, SELF_SOUND, STREAM_QOS)
+        elif not declare and self.self_sound_pub is not None:
+            self.destroy_publisher(self.self_sound_pub)
+            self.self_sound_pub = None
 
     def _on_belief(self, msg: Float64, stamp: int) -> None:
         self.belief = msg.data
@@ -146,7 +177,12 @@ class PostureNode(GraphNode):
             time_from_start=Duration(sec=seconds, nanosec=nanoseconds),
         )
         trajectory = JointTrajectory(joint_names=self.joint_names, points=[point])
-        trajectory.header.stamp = self.get_clock().now().to_msg()
+        now = self.get_clock().now()
+        trajectory.header.stamp = now.to_msg()
+        if self.self_sound_pub is not None:  # the motors are heard until the move's end
+            end_ns = now.nanoseconds + round(self.move_duration_s * 1e9)
+            self.self_sound_pub.publish(self_sound_message(now.nanoseconds, end_ns))
+            self.motions_declared += 1
         self.joints_pub.publish(trajectory)
         self.posture_pub.publish(String(data=posture))
 
@@ -155,7 +191,8 @@ class PostureNode(GraphNode):
         return (
             OK,
             self.hysteresis.posture,
-            {"posture": self.hysteresis.posture, "belief": self.belief, "changes": self.changes},
+            {"posture": self.hysteresis.posture, "belief": self.belief, "changes": self.changes,
+             "motions_declared": self.motions_declared},
         )
 
 

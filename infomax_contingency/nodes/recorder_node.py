@@ -12,12 +12,15 @@ when the publisher sent it), and each topic with the QoS its publishers offer
 Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
 ``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
 ``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
-``/diagnostics``. The session itself (the parameter files and threshold file named in
-``session_files``, their text) goes on the topic ``session_info`` (std_msgs/String,
-YAML) as the first message, and into the metadata's ``custom_data``. ``session_info`` is
-also published (transient-local), and only once every subscription of the recorder
-exists, so a launcher that waits for it (the demo does) cannot start the graph before the
-recorder listens.
+``self_sound`` (the robot's declared own sound), ``/diagnostics``. The session itself
+(the parameter files and threshold file named in ``session_files``, their text) goes
+on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into
+the metadata's ``custom_data``. ``session_info`` is also published (transient-local),
+and only once every subscription of the recorder exists, so a launcher that waits for
+it (the demo does) cannot start the graph before the recorder listens.
+
+Logs: the bag's path when recording starts, that it waits for the first ``sound_step``
+(and when it came), and when it stops the messages recorded per topic.
 
 Robustness: the MCAP file is flushed every ``flush_period_s`` seconds (a chunk ends
 there), so a recorder killed with ``kill -9`` leaves a file readable up to the last
@@ -26,7 +29,8 @@ without it). A directory that cannot be created or written, or a full disk, give
 ERROR line and an ERROR diagnostic; the recorder stops writing and keeps what it has
 written, and the rest of the graph keeps running.
 
-Parameters: ``directory`` (the bag directory to create; it must not exist yet),
+Parameters: ``directory`` (the bag directory to create; one that exists already is
+refused at start-up, exit status 2, which ends a launch: as ``ros2 bag record -o``),
 ``session_files`` (comma-separated paths to store with the session), ``flush_period_s``,
 ``record_audio`` (false: leave out the ``audio`` topic, the bulk of a bag).
 Publishes ``session_info``, ``/diagnostics``.
@@ -83,6 +87,7 @@ RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
     "joint_targets": (JointTrajectory, LATCHED_READER_QOS),
     "speaker_started": (TimeMsg, RECORDER_QOS),
     "partner_present": (Bool, RECORDER_QOS),
+    "self_sound": (Int64MultiArray, RECORDER_QOS),
     "/diagnostics": (DiagnosticArray, QoSProfile(depth=100)),
 }
 """Topic -> (message type, QoS of the recorder's subscription); ``audio`` is added when
@@ -147,6 +152,11 @@ class RecorderNode(GraphNode):
         if not directory:
             raise ConfigError("parameter 'directory' is empty: name the bag directory to create")
         self.directory = Path(directory)
+        if self.directory.exists():
+            raise ConfigError(
+                f"parameter 'directory' = {directory!r} exists already: a bag is written to a"
+                " new directory; name one that does not exist (a session is never overwritten)"
+            )
         self.failure = ""
         self.counts: dict[str, int] = {}
         self.subscribed: set[str] = set()
@@ -159,6 +169,7 @@ class RecorderNode(GraphNode):
         self.writer: BagWriter | None = None
         try:
             self.writer = BagWriter(self.directory, custom_data={"session": self.description})
+            self.get_logger().info(f"recording to {self.directory.resolve()}")
         except BagWriteError as error:
             self._fail(str(error))
         self._add_topic(SESSION_TOPIC, String, STREAM_QOS)
@@ -171,6 +182,7 @@ class RecorderNode(GraphNode):
         self._session_pub.publish(String(data=self.description))
         self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
         self.create_timer(self.flush_period_s, self._flush)
+        self.wait_visibly("sound_step", "the bits of mic_node: the session starts with them")
 
     def _fail(self, message: str) -> None:
         """Stop writing after an error (logged once, shown in the diagnostics)."""
@@ -201,6 +213,7 @@ class RecorderNode(GraphNode):
                 self._fail(str(error))
 
         def receive(data: bytes, info: dict[str, Any]) -> None:
+            self.count_arrival(topic)
             received = int(info.get("received_timestamp", 0)) or time.time_ns()
             self._write(name, data, received, int(info.get("source_timestamp", 0)) or None)
 
@@ -259,14 +272,23 @@ class RecorderNode(GraphNode):
         return sum(self.counts.values())
 
     def destroy_node(self) -> None:
-        """Close the bag (writes ``metadata.yaml``) and destroy the node."""
+        """Close the bag (writes ``metadata.yaml``), log what it holds, destroy the node."""
         if self.writer is not None:
             try:
                 self.writer.close()
+                self.get_logger().info(self.summary())
             except BagWriteError as error:
                 self.get_logger().error(f"closing the bag: {error}")
             self.writer = None
         super().destroy_node()
+
+    def summary(self) -> str:
+        """One line: the bag, its messages per topic, and the topics that stayed empty."""
+        total = sum(self.counts.values())
+        held = ", ".join(f"{name} {count}" for name, count in self.counts.items() if count)
+        empty = ", ".join(name for name, count in self.counts.items() if not count)
+        return (f"recorded {total} messages to {self.directory.resolve()}: {held}"
+                + (f"; nothing on {empty}" if empty else ""))  # fmt: skip
 
 
 def _message_class(type_name: str) -> type | None:

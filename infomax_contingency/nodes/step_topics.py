@@ -4,11 +4,18 @@
 obeys; beside them travel, on common interfaces only (std_msgs/Int64MultiArray, one
 dimension labelled with the field names):
 
-* ``sound_step``: ``[stream, step, bit, window_us]`` — the bit ``y_t`` of window
-  ``step`` (1, 2, ...) of ``stream`` (a random id chosen by each run of mic_node), whose
-  windows last ``window_us`` microseconds;
+* ``sound_step``: ``[stream, step, bit, window_us, withheld]`` — the bit ``y_t`` of
+  window ``step`` (1, 2, ...) of ``stream`` (a random id chosen by each run of mic_node),
+  whose windows last ``window_us`` microseconds; ``withheld`` is 1 when the window
+  overlapped sound the robot declared as its own (``self_sound``): the bit is what was
+  heard, but it is no evidence and no listener counts it
+  (:class:`~infomax_contingency.core.model.Withheld`). A message of the first four
+  fields only (recordings made before ``withheld`` existed) is a window not withheld;
 * ``vocalize_step``: ``[stream, step, vocalize, controller]`` — the decision ``u_t`` on
-  that window, by ``controller`` (a random id chosen by each run of controller_node).
+  that window, by ``controller`` (a random id chosen by each run of controller_node);
+* ``step_applied``: ``[stream, step, listener]`` — ``listener`` (a random id chosen by
+  each run of belief_node) applied every step of ``stream`` up to ``step``: mic_node's
+  flow control waits for it (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`).
 
 A listener joins the two exactly by ``(stream, step)``
 (:class:`~infomax_contingency.core.stepclock.StepJoiner`) and follows one stream and one
@@ -22,20 +29,42 @@ from typing import NamedTuple
 
 from std_msgs.msg import Int64MultiArray, MultiArrayDimension
 
+from infomax_contingency.core.model import Withheld
+
 SOUND_STEP = "sound_step"
 VOCALIZE_STEP = "vocalize_step"
+STEP_APPLIED = "step_applied"
+SELF_SOUND = "self_sound"
+"""The topic on which any node declares the robot's own sound (see
+:mod:`~infomax_contingency.core.selfsound`)."""
 
-_SOUND_FIELDS = ("stream", "step", "bit", "window_us")
+_SOUND_FIELDS = ("stream", "step", "bit", "window_us", "withheld")
+_SELF_SOUND_FIELDS = ("start_ns", "end_ns")
 _VOCALIZE_FIELDS = ("stream", "step", "vocalize", "controller")
+_APPLIED_FIELDS = ("stream", "step", "listener")
 
 
 class StepBit(NamedTuple):
-    """A bit with its identity."""
+    """A bit with its identity; ``withheld``: heard during the robot's own sound."""
 
     stream: int
     step: int
     bit: bool
     window_us: int
+    withheld: bool = False
+
+    @property
+    def observation(self) -> bool | Withheld:
+        """What a statistic takes: the bit, or the bit :class:`Withheld`."""
+        return Withheld(self.bit) if self.withheld else self.bit
+
+
+class StepApplied(NamedTuple):
+    """A listener's acknowledgment: it applied every step of ``stream`` up to ``step``."""
+
+    stream: int
+    step: int
+    listener: int
 
 
 class StepDecision(NamedTuple):
@@ -56,7 +85,10 @@ def _dimension(fields: tuple[str, ...]) -> MultiArrayDimension:
     return MultiArrayDimension(label=",".join(fields), size=len(fields), stride=len(fields))
 
 
-_LAYOUTS = {fields: [_dimension(fields)] for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS)}
+_LAYOUTS = {
+    fields: [_dimension(fields)]
+    for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS, _SELF_SOUND_FIELDS, _APPLIED_FIELDS)
+}
 """The one-dimension layout of each message kind, made once (a message per window)."""
 
 
@@ -77,19 +109,49 @@ def decision_message(decision: StepDecision) -> Int64MultiArray:
     return _message(_VOCALIZE_FIELDS, tuple(decision))
 
 
-def _fields(message: Int64MultiArray, n: int) -> list[int] | None:
+def applied_message(applied: StepApplied) -> Int64MultiArray:
+    """The ``step_applied`` message of ``applied``."""
+    return _message(_APPLIED_FIELDS, tuple(applied))
+
+
+def parse_applied(message: Int64MultiArray) -> StepApplied | None:
+    """The acknowledgment in a ``step_applied`` message, or None if it is malformed."""
     data = list(message.data)
-    if len(data) != n or data[0] <= 0 or data[1] <= 0 or data[2] not in (0, 1):
+    if len(data) != len(_APPLIED_FIELDS) or min(data) <= 0:
+        return None
+    return StepApplied(*data)
+
+
+def _fields(message: Int64MultiArray, *sizes: int) -> list[int] | None:
+    data = list(message.data)
+    if len(data) not in sizes or data[0] <= 0 or data[1] <= 0 or data[2] not in (0, 1):
         return None
     return data
 
 
 def parse_bit(message: Int64MultiArray) -> StepBit | None:
-    """The bit in a ``sound_step`` message, or None if the message is malformed."""
-    data = _fields(message, len(_SOUND_FIELDS))
-    if data is None or data[3] <= 0:
+    """The bit in a ``sound_step`` message, or None if the message is malformed.
+
+    Four fields (a recording made before ``withheld``) are a window not withheld.
+    """
+    data = _fields(message, len(_SOUND_FIELDS) - 1, len(_SOUND_FIELDS))
+    if data is None or data[3] <= 0 or data[4:] not in ([], [0], [1]):
         return None
-    return StepBit(data[0], data[1], bool(data[2]), data[3])
+    return StepBit(data[0], data[1], bool(data[2]), data[3], bool(data[4:] == [1]))
+
+
+def self_sound_message(start_ns: int, end_ns: int) -> Int64MultiArray:
+    """The ``self_sound`` message declaring the robot's sound over ``[start_ns, end_ns]``.
+
+    Times are nanoseconds on the ROS clock (``node.get_clock().now().nanoseconds``).
+    """
+    return _message(_SELF_SOUND_FIELDS, (start_ns, end_ns))
+
+
+def parse_self_sound(message: Int64MultiArray) -> tuple[int, int] | None:
+    """``(start_ns, end_ns)`` of a ``self_sound`` message; None if it has not two fields."""
+    data = list(message.data)
+    return (int(data[0]), int(data[1])) if len(data) == 2 else None
 
 
 def parse_decision(message: Int64MultiArray) -> StepDecision | None:

@@ -31,6 +31,15 @@ would on a robot. The room holds (the sounds themselves are made in
   start of the next window, at ``self_level_db``; with ``reverb_rt60_s > 0`` followed by
   the room's echo of it (:func:`~infomax_contingency.sim.room_sounds.reverb_tail`, 60 dB
   decay in ``reverb_rt60_s``) at ``reverb_level_db``;
+* the robot speaking (a TTS-like utterance through the room's loudspeaker): after a
+  vocalization, with probability ``robot_speech_probability``, it says something
+  (speech-like sound at ``robot_speech_level_db``) starting ``robot_speech_delay_s``
+  after the vocalization and lasting ``robot_speech_min_s`` .. ``robot_speech_max_s``;
+  and now and then on its own, ``robot_speech_rate_hz`` utterances per second (a
+  Poisson process), from random streams of their own. After a vocalization it falls in
+  the agent period: to the model it sounds like a partner's reply unless it is declared
+  as the robot's own sound (:attr:`RoomWindow.robot_sound`; fake_audio_node publishes
+  it on ``self_sound``);
 * a partner, present from ``partner_arrive_s`` until ``partner_leave_s`` (room time),
   who answers a vocalization with probability ``reply_probability``: a reply at
   ``reply_level_db``, starting ``reply_delay_min_s`` .. ``reply_delay_max_s`` after the
@@ -103,7 +112,9 @@ espeak-ng, :func:`~infomax_contingency.sim.room_sounds.tts_voices`)."""
 
 CONTINUOUS_SOURCES = ("floor", "babble", "tv", "music", "hum")
 """Sources whose level is their long-term RMS (pauses included)."""
-TRANSIENT_SOURCES = ("event", "door", "footstep", "self", "echo", "reply", "traffic", "typing")
+TRANSIENT_SOURCES = (
+    "event", "door", "footstep", "self", "echo", "reply", "robot_speech", "traffic", "typing"
+)
 """Sources whose level is the RMS over each sound's duration."""
 
 
@@ -158,6 +169,12 @@ class FakeRoomConfig:
     traffic_level_db: float = -35.0
     typing_rate_hz: float = 0.0
     typing_level_db: float = -40.0
+    robot_speech_probability: float = 0.0
+    robot_speech_rate_hz: float = 0.0
+    robot_speech_delay_s: float = 1.0
+    robot_speech_min_s: float = 0.6
+    robot_speech_max_s: float = 1.0
+    robot_speech_level_db: float = -20.0
 
     def __post_init__(self) -> None:  # noqa: C901
         def fail(name: str, allowed: str) -> None:
@@ -189,7 +206,8 @@ class FakeRoomConfig:
                 fail(name, "a number")
             if not math.isfinite(value):
                 fail(name, "finite")
-        for name in ("window_s", "event_min_s", "reply_min_s", "syllable_rate_hz"):
+        for name in ("window_s", "event_min_s", "reply_min_s", "syllable_rate_hz",
+                     "robot_speech_min_s"):
             if getattr(self, name) <= 0:
                 fail(name, "> 0")
         for name in (
@@ -202,6 +220,8 @@ class FakeRoomConfig:
             "tv_start_s",
             "traffic_rate_hz",
             "typing_rate_hz",
+            "robot_speech_delay_s",
+            "robot_speech_rate_hz",
         ):
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
@@ -223,15 +243,18 @@ class FakeRoomConfig:
             "hum_level_db",
             "traffic_level_db",
             "typing_level_db",
+            "robot_speech_level_db",
         ):
             if not -150.0 <= getattr(self, name) <= 0.0:
                 fail(name, "a level between -150 and 0 dB (full scale)")
-        if not 0.0 <= self.reply_probability <= 1.0:
-            fail("reply_probability", "a probability in [0, 1]")
+        for name in ("reply_probability", "robot_speech_probability"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                fail(name, "a probability in [0, 1]")
         for low, high in (
             ("event_min_s", "event_max_s"),
             ("reply_min_s", "reply_max_s"),
             ("reply_delay_min_s", "reply_delay_max_s"),
+            ("robot_speech_min_s", "robot_speech_max_s"),
         ):
             if getattr(self, high) < getattr(self, low):
                 fail(high, f">= {low} (= {getattr(self, low)})")
@@ -314,12 +337,16 @@ class RoomWindow(NamedTuple):
         start_s: room time of the window's first sample, seconds.
         samples: mono float64 samples in [-1, 1].
         partner_present: ground truth at the start of the window.
+        robot_sound: the window overlaps the robot's speech (sound it declares as its
+            own: the window is observed but is no evidence, see
+            :class:`~infomax_contingency.core.model.Withheld`).
     """
 
     index: int
     start_s: float
     samples: np.ndarray
     partner_present: bool
+    robot_sound: bool = False
 
 
 class _Sound(NamedTuple):
@@ -334,7 +361,9 @@ _LIVE_FIELDS = frozenset({
     "noise_floor_db", "event_rate_hz", "event_level_db", "event_min_s", "event_max_s",
     "self_delay_s", "self_level_db", "partner_arrive_s", "partner_leave_s",
     "reply_probability", "reply_level_db", "reply_delay_min_s", "reply_delay_max_s",
-    "reply_min_s", "reply_max_s", "syllable_rate_hz",
+    "reply_min_s", "reply_max_s", "syllable_rate_hz", "robot_speech_probability",
+    "robot_speech_rate_hz",
+    "robot_speech_delay_s", "robot_speech_min_s", "robot_speech_max_s", "robot_speech_level_db",
 })
 """Fields of :class:`FakeRoomConfig` that :meth:`FakeRoom.reconfigure` may change."""
 
@@ -394,10 +423,19 @@ class FakeRoom:
         self.config = config
         self.rate = config.rate_hz
         self.window = window_samples(config.rate_hz, config.window_s)
-        streams = np.random.SeedSequence(seed).spawn(11)  # the first eight: as ever
-        noise, events, replies, doors, steps, babble, tv, reverb, music, traffic, typing = (
+        # the first eight as ever, then the newer rooms' sources, then the robot's speech
+        streams = np.random.SeedSequence(seed).spawn(13)
+        (noise, events, replies, doors, steps, babble, tv, reverb, music, traffic, typing,
+         speech, chatter) = (
             np.random.default_rng(stream) for stream in streams
         )
+        self._speech_rng = speech
+        self._chatter_rng = chatter
+        self._next_chatter = self._chatter_gap()
+        """Room sample of the robot's next utterance of its own (inf: none)."""
+        self._robot_f0 = float(speech.uniform(90.0, 130.0))
+        self._robot_speech: list[tuple[int, int]] = []
+        """The robot's utterances still to come or under way: (first, end) room samples."""
         self._event_rng = events
         self._reply_rng = replies
         chirp = synthesize_chirp(self.rate, ROBOT_SOUND_S, amplitude=1.0)
@@ -419,10 +457,11 @@ class FakeRoom:
         self._floor = NoiseFloor(config.floor_spectrum, config.noise_floor_db, noise)
         self._sounds: list[_Sound] = []
         self._streams = self._background_streams(events, doors, steps, babble, tv)
-        self._streams += self._newer_streams(music, traffic, typing)
+        self._streams += _newer_streams(self, music, traffic, typing)
         self.windows_made = 0
         self.vocalizations = 0
         self.replies = 0
+        self.robot_utterances = 0
         self._meter: dict[str, list[float]] | None = {} if meter else None
 
     @property
@@ -456,6 +495,8 @@ class FakeRoom:
             chirp = synthesize_chirp(self.rate, ROBOT_SOUND_S, amplitude=1.0)
             self._chirp = rms_scaled(chirp, config.self_level_db)
         self._floor.rms = 10.0 ** (config.noise_floor_db / 20.0)
+        if config.robot_speech_rate_hz != old.robot_speech_rate_hz:
+            self._next_chatter = self.windows_made * self.window + self._chatter_gap()
         if config.event_rate_hz != old.event_rate_hz:
             knocks = self._streams[0]
             knocks.gap = self._poisson_gap(self._event_rng, config.event_rate_hz)
@@ -509,60 +550,6 @@ class FakeRoom:
             streams.append(self._tv(tv, config.tv_level_db - 10.0 * math.log10(duty)))
         return streams
 
-    def _newer_streams(
-        self, music: np.random.Generator, traffic: np.random.Generator, typing: np.random.Generator
-    ) -> list[_SoundStream]:
-        """Music, the mains hum, traffic passing and typing (each only if the room has it)."""
-        config, rate = self.config, self.rate
-        streams = []
-        if config.music_on:
-            bar_samples = 4 * round(room_sounds.MUSIC_BEAT_S * rate)
-
-            def bar() -> list[tuple[int, np.ndarray]]:
-                return [(0, rms_scaled(room_sounds.music_bar(rate, music), config.music_level_db))]
-
-            streams.append(
-                _SoundStream(
-                    "music", lambda: -music.uniform(0.0, bar_samples), bar, lambda _: bar_samples
-                )
-            )
-        if config.hum_on:
-            block = rate  # 1 s: whole cycles of the hum
-            gain = 10.0 ** (config.hum_level_db / 20.0) / math.sqrt(
-                float(np.mean(room_sounds.mains_hum(block, rate, 0) ** 2))
-            )
-            position = [0]
-
-            def hum() -> list[tuple[int, np.ndarray]]:
-                samples = gain * room_sounds.mains_hum(block, rate, position[0])
-                position[0] += block
-                return [(0, samples)]
-
-            streams.append(_SoundStream("hum", lambda: 0.0, hum, lambda _: block))
-        if config.traffic_rate_hz > 0:
-            traffic_gap = self._poisson_gap(traffic, config.traffic_rate_hz)
-
-            def vehicle() -> list[tuple[int, np.ndarray]]:
-                sound = room_sounds.traffic_pass(rate, traffic)
-                return [(0, rms_scaled(sound, config.traffic_level_db))]
-
-            streams.append(_SoundStream("traffic", traffic_gap, vehicle, traffic_gap))
-        if config.typing_rate_hz > 0:
-            typing_gap = self._poisson_gap(typing, config.typing_rate_hz)
-
-            def burst() -> list[tuple[int, np.ndarray]]:
-                sound = room_sounds.typing_burst(rate, typing)
-                return [(0, rms_scaled(sound, config.typing_level_db))]
-
-            streams.append(_SoundStream("typing", typing_gap, burst, typing_gap))
-        return streams
-
-    def _voice_bank(self, voice: str, cutoff_hz: float) -> tuple[np.ndarray, ...]:
-        """The voices distant talkers or the TV speak with (:data:`SPEECH_VOICES`)."""
-        if voice == "tts":
-            return room_sounds.tts_voices(self.rate, cutoff_hz)
-        return room_sounds.speech_bank(self.rate, self.config.syllable_rate_hz, cutoff_hz)
-
     def _excerpt(
         self, rng: np.random.Generator, voice: np.ndarray, seconds: float, level: float
     ) -> np.ndarray:
@@ -575,7 +562,10 @@ class FakeRoom:
 
         ``join_s > 0``: the talker starts talking at that room time (a crowd that grows).
         """
-        bank = self._voice_bank(self.config.babble_voice, self.config.babble_cutoff_hz)
+        bank = room_sounds.voice_bank(
+            self.config.babble_voice, self.rate, self.config.syllable_rate_hz,
+            self.config.babble_cutoff_hz,
+        )
         voice = bank[int(rng.integers(len(bank)))]
         low, high = BABBLE_UTTERANCE_S
         cycle = (0.5 * (low + high) + BABBLE_PAUSE_MEAN_S) * self.rate
@@ -592,7 +582,9 @@ class FakeRoom:
 
     def _tv(self, rng: np.random.Generator, level: float) -> _SoundStream:
         """The TV programme: stretches of :data:`TV_STRETCH_S`, pauses of :data:`TV_PAUSE_S`."""
-        bank = self._voice_bank(self.config.tv_voice, TV_CUTOFF_HZ)
+        bank = room_sounds.voice_bank(
+            self.config.tv_voice, self.rate, self.config.syllable_rate_hz, TV_CUTOFF_HZ
+        )
         voice = bank[int(rng.integers(len(bank)))]
         start_s = self.config.tv_start_s
 
@@ -626,6 +618,7 @@ class FakeRoom:
         self._sounds.append(_Sound(sound_start, self._chirp, "self"))
         if self._echo is not None:
             self._sounds.append(_Sound(sound_start, self._echo, "echo"))
+        self._maybe_speak(start)
         if not self.config.partner_present_at(self.now_s):
             return False
         if self._reply_rng.random() >= self.config.reply_probability:
@@ -637,6 +630,36 @@ class FakeRoom:
         self._sounds.append(_Sound(start + round(delay * self.rate), self._reply(length), "reply"))
         self.replies += 1
         return True
+
+    def _maybe_speak(self, vocalization_start: int) -> None:
+        """After a vocalization at room sample ``vocalization_start``, the robot may speak.
+
+        Drawn from the speech stream only when ``robot_speech_probability`` > 0, so a
+        room without robot speech sounds as before, sample for sample.
+        """
+        config = self.config
+        if config.robot_speech_probability <= 0:
+            return
+        if self._speech_rng.random() >= config.robot_speech_probability:
+            return
+        first = vocalization_start + round(config.robot_speech_delay_s * self.rate)
+        self._speak(first, self._speech_rng)
+
+    def _chatter_gap(self) -> float:
+        """Room samples to the robot's next utterance of its own (exponential; inf: none)."""
+        rate_hz = self.config.robot_speech_rate_hz
+        return math.inf if rate_hz <= 0 else self._chatter_rng.exponential(self.rate / rate_hz)
+
+    def _speak(self, first: int, rng: np.random.Generator) -> None:
+        """The robot says an utterance from room sample ``first`` on."""
+        config = self.config
+        length = rng.uniform(config.robot_speech_min_s, config.robot_speech_max_s)
+        n = max(1, round(length * self.rate))
+        voice = room_sounds.speech_like(n, self.rate, rng, config.syllable_rate_hz, self._robot_f0)
+        self._sounds.append(_Sound(first, rms_scaled(voice, config.robot_speech_level_db),
+                                   "robot_speech"))  # fmt: skip
+        self._robot_speech.append((first, first + n))
+        self.robot_utterances += 1
 
     def _reply(self, length_s: float) -> np.ndarray:
         """The partner's reply of ``length_s`` at ``reply_level_db`` (``reply_voice``)."""
@@ -673,6 +696,9 @@ class FakeRoom:
         end = start + self.window
         for stream in self._streams:
             self._sounds.extend(stream.due(end))
+        while self._next_chatter < end:
+            self._speak(int(self._next_chatter), self._chatter_rng)
+            self._next_chatter += self._chatter_gap()
         x = self._floor.next(self.window)
         if self._meter is not None:
             self._measure("floor", x, self.window)
@@ -692,11 +718,14 @@ class FakeRoom:
             if sound_start + samples.size > end:
                 remaining.append(sound)
         self._sounds = remaining
+        robot_sound = any(first < end and start < last for first, last in self._robot_speech)
+        self._robot_speech = [(first, last) for first, last in self._robot_speech if last > end]
         window = RoomWindow(
             index=self.windows_made,
             start_s=start / self.rate,
             samples=np.clip(x, -1.0, 1.0),
             partner_present=self.config.partner_present_at(start / self.rate),
+            robot_sound=robot_sound,
         )
         self.windows_made += 1
         return window
@@ -734,6 +763,58 @@ class FakeRoom:
         }
 
 
+def _newer_streams(
+room: FakeRoom,
+music: np.random.Generator,
+traffic: np.random.Generator,
+typing: np.random.Generator,
+) -> list[_SoundStream]:
+    """Music, the mains hum, traffic passing and typing (each only if the room has it)."""
+    config, rate = room.config, room.rate
+    streams = []
+    if config.music_on:
+        bar_samples = 4 * round(room_sounds.MUSIC_BEAT_S * rate)
+
+        def bar() -> list[tuple[int, np.ndarray]]:
+            return [(0, rms_scaled(room_sounds.music_bar(rate, music), config.music_level_db))]
+
+        streams.append(
+            _SoundStream(
+                "music", lambda: -music.uniform(0.0, bar_samples), bar, lambda _: bar_samples
+            )
+        )
+    if config.hum_on:
+        block = rate  # 1 s: whole cycles of the hum
+        gain = 10.0 ** (config.hum_level_db / 20.0) / math.sqrt(
+            float(np.mean(room_sounds.mains_hum(block, rate, 0) ** 2))
+        )
+        position = [0]
+
+        def hum() -> list[tuple[int, np.ndarray]]:
+            samples = gain * room_sounds.mains_hum(block, rate, position[0])
+            position[0] += block
+            return [(0, samples)]
+
+        streams.append(_SoundStream("hum", lambda: 0.0, hum, lambda _: block))
+    if config.traffic_rate_hz > 0:
+        traffic_gap = room._poisson_gap(traffic, config.traffic_rate_hz)
+
+        def vehicle() -> list[tuple[int, np.ndarray]]:
+            sound = room_sounds.traffic_pass(rate, traffic)
+            return [(0, rms_scaled(sound, config.traffic_level_db))]
+
+        streams.append(_SoundStream("traffic", traffic_gap, vehicle, traffic_gap))
+    if config.typing_rate_hz > 0:
+        typing_gap = room._poisson_gap(typing, config.typing_rate_hz)
+
+        def burst() -> list[tuple[int, np.ndarray]]:
+            sound = room_sounds.typing_burst(rate, typing)
+            return [(0, rms_scaled(sound, config.typing_level_db))]
+
+        streams.append(_SoundStream("typing", typing_gap, burst, typing_gap))
+    return streams
+
+
 def as_transmitted(samples: np.ndarray) -> np.ndarray:
     """The samples as they travel on the ``audio`` topic: float32."""
     return np.asarray(samples, dtype=np.float32)
@@ -746,11 +827,14 @@ class AudioObservation(NamedTuple):
         y: the window's bit.
         energy_db: the window's energy (of the float32 samples), dB.
         partner_present: the room's ground truth at the start of the window.
+        withheld: the window overlaps the robot's declared speech: observed, not
+            counted (:func:`~infomax_contingency.sim.loop.run_loop`).
     """
 
     y: int
     energy_db: float
     partner_present: bool
+    withheld: bool = False
 
 
 class AudioWorld:
@@ -765,11 +849,16 @@ class AudioWorld:
         binarizer: a bit source of
             :func:`~infomax_contingency.audio.bitsources.make_bit_source` (its
             ``last_energy_db`` is the window's energy).
+        declare_self_sound: a window that overlaps the robot's speech is withheld (as
+            the graph does when fake_audio_node publishes ``self_sound``); False: it is
+            evidence like any other (the robot says nothing about its own sound).
     """
 
-    def __init__(self, room: FakeRoom, binarizer: BitSource) -> None:
+    def __init__(self, room: FakeRoom, binarizer: BitSource,
+                 declare_self_sound: bool = True) -> None:  # fmt: skip
         self.room = room
         self.binarizer = binarizer
+        self.declare_self_sound = declare_self_sound
 
     def observe(self) -> AudioObservation | None:
         """The next window's bit, energy and ground truth (None while calibrating)."""
@@ -778,7 +867,8 @@ class AudioWorld:
         energy = self.binarizer.last_energy_db
         if y is None:
             return None
-        return AudioObservation(int(y), energy, window.partner_present)
+        withheld = self.declare_self_sound and window.robot_sound
+        return AudioObservation(int(y), energy, window.partner_present, withheld)
 
     def act(self, u: int) -> None:
         """Vocalize at the start of the next window if ``u`` is 1 (the bit source hears of it)."""
@@ -799,6 +889,7 @@ class AudioStepRecord:
         u: the decision taken after it (1 = vocalize).
         belief: P(S=1) after counting y.
         partner_present: the room's ground truth at the start of the window.
+        withheld: y was not counted (the robot's declared speech).
     """
 
     t: int
@@ -807,6 +898,7 @@ class AudioStepRecord:
     u: int
     belief: float
     partner_present: bool
+    withheld: bool = False
 
 
 def iter_audio_loop(
@@ -815,10 +907,12 @@ def iter_audio_loop(
     binarizer: BitSource,
     steps: int | None,
     memory: int = 0,
+    declare_self_sound: bool = True,
 ) -> Iterator[AudioStepRecord]:
     """The streaming form of :func:`simulate_audio_loop` (``steps = None``: without end)."""
     params = controller.params
-    for step in run_loop(AudioWorld(room, binarizer), controller, steps, memory=memory):
+    world = AudioWorld(room, binarizer, declare_self_sound)
+    for step in run_loop(world, controller, steps, memory=memory):
         seen = step.observation
         yield AudioStepRecord(
             step.t,
@@ -827,6 +921,7 @@ def iter_audio_loop(
             step.u,
             step.statistic.belief(params),
             seen.partner_present,
+            seen.withheld,
         )
 
 
@@ -836,6 +931,7 @@ def simulate_audio_loop(
     binarizer: BitSource,
     steps: int,
     memory: int = 0,
+    declare_self_sound: bool = True,
 ) -> list[AudioStepRecord]:
     """The node graph's lockstep loop, offline: room -> energy -> bit -> decision -> room.
 
@@ -843,6 +939,8 @@ def simulate_audio_loop(
     decisions and beliefs equal those of the graph (mic, controller and belief nodes
     against the fake audio node in lockstep) for the same seed, threshold and memory.
     Calibration windows (a binarizer without a threshold) yield no step, as in the mic node.
-    The controller is used as it is (not reset).
+    Windows that overlap the robot's speech are withheld (``declare_self_sound``, as
+    fake_audio_node's parameter of that name). The controller is used as it is (not reset).
     """
-    return list(iter_audio_loop(controller, room, binarizer, steps, memory=memory))
+    return list(iter_audio_loop(controller, room, binarizer, steps, memory=memory,
+                                declare_self_sound=declare_self_sound))

@@ -19,11 +19,16 @@ from collections.abc import Iterator
 from typing import Generic, Protocol, TypeVar
 
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import Statistic, StatisticTracker
+from infomax_contingency.core.model import Statistic, StatisticTracker, Withheld
 
 
 class Observation(Protocol):
-    """What a world reports for one window: at least its bit ``y`` (0 or 1)."""
+    """What a world reports for one window: at least its bit ``y`` (0 or 1).
+
+    A world whose observations have a true ``withheld`` attribute reports a window the
+    robot declared as its own sound: it is observed, but not counted (by the reporting
+    statistic nor the controller's: :class:`~infomax_contingency.core.model.Withheld`).
+    """
 
     @property
     def y(self) -> int:
@@ -89,8 +94,11 @@ def run_loop(
             continue
         t += 1
         z = tracker.statistic.z
-        statistic = tracker.observe(observation.y)
-        u = int(controller.step(int(observation.y)))
+        y: int | Withheld = int(observation.y)
+        if getattr(observation, "withheld", False):
+            y = Withheld(bool(y))
+        statistic = tracker.observe_window(y)
+        u = int(controller.step(y))
         tracker.act(u)
         world.act(u)
         yield LoopStep(t, z, observation, statistic, u)

@@ -348,3 +348,15 @@ def typing_burst(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
         out[position:end] += gain * click[: end - position]
         position += max(1, round(rng.exponential(1.0 / rate_keys) * rate))
     return out
+
+
+def voice_bank(
+    voice: str, rate: int, syllable_rate_hz: float, cutoff_hz: float
+) -> tuple[NDArray[np.float64], ...]:
+    """The voices distant talkers or a TV speak with, low-passed at ``cutoff_hz``.
+
+    ``voice``: ``synthetic`` (:func:`speech_bank`) or ``tts`` (:func:`tts_voices`).
+    """
+    if voice == "tts":
+        return tts_voices(rate, cutoff_hz)
+    return speech_bank(rate, syllable_rate_hz, cutoff_hz)

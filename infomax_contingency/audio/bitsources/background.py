@@ -106,6 +106,7 @@ class BackgroundSource(BitSource):
         super().__init__(settings, rate_hz, window_s, on_problem)
         self.periods = ROBOT_PERIODS
         self.rule = self._new_rule()
+        self._stale_decisions = 0  # decisions still due on bits of a rule replaced
         self.last_level_db = float("nan")
         """The level the last bit was decided on (energy without the mean), dB."""
         self.clipped_windows = 0
@@ -142,7 +143,14 @@ class BackgroundSource(BitSource):
             self.rule = self._new_rule()
 
     def note_decision(self, u: int | None) -> None:
-        """The decision on the oldest bit that had none yet (1: vocalize; None: lost)."""
+        """The decision on the oldest bit that had none yet (1: vocalize; None: lost).
+
+        Decisions on bits given before :meth:`recalibrate` are not the new rule's: they
+        are passed over.
+        """
+        if self._stale_decisions:
+            self._stale_decisions -= 1
+            return
         self.rule.note_decision(u)
 
     def decide(self, x: NDArray[np.float64]) -> bool | None:
@@ -190,6 +198,7 @@ class BackgroundSource(BitSource):
 
     def recalibrate(self) -> str:
         """Forget the room: a new warm-up on the next windows."""
+        self._stale_decisions += self.rule.awaited_decisions
         self.rule = self._new_rule()
         return (f"hearing the room again: no bits for the next {self.rule.warmup_windows}"
                 " background windows (and the threshold's delay)")  # fmt: skip

@@ -170,9 +170,10 @@ class BitSource(ABC):
     needs_samples: ClassVar[bool] = True
     """False if a window's full-band energy alone decides its bit (:meth:`push` works)."""
     needs_decisions: ClassVar[bool] = False
-    """True if the source labels windows by the model's timer: it needs every decision
-    (:meth:`note_decision`) and, before the first window, the model whose periods it
-    labels them by (its ``follow_model(params)``)."""
+    """True if the source labels windows by the model's timer: it then has
+    ``note_decision(u)``, to be called with every decision in order (None: lost), and
+    ``follow_model(params)``, called before the first window with the model whose periods
+    label them."""
     mode_setting: ClassVar[str | None] = None
     """The setting a name's first word after the source gives (``threshold_mode``), if any."""
     name_modes: ClassVar[Mapping[str, tuple[NameArgument, ...]]] = {"": ()}
@@ -248,13 +249,6 @@ class BitSource(ABC):
             return self.push(energy_db)
         return self.push_window(samples)
 
-    def note_decision(self, u: int | None) -> None:
-        """Take the decision on the oldest bit that had none yet (1: vocalize; None: lost).
-
-        A source that :attr:`needs_decisions` labels windows with it; nothing by default.
-        """
-        return
-
     # ------------------------------------------------------------------ state
 
     @property
@@ -324,6 +318,10 @@ class BitSource(ABC):
     def ready_message(self) -> str:
         """One line for the log once the first bit comes."""
         return f"bit source {self.name} ready"
+
+    def threshold_origin(self) -> str:
+        """Where :attr:`threshold_db` came from, for the log ("" for a source without one)."""
+        return ""
 
     def diagnostic_values(self) -> dict[str, Any]:
         """The source's state for diagnostics."""

@@ -31,7 +31,12 @@ from infomax_contingency.audio.bitsources.base import (
 from infomax_contingency.audio.bitsources.rules import Binarizer, NoiseFloorBinarizer
 from infomax_contingency.audio.common import AudioError, as_mono, check_rate
 from infomax_contingency.audio.energy import frame_energies_db
-from infomax_contingency.audio.threshold import DEFAULT_MIN_SEPARATION_DB, calibration_window_count
+from infomax_contingency.audio.threshold import (
+    DEFAULT_MIN_SEPARATION_DB,
+    THRESHOLD_MAX_DB,
+    THRESHOLD_MIN_DB,
+    calibration_window_count,
+)
 from infomax_contingency.audio.threshold_file import load_threshold
 
 THRESHOLD_MODES = ("calibrate", "fixed", "file", "noise_floor")
@@ -56,7 +61,8 @@ class ThresholdSettings:
         choices=THRESHOLD_MODES,
     )
     threshold_db: float = setting(
-        -40.0, "Fixed threshold (threshold_mode fixed; live)", low=-150.0, high=0.0, unit="dB",
+        -40.0, "Fixed threshold (threshold_mode fixed; live)", low=THRESHOLD_MIN_DB,
+        high=THRESHOLD_MAX_DB, unit="dB",
         live=True,
     )
     threshold_file: str = setting(
@@ -275,6 +281,19 @@ class LevelSource(BitSource):
             f"calibrated: threshold {fit.threshold_db:.2f} dB (quiet {fit.low_mean_db:.1f}"
             f" dB, sound {fit.high_mean_db:.1f} dB)"
         )
+
+    def threshold_origin(self) -> str:
+        """The floor and margin, the k-means clusters, the file or the fixed value."""
+        rule, settings = self.rule, self.settings
+        if isinstance(rule, NoiseFloorBinarizer):
+            return f"noise floor {rule.floor_db:.1f} dB + margin {rule.margin_db:g} dB"
+        if rule.fit is not None:
+            fit = rule.fit
+            return (f"k-means of {fit.n_low + fit.n_high} windows: quiet {fit.low_mean_db:.1f}"
+                    f" dB, sound {fit.high_mean_db:.1f} dB")  # fmt: skip
+        if settings.threshold_mode == "file":
+            return f"threshold_file {settings.threshold_file}"
+        return f"threshold_db, threshold_mode {settings.threshold_mode}"
 
     def diagnostic_values(self) -> dict[str, Any]:
         """Threshold, refits and calibration state (and the floor)."""

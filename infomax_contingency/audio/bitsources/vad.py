@@ -22,6 +22,7 @@ from infomax_contingency.audio.bitsources.base import (
     SettingError,
     setting,
 )
+from infomax_contingency.errors import MissingPackageError
 
 VAD_RATES_HZ = (8000, 16000, 32000, 48000)
 """Sample rates webrtcvad accepts."""
@@ -70,7 +71,10 @@ class VadSource(BitSource):
         window_s: float,
         on_problem: Callable[[str], None] | None = None,
     ) -> None:
-        import webrtcvad  # here, so the other sources need no webrtcvad
+        try:
+            import webrtcvad  # here, so the other sources need no webrtcvad
+        except ModuleNotFoundError:  # optional (no rosdep key): say which package
+            raise MissingPackageError("webrtcvad-wheels", "bit source 'vad'") from None
 
         super().__init__(settings, rate_hz, window_s, on_problem)
         self.aggressiveness = settings.vad_aggressiveness

@@ -1,0 +1,126 @@
+"""Logs an operator can act on: the threshold in force, and what each node waits for.
+
+In-process nodes on a hand-stepped executor; their log lines are read from the
+process's stderr (rcutils writes there), with pytest's ``capfd``.
+"""
+
+from __future__ import annotations
+
+import array
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray
+
+from infomax_contingency.nodes.belief_node import BeliefNode
+from infomax_contingency.nodes.mic_node import MicNode
+from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.testing.stepped import (
+    Probe,
+    SteppedExecutor,
+    nodes_on_their_own_executors,
+)
+
+
+@pytest.fixture
+def graph() -> Iterator[Callable[..., tuple[Any, Probe, SteppedExecutor]]]:
+    """``graph(NodeClass, **parameters)`` -> (node, probe, executor); cleaned up after."""
+    with nodes_on_their_own_executors() as start:
+        yield start
+
+
+def _audio(levels_db: list[float]) -> Float32MultiArray:
+    """Noise windows of 0.5 s at 16 kHz, one per RMS level (dB full scale)."""
+    rng = np.random.default_rng(3)
+    samples = np.concatenate([rng.standard_normal(8000) * 10 ** (db / 20) for db in levels_db])
+    message = Float32MultiArray()
+    message.data = array.array("f", samples.astype(np.float32).tobytes())
+    return message
+
+
+def _set(probe: Probe, executor: SteppedExecutor, node: str, **values: Any) -> None:
+    """Set parameters of ``node`` through its parameter service (as ``ros2 param set``)."""
+    client = AsyncParameterClient(probe, node)
+    executor.run_until(lambda: client.services_are_ready(), f"the parameter services of {node}")
+    future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+    executor.run_until(future.done, f"the answer of {node}/set_parameters")
+    assert all(result.successful for result in future.result().results), future.result()
+
+
+def _threshold_lines(text: str) -> list[str]:
+    return [line.split("[mic_node]: ")[1] for line in text.splitlines()
+            if "[mic_node]: threshold in force" in line]  # fmt: skip
+
+
+def _mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
+    """A mic_node on 'audio', started; ``play(levels_db)`` sends one window per level."""
+    node, probe, executor = graph(
+        MicNode, source="topic", calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0,
+        **parameters,
+    )  # fmt: skip
+    probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
+    energies = probe.listen("sound_energy", Float32)
+    probe.listen("sound", Bool)
+    audio = probe.talk("audio", Float32MultiArray)
+    executor.connected(audio)
+    executor.run_until(lambda: node.started, "the mic's start gate")
+
+    def play(levels: list[float]) -> None:
+        heard = len(energies)
+        audio.publish(_audio(levels))
+        executor.run_until(lambda: len(energies) == heard + len(levels), "the windows")
+
+    return node, probe, executor, play
+
+
+def test_mic_node_logs_the_threshold_in_force_at_start_up_and_when_set_live(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    node, probe, executor, play = _mic(graph, threshold_mode="fixed", threshold_db=-40.0)
+    assert _threshold_lines(capfd.readouterr().err) == [
+        "threshold in force: -40.00 dB (threshold_db, threshold_mode fixed; bit_source energy)"
+    ]
+    _set(probe, executor, "mic_node", threshold_db=-30.0)  # live: logged at once
+    play([-35.0, -45.0])  # the same threshold: nothing more
+    assert _threshold_lines(capfd.readouterr().err) == [
+        "threshold in force: -30.00 dB (threshold_db, threshold_mode fixed; bit_source energy)"
+    ]
+
+
+def test_mic_node_logs_a_threshold_that_follows_the_noise_floor_when_it_moved(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    node, probe, executor, play = _mic(
+        graph, threshold_mode="noise_floor", noise_window_s=1.0, noise_percentile=0.0
+    )
+    # 2 windows start the floor at -60 dB; it then follows the last 2 windows: -40 dB
+    # moves it 20 dB up, -40.5 dB by less than 1 dB (not logged again)
+    play([-60.0, -60.0, -60.0, -40.0, -40.0, -40.5])
+    assert _threshold_lines(capfd.readouterr().err) == [
+        "threshold in force: -50.11 dB (noise floor -60.1 dB + margin 10 dB; bit_source"
+        " energy)",
+        "threshold in force: -30.04 dB (noise floor -40.0 dB + margin 10 dB; bit_source"
+        " energy)",
+    ]
+
+
+def test_belief_and_posture_nodes_say_what_they_wait_for_and_when_it_came(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    posture, probe, executor = graph(PostureNode)
+    belief_node, _, _ = graph(BeliefNode)
+    err = capfd.readouterr().err
+    assert "[posture_node]: waiting for '/belief'" in err
+    assert "[belief_node]: waiting for '/vocalize_step'" in err
+    assert "[belief_node]: waiting for '/sound_step'" in err
+    belief = probe.talk("belief", Float64)
+    executor.connected(belief)
+    belief.publish(Float64(data=0.95))
+    executor.run_until(lambda: posture.arrivals.get("belief"), "the belief at posture_node")
+    lines = [line for line in capfd.readouterr().err.splitlines() if "received after" in line]
+    assert len(lines) == 1 and "[posture_node]: '/belief' received after" in lines[0], lines
+    assert lines[0].endswith(" s of waiting")
