@@ -763,6 +763,23 @@ class FakeRoom:
         }
 
 
+
+def _poisson_sounds(
+    room: FakeRoom,
+    source: str,
+    rng: np.random.Generator,
+    rate_hz: float,
+    level_db: float,
+    make: Callable[[int, np.random.Generator], np.ndarray],
+) -> _SoundStream:
+    """Sounds ``make(rate, rng)`` at ``level_db`` (RMS over each), at Poisson times."""
+    gap = room._poisson_gap(rng, rate_hz)
+
+    def sound() -> list[tuple[int, np.ndarray]]:
+        return [(0, rms_scaled(make(room.rate, rng), level_db))]
+
+    return _SoundStream(source, gap, sound, gap)
+
 def _newer_streams(
 room: FakeRoom,
 music: np.random.Generator,
@@ -796,22 +813,14 @@ typing: np.random.Generator,
             return [(0, samples)]
 
         streams.append(_SoundStream("hum", lambda: 0.0, hum, lambda _: block))
-    if config.traffic_rate_hz > 0:
-        traffic_gap = room._poisson_gap(traffic, config.traffic_rate_hz)
-
-        def vehicle() -> list[tuple[int, np.ndarray]]:
-            sound = room_sounds.traffic_pass(rate, traffic)
-            return [(0, rms_scaled(sound, config.traffic_level_db))]
-
-        streams.append(_SoundStream("traffic", traffic_gap, vehicle, traffic_gap))
-    if config.typing_rate_hz > 0:
-        typing_gap = room._poisson_gap(typing, config.typing_rate_hz)
-
-        def burst() -> list[tuple[int, np.ndarray]]:
-            sound = room_sounds.typing_burst(rate, typing)
-            return [(0, rms_scaled(sound, config.typing_level_db))]
-
-        streams.append(_SoundStream("typing", typing_gap, burst, typing_gap))
+    for name, rng, rate_hz, level_db, make in (
+        ("traffic", traffic, config.traffic_rate_hz, config.traffic_level_db,
+         room_sounds.traffic_pass),
+        ("typing", typing, config.typing_rate_hz, config.typing_level_db,
+         room_sounds.typing_burst),
+    ):  # fmt: skip
+        if rate_hz > 0:
+            streams.append(_poisson_sounds(room, name, rng, rate_hz, level_db, make))
     return streams
 
 
