@@ -210,41 +210,14 @@ class FakeRoomConfig:
                      "robot_speech_min_s"):
             if getattr(self, name) <= 0:
                 fail(name, "> 0")
-        for name in (
-            "event_rate_hz",
-            "self_delay_s",
-            "reply_delay_min_s",
-            "door_rate_hz",
-            "footsteps_rate_hz",
-            "babble_join_s",
-            "tv_start_s",
-            "traffic_rate_hz",
-            "typing_rate_hz",
-            "robot_speech_delay_s",
-            "robot_speech_rate_hz",
-        ):
+        for name in _NON_NEGATIVE_FIELDS:
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
         if not 0.0 <= self.reverb_rt60_s <= 5.0:
             fail("reverb_rt60_s", "a reverberation time in 0 .. 5 s (0: no echo)")
         if not 0.0 < self.babble_cutoff_hz:
             fail("babble_cutoff_hz", "> 0 Hz")
-        for name in (
-            "noise_floor_db",
-            "event_level_db",
-            "self_level_db",
-            "reply_level_db",
-            "door_level_db",
-            "footsteps_level_db",
-            "babble_level_db",
-            "tv_level_db",
-            "reverb_level_db",
-            "music_level_db",
-            "hum_level_db",
-            "traffic_level_db",
-            "typing_level_db",
-            "robot_speech_level_db",
-        ):
+        for name in _LEVEL_FIELDS:
             if not -150.0 <= getattr(self, name) <= 0.0:
                 fail(name, "a level between -150 and 0 dB (full scale)")
         for name in ("reply_probability", "robot_speech_probability"):
@@ -274,6 +247,39 @@ class FakeRoomConfig:
             return False
         return self.partner_leave_s < 0 or time_s < self.partner_leave_s
 
+
+_NON_NEGATIVE_FIELDS = (
+    "event_rate_hz",
+    "self_delay_s",
+    "reply_delay_min_s",
+    "door_rate_hz",
+    "footsteps_rate_hz",
+    "babble_join_s",
+    "tv_start_s",
+    "traffic_rate_hz",
+    "typing_rate_hz",
+    "robot_speech_delay_s",
+    "robot_speech_rate_hz",
+)
+"""Fields of :class:`FakeRoomConfig` that must be >= 0."""
+
+_LEVEL_FIELDS = (
+    "noise_floor_db",
+    "event_level_db",
+    "self_level_db",
+    "reply_level_db",
+    "door_level_db",
+    "footsteps_level_db",
+    "babble_level_db",
+    "tv_level_db",
+    "reverb_level_db",
+    "music_level_db",
+    "hum_level_db",
+    "traffic_level_db",
+    "typing_level_db",
+    "robot_speech_level_db",
+)
+"""Fields of :class:`FakeRoomConfig` that are levels, dB FS (-150 .. 0)."""
 
 _NON_NUMBER_FIELDS = frozenset(
     {
