@@ -346,10 +346,21 @@ def test_belief_names_a_second_publisher(run: Callable) -> None:
     intruder = other.talk("vocalize", Bool)
     controller = probe.talk("vocalize", Bool)
     graph.run_until(lambda: node.count_publishers("vocalize") == 2, "two publishers")
+    statuses = probe.listen("/diagnostics", DiagnosticArray)
     node.publish_diagnostics()
-    level, message, values = node.diagnostic_status()
+    level, message, _values = node.diagnostic_status()
     assert level == ERROR and "'vocalize'" in message
-    publishers = values["publishers_vocalize"]
+
+    def belief_values() -> dict[str, str]:
+        found = [s for m in statuses for s in m.status if s.name.startswith("belief_node")]
+        return {kv.key: kv.value for kv in found[-1].values} if found else {}
+
+    def published() -> dict[str, str]:
+        node.publish_diagnostics()  # again, until the probe's subscription is matched
+        return belief_values()
+
+    graph.run_until(lambda: "publishers_vocalize" in published(), "the named publishers")
+    publishers = belief_values()["publishers_vocalize"]  # every node's diagnostics name them
     assert "/intruder" in publishers and "/probe" in publishers
     other.destroy_publisher(intruder)
     graph.run_until(lambda: node.count_publishers("vocalize") == 1, "the intruder gone")
@@ -483,7 +494,7 @@ def test_mic_bit_sources_window_any_chunking_like_offline(
         audio.publish(_audio_message(chunk))
     graph.run_until(lambda: len(energies) == 16 and len(steps) == 16 - calibration,
                     "16 windows and their bits")  # fmt: skip
-    assert node.bad_chunks == 1
+    assert node.source.bad_chunks == 1
     offline = make_bit_source(bit_source, 16000, 0.5, **options)
     expected = [offline.push_window(w) for w in samples.reshape(16, 8000)]
     assert expected[:calibration] == [None] * calibration
@@ -604,13 +615,35 @@ def test_fake_room_hears_one_controller_once_per_step(run: Callable) -> None:
 
 def test_speaker_dry_run_counts_vocalizations(run: Callable) -> None:
     node, probe, graph = run(SpeakerNode)
-    vocalize = probe.talk("vocalize", Bool)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
     graph.connected(vocalize)
-    for u in (True, False, True, False):
-        vocalize.publish(Bool(data=u))
+    for message in decisions_of(STREAM, (True, False, True, False)):
+        vocalize.publish(message)
     graph.run_until(lambda: node.requests == 2, "2 vocalizations")
     level, message, values = node.diagnostic_status()
     assert "dry run" in message and values["played"] == 0
+
+
+def test_speaker_obeys_only_the_controller_it_follows(run: Callable) -> None:
+    """A second controller, a repeated step and a forged jump: named, none of them played."""
+    node, probe, graph = run(SpeakerNode)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    true = decisions_of(STREAM, (True, False, False, True, False))
+    second = decisions_of(STREAM, [True] * 5, controller=6)  # always vocalize
+    forged = decision_message(StepDecision(STREAM, 3000, True, 5))  # the true controller's id
+    for step, (mine, other) in enumerate(zip(true, second, strict=True), start=1):
+        vocalize.publish(mine)
+        vocalize.publish(other)
+        if step == 2:
+            vocalize.publish(true[0])  # step 1 again
+            vocalize.publish(forged)
+    graph.run_until(lambda: node._answered == (STREAM, 5) and node.pace.jumps == 1
+                    and node.controllers.foreign_messages == 5, "every decision taken")  # fmt: skip
+    assert node.requests == 2, "the followed controller's two vocalizations, once each"
+    level, message, values = node.diagnostic_status()
+    assert level == ERROR and "second controller" in message, message
+    assert values["controller"] == 5 and values["foreign_decisions"] == 5
 
 
 @pytest.mark.parametrize(

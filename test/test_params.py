@@ -39,7 +39,11 @@ from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import EVENTS_POLL_S, SpeakerNode
-from infomax_contingency.nodes.step_topics import parse_decision
+from infomax_contingency.nodes.step_topics import (
+    StepDecision,
+    decision_message,
+    parse_decision,
+)
 from infomax_contingency.testing.stepped import (
     Probe,
     SteppedExecutor,
@@ -155,6 +159,21 @@ def _threshold_file(path: Path, threshold_db: float) -> Path:
     fit = ThresholdFit(threshold_db, threshold_db - 20, threshold_db + 20, 5, 5)
     save_threshold(path, fit, window_s=0.5, rate=16000, source="test")
     return path
+
+
+def test_a_threshold_file_outside_the_parameters_range_is_refused_like_the_parameter(
+    graph: Callable, tmp_path: Path
+) -> None:
+    # what calibrate wrote before on unscaled float audio: every bit would be 0
+    loud = _threshold_file(tmp_path / "loud.yaml", 86.28)
+    with pytest.raises(ValueError, match="threshold_db 86.28 dB is not allowed: -150 .. 0 dB"):
+        MicNode(namespace="start_up",
+                parameter_overrides=[Parameter("threshold_mode", value="file"),
+                                     Parameter("threshold_file", value=str(loud))])
+    # the file's threshold is read by the one load_threshold, which ~/recalibrate calls too
+    node, _, _ = graph(MicNode, threshold_mode="file",
+                       threshold_file=str(_threshold_file(tmp_path / "ok.yaml", -30)))
+    assert node.describe_parameter("threshold_db").floating_point_range[0].to_value == 0.0
 
 
 def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
@@ -284,12 +303,13 @@ def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatc
     monkeypatch.setattr(FakeSpeaker, "opened", [])
     node, probe, executor = graph(SpeakerNode)
     started = probe.listen("speaker_started", TimeMsg)
-    vocalize = probe.talk("vocalize", Bool)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
     executor.connected(vocalize)
+    steps = iter(range(1, 100))
 
     def vocalize_once() -> None:
         requests = node.requests
-        vocalize.publish(Bool(data=True))
+        vocalize.publish(decision_message(StepDecision(7, next(steps), True, 5)))
         executor.run_until(lambda: node.requests == requests + 1, "a vocalization")
 
     vocalize_once()
@@ -494,3 +514,13 @@ def test_a_new_bit_source_is_a_mic_node_bit_source_with_its_parameters(graph: Ca
         assert result.reason == (
             "parameter 'toy_level_db' = 3.0 is not allowed: a number in [-150, 0] dB"
         )
+
+
+def test_mic_knows_the_settings_of_the_bit_sources_it_does_not_use(graph: Callable) -> None:
+    """robot.yaml gives every bit source's settings: none is reported as undeclared."""
+    from infomax_contingency.nodes.parameters import undeclared_parameters
+
+    node, _probe, _executor = graph(MicNode, bit_source="vad")
+    assert not node.has_parameter("threshold_mode") and "threshold_mode" in node.parameters.known
+    assert undeclared_parameters([str(ROOT / "config" / "robot.yaml")], [node]) == []
+    assert "treshold_mode" not in node.parameters.known

@@ -150,6 +150,8 @@ class TopicWindows(WindowSource):
         self._ready: list[SourceWindow] = []
         self.dropped_chunks = 0
         """Chunks found missing."""
+        self.bad_chunks = 0
+        """Chunks of bad samples, ignored."""
 
     def feed(self, chunk: NDArray[np.float32], sequence: int | None = None,
              published_ns: int | None = None) -> int:
@@ -169,7 +171,11 @@ class TopicWindows(WindowSource):
                 self._clock.reset()
                 self._windows_since_gap = 0
             self._last_sequence = sequence
-        windows = self._assembler.push_windows(chunk)
+        try:
+            windows = self._assembler.push_windows(chunk)
+        except AudioError:
+            self.bad_chunks += 1
+            raise
         energies = frame_energies_db(windows)
         if published_ns is not None:
             self._clock.add(len(chunk), published_ns)
@@ -187,6 +193,9 @@ class TopicWindows(WindowSource):
 
     def describe(self) -> str:
         return f"the 'audio' topic at {self.rate_hz} Hz"
+
+    def status(self) -> dict[str, Any]:
+        return {"dropped_chunks": self.dropped_chunks, "bad_chunks": self.bad_chunks}
 
 
 class MicrophoneWindows(WindowSource):

@@ -35,7 +35,6 @@ import math
 import os
 import tempfile
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +64,8 @@ from infomax_contingency.core.solver import (
     solve,
 )
 from infomax_contingency.core.statespace import count_tuples, n_count_tuples
+from infomax_contingency.eval.workers import worker_pool
+from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.rooms import NAMED_BACKGROUNDS, PARTNER_REPLY, SELF_HEARING
 from infomax_contingency.sim.simulation import StepRecord, simulate
@@ -605,6 +606,19 @@ def parse_method(text: str, default_budget: int) -> tuple[str, learning.Learning
     return name, settings, budget
 
 
+LEARN_BYTES_PER_STATISTIC = 64
+"""Memory of TD learning per statistic of its horizon, bytes: the value tables are lists
+of Python floats (measured: about 23 bytes, peak 228 MB for the paper set at T = 40)."""
+LEARN_BASE_BYTES = 200 * 2**20
+"""Memory of learning on a short horizon (the interpreter, numpy, the scorer), bytes."""
+
+
+def learning_cost_bytes(params: ModelParams, horizon: int) -> int:
+    """Peak memory of :func:`experiment_learn` at ``horizon`` (bytes, exact integers)."""
+    statistics = params.n_timer_values * (math.comb(horizon + 4, 5) - 1)
+    return LEARN_BASE_BYTES + LEARN_BYTES_PER_STATISTIC * statistics
+
+
 def experiment_learn(config: LearnConfig | None = None) -> dict:
     """Learning curves: every method with every seed, the greedy policy scored exactly.
 
@@ -614,6 +628,10 @@ def experiment_learn(config: LearnConfig | None = None) -> dict:
     """
     config = config or LearnConfig()
     params = ModelParams.load(config.params_name)
+    if config.horizon < 2:
+        raise ValueError(f"learning horizon must be >= 2 steps, got {config.horizon}")
+    refuse_over_budget(learning_cost_bytes(params, config.horizon),
+                       f"learn with horizon {config.horizon}", "give a shorter --horizon")
     scorer = Scorer(params, config.horizon)
     methods = [parse_method(text, config.budget) for text in config.methods]
     curves = []
@@ -831,7 +849,7 @@ def simulate_rooms(
     rest = (steps, seed, checkpoints, confident)
     if workers <= 1 or len(rooms) < 2:
         return _simulate_rooms(*arguments, rooms, *rest)
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with worker_pool(workers) as pool:
         futures = [
             pool.submit(_simulate_rooms, *arguments, rooms[i::workers], *rest)
             for i in range(workers)

@@ -8,10 +8,12 @@ publishes them.
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
 ``sound_step`` (see :mod:`~infomax_contingency.nodes.step_topics`). Windows wait in a
-bounded outbox (:class:`~infomax_contingency.core.stepclock.StepOutbox`): while a
+bounded outbox (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`): while a
 controller answers on ``vocalize_step``, at most ``max_steps_ahead`` steps are out
-unanswered, so a burst of audio (a 30 s message, a fast replay) is published as fast as
-the controller decides and nothing overflows a queue; at most ``max_backlog_s`` of
+unanswered, or not yet taken by a listener that acknowledges every step on
+``step_applied`` (belief_node; one that takes nothing for ``listener_timeout_s`` is no
+longer waited for), so a burst of audio (a 30 s message, a fast replay) or a slow
+belief_node slows the graph and nothing overflows a queue; at most ``max_backlog_s`` of
 windows wait (more is dropped and counted). A window is one step of the model: its length
 is the model's dt (``params``).
 
@@ -33,6 +35,7 @@ blocks, lost samples, gaps and reconnections). Service ``~/recalibrate``
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from typing import Any
@@ -42,25 +45,27 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
-from infomax_contingency.audio.bitsources.base import UNSEPARATED, BitSource, SettingError
+from infomax_contingency.audio.bitsources.base import UNSEPARATED
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
 from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, TopicWindows
-from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
+from infomax_contingency.core.flowcontrol import Listening, StepOutbox
+from infomax_contingency.core.stepclock import LockstepPacer
+from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
-from infomax_contingency.nodes.mic_config import make_bits, open_window_source, read_config
-from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.mic_bits import BitSourceControls
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.self_sound import SelfSoundInput
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
+    STEP_APPLIED,
     VOCALIZE_STEP,
     StepBit,
     bit_message,
     new_source_id,
+    parse_applied,
     parse_decision,
     window_us,
 )
@@ -68,55 +73,11 @@ from infomax_contingency.nodes.step_topics import (
 MICROPHONE_POLL_S = 0.02
 """Seconds between reads of the live microphone's finished windows."""
 
+LISTENER_CHECK_S = 0.5
+"""Seconds between checks for a listener on 'step_applied' that stalled (killed, hung)."""
+
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
-
-NOISE_FLOOR_LOG_STEP_DB = 1.0
-"""A threshold that follows the noise floor is logged again once it moved this much, dB."""
-
-
-class ThresholdLog:
-    """Logs (INFO) the threshold in force, and where it came from, when it changed.
-
-    mic_node calls it wherever the threshold can change: at start-up, after each window
-    (the end of a calibration, an accepted refit, the noise floor), after a live set and a
-    ~/recalibrate. A threshold that follows the noise floor window by window is logged
-    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
-    """
-
-    def __init__(self, logger: Any, bit_source: str) -> None:
-        self.logger = logger
-        self.bit_source = bit_source
-        self.logged_db: float | None = None
-        """The threshold last logged, dB (set it when another line named the threshold)."""
-
-    def after_window(self, bits: BitSource, was_calibrating: bool) -> None:
-        """After a window: the end of a calibration, or a threshold that changed (a refit).
-
-        The window that completes a calibration (or the noise floor's warm-up) yields no
-        bit itself; its end is logged with the source's ready line (the threshold and
-        the clusters or floor it came from), which counts as the threshold's line.
-        """
-        if was_calibrating and not bits.calibrating:
-            self.logger.info(bits.ready_message())
-            self.logged_db = bits.threshold_db
-            return
-        self(bits)
-
-    def __call__(self, bits: BitSource) -> None:
-        """Log ``bits``' threshold in force if it changed since the last line."""
-        threshold_db, last = bits.threshold_db, self.logged_db
-        if threshold_db is None or threshold_db == last:
-            return  # no threshold (vad, calibrating: its end is logged), or the same one
-        origin = bits.threshold_origin()
-        if last is not None and origin.startswith("noise floor") and (
-            abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
-        ):
-            return
-        self.logged_db = threshold_db
-        self.logger.info(f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
-                         f" {self.bit_source})")  # fmt: skip
-
 
 class MicNode(GraphNode):
     """Microphone: audio windows to sound bits."""
@@ -126,34 +87,23 @@ class MicNode(GraphNode):
 
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
-        self.config = config = read_config(self.parameters)
-        self.threshold_log = ThresholdLog(self.get_logger(), config.bit_source)
-        self.bits = make_bits(config, self._calibration_refused)
-        if config.bit_source != DEFAULT_BIT_SOURCE:
-            summary = BIT_SOURCES[config.bit_source].summary
-            self.get_logger().info(f"bit source {config.bit_source}: {summary}")
-        self.source = open_window_source(config, self.bits.needs_samples, self.log_at)
+        self.config = config = mic_config.read_config(self.parameters)
+        self.controls = BitSourceControls(self, config)
+        self.bits, self.threshold_log = self.controls.bits, self.controls.threshold_log
+        self.source = mic_config.open_window_source(config, self.bits.needs_samples, self.log_at)
         self.replay = self.source if self.source.replay else None
-        self.recorded_bits = getattr(self.source, "has_audio", True) is False
-        if self.recorded_bits and config.bit_source != DEFAULT_BIT_SOURCE:
-            ignored = f"bit_source {config.bit_source} is not applied"
-            self.get_logger().warning(f"{ignored}: {self._no_audio}")
-        if calibrated := self._calibrate_ahead():
-            self.get_logger().info(calibrated)
-            self.threshold_log.logged_db = self.bits.threshold_db  # that line names it
+        self.controls.use_source(self.source)
         lockstep = self.replay is not None and config.lockstep
         self.pacer = LockstepPacer(config.lockstep_timeout_s) if lockstep else None
-        for spec in self.bits.specs():
-            if spec.live:
-                self._make_live(spec.name)
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
-            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s))
+            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s)),
+            config.listener_timeout_s,
         )
+        self.stalled_listeners = self.recent_events()
         self.windows = 0
         self.last_energy_db = float("nan")
-        self.bad_chunks = 0
         self.started = self.ended = False
         self.losses = self.recent_events()
         self.timeouts = self.recent_events()
@@ -161,11 +111,9 @@ class MicNode(GraphNode):
         self.contract = AudioContract(config.audio_rate_hz, self.fault_hold_s, publishers=lambda: [
             info.node_name for info in self.get_publishers_info_by_topic(audio)])
         if self.replay is not None:
-            self.get_logger().info(
-                f"replaying {self.source.describe()},"
-                f" {'lockstep' if self.pacer else 'real time'}"
-                f"{', looping' if getattr(self.source, 'loop', False) else ''}"
-            )
+            looping = ", looping" if getattr(self.source, "loop", False) else ""
+            pace = "lockstep" if self.pacer else "real time"
+            self.get_logger().info(f"replaying {self.source.describe()}, {pace}{looping}")
 
     def activate(self) -> None:
         """Publishers, the decisions (and audio) subscriptions, ~/recalibrate, the start gate."""
@@ -175,6 +123,8 @@ class MicNode(GraphNode):
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
+        self.subscribe(Int64MultiArray, STEP_APPLIED, functools.partial(_on_applied, self),
+                       STEP_READER_QOS)  # fmt: skip
         self.self_sound = SelfSoundInput(self, self.config.self_sound_hold_s,
                                          self.config.window_s, self._release)  # fmt: skip
         if isinstance(self.source, TopicWindows):
@@ -185,7 +135,7 @@ class MicNode(GraphNode):
                 " audio driver or fake_audio_node (launch use_fake_room:=true), or set source"
                 " to wav or sounddevice",
             )
-        self.create_service(Trigger, "~/recalibrate", self._on_recalibrate)
+        self.create_service(Trigger, "~/recalibrate", self.controls.on_recalibrate)
         self._pace_timer = None
         self.start_when_ready(
             self._listeners_ready,
@@ -206,62 +156,11 @@ class MicNode(GraphNode):
             source.close()
         super().destroy_node()
 
-    # ------------------------------------------------------------------ bit source
-
-    def _calibration_refused(self, message: str) -> None:
-        self.get_logger().warning(message)
-
-    @property
-    def _no_audio(self) -> str:
-        return f"the session {self.config.bag_dir} holds no audio, its recorded bits are replayed"
-
-    def _calibrate_ahead(self) -> str:
-        """Calibrate the bit source on a replay's first seconds if it calibrates; what it did."""
-        if self.replay is None or self.recorded_bits or not self.bits.read_ahead_s:
-            return ""
-        ahead = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
-        return f"{self.bits.calibrate_ahead(*ahead)} of the replay"
-
-    def _make_live(self, name: str) -> None:
-        """Let the bit-source setting ``name`` change live, checked by the bit source."""
-
-        def check(value: Any) -> None:
-            if self.recorded_bits:
-                raise ConfigError(f"parameter {name!r} = {value!r} has no effect: {self._no_audio}")
-            try:
-                self.bits.check_live(name, value)
-            except SettingError as error:
-                raise ConfigError(f"parameter {error}") from None
-
-        def apply(value: Any) -> None:
-            self.bits.set_live(name, value)
-            self.threshold_log(self.bits)
-
-        self.parameters.live(name, apply, check)
-
-    def _on_recalibrate(self, _request: Trigger.Request, response: Trigger.Response) -> Any:
-        """Start the bit source's calibration again (a replay's first seconds again)."""
-        response.success = False
-        if self.recorded_bits:
-            response.message = f"nothing to calibrate: {self._no_audio}"
-            return response
-        try:
-            message = self.bits.recalibrate()
-            message = self._calibrate_ahead() or message
-        except AudioError as error:
-            response.message = str(error)
-            return response
-        self.get_logger().info(f"recalibrate: {message}")
-        self.threshold_log(self.bits)
-        response.success, response.message = True, message
-        return response
-
     # ------------------------------------------------------------------ start gate
 
     def _listeners_ready(self) -> bool:
-        if self.step_pub.get_subscription_count() < self.config.wait_for_listeners:
-            return False
-        return self.pacer is None or self._decisions_sub.get_publisher_count() > 0
+        listening = self.step_pub.get_subscription_count() >= self.config.wait_for_listeners
+        return listening and (self.pacer is None or self._decisions_sub.get_publisher_count() > 0)
 
     def _start(self) -> None:
         self.started = True
@@ -273,6 +172,7 @@ class MicNode(GraphNode):
         if isinstance(self.source, MicrophoneWindows):
             self.source.start()
             self.create_timer(MICROPHONE_POLL_S, self._read_microphone)
+        self.create_timer(LISTENER_CHECK_S, self._release)  # a stalled listener is let go
         self._release()
 
     def _on_timeout(self) -> None:
@@ -324,7 +224,6 @@ class MicNode(GraphNode):
                 int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds,
             )
         except AudioError as error:
-            self.bad_chunks += 1
             self.losses.note(self.now_s())
             self.log_throttled("bad chunk", "warning", f"audio chunk ignored: {error}")
             return
@@ -400,13 +299,21 @@ class MicNode(GraphNode):
         if not self.started or self.finished.done():
             return
         outbox = self.outbox
+        now = self.now_s()
+        for listener in outbox.give_up_stalled(now):
+            self.stalled_listeners.note(now)
+            self.get_logger().warning(
+                f"listener {listener} on '{STEP_APPLIED}' took no step for"
+                f" {outbox.listener_timeout_s:g} s (after step {outbox.listeners[listener].taken}):"
+                " no longer waited for (killed or hung?)"
+            )
         # Pacing matters only when more would go out than may be unanswered: only then ask
         # the graph whether a controller answers (one query per window is measurable).
         paced = (
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit, withheld) in self.outbox.release(paced):
+        for step, (energy_db, bit, withheld) in self.outbox.release(paced, now):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
@@ -425,8 +332,6 @@ class MicNode(GraphNode):
             publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
         self.finish(0)
 
-    # ------------------------------------------------------------------ diagnostics
-
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Threshold, windows, steps, losses, lockstep timeouts, the live device."""
         bits, now = self.bits, self.now_s()
@@ -437,17 +342,16 @@ class MicNode(GraphNode):
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
+            "steps_taken": self.outbox.last_taken,
+            "listeners_waited_for": sum(x.waited_for for x in self.outbox.listeners.values()),
+            "listeners_given_up": self.outbox.given_up,
             "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
-            "dropped_chunks": getattr(self.source, "dropped_chunks", 0),
-            "bad_chunks": self.bad_chunks,
             **bits.diagnostic_values(),
             **self.source.status(),
             **self.self_sound.values(),
             **self.contract.values(),  # none before the first chunk of 'audio'
         }
-        for topic, names in self.intruders.items():
-            values[f"publishers_{topic}"] = ", ".join(names)
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
         if self.intruders:
@@ -461,6 +365,8 @@ class MicNode(GraphNode):
             return ERROR, bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
+        if self.stalled_listeners.recent(now):
+            return WARN, f"a listener on '{STEP_APPLIED}' stalled (not waited for)", values
         problem = self.contract.problem()  # the 'audio' contract broken lately
         if problem or self.losses.recent(now) or self.timeouts.recent(now) or (
                 self.self_sound.faults.recent(now)):  # fmt: skip
@@ -468,6 +374,20 @@ class MicNode(GraphNode):
                                   " or late lately (counts in the values)")  # fmt: skip
             return WARN, problem, values
         return OK, f"{self.windows} windows", values
+
+
+def _on_applied(node: MicNode, msg: Int64MultiArray, stamp: int) -> None:
+    """A listener (belief_node) took the steps of ``node``'s stream up to one: release more."""
+    applied = parse_applied(msg)
+    if applied is None or applied.stream != node.stream_id:
+        return
+    taken = node.outbox.acknowledged(applied.listener, applied.step, node.now_s())
+    if taken is Listening.WAITED_FOR:
+        node.get_logger().info(
+            f"listener {applied.listener} on '{STEP_APPLIED}' keeps up (step {applied.step}):"
+            f" no step goes more than {node.outbox.max_ahead} ahead of it"
+        )
+    node._release()  # the node's own subscription (a function: MicNode's size bound)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,0 +1,148 @@
+"""mic_node's hold on its bit source: how it is made, calibrated ahead, set live, recalibrated.
+
+:class:`BitSourceControls` makes the bit source of mic_node's configuration, calibrates it
+on a replay's first seconds, lets its live settings change (``ros2 param set``, checked by
+the source), answers ``~/recalibrate`` (std_srvs/Trigger) and logs the threshold in force
+whenever it changes (:class:`ThresholdLog`). A session bag without audio replays its
+recorded bits: then every one of these is refused, with the reason.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from std_srvs.srv import Trigger
+
+from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
+from infomax_contingency.audio.bitsources.base import BitSource, SettingError
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.windows import WindowSource
+from infomax_contingency.nodes import mic_config
+from infomax_contingency.nodes.graph_node import GraphNode
+from infomax_contingency.nodes.parameters import ConfigError
+
+NOISE_FLOOR_LOG_STEP_DB = 1.0
+"""A threshold that follows the noise floor is logged again once it moved this much, dB."""
+
+
+class ThresholdLog:
+    """Logs (INFO) the threshold in force, and where it came from, when it changed.
+
+    mic_node calls it wherever the threshold can change: at start-up, after each window
+    (the end of a calibration, an accepted refit, the noise floor), after a live set and a
+    ~/recalibrate. A threshold that follows the noise floor window by window is logged
+    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
+    """
+
+    def __init__(self, logger: Any, bit_source: str) -> None:
+        self.logger = logger
+        self.bit_source = bit_source
+        self.logged_db: float | None = None
+        """The threshold last logged, dB (set it when another line named the threshold)."""
+
+    def after_window(self, bits: BitSource, was_calibrating: bool) -> None:
+        """After a window: the end of a calibration, or a threshold that changed (a refit).
+
+        The window that completes a calibration (or the noise floor's warm-up) yields no
+        bit itself; its end is logged with the source's ready line (the threshold and
+        the clusters or floor it came from), which counts as the threshold's line.
+        """
+        if was_calibrating and not bits.calibrating:
+            self.logger.info(bits.ready_message())
+            self.logged_db = bits.threshold_db
+            return
+        self(bits)
+
+    def __call__(self, bits: BitSource) -> None:
+        """Log ``bits``' threshold in force if it changed since the last line."""
+        threshold_db, last = bits.threshold_db, self.logged_db
+        if threshold_db is None or threshold_db == last:
+            return  # no threshold (vad, calibrating: its end is logged), or the same one
+        origin = bits.threshold_origin()
+        if last is not None and origin.startswith("noise floor") and (
+            abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
+        ):
+            return
+        self.logged_db = threshold_db
+        self.logger.info(f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
+                         f" {self.bit_source})")  # fmt: skip
+
+
+class BitSourceControls:
+    """mic_node's bit source and what acts on it (see the module docstring).
+
+    Args:
+        node: the mic_node (its logger and parameters).
+        config: its configuration.
+    """
+
+    def __init__(self, node: GraphNode, config: mic_config.MicConfig) -> None:
+        self.node = node
+        self.config = config
+        self.threshold_log = ThresholdLog(node.get_logger(), config.bit_source)
+        self.bits: BitSource = mic_config.make_bits(config, node.get_logger().warning)
+        if config.bit_source != DEFAULT_BIT_SOURCE:
+            summary = BIT_SOURCES[config.bit_source].summary
+            node.get_logger().info(f"bit source {config.bit_source}: {summary}")
+        self.replay: WindowSource | None = None
+        self.recorded_bits = False
+        """True for a session bag without audio: its recorded bits are replayed."""
+
+    def use_source(self, source: WindowSource) -> None:
+        """Take the window source: calibrate on a replay's start, make the settings live."""
+        self.replay = source if source.replay else None
+        self.recorded_bits = getattr(source, "has_audio", True) is False
+        if self.recorded_bits and self.config.bit_source != DEFAULT_BIT_SOURCE:
+            ignored = f"bit_source {self.config.bit_source} is not applied"
+            self.node.get_logger().warning(f"{ignored}: {self._no_audio}")
+        if calibrated := self._calibrate_ahead():
+            self.node.get_logger().info(calibrated)
+            self.threshold_log.logged_db = self.bits.threshold_db  # that line names it
+        for spec in self.bits.specs():
+            if spec.live:
+                self._make_live(spec.name)
+
+    @property
+    def _no_audio(self) -> str:
+        return f"the session {self.config.bag_dir} holds no audio, its recorded bits are replayed"
+
+    def _calibrate_ahead(self) -> str:
+        """Calibrate the bit source on a replay's first seconds if it calibrates; what it did."""
+        if self.replay is None or self.recorded_bits or not self.bits.read_ahead_s:
+            return ""
+        ahead = self.replay.read_ahead(self.bits.read_ahead_s, self.config.window_s)
+        return f"{self.bits.calibrate_ahead(*ahead)} of the replay"
+
+    def _make_live(self, name: str) -> None:
+        """Let the bit-source setting ``name`` change live, checked by the bit source."""
+
+        def check(value: Any) -> None:
+            if self.recorded_bits:
+                raise ConfigError(f"parameter {name!r} = {value!r} has no effect: {self._no_audio}")
+            try:
+                self.bits.check_live(name, value)
+            except SettingError as error:
+                raise ConfigError(f"parameter {error}") from None
+
+        def apply(value: Any) -> None:
+            self.bits.set_live(name, value)
+            self.threshold_log(self.bits)
+
+        self.node.parameters.live(name, apply, check)
+
+    def on_recalibrate(self, _request: Trigger.Request, response: Trigger.Response) -> Any:
+        """``~/recalibrate``: start the calibration again (a replay's first seconds again)."""
+        response.success = False
+        if self.recorded_bits:
+            response.message = f"nothing to calibrate: {self._no_audio}"
+            return response
+        try:
+            message = self.bits.recalibrate()
+            message = self._calibrate_ahead() or message
+        except AudioError as error:
+            response.message = str(error)
+            return response
+        self.node.get_logger().info(f"recalibrate: {message}")
+        self.threshold_log(self.bits)
+        response.success, response.message = True, message
+        return response
