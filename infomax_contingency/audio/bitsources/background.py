@@ -185,6 +185,12 @@ class BackgroundSource(BitSource):
     def threshold_db(self) -> float | None:
         return self.rule.threshold_db
 
+    def threshold_origin(self) -> str:
+        """The rank, the background windows it was taken over and the false alarms it gives."""
+        rule = self.rule
+        return (f"room: the {ordinal(rule.rank)} loudest of {len(rule.background)} background"
+                f" windows, false alarms {rule.false_alarm_now:.3f}")  # fmt: skip
+
     def problems(self) -> list[str]:
         """One line per problem seen in the input (clipping, DC offset, the rule's)."""
         out = []
