@@ -288,3 +288,20 @@ def test_in_a_bursty_empty_room_agent_windows_are_not_more_active_than_backgroun
     agent_referenced, background_referenced = rates(reference=True)
     excess, excess_referenced = agent - background, agent_referenced - background_referenced
     assert excess_referenced < 0.5 * excess, (agent_referenced, background_referenced)
+
+
+def test_a_window_withheld_for_the_robots_own_sound_never_sets_the_threshold() -> None:
+    rule = BackgroundThreshold(
+        TS1, TS2, TA2, 0.2, history=10, warmup_windows=2, delay=1, reference=False
+    )
+    for level in (-60.0, -58.0):
+        assert rule.push(level) is None
+    rule.push(-20.0)  # background by the timer, but the robot was speaking (withheld)
+    assert list(rule.background) == [-60.0, -58.0, -20.0]
+    rule.note_decision(0, withheld=True)
+    assert list(rule.background) == [-60.0, -58.0]
+    rule.push(-10.0)  # labelled at once; withheld (taken back) when its decision says so
+    rule.push(-59.0)
+    rule.note_decision(0, withheld=True)
+    rule.note_decision(0)
+    assert list(rule.background) == [-60.0, -58.0, -59.0]

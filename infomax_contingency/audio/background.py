@@ -233,6 +233,7 @@ class BackgroundThreshold:
         # (level, awaits a decision, labelled, the decision if given with the window)
         self._waiting: deque[tuple[float, bool, bool, int | None]] = deque()
         self._decisions: deque[int | None] = deque()
+        self._withheld: set[int] = set()  # windows of the robot's own sound, not yet labelled
         self._self_exceeded: deque[bool] = deque(maxlen=SELF_WINDOWS_WATCHED)
         self.windows = 0
         self.silent_windows = 0
@@ -347,17 +348,28 @@ class BackgroundThreshold:
         awaiting = sum(awaits for _, awaits, _, _ in self._waiting)
         return awaiting - len(self._decisions)
 
-    def note_decision(self, u: int | None) -> None:
+    def note_decision(self, u: int | None, withheld: bool = False) -> None:
         """The decision on the oldest window that gave a bit and had none yet.
 
         ``u`` is 1 (vocalize) or 0; None: the decision was lost (the timer is unknown
-        until the next vocalization).
+        until the next vocalization). ``withheld``: that window overlapped the robot's own
+        declared sound (a withheld step): it never sets the threshold.
         """
         if u is not None and u not in (0, 1):
             raise AudioError(f"a decision is 0, 1 or None (lost), got {u!r}")
         awaiting = sum(awaits for _, awaits, _, _ in self._waiting)
         if len(self._decisions) >= awaiting:
             raise AudioError("a decision came for no window that gave a bit")
+        if withheld:
+            index = self._first_waiting + next(
+                k for k, entry in enumerate(self._waiting)
+                if entry[1] and sum(e[1] for e in list(self._waiting)[:k]) == len(self._decisions)
+            )
+            self._withheld.add(index)
+            self._labelled_background = deque(
+                ((i, level) for i, level in self._labelled_background if i != index),
+                maxlen=self.history + self.delay,
+            )
         self._decisions.append(None if u is None else int(u))
         self._label()
 
@@ -393,8 +405,9 @@ class BackgroundThreshold:
             self.labelled["unknown"] += 1
         elif z > self.ta2:
             self.labelled["background"] += 1
-            if level > SILENCE_DB:
+            if level > SILENCE_DB and index not in self._withheld:
                 self._labelled_background.append((index, level))
+            self._withheld.discard(index)
         elif self.ts1 <= z <= self.ts2:
             self.labelled["self"] += 1
             threshold = self.threshold_db

@@ -103,6 +103,7 @@ class MicNode(GraphNode):
         )
         self.stalled_listeners = self.recent_events()
         self.windows = 0
+        self._withheld_steps: set[int] = set()  # released withheld steps awaiting decisions
         self.last_energy_db = float("nan")
         self.started = self.ended = False
         self.losses = self.recent_events()
@@ -275,7 +276,9 @@ class MicNode(GraphNode):
             return  # a repeated answer (a second controller): it releases nothing
         if self.bits.needs_decisions and not self.controls.recorded_bits:
             for step in range(before + 1, decision.step + 1):  # a skipped step's was lost
-                self.bits.note_decision(int(decision.vocalize) if step == decision.step else None)
+                u = int(decision.vocalize) if step == decision.step else None
+                self.bits.note_decision(u, step in self._withheld_steps)
+                self._withheld_steps.discard(step)
         if (
             self.started
             and self.pacer is not None
@@ -321,6 +324,8 @@ class MicNode(GraphNode):
         )
         for step, (energy_db, bit, withheld) in self.outbox.release(paced, now):
             self.windows += 1
+            if withheld and self.bits.needs_decisions:
+                self._withheld_steps.add(step)  # the robot's own sound: not the room's
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(

@@ -142,16 +142,17 @@ class BackgroundSource(BitSource):
             self.periods = periods
             self.rule = self._new_rule()
 
-    def note_decision(self, u: int | None) -> None:
+    def note_decision(self, u: int | None, withheld: bool = False) -> None:
         """The decision on the oldest bit that had none yet (1: vocalize; None: lost).
 
-        Decisions on bits given before :meth:`recalibrate` are not the new rule's: they
-        are passed over.
+        ``withheld``: that window was withheld for the robot's own sound; it never sets
+        the threshold. Decisions on bits given before :meth:`recalibrate` are not the new
+        rule's: they are passed over.
         """
         if self._stale_decisions:
             self._stale_decisions -= 1
             return
-        self.rule.note_decision(u)
+        self.rule.note_decision(u, withheld)
 
     def decide(self, x: NDArray[np.float64]) -> bool | None:
         return self.rule.push(self._level(x))
