@@ -87,46 +87,36 @@ def ros_api_tables(text: str, nodes: tuple[str, ...]) -> dict[str, NodeApi]:
     return tables
 
 
-def parameter_reference(text: str) -> dict[str, set[str]]:
-    """docs/PARAMETERS.md -> node -> declared parameter names ("Every node" in each)."""
+def _per_node(text: str, row: str) -> dict[str, set[str]]:
+    """docs/PARAMETERS.md -> node -> the comma-separated words ``row`` captures in its rows.
+
+    The "Every node" section's words are added to each node's.
+    """
     sections: dict[str, set[str]] = {}
     current = ""
     for line in text.splitlines():
         if line.startswith("## "):
             current = line[3:].strip()
             sections[current] = set()
-        elif current and (row := re.match(r"\| `(\w+)` \|", line)):
-            sections[current].add(row.group(1))
+        elif current and (found := re.search(row, line)):
+            sections[current] |= {word.strip() for word in found.group(1).split(",")}
     common = sections.pop("Every node", set())
     return {node: names | common for node, names in sections.items()}
+
+
+def parameter_reference(text: str) -> dict[str, set[str]]:
+    """docs/PARAMETERS.md -> node -> declared parameter names."""
+    return _per_node(text, r"^\| `(\w+)` \|")
 
 
 def choice_values(text: str) -> dict[str, set[str]]:
     """docs/PARAMETERS.md -> node -> the values its choice parameters allow ("one of ...")."""
-    values: dict[str, set[str]] = {}
-    current = ""
-    for line in text.splitlines():
-        if line.startswith("## "):
-            current = line[3:].strip()
-            values[current] = set()
-        elif current and (row := re.search(r"\| one of ([\w, +-]+) \|", line)):
-            values[current] |= {value.strip() for value in row.group(1).split(",")}
-    common = values.pop("Every node", set())
-    return {node: names | common for node, names in values.items()}
+    return _per_node(text, r"\| one of ([\w, +-]+) \|")
 
 
 def live_parameters(text: str) -> dict[str, set[str]]:
     """docs/PARAMETERS.md -> node -> the parameters marked live."""
-    sections: dict[str, set[str]] = {}
-    current = ""
-    for line in text.splitlines():
-        if line.startswith("## "):
-            current = line[3:].strip()
-            sections[current] = set()
-        elif current and (row := re.match(r"\| `(\w+)` \|(?:[^|]*\|){3} live \|", line)):
-            sections[current].add(row.group(1))
-    common = sections.pop("Every node", set())
-    return {node: names | common for node, names in sections.items()}
+    return _per_node(text, r"^\| `(\w+)` \|(?:[^|]*\|){3} live \|")
 
 
 @dataclass
