@@ -31,7 +31,8 @@ class ThresholdLog:
     mic_node calls it wherever the threshold can change: at start-up, after each window
     (the end of a calibration, an accepted refit, the noise floor), after a live set and a
     ~/recalibrate. A threshold that follows the noise floor window by window is logged
-    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
+    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value);
+    so is one that follows the room's background windows (bit source ``background``).
     """
 
     def __init__(self, logger: Any, bit_source: str) -> None:
@@ -40,13 +41,27 @@ class ThresholdLog:
         self.logged_db: float | None = None
         """The threshold last logged, dB (set it when another line named the threshold)."""
 
+    def after_window(self, bits: BitSource, was_calibrating: bool) -> None:
+        """After a window: the end of a calibration, or a threshold that changed (a refit).
+
+        The window that completes a calibration (or the noise floor's warm-up) yields no
+        bit itself; its end is logged with the source's ready line (the threshold and
+        the clusters or floor it came from), which counts as the threshold's line.
+        """
+        if was_calibrating and not bits.calibrating:
+            self.logger.info(bits.ready_message())
+            self.logged_db = bits.threshold_db
+            return
+        self(bits)
+
     def __call__(self, bits: BitSource) -> None:
         """Log ``bits``' threshold in force if it changed since the last line."""
         threshold_db, last = bits.threshold_db, self.logged_db
         if threshold_db is None or threshold_db == last:
             return  # no threshold (vad, calibrating: its end is logged), or the same one
         origin = bits.threshold_origin()
-        if last is not None and origin.startswith("noise floor") and (
+        follows_the_room = origin.startswith(("noise floor", "room:"))
+        if last is not None and follows_the_room and (
             abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
         ):
             return
