@@ -138,8 +138,11 @@ FORGED_AHEAD = 3000
 
 @pytest.mark.parametrize("ahead", [FORGED_AHEAD, 10])  # beyond the pace, and within it
 def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node(ahead: int) -> None:
-    nodes = {"mic_node": MIC, "belief_node": BELIEF, "fake_audio_node": ROOM,
-             "controller_node": {**CONTROLLER, "wait_for_listeners": 4}}  # + the room  # fmt: skip
+    held = {"fault_hold_s": 600.0}  # the faults stay shown however slow the machine
+    # the controller waits for the room too (4 listeners)
+    nodes = {"mic_node": MIC, "belief_node": {**BELIEF, **held},
+             "fake_audio_node": {**ROOM, **held},
+             "controller_node": {**CONTROLLER, **held, "wait_for_listeners": 4}}  # fmt: skip
     with stepped_graph(nodes, "fake_audio_node", recorder_qos=LOSSLESS_READER_QOS) as graph:
         rec = graph.recorder
         graph.run_until(lambda: len(rec.belief) >= 50, "50 steps")
