@@ -8,6 +8,7 @@ cgroup's limit, not only the machine's available memory.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import resource
 import signal
@@ -307,6 +308,39 @@ def test_ctrl_c_of_an_experiment_with_workers_ends_them_all_in_one_line() -> Non
     status, err = _interrupt(process, workers_started)
     assert status in INTERRUPTED, err
     assert err.strip() == "infomax-contingency experiment: interrupted"
+
+
+def test_an_experiments_workers_end_when_the_command_is_killed() -> None:
+    """A command killed with SIGKILL (an OOM kill, a timeout) takes its workers along.
+
+    Before, they ignored Ctrl-C and computed on as orphans for as long as their tasks ran.
+    """
+    process = _command("experiment", "efficiency", "--workers", "2", "--steps", "100000")
+    children = Path(f"/proc/{process.pid}/task/{process.pid}/children")
+    deadline = time.monotonic() + 120
+    try:
+        workers: list[int] = []
+        while len(workers) < 2:
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "the workers never started"
+            time.sleep(0.05)  # polls the child's state; the deadline bounds it
+            workers = [int(pid) for pid in children.read_text().split()] \
+                if children.exists() else []  # fmt: skip
+        os.kill(process.pid, signal.SIGKILL)  # the command alone, not its group
+        process.wait()
+        deadline = time.monotonic() + 30
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.05)  # polls the workers' state; the deadline bounds it
+        assert not [pid for pid in workers if _alive(pid)]
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    from infomax_contingency.lifetime import process_alive
+
+    return process_alive(pid)
 
 
 def test_a_calibration_in_the_node_refuses_a_threshold_outside_the_range() -> None:
