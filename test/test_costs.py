@@ -372,3 +372,31 @@ def test_calibrate_on_constant_audio_far_outside_full_scale_names_the_scale(tmp_
     assert len(error.splitlines()) == 1
     assert "10 of 10 windows of" in error and "outside [-1, 1]" in error
     assert "no boundary between quiet and sound" in error
+
+
+def test_memory_running_out_where_no_check_foresaw_it_is_one_line(monkeypatch, capsys):
+    """`experiment baby9 --horizon 1e6` and its kind died in a MemoryError traceback."""
+    from infomax_contingency.cli import main as cli_main
+
+    def run_out_of_memory(args) -> int:
+        raise MemoryError
+
+    parser = cli_main.build_parser
+
+    def build_parser():
+        built = parser()
+        parse_args = built.parse_args
+
+        def parse_with_a_greedy_command(argv):
+            args = parse_args(argv)
+            args.run = run_out_of_memory
+            return args
+
+        built.parse_args = parse_with_a_greedy_command
+        return built
+
+    monkeypatch.setattr(cli_main, "build_parser", build_parser)
+    assert cli_main.main(["simulate", "--steps", "10"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("infomax-contingency simulate: error: out of memory: the sizes asked for"
+                   " need more memory than this process may use (docs/LIMITS.md)")

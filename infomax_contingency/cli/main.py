@@ -386,8 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status.
 
-    One line on stderr for a user error (status 2) and for a Ctrl-C (status 130), never
-    a traceback.
+    One line on stderr for a user error or memory running out (status 2) and for a
+    Ctrl-C (status 130), never a traceback.
     """
     args = build_parser().parse_args(argv)
     try:
@@ -400,6 +400,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"infomax-contingency {args.command}: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS
+    except MemoryError:  # a size no cost check foresaw: one line, not a traceback
+        print(f"infomax-contingency {args.command}: error: out of memory: the sizes asked"
+              " for need more memory than this process may use (docs/LIMITS.md)",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
