@@ -398,7 +398,7 @@ def test_command_defaults_are_the_experiment_configs() -> None:
     )
 
 
-LENGTH_CHECKED = ("sim", "eval", "cli/experiments.py")
+LENGTH_CHECKED = ("sim", "eval", "eval/experiments", "cli/experiments")
 """Where no function may grow past :data:`MAX_FUNCTION_LINES` (issue 8)."""
 
 MAX_FUNCTION_LINES = 80
@@ -408,7 +408,7 @@ def test_simulation_and_evaluation_functions_stay_short() -> None:
     import ast
     from pathlib import Path
 
-    package = Path(evaluation.__file__).resolve().parent.parent
+    package = Path(evaluation.__file__).resolve().parent.parent.parent
     paths = []
     for place in LENGTH_CHECKED:
         target = package / place
