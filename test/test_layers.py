@@ -132,7 +132,6 @@ LONG_FUNCTIONS = {
     "infomax_contingency.cli.rooms": {"print_rooms"},
     "infomax_contingency.core.learning": {"learn"},
     "infomax_contingency.core.solver": {"bellman_layer"},
-    "infomax_contingency.eval.experiments.summaries": {"summarise"},
     "infomax_contingency.eval.plots": {"plot_efficiency"},
     "infomax_contingency.sim.fake_room": {"__post_init__"},
 }

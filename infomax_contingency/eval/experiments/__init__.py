@@ -77,6 +77,7 @@ from infomax_contingency.eval.experiments.runs import (
 )
 from infomax_contingency.eval.experiments.summaries import (
     bootstrap_median,
+    detection_figures,
     mean_interval,
     paired_entropy_difference,
     prior_weighted_entropy,
@@ -107,6 +108,7 @@ __all__ = [
     "beliefs_with_memory",
     "bootstrap_median",
     "default_cache_dir",
+    "detection_figures",
     "efficiency_room",
     "experiment_baby9",
     "experiment_controller",

@@ -89,6 +89,41 @@ def steps_to_seconds(steps: Sequence[int | None], dt: float) -> np.ndarray:
     return np.array([math.inf if s is None else s * dt for s in steps], dtype=float)
 
 
+def detection_figures(
+    partner: Sequence[dict], dt: float, steps: int, rng: np.random.Generator
+) -> dict[str, Any]:
+    """How fast the runs of partner rooms reached a confident belief, with 95 % intervals.
+
+    For the whole-history belief (``detection_*``) and the robot's own (``own_detection_*``):
+    the share detected, the median seconds and the restricted mean (censored at the run's
+    length); the median vocalizations before detection.
+    """
+    summary: dict[str, Any] = {}
+    for prefix, key in (("", "detection_step"), ("own_", "own_detection_step")):
+        seconds = steps_to_seconds([row[key] for row in partner], dt)
+        detected = int(np.isfinite(seconds).sum())
+        summary[f"{prefix}detected"] = detected / len(partner)
+        summary[f"{prefix}detected_ci"] = wilson_interval(detected, len(partner))
+        summary[f"{prefix}detection_s_median"], summary[f"{prefix}detection_s_ci"] = (
+            bootstrap_median(seconds, rng)
+        )
+        (
+            summary[f"{prefix}detection_s_restricted_mean"],
+            summary[f"{prefix}detection_s_restricted_mean_ci"],
+        ) = mean_interval(np.minimum(seconds, steps * dt))
+    vocalizations = np.array(
+        [
+            math.inf if row["detection_step"] is None else row["detection_vocalizations"]
+            for row in partner
+        ],
+        dtype=float,
+    )
+    summary["detection_vocalizations_median"], summary["detection_vocalizations_ci"] = (
+        bootstrap_median(vocalizations, rng)
+    )
+    return summary
+
+
 def summarise(
     rows: Sequence[dict], dt: float, steps: int, checkpoints: Sequence[int], seed: int
 ) -> dict:
@@ -123,28 +158,7 @@ def summarise(
         summary["switch_responded_ci"] = wilson_interval(responded, len(switching))
         return summary
     if partner:
-        for prefix, key in (("", "detection_step"), ("own_", "own_detection_step")):
-            seconds = steps_to_seconds([row[key] for row in partner], dt)
-            detected = int(np.isfinite(seconds).sum())
-            summary[f"{prefix}detected"] = detected / len(partner)
-            summary[f"{prefix}detected_ci"] = wilson_interval(detected, len(partner))
-            summary[f"{prefix}detection_s_median"], summary[f"{prefix}detection_s_ci"] = (
-                bootstrap_median(seconds, rng)
-            )
-            (
-                summary[f"{prefix}detection_s_restricted_mean"],
-                summary[f"{prefix}detection_s_restricted_mean_ci"],
-            ) = mean_interval(np.minimum(seconds, steps * dt))
-        vocalizations = np.array(
-            [
-                math.inf if row["detection_step"] is None else row["detection_vocalizations"]
-                for row in partner
-            ],
-            dtype=float,
-        )
-        summary["detection_vocalizations_median"], summary["detection_vocalizations_ci"] = (
-            bootstrap_median(vocalizations, rng)
-        )
+        summary.update(detection_figures(partner, dt, steps, rng))
     empty = [row for row in rows if not row["partner"]]
     if empty:
         alarms = sum(bool(row["false_alarm"]) for row in empty)
