@@ -256,9 +256,9 @@ def _graph(context: LaunchContext) -> list:
     spec = LaunchConfiguration("controller").perform(context).strip()
     if spec:
         controller["controller"] = spec
-    if record:
-        # The decisions' listeners: mic, belief (and the room), and the recorder.
-        controller["wait_for_listeners"] = 4 if fake_room else 3
+    # The decisions' listeners: mic, belief and the speaker (which follows 'vocalize_step'),
+    # the room in lockstep, and the recorder: the first decision waits for all of them.
+    controller["wait_for_listeners"] = 3 + int(fake_room) + int(record)
     actions += [node(name, [params_file] + ([fake_room_file] if fake_room and
                                             name == "controller_node" else [])
                      + ([controller] if controller and name == "controller_node" else []))

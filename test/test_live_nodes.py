@@ -518,7 +518,7 @@ def test_speaker_node_plays_the_chirp_on_true_only_and_publishes_when_it_started
     alsa.write(default_playback="fakespeaker")
     os.mkfifo(out)  # the device writes into the FIFO; the reader paces it
     started = probe.record("speaker_started", Time)
-    vocalize = probe.probe.talk("vocalize", Bool)
+    vocalize = probe.probe.talk("vocalize_step", Int64MultiArray)
     reader = PacedReader(out, bytes_per_s=4 * 48000 * 4)  # a few times real time
     try:
         speaker = spawn("speaker_node", {"dry_run": False, "device": "speaker"}, alsa.env())
@@ -530,10 +530,13 @@ def test_speaker_node_plays_the_chirp_on_true_only_and_publishes_when_it_started
         )
         match = re.search(r"at (\d+) Hz, (\d+) channel", speaker.output())
         rate, channels = int(match[1]), int(match[2])
-        vocalize.publish(Bool(data=False))  # in order: nothing to play
+        # the decisions of one controller on steps 1, 2, 3 (in order): only step 2 plays
+        decide = [decision_message(StepDecision(7, step, u, 5))
+                  for step, u in ((1, False), (2, True), (3, False))]  # fmt: skip
+        vocalize.publish(decide[0])
         commanded_ns = time.time_ns()
-        vocalize.publish(Bool(data=True))
-        vocalize.publish(Bool(data=False))
+        vocalize.publish(decide[1])
+        vocalize.publish(decide[2])
         probe.wait_for(lambda: len(started) == 1, "speaker_started", speaker)
 
         def chirp_through() -> bool:

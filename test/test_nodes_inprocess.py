@@ -615,13 +615,35 @@ def test_fake_room_hears_one_controller_once_per_step(run: Callable) -> None:
 
 def test_speaker_dry_run_counts_vocalizations(run: Callable) -> None:
     node, probe, graph = run(SpeakerNode)
-    vocalize = probe.talk("vocalize", Bool)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
     graph.connected(vocalize)
-    for u in (True, False, True, False):
-        vocalize.publish(Bool(data=u))
+    for message in decisions_of(STREAM, (True, False, True, False)):
+        vocalize.publish(message)
     graph.run_until(lambda: node.requests == 2, "2 vocalizations")
     level, message, values = node.diagnostic_status()
     assert "dry run" in message and values["played"] == 0
+
+
+def test_speaker_obeys_only_the_controller_it_follows(run: Callable) -> None:
+    """A second controller, a repeated step and a forged jump: named, none of them played."""
+    node, probe, graph = run(SpeakerNode)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    true = decisions_of(STREAM, (True, False, False, True, False))
+    second = decisions_of(STREAM, [True] * 5, controller=6)  # always vocalize
+    forged = decision_message(StepDecision(STREAM, 3000, True, 5))  # the true controller's id
+    for step, (mine, other) in enumerate(zip(true, second, strict=True), start=1):
+        vocalize.publish(mine)
+        vocalize.publish(other)
+        if step == 2:
+            vocalize.publish(true[0])  # step 1 again
+            vocalize.publish(forged)
+    graph.run_until(lambda: node._answered == (STREAM, 5) and node.pace.jumps == 1
+                    and node.controllers.foreign_messages == 5, "every decision taken")  # fmt: skip
+    assert node.requests == 2, "the followed controller's two vocalizations, once each"
+    level, message, values = node.diagnostic_status()
+    assert level == ERROR and "second controller" in message, message
+    assert values["controller"] == 5 and values["foreign_decisions"] == 5
 
 
 @pytest.mark.parametrize(

@@ -39,7 +39,11 @@ from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import EVENTS_POLL_S, SpeakerNode
-from infomax_contingency.nodes.step_topics import parse_decision
+from infomax_contingency.nodes.step_topics import (
+    StepDecision,
+    decision_message,
+    parse_decision,
+)
 from infomax_contingency.testing.stepped import (
     Probe,
     SteppedExecutor,
@@ -284,12 +288,13 @@ def test_speaker_dry_run_is_live(graph: Callable, monkeypatch: pytest.MonkeyPatc
     monkeypatch.setattr(FakeSpeaker, "opened", [])
     node, probe, executor = graph(SpeakerNode)
     started = probe.listen("speaker_started", TimeMsg)
-    vocalize = probe.talk("vocalize", Bool)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
     executor.connected(vocalize)
+    steps = iter(range(1, 100))
 
     def vocalize_once() -> None:
         requests = node.requests
-        vocalize.publish(Bool(data=True))
+        vocalize.publish(decision_message(StepDecision(7, next(steps), True, 5)))
         executor.run_until(lambda: node.requests == requests + 1, "a vocalization")
 
     vocalize_once()

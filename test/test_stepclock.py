@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from infomax_contingency.core.flowcontrol import Listening, StepOutbox
 from infomax_contingency.core.model import (
     AGENT,
     BACKGROUND,
@@ -15,13 +16,15 @@ from infomax_contingency.core.model import (
     period_of,
 )
 from infomax_contingency.core.stepclock import (
+    MAX_STEP_JUMP,
     Arrival,
     LockstepPacer,
+    Pace,
     PublicationTimes,
     RecentEvents,
     SourceLock,
     StepJoiner,
-    StepOutbox,
+    StepPace,
 )
 
 ROBOT = ModelParams.named("robot")
@@ -178,6 +181,83 @@ def test_outbox_releases_at_most_max_ahead_unanswered_steps() -> None:
     outbox.answered(99)  # a step never handed out
     assert outbox.last_answered == 2
     assert outbox.release(paced=False) == [(6, "f"), (7, "g")]
+
+
+def test_outbox_waits_for_a_listener_that_keeps_up_and_lets_a_stalled_one_go() -> None:
+    outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
+    for window in range(20):
+        outbox.push(window)
+    assert [s for s, _ in outbox.release(paced=True, now=0.0)] == [1, 2]
+    assert outbox.acknowledged(7, 3, now=0.0) is Listening.REFUSED  # never handed out
+    assert outbox.acknowledged(7, 1, now=0.1) is Listening.WAITED_FOR  # from its first on
+    outbox.answered(2)
+    # the controller answered both, the listener took one: one more step may go
+    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [3]
+    assert outbox.in_flight == 2 and outbox.last_taken == 1
+    assert outbox.release(paced=True, now=0.3) == []
+    assert outbox.acknowledged(7, 3, now=1.0) is Listening.TAKEN
+    outbox.answered(3)
+    assert [s for s, _ in outbox.release(paced=True, now=1.0)] == [4, 5]
+    outbox.answered(5)
+    # the listener takes nothing more: waited for until listener_timeout_s has passed
+    # since it had steps to take (from the release at 1.0)
+    assert outbox.give_up_stalled(now=5.9) == [] and outbox.release(paced=True, now=5.9) == []
+    assert outbox.give_up_stalled(now=6.0) == [7] and outbox.given_up == 1
+    assert [s for s, _ in outbox.release(paced=True, now=6.0)] == [6, 7]
+    outbox.answered(7)
+    assert [s for s, _ in outbox.release(paced=True, now=6.1)] == [8, 9]
+    # it takes a step again: waited for until it has caught up
+    assert outbox.acknowledged(7, 3, now=6.2) is Listening.TAKEN  # an old one: no news
+    assert outbox.acknowledged(7, 4, now=6.2) is Listening.WAITED_FOR
+    outbox.answered(9)
+    assert outbox.release(paced=True, now=6.3) == [] and outbox.in_flight == 5
+    assert outbox.acknowledged(7, 8, now=6.4) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=6.4)] == [10]
+
+
+def test_a_listener_that_had_taken_everything_is_not_stalled_by_a_pause() -> None:
+    outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
+    outbox.push("a")
+    outbox.release(paced=True, now=0.0)
+    outbox.answered(1)
+    assert outbox.acknowledged(3, 1, now=0.0) is Listening.WAITED_FOR
+    outbox.push("b")  # the next window comes a minute later
+    assert outbox.release(paced=True, now=60.0) == [(2, "b")]
+    assert outbox.give_up_stalled(now=64.9) == [] and outbox.give_up_stalled(now=65.0) == [3]
+
+
+def test_pace_refuses_a_forged_jump_and_keeps_the_source_going() -> None:
+    pace = StepPace(rate_hz=2.0, confirm_s=3.0)
+    assert pace.check(10, 100.0) is Pace.ON_PACE  # the first step: any
+    assert pace.check(11, 100.0) is Pace.ON_PACE
+    assert pace.check(11 + MAX_STEP_JUMP, 100.0) is Pace.ON_PACE  # lost messages, bounded
+    last = 11 + MAX_STEP_JUMP
+    assert pace.check(last + MAX_STEP_JUMP + 1, 100.0, "forged") is Pace.JUMP
+    assert (pace.jumps, pace.last_jump, pace.last_step) == (1, last + MAX_STEP_JUMP + 1, last)
+    assert pace.check(last + 1, 100.1) is Pace.ON_PACE  # the true source goes on
+    assert pace.check(last - 5, 100.1) is Pace.ON_PACE  # behind: the caller's rules
+    assert pace.last_step == last + 1
+    # time allows steps at the window rate: 10 s later, 20 more
+    assert pace.check(last + 1 + MAX_STEP_JUMP + 20, 110.1) is Pace.ON_PACE
+    assert pace.check(10**12, 111.0, "forged") is Pace.JUMP
+    assert "jumps ahead of step" in pace.jump_message("bit for step 9")
+
+
+def test_pace_takes_a_run_that_goes_on_alone_from_a_jump() -> None:
+    pace = StepPace(rate_hz=2.0, confirm_s=3.0)
+    pace.check(1, 0.0)
+    # messages 2..999 were lost: the source goes on from 1000, nothing comes on pace
+    verdicts = [pace.check(1000 + i, 0.1 * i, 1000 + i) for i in range(31)]
+    assert set(verdicts[:-1]) == {Pace.JUMP} and verdicts[-1] is Pace.CONFIRMED
+    assert pace.take_confirmed() == list(range(1000, 1031)) and pace.take_confirmed() == []
+    assert pace.last_step == 1030 and pace.runs_taken == 1
+    assert pace.check(1031, 3.1) is Pace.ON_PACE
+    # a run broken by a message on pace is forgotten (it was forged)
+    pace.check(5000, 4.0)
+    assert pace.check(1032, 5.0) is Pace.ON_PACE
+    assert pace.check(5001, 8.0) is Pace.JUMP  # a new run starts here, not at 4.0
+    with pytest.raises(ValueError):
+        StepPace(rate_hz=0.0, confirm_s=1.0)
 
 
 def test_outbox_backlog_is_bounded_and_counted() -> None:

@@ -181,9 +181,9 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     # controller, belief and this monitor, and the recorder: with the recorder counted,
     # three subscribers of 'sound_step' could be there before the controller is.
     listeners = 4 if args.record else 3
-    # The decisions' listeners: mic, belief, this monitor, the room or (wav) nobody else,
-    # and the recorder.
-    decision_listeners = 3 + (not args.wav) + bool(args.record)
+    # The decisions' listeners: mic, belief, the speaker, this monitor, the room or (wav)
+    # nobody else, and the recorder.
+    decision_listeners = 4 + (not args.wav) + bool(args.record)
     nodes: dict[str, dict[str, Any]] = {
         "controller_node": {"wait_for_listeners": decision_listeners},
         "belief_node": {"memory_steps": args.memory},

@@ -15,9 +15,12 @@ listener joins ``y_t`` with ``u_t`` exactly, whatever order and rate they arrive
   messages are in, and resolves steps whose bit or decision can no longer arrive (a
   later one from the same in-order source did) as *missing*: never guessed (see
   :class:`~infomax_contingency.core.model.StatisticTracker` for the exact treatment).
-* :class:`StepOutbox` holds the windows a microphone node has made and releases them as
-  steps at most ``max_ahead`` steps ahead of the last one answered, so a burst of audio
-  (one 30 s message, a replay) cannot outrun the controller or overflow a queue.
+* the flow control of a microphone node's windows is
+  :class:`~infomax_contingency.core.flowcontrol.StepOutbox`.
+* :class:`StepPace` refuses a step that jumps further ahead of a source's last one than
+  its pace allows (:data:`MAX_STEP_JUMP` plus its window rate times the time between the
+  two): a single forged message cannot make a listener skip, or wait for, thousands of
+  steps.
 * :class:`LockstepPacer` releases the next window of a file or simulated room only once
   the decision on the last one came back (or a timeout passed).
 * :class:`RecentEvents` remembers when a fault last happened, so a diagnostic returns to
@@ -38,6 +41,13 @@ from enum import Enum
 from typing import Any
 
 from infomax_contingency.core.model import Withheld
+
+MAX_STEP_JUMP = 64
+"""Steps a source's message may lie ahead of its last one, beyond what the time between
+the two allows at the source's window rate (:class:`StepPace`). In a healthy graph the
+steps a listener receives are consecutive (the flow control loses none); a gap comes
+from a fault, and the microphone never has more than ``max_steps_ahead`` (at most this)
+steps out unanswered."""
 
 
 class Arrival(Enum):
@@ -363,63 +373,106 @@ class StepJoiner:
             self._apply(step, y, u)
 
 
-class StepOutbox:
-    """Windows made but not yet published, released as steps 1, 2, ... under flow control.
+class Pace(Enum):
+    """What :meth:`StepPace.check` made of a step."""
 
-    A microphone node pushes every window it makes; :meth:`release` hands out those that
-    may be published now: while a controller paces the stream (``paced``), no more than
-    ``max_ahead`` steps beyond the last one it answered; otherwise all. At most
-    ``max_backlog`` windows wait; more are dropped (oldest first) and counted.
+    ON_PACE = "on pace"
+    """Plausible (or not ahead at all): take it."""
+    JUMP = "jump"
+    """Further ahead than the source's pace allows: ignored (kept aside)."""
+    CONFIRMED = "confirmed"
+    """The source really went on from a jump: take :meth:`StepPace.take_confirmed`."""
+
+
+class StepPace:
+    """Refuse steps that jump further ahead of a source's last one than its pace allows.
+
+    A step ``s`` published at ``t`` is on pace after the last step ``s0`` taken (published
+    at ``t0``) when ``s <= s0 + max_jump + rate_hz * (t - t0)``; steps at or before
+    ``s0`` are left to the caller's rules (repeats, going backwards). A jump beyond is
+    refused and kept aside with the messages that go on from it (each on pace after the
+    one before): if the source keeps going from there for ``confirm_s`` seconds
+    (publication time) while no message on pace with ``s0`` comes, it really jumped
+    (messages were lost) and the run is taken; a message on pace forgets the run (it was
+    forged). The first step of a source (or after :meth:`restart`) is taken.
 
     Args:
-        max_ahead: steps that may be published and not yet answered (>= 1).
-        max_backlog: windows that may wait (>= 1).
+        rate_hz: steps the source makes per second of real time (1 / window length).
+        confirm_s: seconds a run from a jump must last, alone, to be taken.
+        max_jump: steps a message may lie ahead whatever the time between.
+        held: messages of a run kept (the newest).
     """
 
-    def __init__(self, max_ahead: int, max_backlog: int) -> None:
-        if max_ahead < 1 or max_backlog < 1:
-            raise ValueError(
-                f"max_ahead and max_backlog must be >= 1, got {max_ahead} and {max_backlog}"
-            )
-        self.max_ahead = max_ahead
-        self.max_backlog = max_backlog
-        self._waiting: deque[Any] = deque()
-        self.last_step = 0
-        """The last step handed out."""
-        self.last_answered = 0
-        """The highest step a decision came back for."""
-        self.dropped = 0
-        """Windows dropped because the backlog was full."""
+    def __init__(self, rate_hz: float, confirm_s: float, max_jump: int = MAX_STEP_JUMP,
+                 held: int = 1024) -> None:  # fmt: skip
+        if not rate_hz > 0 or not confirm_s > 0 or max_jump < 1:
+            raise ValueError(f"rate_hz and confirm_s must be > 0 and max_jump >= 1, got"
+                             f" {rate_hz}, {confirm_s} and {max_jump}")  # fmt: skip
+        self.rate_hz = rate_hz
+        self.confirm_s = confirm_s
+        self.max_jump = max_jump
+        self._run: deque[Any] = deque(maxlen=held)
+        self._confirmed: list[Any] = []
+        self.jumps = 0
+        """Messages refused as jumps (cumulative)."""
+        self.last_jump: int | None = None
+        """The step of the last message refused."""
+        self.runs_taken = 0
+        """Jumps taken after all (the source went on from them)."""
+        self.restart()
 
-    @property
-    def backlog(self) -> int:
-        """Windows waiting."""
-        return len(self._waiting)
+    def restart(self, step: int | None = None, sent_s: float = -math.inf) -> None:
+        """A new source (or stream): its next step is taken, or the last one is ``step``."""
+        self.last_step = step
+        self.last_sent_s = sent_s
+        self._run.clear()
 
-    @property
-    def in_flight(self) -> int:
-        """Steps handed out and not yet answered."""
-        return self.last_step - self.last_answered
+    def furthest(self, after: int, after_sent_s: float, sent_s: float) -> int:
+        """The furthest step on pace at ``sent_s`` after step ``after`` sent at ``after_sent_s``."""
+        elapsed = sent_s - after_sent_s
+        allowance = 0 if not elapsed > 0 else min(int(self.rate_hz * elapsed), 2**62)
+        return after + self.max_jump + allowance
 
-    def push(self, window: Any) -> None:
-        """A window was made."""
-        self._waiting.append(window)
-        if len(self._waiting) > self.max_backlog:
-            self._waiting.popleft()
-            self.dropped += 1
+    def check(self, step: int, sent_s: float, item: Any = None) -> Pace:
+        """Judge ``step`` published at ``sent_s`` (s); ``item``: its message, kept if refused."""
+        if self.last_step is None or step <= self.last_step:
+            if self.last_step is None:
+                self.last_step, self.last_sent_s = step, sent_s
+            return Pace.ON_PACE
+        if step <= self.furthest(self.last_step, self.last_sent_s, sent_s):
+            self.last_step, self.last_sent_s = step, sent_s
+            self._run.clear()
+            return Pace.ON_PACE
+        self.jumps += 1
+        self.last_jump = step
+        if not (self._run and self._run_last < step
+                <= self.furthest(self._run_last, self._run_last_sent_s, sent_s)):  # fmt: skip
+            self._run.clear()
+            self._run_first_sent_s = sent_s
+        self._run.append(item)
+        self._run_last, self._run_last_sent_s = step, sent_s
+        if sent_s - self._run_first_sent_s < self.confirm_s:
+            return Pace.JUMP
+        self.last_step, self.last_sent_s = step, sent_s
+        self._confirmed = list(self._run)
+        self._run.clear()
+        self.runs_taken += 1
+        return Pace.CONFIRMED
 
-    def answered(self, step: int) -> None:
-        """A decision on ``step`` came back (duplicates and old steps change nothing)."""
-        if self.last_answered < step <= self.last_step:
-            self.last_answered = step
+    def jump_message(self, what: str) -> str:
+        """The line that names a refused jump: ``what`` (e.g. "bit for step 9 of stream 4")."""
+        return (f"{what} ignored: it jumps ahead of step {self.last_step} further than the"
+                " source's pace allows (a forged message?)")  # fmt: skip
 
-    def release(self, paced: bool) -> list[tuple[int, Any]]:
-        """``(step, window)`` pairs to publish now, in order."""
-        out = []
-        while self._waiting and (not paced or self.in_flight < self.max_ahead):
-            self.last_step += 1
-            out.append((self.last_step, self._waiting.popleft()))
-        return out
+    def run_message(self, source: str, first_step: int) -> str:
+        """The line that says a run from a jump was taken: ``source`` went on from it."""
+        return (f"{source} went on from step {first_step} for {self.confirm_s:g} s with nothing"
+                " on pace meanwhile: messages were lost, not forged; taking them from there")
+
+    def take_confirmed(self) -> list[Any]:
+        """The run taken by the last :attr:`Pace.CONFIRMED`, oldest first (forgotten here)."""
+        confirmed, self._confirmed = self._confirmed, []
+        return confirmed
 
 
 @dataclass

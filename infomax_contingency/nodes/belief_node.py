@@ -25,6 +25,21 @@ restarted belief_node starts from zero counts at the first step it receives, wit
 timer uncertain unless that step is the stream's first. Each case is counted in the
 diagnostics and logged.
 
+Flow control: after each step applied the node publishes ``step_applied``
+(``[stream, step, listener]``, its own random listener id), and mic_node publishes no
+more than ``max_steps_ahead`` steps beyond the last one the node applied: a slow
+belief_node slows the graph instead of losing steps from its queues. A node that takes
+nothing for mic_node's ``listener_timeout_s`` (killed, hung) is no longer waited for.
+
+Pace: a bit or decision of the followed stream and controller whose step jumps further
+ahead of the last one than the stream's pace allows
+(:class:`~infomax_contingency.core.stepclock.StepPace`: 64 steps plus the window rate
+times the time between the two) is named, ignored and kept aside, and the diagnostics
+go to ERROR: a single forged message cannot make the node skip thousands of steps and
+refuse the real ones after. If the source goes on from the jump for
+``source_timeout_s`` while nothing comes on pace, its messages were lost, not forged:
+the run is taken.
+
 Start: the node subscribes ``sound_step`` only once its ``vocalize_step`` subscription
 is matched with a publisher (a controller), and ``belief`` has ``wait_for_listeners``
 subscribers (default 0; a test that checks every belief counts its recorder).
@@ -33,14 +48,16 @@ waits until this node also hears the controller: a belief_node whose processes c
 slowly (a loaded machine) does not miss the first decisions and join the stream late.
 
 Subscribes ``sound_step``, ``vocalize_step`` (std_msgs/Int64MultiArray, see
-:mod:`~infomax_contingency.nodes.step_topics`); publishes ``belief`` (Float64) and
-``/diagnostics``; private service ``~/reset`` (std_srvs/Trigger, e.g.
-``/belief_node/reset`` or ``/robot1/belief_node/reset``) forgets the history.
+:mod:`~infomax_contingency.nodes.step_topics`); publishes ``belief`` (Float64),
+``step_applied`` (Int64MultiArray) and ``/diagnostics``; private service ``~/reset``
+(std_srvs/Trigger, e.g. ``/belief_node/reset`` or ``/robot1/belief_node/reset``) forgets
+the history.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from collections import deque
 from typing import Any
 
@@ -53,14 +70,19 @@ from infomax_contingency.core.stepclock import (
     PublicationTimes,
     SourceLock,
     StepJoiner,
+    StepPace,
 )
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
+    STEP_APPLIED,
     VOCALIZE_STEP,
+    StepApplied,
     StepBit,
+    applied_message,
+    new_source_id,
     parse_bit,
     parse_decision,
     window_us,
@@ -115,6 +137,11 @@ class BeliefNode(GraphNode):
         self.joiner = StepJoiner(self._apply, self.max_pending)
         self.controllers = SourceLock(timeout_s)
         self.belief = self.tracker.statistic.belief(self.params)
+        self.listener_id = new_source_id()
+        """This node's id on ``step_applied``."""
+        self.bit_pace = StepPace(1.0 / self.params.dt, timeout_s)
+        self.decision_pace = StepPace(1.0 / self.params.dt, timeout_s)
+        self.jumps = self.recent_events()
         self.resets = 0
         self.malformed = self.recent_events()
         self.wrong_window = self.recent_events()
@@ -132,6 +159,7 @@ class BeliefNode(GraphNode):
     def activate(self) -> None:
         """Publishers, subscriptions, services and timers."""
         self.belief_pub = self.create_publisher(Float64, "belief", STREAM_QOS)
+        self.applied_pub = self.create_publisher(Int64MultiArray, STEP_APPLIED, STREAM_QOS)
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_vocalize_step, STEP_READER_QOS
         )
@@ -173,12 +201,17 @@ class BeliefNode(GraphNode):
         if bit.stream != self.stream:
             self._hold(bit, now)
             return
-        self._bit_times.note(self.sent_s(stamp, now))
-        if not self.joiner.bit(bit.step, bit.observation):
-            self.warn_intrusion(
-                f"bit for step {bit.step} of stream {bit.stream} repeats or goes backwards"
-                f" (last step {self.joiner.last_bit_step}): ignored"
-            )
+        sent = self.sent_s(stamp, now)
+        bits = take_on_pace(self, self.bit_pace, self.jumps, bit.step, sent, bit, "bit",
+                            f"stream {bit.stream}")  # fmt: skip
+        if bits:
+            self._bit_times.note(sent)
+        for taken in bits:
+            if not self.joiner.bit(taken.step, taken.observation):
+                self.warn_intrusion(
+                    f"bit for step {taken.step} of stream {taken.stream} repeats or goes"
+                    f" backwards (last step {self.joiner.last_bit_step}): ignored"
+                )
 
     def _hold(self, bit: StepBit, now: float) -> None:
         """Keep a bit of a stream the controller does not answer (yet): maybe it will."""
@@ -225,13 +258,19 @@ class BeliefNode(GraphNode):
                 f"controller {self.controllers.previous} went silent; following controller"
                 f" {decision.controller} (a restarted controller_node?)"
             )
+        if arrival is not Arrival.FOLLOWED:
+            self.decision_pace.restart()
         if decision.stream != self.stream:
             self._follow(decision.stream, decision.step)
-        if not self.joiner.decision(decision.step, decision.vocalize):
-            self.warn_intrusion(
-                f"decision for step {decision.step} repeats, goes backwards or answers no"
-                " bit received: ignored"
-            )
+            self.decision_pace.restart()
+        for taken in take_on_pace(self, self.decision_pace, self.jumps, decision.step, sent,
+                                  decision, "decision",
+                                  f"controller {decision.controller}"):  # fmt: skip
+            if not self.joiner.decision(taken.step, taken.vocalize):
+                self.warn_intrusion(
+                    f"decision for step {taken.step} repeats, goes backwards or answers no"
+                    " bit received: ignored"
+                )
 
     def _follow(self, stream: int, step: int) -> None:
         """The controller answers ``stream`` from ``step`` on: follow it from there.
@@ -256,6 +295,8 @@ class BeliefNode(GraphNode):
         self.stream = stream
         for bit in held:
             self.joiner.bit(bit.step, bit.observation)
+        # The stream's pace from its newest bit held (or from its next bit).
+        self.bit_pace.restart(held[-1].step if held else None, time.time())
 
     # ------------------------------------------------------------------ steps
 
@@ -275,6 +316,9 @@ class BeliefNode(GraphNode):
             self.tracker.act_unknown()
         else:
             self.tracker.act(u)
+        self.applied_pub.publish(
+            applied_message(StepApplied(self.stream, step, self.listener_id))
+        )
         if y is None or u is None:
             self.gaps.note(self.now_s())
             missing = "bit" if y is None else "decision"
@@ -320,12 +364,16 @@ class BeliefNode(GraphNode):
             "malformed_messages": self.malformed.count,
             "wrong_window_messages": self.wrong_window.count,
             "stream_changes": self.stream_changes,
+            "jumps_ignored": self.bit_pace.jumps + self.decision_pace.jumps,
+            "listener_id": self.listener_id,
             "resets": self.resets,
             "stale_messages": self.stale_messages,
         }
         if self.intruders:
             topics = ", ".join(f"'{topic}'" for topic in self.intruders)
             return ERROR, f"more than one publisher on {topics}", values
+        if self.jumps.recent(now):
+            return ERROR, "steps jumping ahead of their source's pace (ignored)", values
         if self.foreign.recent(now) or self.wrong_window.recent(now):
             return ERROR, "messages from a second stream or controller (ignored)", values
         if self.malformed.recent(now):

@@ -22,9 +22,13 @@ It answers once ``vocalize_step`` has ``wait_for_listeners`` subscribers, each c
 then answered, earlier ones are not (counted as ``unanswered_before_start``).
 Steps it never saw (it joined late, messages were lost) are counted, and their windows
 passed without a bit and without a vocalization; a bit that repeats or goes backwards is
-ignored. Bits whose window length is not the model's dt are refused. A withheld bit (the
-window overlapped the robot's declared own sound, ``self_sound``) is answered like any
-other, but the statistic does not count it.
+ignored, and one whose step jumps further ahead than the stream's pace allows
+(:class:`~infomax_contingency.core.stepclock.StepPace`: a forged message) is named and
+ignored (diagnostics ERROR) unless the stream goes on from there for
+``source_timeout_s`` with nothing on pace meanwhile (its messages were lost). Bits whose
+window length is not the model's dt are refused. A withheld bit (the window overlapped
+the robot's declared own sound, ``self_sound``) is answered like any other, but the
+statistic does not count it.
 
 Subscribes ``sound_step`` (std_msgs/Int64MultiArray); publishes ``vocalize`` (Bool, one
 per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
@@ -48,14 +52,15 @@ from infomax_contingency.core.controllers import (
 )
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.stepclock import Arrival, SourceLock
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
     VOCALIZE_STEP,
+    StepBit,
     StepDecision,
     decision_message,
     new_source_id,
@@ -141,6 +146,8 @@ class ControllerNode(GraphNode):
             self.controller = PolicyController(table)
         self.window_us = window_us(params.dt)
         self.streams = SourceLock(timeout_s)
+        self.pace = StepPace(1.0 / params.dt, timeout_s)
+        self.jumps = self.recent_events()
         self.last_step = 0
         self.steps = 0
         self.vocalizations = 0
@@ -227,6 +234,14 @@ class ControllerNode(GraphNode):
             )
             self.last_step = 0
             self.controller.missed(self.controller.params.timer_long_ago)
+        if arrival is not Arrival.FOLLOWED:
+            self.pace.restart()
+        for taken in take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
+                                  bit, "bit", f"stream {bit.stream}"):  # fmt: skip
+            self._answer(taken, now)
+
+    def _answer(self, bit: StepBit, now: float) -> None:
+        """Answer ``bit`` of the stream followed (unless it repeats or goes backwards)."""
         if bit.step <= self.last_step:
             self.stale_bits.note(now)
             self.warn_intrusion(
@@ -265,6 +280,7 @@ class ControllerNode(GraphNode):
             "stale_bits": self.stale_bits.count,
             "refused_messages": self.bad.count,
             "stream_changes": self.streams.switches,
+            "jumps_ignored": self.pace.jumps,
             "statistic": tuple(self.controller.tracker.statistic),
         }
         table = getattr(self.controller, "table", None)
@@ -275,6 +291,8 @@ class ControllerNode(GraphNode):
                           horizon=table.horizon, memory=table.memory)
         if self.intruders or self.foreign.recent(now) or self.bad.recent(now):
             return ERROR, "a second stream on 'sound_step', or refused messages", values
+        if self.jumps.recent(now):
+            return ERROR, "steps jumping ahead of the stream's pace (ignored)", values
         if not self.answering:
             waiting = f"waiting for {self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'"
             return WARN, waiting, values

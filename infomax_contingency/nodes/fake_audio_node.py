@@ -36,7 +36,11 @@ heard like anyone's.
 
 The room hears the robot through the decisions of one controller (the first heard on
 ``vocalize_step``; a second one is counted and ignored, a silent one replaced after
-``source_timeout_s``), each step once: the same decisions the belief node follows.
+``source_timeout_s``), each step once: the same decisions the belief node follows. A
+decision whose step jumps further ahead than the stream's pace allows
+(:class:`~infomax_contingency.core.stepclock.StepPace`: a forged message) is named and
+ignored (diagnostics ERROR), so it cannot make the room drop the true decisions as
+repeats.
 
 Subscribes ``vocalize_step`` (std_msgs/Int64MultiArray); publishes ``audio``
 (Float32MultiArray, mono samples in [-1, 1] at ``rate_hz``), ``partner_present`` (Bool,
@@ -57,8 +61,20 @@ from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.stepclock import Arrival, LockstepPacer, SourceLock
-from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
+from infomax_contingency.core.stepclock import (
+    Arrival,
+    LockstepPacer,
+    SourceLock,
+    StepPace,
+)
+from infomax_contingency.nodes.graph_node import (
+    ERROR,
+    OK,
+    RELEASED_WINDOW,
+    WARN,
+    GraphNode,
+    take_on_pace,
+)
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -66,6 +82,7 @@ from infomax_contingency.nodes.step_topics import (
     SELF_SOUND,
     SOUND_STEP,
     VOCALIZE_STEP,
+    StepDecision,
     parse_decision,
     self_sound_message,
 )
@@ -240,6 +257,8 @@ class FakeAudioNode(GraphNode):
         self.wait_for_truth_listeners = config.wait_for_truth_listeners
         self.started = False
         self.controllers = SourceLock(config.source_timeout_s)
+        self.pace = StepPace(1.0 / config.room.window_s, config.source_timeout_s)
+        self.jumps = self.recent_events()
         self._window_sent_s: float | None = None
         """When the newest window was published (s, system clock)."""
         self.timeouts = self.recent_events()
@@ -337,6 +356,15 @@ class FakeAudioNode(GraphNode):
                 f" controller_node?): the room hears controller {self.controllers.source}"
             )
             return
+        if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
+            self.pace.restart()
+        for taken in take_on_pace(self, self.pace, self.jumps, decision.step,
+                                  self.sent_s(stamp, now), decision, "decision",
+                                  f"controller {decision.controller}"):  # fmt: skip
+            self._hear(taken)
+
+    def _hear(self, decision: StepDecision) -> None:
+        """The followed controller's decision on a step: the robot's sound, the next window."""
         stream, step = self._answered
         if decision.stream == stream and decision.step <= step:
             return  # an answer repeated
@@ -443,8 +471,11 @@ class FakeAudioNode(GraphNode):
         if not self.started:
             return WARN, "waiting for a listener on 'audio'", values
         values["foreign_decisions"] = self.foreign.count
+        values["jumps_ignored"] = self.pace.jumps
         if self.foreign.recent(self.now_s()):
             return ERROR, "decisions from a second controller (ignored)", values
+        if self.jumps.recent(self.now_s()):
+            return ERROR, "decisions jumping ahead of the stream's pace (ignored)", values
         if self.timeouts.recent(self.now_s()):
             return WARN, f"lockstep timeouts lately: {self._who_is_missing()}", values
         return OK, f"{room.windows_made} windows", values

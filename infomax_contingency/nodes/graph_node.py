@@ -42,7 +42,7 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
-from infomax_contingency.core.stepclock import LockstepPacer, RecentEvents
+from infomax_contingency.core.stepclock import LockstepPacer, Pace, RecentEvents, StepPace
 from infomax_contingency.nodes.parameters import ParameterReader
 from infomax_contingency.nodes.qos import STREAM_QOS
 
@@ -402,6 +402,26 @@ class GraphNode(Node):
         """Ask :func:`run_node` to stop spinning and return ``exit_status``."""
         if not self.finished.done():
             self.finished.set_result(exit_status)
+
+
+def take_on_pace(node: GraphNode, pace: StepPace, jumps: RecentEvents, step: int,
+                 sent_s: float, message: Any, kind: str, source: str) -> list[Any]:  # fmt: skip
+    """The messages ``node`` takes now, after the pace of the step clock judged ``message``.
+
+    ``message`` of ``source`` (e.g. "stream 4"), a ``kind`` (e.g. "bit") for ``step``
+    published at ``sent_s``: itself if on pace; none if it jumps too far ahead (named in a
+    WARN, counted in ``jumps``); the run it confirms, oldest first (logged).
+    """
+    verdict = pace.check(step, sent_s, message)
+    if verdict is Pace.JUMP:
+        jumps.note(node.now_s())
+        node.warn_intrusion(pace.jump_message(f"{kind} for step {step} of {source}"), "jump")
+        return []
+    if verdict is Pace.CONFIRMED:
+        taken = pace.take_confirmed()
+        node.get_logger().warning(pace.run_message(source, taken[0].step))
+        return taken
+    return [message]
 
 
 def _announced_start(logger: Any, waiting_for: str, start: Callable[[], None]

@@ -42,9 +42,9 @@ Live: only the settings declared live (``threshold_db``, in threshold_mode fixed
 replay's first seconds again; a stream's next windows, without bits; threshold_mode file
 reads its file again).
 
-Step clock (``max_steps_ahead``, ``max_backlog_s``, ``wait_for_listeners``,
-``start_delay_s``, ``max_windows``) and the robot's own sound (``self_sound_hold_s``):
-see :mod:`~infomax_contingency.nodes.mic_node`.
+Step clock (``max_steps_ahead``, ``max_backlog_s``, ``listener_timeout_s``,
+``wait_for_listeners``, ``start_delay_s``, ``max_windows``) and the robot's own sound
+(``self_sound_hold_s``): see :mod:`~infomax_contingency.nodes.mic_node`.
 """
 
 from __future__ import annotations
@@ -69,6 +69,7 @@ from infomax_contingency.audio.windows import (
     WindowSource,
 )
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.stepclock import MAX_STEP_JUMP
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
 
 SOURCES = ("wav", "topic", "sounddevice", "bag")
@@ -91,6 +92,7 @@ class MicConfig:
     max_windows: int
     max_steps_ahead: int
     max_backlog_s: float
+    listener_timeout_s: float
     self_sound_hold_s: float
     wav_file: str
     bag_dir: str
@@ -133,8 +135,15 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
         ),
         "max_steps_ahead": read.integer(
             "max_steps_ahead", 16,
-            "Steps that may be out unanswered while a controller answers on 'vocalize_step'",
-            1, 1000,
+            "Steps that may be out unanswered (by the controller on 'vocalize_step') or not"
+            " taken (by a listener on 'step_applied', e.g. belief_node)",
+            1, MAX_STEP_JUMP,
+        ),
+        "listener_timeout_s": read.number(
+            "listener_timeout_s", 5.0,
+            "A listener on 'step_applied' (belief_node) that takes nothing this long is no"
+            " longer waited for (killed, hung) until it keeps up again",
+            0.1, 3600.0, "s",
         ),
         "max_backlog_s": read.number(
             "max_backlog_s", 3600.0,

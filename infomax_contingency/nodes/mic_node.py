@@ -8,10 +8,12 @@ publishes them.
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
 ``sound_step`` (see :mod:`~infomax_contingency.nodes.step_topics`). Windows wait in a
-bounded outbox (:class:`~infomax_contingency.core.stepclock.StepOutbox`): while a
+bounded outbox (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`): while a
 controller answers on ``vocalize_step``, at most ``max_steps_ahead`` steps are out
-unanswered, so a burst of audio (a 30 s message, a fast replay) is published as fast as
-the controller decides and nothing overflows a queue; at most ``max_backlog_s`` of
+unanswered, or not yet taken by a listener that acknowledges every step on
+``step_applied`` (belief_node; one that takes nothing for ``listener_timeout_s`` is no
+longer waited for), so a burst of audio (a 30 s message, a fast replay) or a slow
+belief_node slows the graph and nothing overflows a queue; at most ``max_backlog_s`` of
 windows wait (more is dropped and counted). A window is one step of the model: its length
 is the model's dt (``params``).
 
@@ -33,6 +35,7 @@ blocks, lost samples, gaps and reconnections). Service ``~/recalibrate``
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from typing import Any
@@ -47,7 +50,8 @@ from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
 from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, TopicWindows
-from infomax_contingency.core.stepclock import LockstepPacer, StepOutbox
+from infomax_contingency.core.flowcontrol import Listening, StepOutbox
+from infomax_contingency.core.stepclock import LockstepPacer
 from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
 from infomax_contingency.nodes.mic_bits import BitSourceControls
@@ -56,16 +60,21 @@ from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.self_sound import SelfSoundInput
 from infomax_contingency.nodes.step_topics import (
     SOUND_STEP,
+    STEP_APPLIED,
     VOCALIZE_STEP,
     StepBit,
     bit_message,
     new_source_id,
+    parse_applied,
     parse_decision,
     window_us,
 )
 
 MICROPHONE_POLL_S = 0.02
 """Seconds between reads of the live microphone's finished windows."""
+
+LISTENER_CHECK_S = 0.5
+"""Seconds between checks for a listener on 'step_applied' that stalled (killed, hung)."""
 
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
@@ -89,8 +98,10 @@ class MicNode(GraphNode):
         self.stream_id = new_source_id()
         self.window_us = window_us(config.window_s)
         self.outbox = StepOutbox(
-            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s))
+            config.max_steps_ahead, max(1, round(config.max_backlog_s / config.window_s)),
+            config.listener_timeout_s,
         )
+        self.stalled_listeners = self.recent_events()
         self.windows = 0
         self.last_energy_db = float("nan")
         self.started = self.ended = False
@@ -112,6 +123,8 @@ class MicNode(GraphNode):
         self._decisions_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
+        self.subscribe(Int64MultiArray, STEP_APPLIED, functools.partial(_on_applied, self),
+                       STEP_READER_QOS)  # fmt: skip
         self.self_sound = SelfSoundInput(self, self.config.self_sound_hold_s,
                                          self.config.window_s, self._release)  # fmt: skip
         if isinstance(self.source, TopicWindows):
@@ -159,6 +172,7 @@ class MicNode(GraphNode):
         if isinstance(self.source, MicrophoneWindows):
             self.source.start()
             self.create_timer(MICROPHONE_POLL_S, self._read_microphone)
+        self.create_timer(LISTENER_CHECK_S, self._release)  # a stalled listener is let go
         self._release()
 
     def _on_timeout(self) -> None:
@@ -287,13 +301,21 @@ class MicNode(GraphNode):
         if not self.started or self.finished.done():
             return
         outbox = self.outbox
+        now = self.now_s()
+        for listener in outbox.give_up_stalled(now):
+            self.stalled_listeners.note(now)
+            self.get_logger().warning(
+                f"listener {listener} on '{STEP_APPLIED}' took no step for"
+                f" {outbox.listener_timeout_s:g} s (after step {outbox.listeners[listener].taken}):"
+                " no longer waited for (killed or hung?)"
+            )
         # Pacing matters only when more would go out than may be unanswered: only then ask
         # the graph whether a controller answers (one query per window is measurable).
         paced = (
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit, withheld) in self.outbox.release(paced):
+        for step, (energy_db, bit, withheld) in self.outbox.release(paced, now):
             self.windows += 1
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
@@ -322,6 +344,9 @@ class MicNode(GraphNode):
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
+            "steps_taken": self.outbox.last_taken,
+            "listeners_waited_for": sum(x.waited_for for x in self.outbox.listeners.values()),
+            "listeners_given_up": self.outbox.given_up,
             "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
             **bits.diagnostic_values(),
@@ -342,6 +367,8 @@ class MicNode(GraphNode):
             return ERROR, bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
+        if self.stalled_listeners.recent(now):
+            return WARN, f"a listener on '{STEP_APPLIED}' stalled (not waited for)", values
         problem = self.contract.problem()  # the 'audio' contract broken lately
         if problem or self.losses.recent(now) or self.timeouts.recent(now) or (
                 self.self_sound.faults.recent(now)):  # fmt: skip
@@ -349,6 +376,20 @@ class MicNode(GraphNode):
                                   " or late lately (counts in the values)")  # fmt: skip
             return WARN, problem, values
         return OK, f"{self.windows} windows", values
+
+
+def _on_applied(node: MicNode, msg: Int64MultiArray, stamp: int) -> None:
+    """A listener (belief_node) took the steps of ``node``'s stream up to one: release more."""
+    applied = parse_applied(msg)
+    if applied is None or applied.stream != node.stream_id:
+        return
+    taken = node.outbox.acknowledged(applied.listener, applied.step, node.now_s())
+    if taken is Listening.WAITED_FOR:
+        node.get_logger().info(
+            f"listener {applied.listener} on '{STEP_APPLIED}' keeps up (step {applied.step}):"
+            f" no step goes more than {node.outbox.max_ahead} ahead of it"
+        )
+    node._release()  # the node's own subscription (a function: MicNode's size bound)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""speaker_node: plays the robot's sound on ``vocalize: true``.
+"""speaker_node: plays the robot's sound when the controller the graph follows decides so.
 
 The sound is the robot's chirp (:func:`~infomax_contingency.audio.synth.synthesize_chirp`,
 ``duration_s`` long) or the WAV file ``sound_file``, scaled by ``volume``, played through
@@ -15,7 +15,17 @@ vocalizations are only counted and logged at debug level. ``dry_run`` is live: f
 opens the loudspeaker at once (a device that cannot be opened refuses the set with the
 start-up message), true closes it; the next ``vocalize`` follows the new value.
 
-Subscribes ``vocalize`` (Bool). Publishes ``speaker_started``
+The command is a decision on ``vocalize_step`` (``[stream, step, vocalize, controller]``,
+see :mod:`~infomax_contingency.nodes.step_topics`) with ``vocalize`` 1, so the robot
+sounds exactly the decisions the belief node and the fake room follow: the node follows
+one controller (:class:`~infomax_contingency.core.stepclock.SourceLock`, as they do: the
+first heard; a second one is named, counted and not played; a followed one silent for
+``source_timeout_s`` is replaced by the next one heard, a restarted controller_node),
+plays each step once (a repeated step is ignored), and ignores a step that jumps further
+ahead than the stream's pace allows (:class:`~infomax_contingency.core.stepclock.StepPace`).
+The plain ``vocalize`` (Bool) is for people; a second publisher on it is named too.
+
+Subscribes ``vocalize_step`` (Int64MultiArray). Publishes ``speaker_started``
 (builtin_interfaces/Time, reliable): for every sound played, the time its first sample
 reached the loudspeaker (PortAudio's DAC time, on the node's clock like any message
 stamp), so the self-feedback delay can be measured against the microphone; nothing in
@@ -32,15 +42,17 @@ from typing import Any
 
 from builtin_interfaces.msg import Time as TimeMsg
 from rclpy.time import Time
-from std_msgs.msg import Bool
+from std_msgs.msg import Int64MultiArray
 
 from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
 from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
 from infomax_contingency.audio.wav import read_wav
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
+from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
-from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
+from infomax_contingency.nodes.step_topics import VOCALIZE_STEP, StepDecision, parse_decision
 
 EVENTS_POLL_S = 0.01
 """Seconds between checks for sounds that started, while a loudspeaker is open (a dry run
@@ -51,7 +63,7 @@ class SpeakerNode(GraphNode):
     """Speaker: the robot's voice."""
 
     NODE_NAME = "speaker_node"
-    WATCHED_TOPICS = ("vocalize",)
+    WATCHED_TOPICS = ("vocalize", VOCALIZE_STEP)
 
     def configure(self) -> None:
         """Declare and check the parameters; the state they set."""
@@ -77,6 +89,15 @@ class SpeakerNode(GraphNode):
             "A vocalization while the sound still plays: restart the sound, or skip the command",
             OVERLAP_POLICIES,
         )
+        timeout_s = read.number(
+            "source_timeout_s", 3.0,
+            "A followed controller silent this long is replaced by the next one heard",
+            0.1, 3600.0, "s",
+        )
+        self.controllers = SourceLock(timeout_s)
+        self.pace = StepPace(1.0 / read.model().dt, timeout_s)  # one step per window: dt
+        self._answered = (0, 0)
+        """The last step played or passed: (stream, step)."""
         self.sound = {
             "sound": sound_file or None,
             "duration_s": duration_s,
@@ -92,6 +113,8 @@ class SpeakerNode(GraphNode):
         if self.dry_run and sound_file:
             read_wav(sound_file)  # a bad file is refused in a dry run too
         self.output_errors = self.recent_events()
+        self.foreign = self.recent_events()
+        self.jumps = self.recent_events()
 
     def activate(self) -> None:
         """Publishers, subscriptions, services and timers."""
@@ -104,11 +127,37 @@ class SpeakerNode(GraphNode):
             EVENTS_POLL_S, self._publish_starts, autostart=self.speaker is not None
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
-        self.subscribe(Bool, "vocalize", self._on_vocalize)
-        self.wait_visibly("vocalize", "the decisions of controller_node: is it running?")
+        self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS)
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
 
-    def _on_vocalize(self, msg: Bool, stamp: int) -> None:
-        if not msg.data:
+    def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
+        decision = parse_decision(msg)
+        if decision is None:
+            return
+        now = self.now_s()
+        sent = self.sent_s(stamp, now)
+        arrival = self.controllers.accept(decision.controller, sent)
+        if arrival is Arrival.FOREIGN:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"not playing the decisions of controller {decision.controller} (a second"
+                f" controller_node?): following controller {self.controllers.source}"
+            )
+            return
+        if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
+            self.pace.restart()
+        taken = take_on_pace(self, self.pace, self.jumps, decision.step, sent, decision,
+                             "decision", f"controller {decision.controller}")  # fmt: skip
+        if taken:  # a run taken after a jump is in the past: only its newest may sound
+            self._obey(taken[-1])
+
+    def _obey(self, decision: StepDecision) -> None:
+        """Play the sound if the followed controller decided so for a step not yet heard."""
+        stream, step = self._answered
+        if decision.stream == stream and decision.step <= step:
+            return  # a step repeated
+        self._answered = (decision.stream, decision.step)
+        if not decision.vocalize:
             return
         self.requests += 1
         if self.speaker is None:
@@ -172,9 +221,20 @@ class SpeakerNode(GraphNode):
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Device, vocalizations, sounds played, output errors, start delay, intruders."""
-        values: dict[str, Any] = {"dry_run": self.dry_run, "requests": self.requests}
+        values: dict[str, Any] = {
+            "dry_run": self.dry_run,
+            "requests": self.requests,
+            "controller": self.controllers.source or "none yet",
+            "foreign_decisions": self.controllers.foreign_messages,
+            "jumps_ignored": self.pace.jumps,
+        }
         if self.intruders:
-            return ERROR, "more than one publisher on 'vocalize'", values
+            topics = ", ".join(f"'{topic}'" for topic in self.intruders)
+            return ERROR, f"more than one publisher on {topics}", values
+        if self.foreign.recent(self.now_s()):
+            return ERROR, "decisions of a second controller (not played)", values
+        if self.jumps.recent(self.now_s()):
+            return ERROR, "decisions jumping ahead of the stream's pace (ignored)", values
         if self.speaker is None:
             values["played"] = 0
             return OK, f"{self.requests} vocalizations (dry run)", values

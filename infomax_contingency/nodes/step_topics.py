@@ -12,7 +12,10 @@ dimension labelled with the field names):
   (:class:`~infomax_contingency.core.model.Withheld`). A message of the first four
   fields only (recordings made before ``withheld`` existed) is a window not withheld;
 * ``vocalize_step``: ``[stream, step, vocalize, controller]`` — the decision ``u_t`` on
-  that window, by ``controller`` (a random id chosen by each run of controller_node).
+  that window, by ``controller`` (a random id chosen by each run of controller_node);
+* ``step_applied``: ``[stream, step, listener]`` — ``listener`` (a random id chosen by
+  each run of belief_node) applied every step of ``stream`` up to ``step``: mic_node's
+  flow control waits for it (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`).
 
 A listener joins the two exactly by ``(stream, step)``
 (:class:`~infomax_contingency.core.stepclock.StepJoiner`) and follows one stream and one
@@ -30,6 +33,7 @@ from infomax_contingency.core.model import Withheld
 
 SOUND_STEP = "sound_step"
 VOCALIZE_STEP = "vocalize_step"
+STEP_APPLIED = "step_applied"
 SELF_SOUND = "self_sound"
 """The topic on which any node declares the robot's own sound (see
 :mod:`~infomax_contingency.core.selfsound`)."""
@@ -37,6 +41,7 @@ SELF_SOUND = "self_sound"
 _SOUND_FIELDS = ("stream", "step", "bit", "window_us", "withheld")
 _SELF_SOUND_FIELDS = ("start_ns", "end_ns")
 _VOCALIZE_FIELDS = ("stream", "step", "vocalize", "controller")
+_APPLIED_FIELDS = ("stream", "step", "listener")
 
 
 class StepBit(NamedTuple):
@@ -52,6 +57,14 @@ class StepBit(NamedTuple):
     def observation(self) -> bool | Withheld:
         """What a statistic takes: the bit, or the bit :class:`Withheld`."""
         return Withheld(self.bit) if self.withheld else self.bit
+
+
+class StepApplied(NamedTuple):
+    """A listener's acknowledgment: it applied every step of ``stream`` up to ``step``."""
+
+    stream: int
+    step: int
+    listener: int
 
 
 class StepDecision(NamedTuple):
@@ -74,7 +87,7 @@ def _dimension(fields: tuple[str, ...]) -> MultiArrayDimension:
 
 _LAYOUTS = {
     fields: [_dimension(fields)]
-    for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS, _SELF_SOUND_FIELDS)
+    for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS, _SELF_SOUND_FIELDS, _APPLIED_FIELDS)
 }
 """The one-dimension layout of each message kind, made once (a message per window)."""
 
@@ -94,6 +107,19 @@ def bit_message(bit: StepBit) -> Int64MultiArray:
 def decision_message(decision: StepDecision) -> Int64MultiArray:
     """The ``vocalize_step`` message of ``decision``."""
     return _message(_VOCALIZE_FIELDS, tuple(decision))
+
+
+def applied_message(applied: StepApplied) -> Int64MultiArray:
+    """The ``step_applied`` message of ``applied``."""
+    return _message(_APPLIED_FIELDS, tuple(applied))
+
+
+def parse_applied(message: Int64MultiArray) -> StepApplied | None:
+    """The acknowledgment in a ``step_applied`` message, or None if it is malformed."""
+    data = list(message.data)
+    if len(data) != len(_APPLIED_FIELDS) or min(data) <= 0:
+        return None
+    return StepApplied(*data)
 
 
 def _fields(message: Int64MultiArray, *sizes: int) -> list[int] | None:

@@ -1,0 +1,167 @@
+"""The flow control of the step clock: a microphone node's windows wait for the graph.
+
+:class:`StepOutbox` holds the windows a microphone node has made and releases them as
+steps at most ``max_ahead`` steps ahead of the last one answered by the controller and
+taken by every listener that needs every step (belief_node acknowledges each step it
+applied on ``step_applied``), so a burst of audio (one 30 s message, a replay) or a slow
+listener cannot make a queue overflow: the graph slows down instead. A listener that
+takes nothing for ``listener_timeout_s`` (killed, hung) is no longer waited for, so
+nothing hangs; one that is absent is never waited for.
+
+Times are seconds on any monotonic clock, passed in by the caller: nothing here sleeps
+or reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any
+
+
+@dataclass
+class StepListener:
+    """A listener that acknowledges the steps it took (e.g. belief_node), as an outbox sees it."""
+
+    taken: int
+    """The highest step it acknowledged."""
+    busy_since: float
+    """When it last took a step, or last had nothing left to take (seconds)."""
+    waited_for: bool = True
+    """True while the outbox waits for it (it has not stalled)."""
+
+
+class Listening(Enum):
+    """What :meth:`StepOutbox.acknowledged` made of an acknowledgment."""
+
+    TAKEN = "taken"
+    """A step taken (or an old one repeated)."""
+    WAITED_FOR = "waited for"
+    """A new listener, or one given up that takes steps again: the outbox waits for it."""
+    REFUSED = "refused"
+    """A step never handed out (a forgery): ignored."""
+
+
+class StepOutbox:
+    """Windows made but not yet published, released as steps 1, 2, ... under flow control.
+
+    A microphone node pushes every window it makes; :meth:`release` hands out those that
+    may be published now: while a controller paces the stream (``paced``), no more than
+    ``max_ahead`` steps beyond the last one it answered **and** every waited-for listener
+    took; otherwise all. At most ``max_backlog`` windows wait; more are dropped (oldest
+    first) and counted.
+
+    Listeners (:meth:`acknowledged`) are the nodes that need every step: a listener is
+    waited for from its first acknowledgment on (a graph without one runs at the
+    controller's pace); one that took nothing for ``listener_timeout_s`` while it had
+    steps to take is no longer waited for (:meth:`give_up_stalled`: killed, hung) until
+    it takes a step again (then the outbox waits until it has caught up: the steps it
+    has not taken are in its queue, or it counts them as lost).
+
+    Args:
+        max_ahead: steps that may be published and not yet answered and taken (>= 1).
+        max_backlog: windows that may wait (>= 1).
+        listener_timeout_s: seconds a waited-for listener may take nothing (> 0).
+    """
+
+    MAX_LISTENERS = 16
+    """Listeners remembered at once (the one that took nothing longest is forgotten)."""
+
+    def __init__(self, max_ahead: int, max_backlog: int,
+                 listener_timeout_s: float = math.inf) -> None:  # fmt: skip
+        if max_ahead < 1 or max_backlog < 1:
+            raise ValueError(
+                f"max_ahead and max_backlog must be >= 1, got {max_ahead} and {max_backlog}"
+            )
+        if not listener_timeout_s > 0:
+            raise ValueError(f"listener_timeout_s must be > 0 seconds, got {listener_timeout_s}")
+        self.max_ahead = max_ahead
+        self.max_backlog = max_backlog
+        self.listener_timeout_s = listener_timeout_s
+        self._waiting: deque[Any] = deque()
+        self.last_step = 0
+        """The last step handed out."""
+        self.last_answered = 0
+        """The highest step a decision came back for."""
+        self.dropped = 0
+        """Windows dropped because the backlog was full."""
+        self.listeners: dict[int, StepListener] = {}
+        """Listener id -> what it took."""
+        self.given_up = 0
+        """Times a waited-for listener stalled and was no longer waited for."""
+        self.refused_acknowledgments = 0
+        """Acknowledgments of steps never handed out."""
+
+    @property
+    def backlog(self) -> int:
+        """Windows waiting."""
+        return len(self._waiting)
+
+    @property
+    def last_taken(self) -> int:
+        """The highest step answered and taken by every waited-for listener."""
+        taken = [listener.taken for listener in self.listeners.values() if listener.waited_for]
+        return min([self.last_answered, *taken])
+
+    @property
+    def in_flight(self) -> int:
+        """Steps handed out and not yet answered, or not yet taken by a waited-for listener."""
+        return self.last_step - self.last_taken
+
+    def push(self, window: Any) -> None:
+        """A window was made."""
+        self._waiting.append(window)
+        if len(self._waiting) > self.max_backlog:
+            self._waiting.popleft()
+            self.dropped += 1
+
+    def answered(self, step: int) -> None:
+        """A decision on ``step`` came back (duplicates and old steps change nothing)."""
+        if self.last_answered < step <= self.last_step:
+            self.last_answered = step
+
+    def acknowledged(self, listener: int, step: int, now: float) -> Listening:
+        """Listener ``listener`` took ``step`` (and every step before it) at ``now``."""
+        if step > self.last_step:
+            self.refused_acknowledgments += 1
+            return Listening.REFUSED
+        known = self.listeners.get(listener)
+        if known is None:
+            if len(self.listeners) >= self.MAX_LISTENERS:
+                idle = min(self.listeners, key=lambda key: self.listeners[key].busy_since)
+                del self.listeners[idle]
+            self.listeners[listener] = StepListener(step, now)
+            return Listening.WAITED_FOR
+        if step <= known.taken:
+            return Listening.TAKEN  # an old step again: no news
+        known.taken, known.busy_since = step, now
+        if known.waited_for:
+            return Listening.TAKEN
+        known.waited_for = True
+        return Listening.WAITED_FOR
+
+    def give_up_stalled(self, now: float) -> list[int]:
+        """Stop waiting for listeners that took nothing for ``listener_timeout_s``; their ids."""
+        stalled = [
+            key for key, listener in self.listeners.items()
+            if listener.waited_for and listener.taken < self.last_step
+            and now - listener.busy_since >= self.listener_timeout_s
+        ]  # fmt: skip
+        for key in stalled:
+            self.listeners[key].waited_for = False
+        self.given_up += len(stalled)
+        return stalled
+
+    def release(self, paced: bool, now: float = 0.0) -> list[tuple[int, Any]]:
+        """``(step, window)`` pairs to publish now (at ``now``, seconds), in order."""
+        out = []
+        while self._waiting and (not paced or self.in_flight < self.max_ahead):
+            if not out:  # a listener that had taken everything has steps to take from now
+                for listener in self.listeners.values():
+                    if listener.taken >= self.last_step:
+                        listener.busy_since = now
+            self.last_step += 1
+            out.append((self.last_step, self._waiting.popleft()))
+        return out
