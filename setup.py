@@ -42,7 +42,7 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
-            "infomax-contingency = infomax_contingency.cli.main:main",
+            "infomax-contingency = infomax_contingency.cli:run",
             "mic_node = infomax_contingency.nodes.entry:mic_node",
             "controller_node = infomax_contingency.nodes.entry:controller_node",
             "belief_node = infomax_contingency.nodes.entry:belief_node",

@@ -108,7 +108,7 @@ def test_setup_py_entry_points_and_name() -> None:
         (name.strip(), target.strip()) for name, target in (s.split("=") for s in scripts)
     )
     assert set(parsed) == EXECUTABLES
-    assert parsed["infomax-contingency"] == f"{PKG}.cli.main:main"
+    assert parsed["infomax-contingency"] == f"{PKG}.cli:run"  # quiet on an early Ctrl-C
     for node in EXECUTABLES - {"infomax-contingency"}:
         assert parsed[node] == f"{PKG}.nodes.entry:{node}"  # quiet when stopped starting
 

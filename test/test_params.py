@@ -161,6 +161,21 @@ def _threshold_file(path: Path, threshold_db: float) -> Path:
     return path
 
 
+def test_a_threshold_file_outside_the_parameters_range_is_refused_like_the_parameter(
+    graph: Callable, tmp_path: Path
+) -> None:
+    # what calibrate wrote before on unscaled float audio: every bit would be 0
+    loud = _threshold_file(tmp_path / "loud.yaml", 86.28)
+    with pytest.raises(ValueError, match="threshold_db 86.28 dB is not allowed: -150 .. 0 dB"):
+        MicNode(namespace="start_up",
+                parameter_overrides=[Parameter("threshold_mode", value="file"),
+                                     Parameter("threshold_file", value=str(loud))])
+    # the file's threshold is read by the one load_threshold, which ~/recalibrate calls too
+    node, _, _ = graph(MicNode, threshold_mode="file",
+                       threshold_file=str(_threshold_file(tmp_path / "ok.yaml", -30)))
+    assert node.describe_parameter("threshold_db").floating_point_range[0].to_value == 0.0
+
+
 def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
     """A mic_node on 'audio' at a fixed -40 dB (1 s calibration if asked), and ``play``.
 

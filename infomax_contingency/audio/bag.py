@@ -17,8 +17,9 @@ QoS profiles are given as plain dicts of rmw values (``history``, ``depth``,
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from io import BytesIO
 from pathlib import Path
 from typing import Any
@@ -211,27 +212,301 @@ class BagReadError(OSError):
     """The session cannot be read; the message says why in one line."""
 
 
-def read_topics(directory: Path, topics: Sequence[str]) -> dict[str, list[tuple[int, Any]]]:
+SESSION_TYPES = {
+    "/audio": "std_msgs/msg/Float32MultiArray",
+    "/sound": "std_msgs/msg/Bool",
+    "/sound_step": "std_msgs/msg/Int64MultiArray",
+    "/sound_energy": "std_msgs/msg/Float32",
+    "/vocalize": "std_msgs/msg/Bool",
+    "/vocalize_step": "std_msgs/msg/Int64MultiArray",
+    "/belief": "std_msgs/msg/Float64",
+    "/posture": "std_msgs/msg/String",
+    "/partner_present": "std_msgs/msg/Bool",
+    "/self_sound": "std_msgs/msg/Int64MultiArray",
+    "/joint_targets": "trajectory_msgs/msg/JointTrajectory",
+    "/speaker_started": "builtin_interfaces/msg/Time",
+    "/session_info": "std_msgs/msg/String",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
+"""The types of a session's topics (recorder_node), as a bag names them."""
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""First (and last) 8 bytes of an MCAP file."""
+_SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _DATA_END = 0x03, 0x04, 0x05, 0x06, 0x0F
+
+
+@dataclasses.dataclass
+class _Scan:
+    """What a linear scan of an MCAP file found (:func:`_scan_mcap`)."""
+
+    schemas: dict[int, str] = dataclasses.field(default_factory=dict)
+    channels: dict[int, tuple[str, str]] = dataclasses.field(default_factory=dict)
+    """channel id -> (topic, message type)."""
+    messages: list[tuple[int, int, bytes]] = dataclasses.field(default_factory=list)
+    """(channel id, log time ns, CDR bytes), in file order."""
+    complete: bool = False
+    """The data section ended with its DataEnd record (the writer closed the file)."""
+    read_bytes: int = 0
+    """Bytes of the file read up to the last complete record."""
+
+
+class _Records:
+    """MCAP records of a byte string, bounds-checked: lengths never reach past its end."""
+
+    def __init__(self, data: bytes | memoryview, what: str) -> None:
+        self.data, self.what, self.pos = memoryview(data), what, 0
+
+    def take(self, size: int) -> memoryview:
+        if size < 0 or self.pos + size > len(self.data):
+            raise ValueError(f"{self.what} ends inside a record")
+        part = self.data[self.pos:self.pos + size]
+        self.pos += size
+        return part
+
+    def uint(self, size: int) -> int:
+        return int.from_bytes(self.take(size), "little")
+
+    def string(self) -> str:
+        return bytes(self.take(self.uint(4))).decode("utf-8")
+
+
+def _read_records(records: _Records, scan: _Scan, in_chunk: bool) -> bool:
+    """Read records into ``scan`` until the end (True) or a DataEnd record (False, top level).
+
+    Raises ValueError on a record cut short or malformed; ``scan.read_bytes`` then holds
+    the end of the last complete top-level record.
+    """
+    while records.pos < len(records.data):
+        opcode = records.uint(1)
+        body = _Records(records.take(records.uint(8)), records.what)
+        if opcode == _SCHEMA:
+            key = body.uint(2)
+            scan.schemas[key] = body.string()
+        elif opcode == _CHANNEL:
+            key, schema = body.uint(2), body.uint(2)
+            topic = body.string()
+            scan.channels[key] = (topic, scan.schemas.get(schema, "(no schema)"))
+        elif opcode == _MESSAGE:
+            channel, _, log_time = body.uint(2), body.uint(4), body.uint(8)
+            body.uint(8)  # publish time
+            scan.messages.append((channel, log_time, bytes(body.data[body.pos:])))
+        elif opcode == _CHUNK and not in_chunk:
+            before = len(scan.messages)
+            try:
+                _read_chunk(body, scan)
+            except (ValueError, UnicodeDecodeError):
+                del scan.messages[before:]  # a chunk counts whole or not at all
+                raise
+        elif opcode == _DATA_END and not in_chunk:
+            scan.read_bytes = records.pos
+            return False
+        if not in_chunk:
+            scan.read_bytes = records.pos
+    return True
+
+
+def _read_chunk(body: _Records, scan: _Scan) -> None:
+    body.uint(8), body.uint(8)  # message start and end times
+    uncompressed_size, _ = body.uint(8), body.uint(4)
+    compression = body.string()
+    data = body.take(body.uint(8))
+    if compression == "zstd":
+        import zstandard
+
+        if uncompressed_size > 16 * len(data) + 2**20 or uncompressed_size > 2**31:
+            raise ValueError(f"a chunk declares {uncompressed_size:,} bytes once uncompressed")
+        data = memoryview(zstandard.ZstdDecompressor().decompress(
+            bytes(data), max_output_size=uncompressed_size))
+    elif compression:
+        raise ValueError(f"a chunk is compressed with {compression}, which is not read here")
+    # a chunk is written whole: a message cut inside it is damage, not a cut file
+    _read_records(_Records(data, "a chunk"), scan, in_chunk=True)
+
+
+def _scan_mcap(path: Path) -> tuple[_Scan, str | None]:
+    """Every record of an MCAP file, read from its start (no summary, no index needed).
+
+    Returns the scan and, when the file stops before its data section ends, why (a file
+    cut by a killed writer; damage) — the scan then holds everything before.
+    """
+    data = path.read_bytes()
+    if not data.startswith(MCAP_MAGIC):
+        raise BagReadError(f"{path} is not an MCAP file (it starts with {data[:8]!r})")
+    scan, records = _Scan(), _Records(memoryview(data)[len(MCAP_MAGIC):], str(path))
+    try:
+        scan.complete = not _read_records(records, scan, in_chunk=False)
+        stopped = None if scan.complete else "the file ends before its data section does"
+    except (ValueError, UnicodeDecodeError) as error:
+        stopped = str(error)
+    scan.read_bytes += len(MCAP_MAGIC)
+    return scan, stopped
+
+
+def _bag_metadata(directory: Path) -> dict[str, Any] | None:
+    """``rosbag2_bagfile_information`` of ``metadata.yaml``; None when there is none."""
+    import yaml
+
+    path = directory / "metadata.yaml"
+    if not path.exists():
+        return None
+    try:
+        info = yaml.safe_load(path.read_text()).get("rosbag2_bagfile_information")
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError, RecursionError) as error:
+        raise BagReadError(f"cannot read the session {directory}: its metadata.yaml is damaged"
+                           f" ({' '.join(str(error).split())[:200]})") from None
+    if not isinstance(info, dict):
+        raise BagReadError(f"cannot read the session {directory}: its metadata.yaml holds no"
+                           " rosbag2_bagfile_information")
+    return info
+
+
+def _listed_counts(info: dict[str, Any]) -> dict[str, int]:
+    """Topic -> message count that metadata.yaml lists."""
+    counts = {}
+    for entry in info.get("topics_with_message_count") or []:
+        try:
+            counts[str(entry["topic_metadata"]["name"])] = int(entry["message_count"])
+        except (KeyError, TypeError, ValueError):
+            continue
+    return counts
+
+
+def _type_list(types: Mapping[str, str]) -> str:
+    return ", ".join(f"{topic} ({kind})" for topic, kind in sorted(types.items())) or "nothing"
+
+
+def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
+                required: Sequence[str | tuple[str, ...]] = (),
+                warn: Callable[[str], None] | None = None) -> dict[str, list[tuple[int, Any]]]:
     """``topic -> [(receive time ns, decoded message), ...]`` of a bag, in time order.
 
-    A topic the bag does not hold maps to an empty list. Messages are decoded with the
-    Jazzy message definitions that ``rosbags`` ships (no rclpy).
+    ``topics`` maps each topic wanted to the type it must have (``std_msgs/msg/Bool``; a
+    sequence of names: their types in :data:`SESSION_TYPES`); a topic the bag does not
+    hold maps to an empty list, unless it is ``required`` (a name, or a tuple of names
+    one of which is needed).
+    Messages are decoded with the Jazzy message definitions that ``rosbags`` ships (no
+    rclpy). The MCAP file is read record by record from its start, so:
+
+    * a bag cut by a killed recorder (no ``metadata.yaml``, the file ending inside a
+      record) is read up to its last complete chunk, and ``warn`` is told it was cut;
+    * a bag whose file holds fewer messages of a wanted topic than its ``metadata.yaml``
+      lists, or a message that does not decode, is damaged: refused, naming what is missing.
 
     Raises:
-        BagReadError: not a rosbag2 directory, or unreadable.
+        BagReadError: not a rosbag2 directory, unreadable, damaged, a wanted topic of
+            another type, or a required topic missing (naming what the bag holds).
     """
-    from rosbags.rosbag2 import Reader, ReaderError
+    directory = Path(directory)
+    if not isinstance(topics, Mapping):
+        topics = {topic: SESSION_TYPES[topic] for topic in topics}
+    if not directory.is_dir():
+        what = "does not exist" if not directory.exists() else "is not a directory"
+        raise BagReadError(f"cannot read the session {directory}: it {what}")
+    info = _bag_metadata(directory)
+    if info is not None and info.get("storage_identifier") not in (None, "mcap"):
+        return _read_with_rosbags(directory, topics, required)
+    files = [directory / str(name) for name in (info or {}).get("relative_file_paths") or []]
+    files = files or sorted(directory.glob("*.mcap"))
+    if not files:
+        raise BagReadError(f"cannot read the session {directory}: it holds neither"
+                           " metadata.yaml nor an .mcap file (not a rosbag2 bag)")
+    found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
+    held: dict[str, str] = {}
+    for path in files:
+        scan = _scan_file(directory, path, metadata=info is not None, warn=warn)
+        held.update(scan.channels.values())
+        _decode_into(found, scan, topics, directory)
+    _check_types(directory, held, topics, required)
+    if info is not None:
+        _check_counts(directory, found, _listed_counts(info))
+    for messages in found.values():
+        messages.sort(key=lambda item: item[0])
+    return found
+
+
+def _scan_file(directory: Path, path: Path, metadata: bool,
+               warn: Callable[[str], None] | None) -> _Scan:
+    """One MCAP file of a bag: damage refused (with ``metadata``), a cut told to ``warn``."""
+    try:
+        scan, stopped = _scan_mcap(path)
+    except OSError as error:
+        raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
+    if stopped is None:
+        return scan
+    if metadata:
+        raise BagReadError(f"the session {directory} is damaged: {path.name} is readable only"
+                           f" up to byte {scan.read_bytes:,} of {path.stat().st_size:,}"
+                           f" ({stopped})")
+    if warn is not None:
+        warn(f"the session {directory} was cut (no metadata.yaml: was its recorder killed?):"
+             f" {path.name} read up to its last complete chunk, byte {scan.read_bytes:,} of"
+             f" {path.stat().st_size:,}, {len(scan.messages):,} messages")
+    return scan
+
+
+def _decode_into(found: dict[str, list[tuple[int, Any]]], scan: _Scan,
+                 topics: Mapping[str, str], directory: Path) -> None:
+    typestore = _jazzy_types()
+    for channel, time_ns, data in scan.messages:
+        topic, kind = scan.channels.get(channel, ("", ""))
+        if topic not in found or kind != topics[topic]:
+            continue
+        try:
+            found[topic].append((time_ns, typestore.deserialize_cdr(data, kind)))
+        except Exception as error:  # noqa: BLE001 - any decoding failure is damage
+            raise BagReadError(
+                f"the session {directory} is damaged: message {len(found[topic]) + 1} of"
+                f" {topic} cannot be decoded as {kind} ({type(error).__name__}:"
+                f" {' '.join(str(error).split())[:120]})") from None
+
+
+def _check_types(directory: Path, held: Mapping[str, str], topics: Mapping[str, str],
+                 required: Sequence[str | tuple[str, ...]]) -> None:
+    """Refuse a wanted topic of another type, or a required one missing; name what it holds."""
+    wrong = {topic: kind for topic, kind in held.items()
+             if topic in topics and kind != topics[topic]}
+    groups = [(group,) if isinstance(group, str) else tuple(group) for group in required]
+    missing = [group for group in groups if not any(topic in held for topic in group)]
+    if not wrong and not missing:
+        return
+    names = list(wrong) or [topic for group in missing for topic in group]
+    needed = _type_list({topic: topics[topic] for topic in names})
+    problem = ("holds " + _type_list(wrong) + " of other types" if wrong
+               else "lacks " + " and ".join(" or ".join(group) for group in missing))
+    raise BagReadError(f"the session {directory} is not one of this package's sessions: it"
+                       f" {problem}; needed: {needed}. It holds: {_type_list(held)}")
+
+
+def _check_counts(directory: Path, found: Mapping[str, list], listed: Mapping[str, int]) -> None:
+    """Refuse a bag whose file holds fewer messages than its metadata.yaml lists."""
+    short = [f"{topic} {len(messages)} of {listed[topic]}" for topic, messages in found.items()
+             if topic in listed and len(messages) < listed[topic]]
+    if short:
+        raise BagReadError(f"the session {directory} is damaged: its file holds fewer messages"
+                           f" than its metadata.yaml lists ({', '.join(short)})")
+
+
+def _read_with_rosbags(directory: Path, topics: Mapping[str, str],
+                       required: Sequence[str | tuple[str, ...]]
+                       ) -> dict[str, list[tuple[int, Any]]]:
+    """A bag of another storage (sqlite3) through ``rosbags``; any failure is one line."""
+    from rosbags.rosbag2 import Reader
 
     found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
     typestore = _jazzy_types()
     try:
-        with Reader(Path(directory)) as reader:
-            connections = [c for c in reader.connections if c.topic in found]
+        with Reader(directory) as reader:
+            held = {c.topic: c.msgtype for c in reader.connections}
+            _check_types(directory, held, topics, required)
+            connections = [c for c in reader.connections
+                           if c.topic in found and c.msgtype == topics[c.topic]]
             for connection, time_ns, data in reader.messages(connections=connections):
-                message = typestore.deserialize_cdr(data, connection.msgtype)
-                found[connection.topic].append((time_ns, message))
-    except (ReaderError, OSError) as error:
-        raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
+                found[connection.topic].append(
+                    (time_ns, typestore.deserialize_cdr(data, connection.msgtype)))
+    except BagReadError:
+        raise
+    except Exception as error:  # noqa: BLE001 - a damaged bag fails in many ways
+        raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from None
     return found
 
 

@@ -26,6 +26,7 @@ replay). Nothing here imports rclpy: the bag is read with ``rosbags``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -39,19 +40,23 @@ from infomax_contingency.core.model import Withheld
 from infomax_contingency.core.selfsound import recorded_observation
 
 BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
-"""Topics a bag replay reads."""
+"""Topics a bag replay reads (their types: :data:`~infomax_contingency.audio.bag.SESSION_TYPES`)."""
 
 
-def recorded_decisions(directory: Path) -> list[bool]:
+def recorded_decisions(directory: Path, warn: Callable[[str], None] | None = None
+                       ) -> list[bool]:
     """The robot's recorded decision for each step (from 1) of the session's first stream.
 
     ``decisions[t - 1]`` answers step ``t``; a step without a recorded decision is False.
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk).
 
     Raises:
-        BagReadError: the bag cannot be read.
-        AudioError: it holds no ``sound_step`` (no stream to follow).
+        BagReadError: the bag cannot be read, is damaged, or is not a session (no
+            ``sound_step``, or topics of other types).
+        AudioError: it holds no ``sound_step`` message (no stream to follow).
     """
-    topics = read_topics(directory, ("/sound_step", "/vocalize_step"))
+    topics = read_topics(directory, ("/sound_step", "/vocalize_step"),
+                         required=("/sound_step", "/vocalize_step"), warn=warn)
     stream, steps = _first_stream(directory, topics["/sound_step"])
     decided = {int(d[1]): bool(d[2]) for d in (list(m.data) for _, m in topics["/vocalize_step"])
                if d[0] == stream}
@@ -77,16 +82,23 @@ class BagReplay(WindowSource):
         samples: keep each window's samples (a bag with audio only; a bag without
             audio has none to keep).
 
+    A bag cut by a killed recorder is replayed up to its last complete chunk; what was
+    cut is in :attr:`warnings` (to be logged by the caller).
+
     Raises:
-        BagReadError: the bag cannot be read.
-        AudioError: it holds neither audio nor bits.
+        BagReadError: the bag cannot be read, is damaged, or holds neither audio nor
+            bits (topics of other types, or another robot's: named in the message).
+        AudioError: it holds no complete window.
     """
 
     def __init__(
         self, directory: Path, window_s: float, audio_rate_hz: int, samples: bool = False
     ) -> None:
         self.directory = Path(directory)
-        topics = read_topics(self.directory, BAG_TOPICS)
+        self.warnings: list[str] = []
+        """What the replay lacks (a bag cut by a killed recorder), one line each."""
+        topics = read_topics(self.directory, BAG_TOPICS, required=[("/audio", "/sound_step")],
+                             warn=self.warnings.append)
         self.has_audio = bool(topics["/audio"])
         self.windows: list[tuple[float, bool | None]]
         self.window_samples: np.ndarray | None = None

@@ -28,7 +28,11 @@ from infomax_contingency.audio.common import (
     check_positive_seconds,
     check_rate,
 )
-from infomax_contingency.audio.resample import StreamResampler, resampled_length
+from infomax_contingency.audio.resample import (
+    StreamResampler,
+    input_block_frames,
+    resampled_length,
+)
 from infomax_contingency.audio.wav import DEFAULT_BLOCK_FRAMES, WavInfo, WavReader, to_mono
 
 ENERGY_FLOOR = 1e-12
@@ -153,7 +157,7 @@ def iter_wav_windows(
         info = reader.info
         to_mono(np.empty((0, info.channels)), channel)  # a missing channel fails now
         resampler = StreamResampler(info.rate, rate)
-        for block in reader.blocks(block_frames):
+        for block in reader.blocks(input_block_frames(block_frames, info.rate, rate)):
             windows = assembler.push_windows(resampler.push(to_mono(block, channel)))
             if windows.size:
                 yield windows

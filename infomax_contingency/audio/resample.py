@@ -14,8 +14,9 @@ import os
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from infomax_contingency.audio.common import PROCESSING_RATE_HZ, check_rate
-from infomax_contingency.audio.wav import read_wav, to_mono
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError, check_rate
+from infomax_contingency.audio.wav import open_wav_info, read_wav, to_mono
+from infomax_contingency.limits import refuse_over_budget
 
 
 def resample(samples: ArrayLike, from_rate: int, to_rate: int) -> NDArray[np.float64]:
@@ -51,8 +52,22 @@ def load_mono(
         float64 mono samples shaped ``(frames,)`` at ``rate`` Hz.
     """
     rate = check_rate(rate)
+    info = open_wav_info(path)
+    refuse_over_budget(
+        4 * resampled_length(info.frames, info.rate, rate) * np.dtype(np.float64).itemsize,
+        f"resample all of {info.path} at once to {rate} Hz", "give a shorter file", AudioError,
+    )
     samples, file_rate = read_wav(path)
     return resample(to_mono(samples, channel), file_rate, rate)
+
+
+def input_block_frames(output_frames: int, from_rate: int, to_rate: int) -> int:
+    """Input frames per block so that the block resampled to ``to_rate`` is ``output_frames``.
+
+    At least 1: a 1 Hz file upsampled to 16 kHz is read a few frames at a time, not 65536
+    (10^9 output samples).
+    """
+    return max(1, output_frames * int(from_rate) // max(int(from_rate), int(to_rate)))
 
 
 class StreamResampler:
@@ -133,8 +148,10 @@ class StreamResampler:
             self.reset()
             return np.empty(0)
         total = -(-self._n_in * self.up // self.down)
-        # zeros after the end, enough for the last output's filter to be complete
-        needed = -(-((total + self._skip - 1) * self.down + 1) // self.up) + self._h.size
+        # zeros after the end up to the last input the last output depends on; upfirdn's
+        # full convolution treats what follows as zeros (a pad of h.size inputs would be
+        # h.size * up outputs: 3 * 10^8 for a 4 Hz file resampled to 16 kHz)
+        needed = -(-((total + self._skip - 1) * self.down + 1) // self.up)
         pad = max(0, needed - self._n_in)
         self._buf = np.concatenate((self._buf, np.zeros(pad)))
         out = self._emit(total)

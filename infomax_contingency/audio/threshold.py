@@ -21,6 +21,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from infomax_contingency.audio.common import AudioError
 
+THRESHOLD_MIN_DB, THRESHOLD_MAX_DB = -150.0, 0.0
+"""The thresholds allowed, dB (0 dB: a full-scale window of samples in [-1, 1]); one range
+for mic_node's ``threshold_db`` parameter, threshold files and the offline tools
+(:func:`check_threshold_db`)."""
+
 DEFAULT_MIN_SEPARATION_DB = 10.0
 """Least distance between the two cluster means (dB) for a calibration to be used."""
 
@@ -247,3 +252,16 @@ class NoiseFloorTracker:
             return None
         rank = math.floor(self.percentile / 100.0 * (len(self._sorted) - 1))
         return self._sorted[rank]
+
+
+def check_threshold_db(value: float, what: str) -> float:
+    """``value`` if it lies in ``THRESHOLD_MIN_DB .. THRESHOLD_MAX_DB``, else AudioError.
+
+    ``what`` names the value in the one-line message (``"threshold file x.yaml"``).
+    """
+    if not THRESHOLD_MIN_DB <= value <= THRESHOLD_MAX_DB:
+        raise AudioError(
+            f"{what}: threshold_db {value:g} dB is not allowed: {THRESHOLD_MIN_DB:g} .."
+            f" {THRESHOLD_MAX_DB:g} dB (0 dB is a full-scale window of samples in [-1, 1])"
+        )
+    return float(value)

@@ -15,7 +15,8 @@ from pathlib import Path
 import yaml
 
 from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
-from infomax_contingency.audio.threshold import ThresholdFit
+from infomax_contingency.audio.threshold import ThresholdFit, check_threshold_db
+from infomax_contingency.limits import load_yaml
 
 THRESHOLD_FORMAT_VERSION = 1
 """Version of the threshold file layout written by :func:`save_threshold`."""
@@ -96,11 +97,9 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
             "contains both quiet and sound"
         )
     try:
-        record = yaml.safe_load(path.read_bytes())
-    except OSError as exc:
-        raise AudioError(f"cannot read threshold file {path}: {exc.strerror or exc}") from exc
-    except yaml.YAMLError as exc:
-        raise AudioError(f"threshold file {path} is not valid YAML: {exc}") from exc
+        record = load_yaml(path, "threshold file")
+    except ValueError as exc:
+        raise AudioError(str(exc)) from None
     if not isinstance(record, dict):
         raise AudioError(
             f"threshold file {path} must hold a YAML mapping with {', '.join(_REQUIRED_FIELDS)}; "
@@ -126,4 +125,4 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
         raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
     if not math.isfinite(value):
         raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
-    return float(value)
+    return check_threshold_db(value, f"threshold file {path}")

@@ -26,12 +26,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from infomax_contingency.audio.common import AudioError, check_rate, float_samples
+from infomax_contingency.limits import refuse_over_budget
 
 _WAV_MAGICS = (b"RIFF", b"RIFX", b"RF64")
 _PCM, _FLOAT, _EXTENSIBLE = 0x0001, 0x0003, 0xFFFE
 _RF64_SIZE = 0xFFFFFFFF
 DEFAULT_BLOCK_FRAMES = 1 << 16
 """Frames decoded per block by default (65536: 4 s at 16 kHz)."""
+MAX_DURATION_S = 24 * 3600.0
+"""Longest audio a WAV file may hold, seconds (``frames / rate``: the length it keeps
+once resampled to any rate). Every reader refuses a longer file before reading a sample:
+a header that says 1 Hz makes 640 KB of 16-bit samples 88 hours of audio, 5 * 10^9
+samples at 16 kHz."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,7 +177,20 @@ def open_wav_info(path: str | os.PathLike[str]) -> WavInfo:  # noqa: C901
     frames = size // (channels * sample_bytes)
     if frames == 0:
         raise AudioError(f"{path} is empty: it holds no audio frames")
-    return WavInfo(path, rate, channels, frames, sample_bytes, encoding, endian == ">", offset)
+    info = WavInfo(path, rate, channels, frames, sample_bytes, encoding, endian == ">", offset)
+    check_duration(info)
+    return info
+
+
+def check_duration(info: WavInfo, max_duration_s: float = MAX_DURATION_S) -> None:
+    """Refuse audio longer than ``max_duration_s`` (AudioError naming frames, rate and length)."""
+    if info.frames > max_duration_s * info.rate:
+        raise AudioError(
+            f"{info.path} is refused: its header says {info.frames:,} frames at {info.rate:,} Hz,"
+            f" {info.duration_s / 3600:.3g} hours of audio (at most {max_duration_s / 3600:g}"
+            " hours); if the sample rate in its header is wrong, rewrite it, e.g."
+            " `sox -r 16000 input.wav output.wav`"
+        )
 
 
 def _decode(raw: bytes, info: WavInfo) -> NDArray[np.float64]:
@@ -265,8 +284,16 @@ def read_wav(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], int]:
             holds NaN/infinite float samples.
     """
     with WavReader(path) as reader:
+        info = reader.info
+        refuse_over_budget(
+            2 * info.frames * info.channels * np.dtype(np.float64).itemsize,
+            f"read all of {info.path} at once ({info.duration_s:.4g} s, {info.channels}"
+            " channel(s))",
+            "give a shorter file",
+            AudioError,
+        )
         samples = np.concatenate(list(reader.blocks()))
-        return samples, reader.info.rate
+        return samples, info.rate
 
 
 def to_mono(samples: ArrayLike, channel: int | None = None) -> NDArray[np.float64]:

@@ -2,6 +2,6 @@
 
 import sys
 
-from infomax_contingency.cli.main import main
+from infomax_contingency.cli import run
 
-sys.exit(main())
+sys.exit(run())

@@ -28,13 +28,19 @@ from infomax_contingency.audio.devices import INPUT, OUTPUT, format_devices
 from infomax_contingency.audio.latency import measure_latency, self_period_windows
 from infomax_contingency.audio.threshold import (
     DEFAULT_MIN_SEPARATION_DB,
+    THRESHOLD_MAX_DB,
+    THRESHOLD_MIN_DB,
     UnseparatedError,
+    check_threshold_db,
     kmeans_split,
     require_separation,
 )
 from infomax_contingency.audio.threshold_file import save_threshold
 from infomax_contingency.core.model import ModelParams
 
+FULL_SCALE_SLACK_DB = 0.01
+"""Windows louder than 0 dB by more than this hold samples outside [-1, 1] (a full-scale
+square wave is 0 dB exactly; rounding may add a hair)."""
 LEVEL_SOURCES = tuple(n for n, s in BIT_SOURCES.items() if issubclass(s, LevelSource))
 """Bit sources with a threshold: what ``calibrate --bit-source`` fits."""
 
@@ -100,6 +106,26 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
     return recording.energies_db, f"device:{recording.device}", what
 
 
+def _check_full_scale(energies: np.ndarray, threshold_db: float, what: str) -> None:
+    """Refuse a threshold outside the range mic_node takes; warn of windows above full scale.
+
+    A window louder than 0 dB holds samples outside [-1, 1]: float audio stored unscaled
+    (e.g. int16 values written as floats) gives thresholds near +86 dB, which would make
+    every bit 0.
+    """
+    loud = int(np.count_nonzero(energies > THRESHOLD_MAX_DB + FULL_SCALE_SLACK_DB))
+    if not loud:
+        check_threshold_db(threshold_db, f"calibration on {what}")
+        return
+    problem = (f"{loud} of {energies.size} windows of {what} are louder than full scale (up to"
+               f" {float(energies.max()):.1f} dB): its samples lie outside [-1, 1]; scale the"
+               " audio to [-1, 1] (float samples stored unscaled?)")
+    if not THRESHOLD_MIN_DB <= threshold_db <= THRESHOLD_MAX_DB:
+        raise AudioError(f"{problem}; the threshold {threshold_db:.2f} dB is outside"
+                         f" {THRESHOLD_MIN_DB:g} .. {THRESHOLD_MAX_DB:g} dB, nothing written")
+    print(f"warning: {problem}")
+
+
 def _run_calibrate(args: argparse.Namespace) -> int:
     """Fit, show and save the threshold; exit status 1 if the clusters do not separate."""
     if args.wav is not None and (args.device is not None or args.seconds is not None):
@@ -112,6 +138,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             " at least 2"
         )
     fit = kmeans_split(energies)
+    _check_full_scale(energies, fit.threshold_db, what)
     print(f"calibrated on {energies.size} windows of {args.window_s:g} s from {what}")
     print(
         f"threshold: {fit.threshold_db:.2f} dB (quiet: {fit.n_low} windows, mean"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.cli import INTERRUPTED_STATUS
 from infomax_contingency.cli.calibration_session import register_calibration_session
 from infomax_contingency.cli.demo import register_demo
 from infomax_contingency.cli.experiments import register_experiment, register_learn, register_plot
@@ -34,6 +36,7 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
 from infomax_contingency.core.solver import SolveCost, solve, solve_cost
 from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.limits import format_bytes, format_number, memory_budget
 from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
 from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
@@ -63,44 +66,18 @@ def parse_size(text: str) -> int:
     return int(float(match[1]) * SIZE_UNITS[match[2].upper()])
 
 
-def available_memory() -> int:
-    """Memory a solve may use (bytes): MemAvailable, or a smaller cgroup limit."""
-    available = None
-    with open("/proc/meminfo") as meminfo:
-        for line in meminfo:
-            if line.startswith("MemAvailable:"):
-                available = int(line.split()[1]) * 1024
-    if available is None:
-        raise OSError("cannot read MemAvailable from /proc/meminfo; give --max-memory")
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        used = int(Path("/sys/fs/cgroup/memory.current").read_text())
-        if limit != "max":
-            available = min(available, int(limit) - used)
-    except (OSError, ValueError):
-        pass
-    return available
-
-
-def format_bytes(size: float) -> str:
-    """``70 MiB``, ``13.7 GiB``: binary units, 3 significant digits."""
-    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
-        if size < 1024 or unit == "PiB":
-            break
-        size /= 1024
-    return f"{size:.3g} {unit}"
-
-
 def format_count(count: int) -> str:
-    """``5.43M``, ``460M``, ``4.17e+18``: 3 significant digits."""
+    """``5.43M``, ``460M``, ``4.17e+18``: 3 significant digits (any size)."""
     for power, suffix in ((9, "G"), (6, "M"), (3, "k")):
         if 10**power <= count < 10**12:
             return f"{count / 10**power:.3g}{suffix}"
-    return str(count) if count < 1000 else f"{count:.3g}"
+    return str(count) if count < 1000 else format_number(count)
 
 
 def format_seconds(seconds: float) -> str:
     """``0.06 s``, ``5.5 s``, ``3.2 min``, ``4.1 h``, ``2.3 days``, ``1.26e+03 years``."""
+    if math.isinf(seconds):
+        return "longer than the age of the universe"
     for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
         if seconds >= 2 * size:
             return f"{seconds / size:.3g} {unit}"
@@ -116,10 +93,18 @@ def describe_cost(cost: SolveCost) -> str:
 
 
 def memory_limit(args: argparse.Namespace) -> tuple[int, str]:
-    """The memory a solve may use (bytes) and where that figure comes from."""
+    """The memory a solve may use (bytes) and where that figure comes from.
+
+    ``--max-memory``, but never more than the process may take
+    (:func:`~infomax_contingency.limits.memory_budget`: available memory, ``ulimit -v``,
+    the cgroup's limit).
+    """
+    budget = memory_budget()
     if args.max_memory is not None:
-        return parse_size(args.max_memory), "--max-memory"
-    return available_memory(), "available memory; --max-memory sets another limit"
+        asked = parse_size(args.max_memory)
+        if asked <= budget.bytes:
+            return asked, "--max-memory"
+    return budget.bytes, f"{budget.source}; --max-memory sets a lower limit"
 
 
 def refuse_if_too_big(cost: SolveCost, args: argparse.Namespace, what: str) -> None:
@@ -399,7 +384,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit status."""
+    """Entry point; returns the exit status.
+
+    One line on stderr for a user error (status 2) and for a Ctrl-C (status 130), never
+    a traceback.
+    """
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
@@ -408,6 +397,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except BrokenPipeError:  # e.g. `... | head`
         return 0
+    except KeyboardInterrupt:
+        print(f"infomax-contingency {args.command}: interrupted", file=sys.stderr)
+        return INTERRUPTED_STATUS
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -168,7 +169,13 @@ def run_replay(args: argparse.Namespace) -> int:
     if is_wav:
         records, what = _wav_records(args, kind, params)
         return _print_what_if(args, records, what)
-    session = load_session(Path(args.session))
+    cut: list[str] = []
+
+    def warn_cut(message: str) -> None:
+        cut.append(message)
+        warn(message)
+
+    session = load_session(Path(args.session), warn=warn_cut)
     if kind == "controller":
         memory = session.memory_steps if args.memory is None else args.memory
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
@@ -181,6 +188,12 @@ def run_replay(args: argparse.Namespace) -> int:
         replayed.append(record.belief)
         if args.json:
             _write_line(json.dumps(record.__dict__))
+    if cut and len(replayed) > len(session.beliefs):
+        # the cut took the last beliefs while their steps' bits and decisions were kept
+        print(f"# the last {len(replayed) - len(session.beliefs)} replayed steps have no"
+              " recorded belief (cut): compared up to the last one recorded",
+              file=sys.stderr if args.json else sys.stdout)
+        replayed = replayed[:len(session.beliefs)]
     same = replayed == session.beliefs
     first_difference = next(
         (i for i, (a, b) in enumerate(zip(replayed, session.beliefs, strict=False)) if a != b),
@@ -193,6 +206,11 @@ def run_replay(args: argparse.Namespace) -> int:
     )
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def warn(message: str) -> None:
+    """A warning about the input (a bag cut by a killed recorder): one line on stderr."""
+    print(f"warning: {message}", file=sys.stderr, flush=True)
 
 
 def _write_line(text: str) -> None:
@@ -247,13 +265,22 @@ def _rate_text(rate: Rate | None) -> str:
 
 def run_analyze(args: argparse.Namespace) -> int:
     """Print the study; write ``--out`` when both peaks are found. 0, or 1 if data lack."""
+    for option, value in (("--max-lag-s", args.max_lag_s),
+                          ("--background-from-s", args.background_from_s)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{option} must be a number of seconds > 0, got {value}")
     params = ModelParams.load(args.params)
-    max_lag = max(1, round(args.max_lag_s / params.dt))
-    background_from = max(1, min(max_lag, round(args.background_from_s / params.dt)))
     runs = []
     for directory in args.sessions:
-        records = list(replay_recorded(load_session(Path(directory)), params))
+        records = list(replay_recorded(load_session(Path(directory), warn=warn), params))
         runs.append(([bool(r.y) for r in records], [bool(r.u) for r in records]))
+    # no lag can be longer than the longest session: the table stops there
+    longest = max(len(bits) for bits, _ in runs)
+    max_lag = max(1, min(round(args.max_lag_s / params.dt), longest))
+    if max_lag < round(args.max_lag_s / params.dt):
+        print(f"# lags shown up to {max_lag * params.dt:g} s, the longest session"
+              f" (--max-lag-s {args.max_lag_s:g})")
+    background_from = max(1, min(max_lag, round(args.background_from_s / params.dt)))
     study = fig4_study_of_runs(runs, max_lag, background_from)
     if args.plot:
         from infomax_contingency.eval.fig4_plot import fig4_figure

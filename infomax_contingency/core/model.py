@@ -37,6 +37,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from infomax_contingency.core.selfsound import Withheld
+from infomax_contingency.limits import load_yaml
 
 
 @functools.cache
@@ -195,16 +196,18 @@ class ModelParams:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> ModelParams:
-        """Load from a YAML file holding the fields (optionally under a ``model:`` key)."""
-        import yaml
+        """Load from a YAML file holding the fields (optionally under a ``model:`` key).
 
+        The file's size and nesting are bounded before it is parsed
+        (:func:`~infomax_contingency.limits.load_yaml`).
+        """
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
+            data = load_yaml(path, "parameter file")
         except FileNotFoundError:
             raise ParameterError(f"parameter file {path} does not exist") from None
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-            raise ParameterError(f"cannot read parameter file {path}: {error}") from None
+        except ValueError as error:
+            raise ParameterError(str(error)) from None
         if isinstance(data, Mapping) and isinstance(data.get("model"), Mapping):
             data = data["model"]
         if not isinstance(data, Mapping):

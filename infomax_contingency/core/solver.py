@@ -29,7 +29,7 @@ scores controllers with it and TD learning reads its greedy policy off it.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from math import comb
 
 import numpy as np
@@ -48,6 +48,7 @@ from infomax_contingency.core.model import (
 )
 from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
 from infomax_contingency.core.statespace import n_count_tuples, partial_sums
+from infomax_contingency.limits import as_float
 
 SOLVER_VERSION = 1
 
@@ -95,14 +96,18 @@ class SolveCost:
     seconds: float
 
 
-def _sweep(mode: str, horizon: int, memory: int) -> tuple[int, int, list[int]]:
-    """``(N_0, layers swept, max counts of the kept layers)`` of a solve (validated)."""
+def _sweep(mode: str, horizon: int, memory: int) -> tuple[int, int, Sequence[int]]:
+    """``(N_0, layers swept, max counts of the kept layers)`` of a solve (validated).
+
+    The kept layers are a ``range`` for an episodic table: a horizon of 10^18 is
+    estimated (and refused) without a list of 10^18 layers.
+    """
     if mode == EPISODIC:
         if horizon < 2:
             raise ValueError(f"episodic horizon must be >= 2 steps, got {horizon}")
         if memory:
             raise ValueError("episodic tables take no memory (the episode is the memory)")
-        return horizon, horizon - 1, list(range(1, horizon))
+        return horizon, horizon - 1, range(1, horizon)
     if mode == RECEDING:
         if horizon < 1:
             raise ValueError(f"receding horizon must be >= 1 step, got {horizon}")
@@ -117,13 +122,13 @@ def solve_cost(params: ModelParams, mode: str, horizon: int, memory: int = 0) ->
 
     Raises ``ValueError`` for arguments :func:`solve` refuses.
     """
-    base, steps, kept = _sweep(mode, horizon, memory)
+    base, steps, _ = _sweep(mode, horizon, memory)
     n_timer = params.n_timer_values
     # Layers k = 1 .. K hold the tuples with sums <= base - k: sum_k C(base - k + 4, 4).
     swept_tuples = comb(base + 4, 5) - comb(base - steps + 4, 5)
     if mode == EPISODIC:
         statistics = n_timer * (comb(horizon + 4, 5) - 1)
-        kept_bytes = statistics // 8 + len(kept)
+        kept_bytes = statistics // 8 + steps  # a rounding byte per kept layer
     else:
         statistics = n_timer * n_count_tuples(memory)
         kept_bytes = (statistics + 7) // 8
@@ -134,7 +139,8 @@ def solve_cost(params: ModelParams, mode: str, horizon: int, memory: int = 0) ->
         updates=n_timer * swept_tuples,
         layers=steps,
         peak_bytes=BASE_BYTES + per_tuple * tuples + kept_bytes,
-        seconds=SECONDS_PER_UPDATE * n_timer * swept_tuples + SECONDS_PER_TUPLE * tuples,
+        seconds=as_float(SECONDS_PER_UPDATE * as_float(n_timer * swept_tuples)
+                         + SECONDS_PER_TUPLE * as_float(tuples)),
     )
 
 

@@ -39,7 +39,6 @@ import dataclasses
 import math
 import zlib
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +64,7 @@ from infomax_contingency.eval.experiments import (
     wilson_interval,
 )
 from infomax_contingency.eval.information import information_bound
+from infomax_contingency.eval.workers import worker_pool
 from infomax_contingency.sim.fake_room import (
     AudioObservation,
     AudioWorld,
@@ -628,7 +628,7 @@ def simulate_room_runs(config: RoomsConfig, controllers: list[tuple[str, str]]) 
     if config.jobs <= 1 or len(tasks) < 2:
         rows = _run_batch(config, controllers, tasks)
     else:
-        with ProcessPoolExecutor(max_workers=config.jobs) as pool:
+        with worker_pool(config.jobs) as pool:
             futures = [
                 pool.submit(_run_batch, config, controllers, tasks[i :: config.jobs])
                 for i in range(config.jobs)

@@ -18,7 +18,7 @@ or from a channel carrying the robot's own output
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,17 +59,22 @@ class RecordedSession:
     memory_steps: int
 
 
-def load_session(directory: Path) -> RecordedSession:
+def load_session(directory: Path, warn: Callable[[str], None] | None = None
+                 ) -> RecordedSession:
     """Read the steps of the first mic stream of a session bag.
 
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk).
+
     Raises:
-        BagReadError: the bag cannot be read.
-        ValueError: it holds no ``sound_step`` (nothing to replay).
+        BagReadError: the bag cannot be read, is damaged, or is not a session (no
+            ``sound_step`` and ``vocalize_step``, or topics of other types).
+        ValueError: it holds no ``sound_step`` message (nothing to replay).
     """
     # Imported here: sessions need the optional rosbags; the other commands start without it.
     from infomax_contingency.audio.bag import read_topics
 
-    topics = read_topics(directory, SESSION_TOPICS)
+    topics = read_topics(directory, SESSION_TOPICS,
+                         required=("/sound_step", "/vocalize_step"), warn=warn)
     steps = [list(m.data) for _, m in topics["/sound_step"]]
     if not steps:
         raise ValueError(f"the session {directory} holds no sound_step messages: nothing to"

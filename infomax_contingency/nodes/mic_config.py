@@ -260,9 +260,13 @@ def open_window_source(config: MicConfig, samples: bool, log: LogFunction) -> Wi
         from infomax_contingency.audio.bag_replay import BagReplay
 
         try:
-            return BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz, samples)
+            replay = BagReplay(Path(config.bag_dir), config.window_s, config.audio_rate_hz,
+                               samples)
         except (OSError, AudioError) as error:
             raise ConfigError(f"parameter 'bag_dir' = {config.bag_dir!r}: {error}") from None
+        for warning in replay.warnings:  # a bag cut by a killed recorder
+            log("warning", warning)
+        return replay
     if config.source == "topic":
         return TopicWindows(config.audio_rate_hz, config.window_s, samples)
     return MicrophoneWindows(_microphone(config, channel, log), samples, log)

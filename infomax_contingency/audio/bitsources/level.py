@@ -31,7 +31,12 @@ from infomax_contingency.audio.bitsources.base import (
 from infomax_contingency.audio.bitsources.rules import Binarizer, NoiseFloorBinarizer
 from infomax_contingency.audio.common import AudioError, as_mono, check_rate
 from infomax_contingency.audio.energy import frame_energies_db
-from infomax_contingency.audio.threshold import DEFAULT_MIN_SEPARATION_DB, calibration_window_count
+from infomax_contingency.audio.threshold import (
+    DEFAULT_MIN_SEPARATION_DB,
+    THRESHOLD_MAX_DB,
+    THRESHOLD_MIN_DB,
+    calibration_window_count,
+)
 from infomax_contingency.audio.threshold_file import load_threshold
 
 THRESHOLD_MODES = ("calibrate", "fixed", "file", "noise_floor")
@@ -56,7 +61,8 @@ class ThresholdSettings:
         choices=THRESHOLD_MODES,
     )
     threshold_db: float = setting(
-        -40.0, "Fixed threshold (threshold_mode fixed; live)", low=-150.0, high=0.0, unit="dB",
+        -40.0, "Fixed threshold (threshold_mode fixed; live)", low=THRESHOLD_MIN_DB,
+        high=THRESHOLD_MAX_DB, unit="dB",
         live=True,
     )
     threshold_file: str = setting(

@@ -13,11 +13,17 @@ import numpy as np
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
 from infomax_contingency.eval import plots
+from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.simulation import simulate
 from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
 DEFAULT_TABLES = {"robot": "robot_receding_H24_M60.npz", "paper": "paper_episodic_T40.npz"}
+PLOT_BASE_BYTES = 400 * 2**20
+"""Memory of a plot of a few steps (the interpreter, numpy, matplotlib, a table), bytes."""
+PLOT_BYTES_PER_STEP = 16 * 2**10
+"""Memory a simulated plot takes per step, bytes (measured: 11.5 KiB; /usr/bin/time of
+``plot --steps 20000`` and ``--steps 200000``: 377 MB and 2.45 GB peak)."""
 
 
 def _default_controller(params: ModelParams) -> str:
@@ -32,9 +38,10 @@ def _run_plot(args: argparse.Namespace) -> int:
     params = ModelParams.load(args.params)
     memory = args.memory
     if args.session and Path(args.session).is_dir():  # a recorded session (bag)
+        from infomax_contingency.cli.sessions import warn
         from infomax_contingency.eval.sessions import load_session, replay_recorded
 
-        session = load_session(Path(args.session))
+        session = load_session(Path(args.session), warn=warn)
         memory = memory or session.memory_steps
         records = [record.__dict__ for record in replay_recorded(session, params, memory)]
         title = args.title or f"recorded session {Path(args.session).name}"
@@ -42,6 +49,10 @@ def _run_plot(args: argparse.Namespace) -> int:
         records = plots.read_session(args.session)
         title = args.title or f"session {Path(args.session).name}"
     else:
+        if args.steps < 1:
+            raise ValueError(f"--steps must be >= 1, got {args.steps}")
+        refuse_over_budget(PLOT_BASE_BYTES + PLOT_BYTES_PER_STEP * args.steps,
+                           f"plot {args.steps:,} steps", "give fewer --steps")
         rng = np.random.default_rng(args.seed)
         room = make_room(args.world, params, rng)
         controller = make_controller(

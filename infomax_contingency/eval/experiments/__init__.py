@@ -56,7 +56,14 @@ from infomax_contingency.eval.experiments.horizon import (
     experiment_horizon,
     horizon_set,
 )
-from infomax_contingency.eval.experiments.learn import LearnConfig, experiment_learn, parse_method
+from infomax_contingency.eval.experiments.learn import (
+    LEARN_BASE_BYTES,
+    LEARN_BYTES_PER_STATISTIC,
+    LearnConfig,
+    experiment_learn,
+    learning_cost_bytes,
+    parse_method,
+)
 from infomax_contingency.eval.experiments.rule import (
     RULE_STATISTIC_FIELDS,
     RuleConfig,
@@ -92,6 +99,8 @@ from infomax_contingency.eval.experiments.tables import (
 )
 
 __all__ = [
+    "LEARN_BASE_BYTES",
+    "LEARN_BYTES_PER_STATISTIC",
     "PRIOR_ROOM_SPEC",
     "RULE_STATISTIC_FIELDS",
     "SWITCHES",
@@ -119,6 +128,7 @@ __all__ = [
     "experiment_rule",
     "greedy_set",
     "horizon_set",
+    "learning_cost_bytes",
     "mean_interval",
     "obtain_table",
     "paired_entropy_difference",

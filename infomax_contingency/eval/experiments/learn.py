@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from infomax_contingency.core import learning
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.scoring import Scorer
+from infomax_contingency.limits import refuse_over_budget
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,6 +74,19 @@ def parse_method(text: str, default_budget: int) -> tuple[str, learning.Learning
     return name, settings, budget
 
 
+LEARN_BYTES_PER_STATISTIC = 64
+"""Memory of TD learning per statistic of its horizon, bytes: the value tables are lists
+of Python floats (measured: about 23 bytes, peak 228 MB for the paper set at T = 40)."""
+LEARN_BASE_BYTES = 200 * 2**20
+"""Memory of learning on a short horizon (the interpreter, numpy, the scorer), bytes."""
+
+
+def learning_cost_bytes(params: ModelParams, horizon: int) -> int:
+    """Peak memory of :func:`experiment_learn` at ``horizon`` (bytes, exact integers)."""
+    statistics = params.n_timer_values * (math.comb(horizon + 4, 5) - 1)
+    return LEARN_BASE_BYTES + LEARN_BYTES_PER_STATISTIC * statistics
+
+
 def experiment_learn(config: LearnConfig | None = None) -> dict:
     """Learning curves: every method with every seed, the greedy policy scored exactly.
 
@@ -81,6 +96,10 @@ def experiment_learn(config: LearnConfig | None = None) -> dict:
     """
     config = config or LearnConfig()
     params = ModelParams.load(config.params_name)
+    if config.horizon < 2:
+        raise ValueError(f"learning horizon must be >= 2 steps, got {config.horizon}")
+    refuse_over_budget(learning_cost_bytes(params, config.horizon),
+                       f"learn with horizon {config.horizon}", "give a shorter --horizon")
     scorer = Scorer(params, config.horizon)
     methods = [parse_method(text, config.budget) for text in config.methods]
     curves = []

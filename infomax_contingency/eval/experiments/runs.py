@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -20,6 +19,7 @@ from infomax_contingency.core import model
 from infomax_contingency.core.controllers import Controller, PolicyController, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.eval.workers import worker_pool
 from infomax_contingency.sim.simulation import simulate
 from infomax_contingency.sim.world import Room, make_room, named_room
 
@@ -216,7 +216,7 @@ def simulate_rooms(
     rest = (steps, seed, checkpoints, confident)
     if workers <= 1 or len(rooms) < 2:
         return _simulate_rooms(*arguments, rooms, *rest)
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with worker_pool(workers) as pool:
         futures = [
             pool.submit(_simulate_rooms, *arguments, rooms[i::workers], *rest)
             for i in range(workers)

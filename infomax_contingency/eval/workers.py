@@ -1,0 +1,51 @@
+"""Worker processes of the experiments: a pool that a Ctrl-C ends at once and quietly.
+
+A Ctrl-C in a terminal reaches every process of the foreground group. The workers of
+:func:`worker_pool` ignore it (no traceback from each of them); the parent gets the
+KeyboardInterrupt, ends the workers (their running tasks are lost: the command is being
+stopped) and lets it go on to the command line, which exits with status 130.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+
+
+def _ignore_interrupts() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _end(pool: ProcessPoolExecutor) -> None:
+    """Kill the workers (their running tasks are lost) and wait for the pool to end."""
+    # shutdown alone would leave the running tasks to finish (minutes)
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.kill()
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextlib.contextmanager
+def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A ``ProcessPoolExecutor`` of ``workers`` processes, ended at once by an exception.
+
+    While the workers start, a Ctrl-C is held (a worker hit before its initializer ran
+    would die and break the pool) and raised once they run; a worker started later gets
+    it only between its start and its initializer.
+    """
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_interrupts)
+        pool.submit(int).result()  # starts the workers (all of them, with fork)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    try:
+        if held:
+            raise KeyboardInterrupt
+        yield pool
+    except BaseException:
+        _end(pool)
+        raise
+    pool.shutdown()

@@ -1,0 +1,254 @@
+"""Cost checks made before the work: the memory this process may still take, and bounded YAML.
+
+Every command and node that can be handed a size (a horizon, a number of steps, a file)
+estimates what the work will cost and compares it with :func:`memory_budget` before it
+starts, so an oversized request ends with one line instead of a MemoryError, an OOM kill
+or a machine that swaps. The budget is the smallest of
+
+* ``MemAvailable`` (``/proc/meminfo``): what the machine can give without swapping;
+* the process's address-space limit (``ulimit -v``, ``RLIMIT_AS``) less the address
+  space it already maps (``VmSize``);
+* the memory limit of its control group less what the group uses (cgroup v2
+  ``memory.max`` / ``memory.current`` or v1 ``memory.limit_in_bytes`` /
+  ``memory.usage_in_bytes``, the process's own group and every group above it).
+
+Estimates are Python integers (no overflow whatever the request); :func:`format_bytes`,
+:func:`format_number` and :func:`as_float` print them without an OverflowError.
+
+:func:`load_yaml` reads a YAML file after bounding its size and its nesting depth (a
+100,000-deep file would otherwise end the parser in a RecursionError), as the policy
+tables' metadata JSON is bounded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import resource
+from pathlib import Path
+from typing import Any
+
+MAX_YAML_BYTES = 1 << 16
+"""Largest YAML file read, bytes (model parameters, threshold files: well under 1 KB)."""
+MAX_YAML_DEPTH = 8
+"""Deepest nesting of mappings and sequences in a YAML file read (real files: 2)."""
+NO_LIMIT = 1 << 60
+"""A limit at or above this (1 EiB) is no limit (cgroup v1 writes 2^63 - 4096 for none)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class MemoryBudget:
+    """The memory this process may still take.
+
+    Attributes:
+        bytes: the smallest of the limits (module docstring), bytes (>= 0).
+        source: which limit that is, for a message (``"available memory"``,
+            ``"ulimit -v"``, ``"cgroup memory limit"``).
+    """
+
+    bytes: int
+    source: str
+
+
+def _kilobytes_field(path: Path, field: str) -> int | None:
+    """``field`` of a ``/proc`` file in ``Name:  123 kB`` lines, in bytes; None if unknown.
+
+    ``MemAvailable`` of ``/proc/meminfo``: what the machine can give without swapping;
+    ``VmSize`` of ``/proc/self/status``: the address space this process maps now.
+    """
+    try:
+        for line in path.read_text().splitlines():
+            if line.startswith(f"{field}:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _read_int(path: Path) -> int | None:
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return None
+    if text == "max":
+        return NO_LIMIT
+    try:
+        return int(text)
+    except ValueError:
+        return None
+
+
+def _cgroup_dirs(root: Path, relative: str) -> list[Path]:
+    """The group's directory under ``root`` and each one above it (those that exist)."""
+    parts = [part for part in relative.strip("/").split("/") if part]
+    dirs = [root.joinpath(*parts[:n]) for n in range(len(parts), -1, -1)]
+    return [d for d in dirs if d.is_dir()]
+
+
+def cgroup_headroom(cgroup_root: Path = Path("/sys/fs/cgroup"),
+                    self_cgroup: Path = Path("/proc/self/cgroup")) -> int | None:
+    """Bytes this process's control groups still allow (the tightest), or None if unlimited."""
+    try:
+        lines = self_cgroup.read_text().splitlines()
+    except OSError:
+        return None
+    headrooms = []
+    for line in lines:
+        hierarchy, _, rest = line.partition(":")
+        controllers, _, relative = rest.partition(":")
+        if hierarchy == "0" and controllers == "":  # cgroup v2
+            root, limit_file, usage_file = cgroup_root, "memory.max", "memory.current"
+        elif "memory" in controllers.split(","):  # cgroup v1
+            root, limit_file, usage_file = cgroup_root / "memory", "memory.limit_in_bytes", \
+                "memory.usage_in_bytes"
+        else:
+            continue
+        for directory in _cgroup_dirs(root, relative):
+            limit = _read_int(directory / limit_file)
+            usage = _read_int(directory / usage_file)
+            if limit is not None and limit < NO_LIMIT:
+                headrooms.append(max(0, limit - (usage or 0)))
+    return min(headrooms) if headrooms else None
+
+
+def memory_budget(meminfo: Path = Path("/proc/meminfo"),
+                  status: Path = Path("/proc/self/status"),
+                  cgroup_root: Path = Path("/sys/fs/cgroup"),
+                  self_cgroup: Path = Path("/proc/self/cgroup")) -> MemoryBudget:
+    """The memory this process may still take (module docstring); the paths are for tests.
+
+    Raises:
+        OSError: no limit could be read at all (no ``/proc``): one line, asking for one.
+    """
+    candidates: list[MemoryBudget] = []
+    available = _kilobytes_field(meminfo, "MemAvailable")
+    if available is not None:
+        candidates.append(MemoryBudget(available, "available memory"))
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        candidates.append(MemoryBudget(max(0, soft - (_kilobytes_field(status, "VmSize") or 0)),
+                                       f"ulimit -v {soft // 1024}"))
+    headroom = cgroup_headroom(cgroup_root, self_cgroup)
+    if headroom is not None:
+        candidates.append(MemoryBudget(headroom, "cgroup memory limit"))
+    if not candidates:
+        raise OSError("cannot tell how much memory is available (no /proc/meminfo)")
+    return min(candidates, key=lambda budget: budget.bytes)
+
+
+def as_float(value: int | float) -> float:
+    """``value`` as a float, ``inf`` when too large for one (never an OverflowError)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
+
+
+def format_number(value: int | float) -> str:
+    """3 significant digits, ``e`` notation from 10^6 on: ``512``, ``1.5e+07``, ``4.2e+400``.
+
+    Integers of any size (a float cannot hold 10^400) are formatted from their digits.
+    """
+    if isinstance(value, int) and abs(value) >= 10**300:
+        digits = str(abs(value))
+        mantissa = int(digits[:4]) / 1000
+        return f"{'-' if value < 0 else ''}{mantissa:.3g}e+{len(digits) - 1}"
+    return f"{value:.3g}"
+
+
+def format_bytes(size: int | float) -> str:
+    """``70 MiB``, ``13.7 GiB``, ``4.2e+30 PiB``: binary units, 3 significant digits, any size."""
+    units = ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB")
+    if isinstance(size, int) and size >= 1024 ** len(units):
+        return f"{format_number(size // 1024 ** (len(units) - 1))} PiB"
+    value = float(size)
+    for unit in units:
+        if value < 1024 or unit == "PiB":
+            break
+        value /= 1024
+    return f"{value:.3g} {unit}"
+
+
+def refuse_over_budget(needed_bytes: int, what: str, how_to_shrink: str = "",
+                       error: type[ValueError] = ValueError) -> None:
+    """``error`` (one line) when ``what`` would need more memory than :func:`memory_budget`.
+
+    Args:
+        needed_bytes: the estimate, bytes (any size).
+        what: the work, for the message (``"plot 100000000 steps"``).
+        how_to_shrink: advice appended to the message (``"give fewer --steps"``).
+        error: the ValueError subclass raised (``AudioError`` for audio).
+    """
+    budget = memory_budget()
+    if needed_bytes > budget.bytes:
+        advice = f"; {how_to_shrink}" if how_to_shrink else ""
+        raise error(f"refusing to {what}: it needs about {format_bytes(needed_bytes)} of"
+                         f" memory, more than {format_bytes(budget.bytes)} ({budget.source})"
+                         f"{advice}")
+
+
+def bracket_depth(text: str) -> int:
+    """Deepest nesting of ``[`` / ``{`` in text, in linear time.
+
+    Quotes and comments are counted too: an upper bound of a YAML file's flow nesting.
+    """
+    depth = deepest = 0
+    for char in text:
+        if char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}" and depth:
+            depth -= 1
+    return deepest
+
+
+def yaml_depth(text: str) -> int:
+    """Deepest nesting of mappings and sequences in YAML text (parser events, no recursion).
+
+    The parser takes time quadratic in the flow nesting (100,000 ``[``: two minutes), so
+    call it only on text whose :func:`bracket_depth` is bounded.
+    """
+    import yaml
+
+    depth = deepest = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+    return deepest
+
+
+def load_yaml(path: str | Path, what: str, max_depth: int = MAX_YAML_DEPTH) -> Any:
+    """``yaml.safe_load`` of a file, its size and nesting bounded first.
+
+    Raises:
+        FileNotFoundError: the file does not exist (the caller names it).
+        ValueError: unreadable, not UTF-8, too large, nested deeper than ``max_depth``,
+            or not YAML — one line, starting with ``what`` and the path.
+    """
+    import yaml
+
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_YAML_BYTES:
+            raise ValueError(f"{what} {path} is refused: it holds {size:,} bytes"
+                             f" (at most {MAX_YAML_BYTES:,})")
+        text = path.read_text()
+    except FileNotFoundError:
+        raise
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"cannot read {what} {path}: {error}") from None
+    try:
+        depth = bracket_depth(text)
+        if depth <= max_depth:
+            depth = yaml_depth(text)
+        if depth > max_depth:
+            raise ValueError(f"{what} {path} is refused: it is nested {depth} deep"
+                             f" (at most {max_depth})")
+        return yaml.safe_load(text)
+    except (yaml.YAMLError, RecursionError) as error:
+        detail = " ".join(str(error).split())
+        raise ValueError(f"cannot read {what} {path}: not valid YAML: {detail}") from None

@@ -1,0 +1,148 @@
+"""Bags that are damaged, cut by a killed recorder, or not this package's sessions.
+
+Each is read exactly, replayed with a warning naming what is missing (a cut bag), or
+refused in one line naming what the bag holds and what is needed — never a traceback,
+never silently shorter. ``replay`` and ``analyze`` (the command line), mic_node's
+``source: bag`` (:class:`BagReplay`) and controller_node's ``recorded:BAG``
+(:func:`recorded_decisions`) read bags through the one reader.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from infomax_contingency.audio.bag import BagReadError, BagWriter, encode, read_topics
+from infomax_contingency.audio.bag_replay import BagReplay, recorded_decisions
+from infomax_contingency.cli.main import main
+from infomax_contingency.eval.sessions import load_session
+
+SESSION = Path(__file__).parent / "data" / "session_demo"
+MCAP = SESSION / "session_demo.mcap"
+
+
+def _copy(tmp_path: Path, name: str, data: bytes, metadata: bool = True) -> Path:
+    bag = tmp_path / name
+    bag.mkdir()
+    (bag / MCAP.name).write_bytes(data)
+    if metadata:
+        shutil.copy(SESSION / "metadata.yaml", bag / "metadata.yaml")
+    return bag
+
+
+def _one_line_error(capsys, *argv: str) -> str:
+    assert main(list(argv)) == 2
+    captured = capsys.readouterr()
+    assert len(captured.err.strip().splitlines()) == 1, captured.err
+    return captured.err
+
+
+@pytest.mark.parametrize("offset, fill", [
+    (60_000, b"\x00"),  # read silently as 62 of the 120 steps before
+    (42_500, b"\x00"),  # a SerdeError traceback before
+    (37_500, b"\xff"),  # an OverflowError traceback before
+    (112_500, b"\x00"),  # a MemoryError before (a record declaring 2^64 bytes)
+])
+def test_a_damaged_bag_is_refused_in_one_line_by_every_reader(tmp_path, capsys, offset, fill):
+    data = MCAP.read_bytes()
+    bag = _copy(tmp_path, "damaged", data[:offset] + fill * 40 + data[offset + 40:])
+    if offset < 100_000:  # in the data section (the last one damages the summary)
+        for command in ("replay", "analyze"):
+            assert "is damaged" in _one_line_error(capsys, command, str(bag))
+        with pytest.raises(BagReadError, match="is damaged"):
+            BagReplay(bag, 0.5, 16_000)
+        with pytest.raises(BagReadError, match="is damaged"):
+            recorded_decisions(bag)
+    else:  # the summary is not needed: the data reads whole
+        assert len(load_session(bag).bits) == 120
+
+
+def test_a_truncated_bag_with_its_metadata_is_refused_naming_what_is_readable(tmp_path,
+                                                                              capsys):
+    bag = _copy(tmp_path, "truncated", MCAP.read_bytes()[:60_000])
+    error = _one_line_error(capsys, "replay", str(bag))
+    assert "is damaged: session_demo.mcap is readable only up to byte 55,910 of 60,000" in error
+
+
+def test_a_bag_cut_by_kill_9_is_replayed_up_to_its_last_chunk_and_says_so(tmp_path, capsys):
+    # what a recorder killed with kill -9 leaves: the file as flushed, no summary, no
+    # metadata.yaml (test_recorder makes one with a real kill -9 and reads it with mcap)
+    bag = _copy(tmp_path, "cut", MCAP.read_bytes()[:70_000], metadata=False)
+    assert main(["replay", str(bag)]) == 0
+    captured = capsys.readouterr()
+    assert "was cut (no metadata.yaml: was its recorder killed?)" in captured.err
+    assert "up to its last complete chunk, byte 55,910 of 70,000" in captured.err
+    assert "equals the recorded belief at all 54 steps" in captured.out
+    assert main(["analyze", str(bag)]) in (0, 1)
+    captured = capsys.readouterr()
+    assert "was cut" in captured.err and "vocalizations" in captured.out
+    replay = BagReplay(bag, 0.5, 16_000)
+    assert replay.n_windows == 55 and "was cut" in replay.warnings[0]  # 55 bits, 54 answered
+    assert len(recorded_decisions(bag)) == 55
+    # the messages read are exactly the complete file's first ones
+    whole = read_topics(SESSION, ("/sound_step", "/belief"))
+    cut = read_topics(bag, ("/sound_step", "/belief"))
+    for topic, messages in cut.items():
+        assert [t for t, _ in messages] == [t for t, _ in whole[topic][:len(messages)]]
+
+
+def _bag(directory: Path, topics: dict[str, tuple[str, dict]]) -> Path:
+    writer = BagWriter(directory)
+    for topic, (kind, fields) in topics.items():
+        writer.add_topic(topic, kind, [{}])
+        writer.write(topic, encode(kind, **fields), 1_000)
+    writer.close()
+    return directory
+
+
+def test_a_bag_of_another_robots_topics_is_refused_naming_what_it_holds(tmp_path, capsys):
+    bag = _bag(tmp_path / "other", {"/camera/info": ("std_msgs/msg/String", {"data": "x"}),
+                                    "/odom_rate": ("std_msgs/msg/Float64", {"data": 1.0})})
+    for command in ("replay", "analyze"):
+        error = _one_line_error(capsys, command, str(bag))
+        assert "is not one of this package's sessions: it lacks /sound_step" in error
+        assert "needed: /sound_step (std_msgs/msg/Int64MultiArray)" in error
+        assert "It holds: /camera/info (std_msgs/msg/String), /odom_rate" in error
+    with pytest.raises(BagReadError, match="lacks /audio or /sound_step"):
+        BagReplay(bag, 0.5, 16_000)
+    with pytest.raises(BagReadError, match="lacks /sound_step and /vocalize_step"):
+        recorded_decisions(bag)
+
+
+def test_a_bag_of_this_robots_topic_names_with_other_types_is_refused(tmp_path, capsys):
+    bag = _bag(tmp_path / "types", {
+        "/sound_step": ("std_msgs/msg/String", {"data": "1"}),
+        "/vocalize_step": ("std_msgs/msg/Int64MultiArray", {"data": [1, 1, 0, 9]}),
+        "/audio": ("std_msgs/msg/Float64", {"data": 0.5}),
+    })
+    for command in ("replay", "analyze"):
+        error = _one_line_error(capsys, command, str(bag))
+        assert "holds /sound_step (std_msgs/msg/String) of other types" in error
+        assert "needed: /sound_step (std_msgs/msg/Int64MultiArray)" in error
+    with pytest.raises(BagReadError, match=r"holds /audio \(std_msgs/msg/Float64\), /sound_step"):
+        BagReplay(bag, 0.5, 16_000)
+    with pytest.raises(BagReadError, match="of other types"):
+        recorded_decisions(bag)
+
+
+def test_what_is_not_a_bag_is_one_line(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert "not a rosbag2 bag" in _one_line_error(capsys, "replay", str(tmp_path / "empty"))
+    bad = _copy(tmp_path, "junk", b"not an mcap file at all", metadata=False)
+    assert "is not an MCAP file" in _one_line_error(capsys, "analyze", str(bad))
+    meta = _copy(tmp_path, "meta", MCAP.read_bytes())
+    (meta / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
+    assert "its metadata.yaml is damaged" in _one_line_error(capsys, "replay", str(meta))
+
+
+def test_the_session_types_are_the_recorders() -> None:
+    from infomax_contingency.audio.bag import SESSION_TYPES
+    from infomax_contingency.nodes.recorder_node import RECORDED_TOPICS
+
+    recorded = {("" if name.startswith("/") else "/") + name:
+                f"{kind.__module__.split('.')[0]}/msg/{kind.__name__}"
+                for name, (kind, _) in RECORDED_TOPICS.items()}
+    assert recorded.items() <= SESSION_TYPES.items()
+    assert SESSION_TYPES["/audio"] == "std_msgs/msg/Float32MultiArray"
