@@ -41,6 +41,11 @@ SIGINT and SIGTERM blocked (``env --block-signal``, GNU coreutils 9.1 or later; 
 it they start as they are) until their entry point takes the signals over, so a Ctrl-C
 while their interpreters start waits for that point and ends them quietly, never with a
 KeyboardInterrupt traceback from the interpreter's own start-up.
+Every node process ends with the launch, however the launch ends (``kill -9``, an OOM
+kill, a supervisor's SIGTERM, after which ``ros2 launch`` itself would leave its processes
+running): the launch names its own process in ``INFOMAX_CONTINGENCY_PARENT_PID`` and each
+node asks the kernel for SIGTERM when its parent dies (``nodes/runtime.end_with_parent``;
+a node started under a ``--launch-prefix`` such as gdb ends with the prefix's process).
 mic_node ending by itself (status 0: ``max_windows`` bits published, or the end of a wav
 file with ``exit_at_end``) stops the other nodes of its robot with SIGINT, so the launch
 ends (status 0) once they are done; the last line says so.
@@ -76,6 +81,10 @@ PACKAGE = "infomax_contingency"
 GRAPH_NODES = ("controller_node", "belief_node", "posture_node", "speaker_node")
 """Nodes started from ``params_file`` (controller_node also reads ``fake_room_file`` with the
 fake room); mic_node (and the fake room) are added apart."""
+
+PARENT_PID_VARIABLE = "INFOMAX_CONTINGENCY_PARENT_PID"
+"""What names the process a node ends with (``nodes/runtime.PARENT_PID_VARIABLE``; not
+imported, so that loading this file loads nothing of the package)."""
 
 BOOLEAN_CHOICES = ["true", "false"]
 """The values of the true/false launch arguments; ``ros2 launch`` refuses any other."""
@@ -231,6 +240,9 @@ def _graph(context: LaunchContext) -> list:
             arguments=["--ros-args", "--log-level", f"{logger}:={level}"],
             prefix=_prefix(context, executable),
             exec_name=executable,  # the process label, not the prefix's "env"
+            # Ends with this process (ros2 launch, which starts every node, a respawned
+            # one too, from its main thread): no orphan node outlives a killed launch.
+            additional_env={PARENT_PID_VARIABLE: str(os.getpid())},
             output="screen",
             emulate_tty=True,
         )

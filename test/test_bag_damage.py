@@ -146,3 +146,42 @@ def test_the_session_types_are_the_recorders() -> None:
                 for name, (kind, _) in RECORDED_TOPICS.items()}
     assert recorded.items() <= SESSION_TYPES.items()
     assert SESSION_TYPES["/audio"] == "std_msgs/msg/Float32MultiArray"
+
+
+def _copy_under_namespaces(tmp_path: Path, namespaces: tuple[str, ...]) -> Path:
+    """The demo session again, every topic but /diagnostics under each of ``namespaces``."""
+    from rosbags.rosbag2 import Reader
+
+    bag = tmp_path / "namespaced"
+    writer = BagWriter(bag)
+    with Reader(SESSION) as reader:
+        names = {}
+        for connection in reader.connections:
+            for namespace in namespaces:
+                name = (connection.topic if connection.topic == "/diagnostics"
+                        else namespace + connection.topic)
+                if name not in writer.topics:
+                    writer.add_topic(name, connection.msgtype, [])
+                names.setdefault(connection.topic, set()).add(name)
+        for connection, time_ns, data in reader.messages():
+            for name in sorted(names[connection.topic]):
+                writer.write(name, data, time_ns)
+    writer.close()
+    return bag
+
+
+def test_a_session_recorded_under_a_namespace_is_read_by_its_plain_topic_names(tmp_path,
+                                                                               capsys):
+    # `ros2 launch ... namespace:=robot1 record:=true` records /robot1/sound_step, ...:
+    # replay said it "holds no sound_step messages" before
+    bag = _copy_under_namespaces(tmp_path, ("/robot1",))
+    assert len(load_session(bag).bits) == len(load_session(SESSION).bits) > 0
+    assert main(["replay", str(bag)]) == 0
+    assert "equals the recorded belief" in capsys.readouterr().out
+    assert len(recorded_decisions(bag)) == len(recorded_decisions(SESSION))
+
+
+def test_a_bag_of_two_namespaced_robots_is_refused_naming_both(tmp_path, capsys):
+    bag = _copy_under_namespaces(tmp_path, ("/robot1", "/robot2"))
+    error = _one_line_error(capsys, "replay", str(bag))
+    assert "several robots (/robot1, /robot2)" in error

@@ -236,6 +236,39 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     assert list((tmp_path / "old_session").iterdir()) == []
 
 
+def process_alive(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie does not count)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.slow
+def test_no_node_outlives_a_killed_launch(workspace: Path, launch) -> None:
+    """``ros2 launch`` killed (SIGKILL: nothing of it runs any more): every node ends too.
+
+    The launch names itself in ``INFOMAX_CONTINGENCY_PARENT_PID``; each node then gets
+    SIGTERM from the kernel when it dies. Without it all five nodes ran on as orphans.
+    """
+    graph = launch("contingency.launch.py")  # no room: the nodes wait for 'audio'
+    for node in ("mic_node", "controller_node", "belief_node", "posture_node", "speaker_node"):
+        graph.wait_for(f"[{node}]: waiting for")  # loaded: its parent-death signal is set
+    pids = [int(pid) for pid in re.findall(r"process started with pid \[(\d+)\]", graph.output())]
+    assert len(pids) == 5, graph.output()[-3000:]
+    os.kill(graph.process.pid, signal.SIGKILL)  # `exec ros2 launch`: the launch process
+    graph.process.wait(timeout=30)
+    deadline = time.monotonic() + 30.0
+    try:
+        while any(process_alive(pid) for pid in pids) and time.monotonic() < deadline:
+            time.sleep(0.2)  # polls the processes; the deadline above bounds it
+        assert not [pid for pid in pids if process_alive(pid)], graph.output()[-3000:]
+    finally:
+        for pid in pids:
+            if process_alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
 def robot_params(tmp_path: Path, name: str, **sections: dict) -> Path:
     """The installed-style config/robot.yaml with ``/**/NODE:`` values changed."""
     config = yaml.safe_load((ROOT / "config" / "robot.yaml").read_text())

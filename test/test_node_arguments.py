@@ -90,6 +90,28 @@ def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:
     assert "Traceback" not in result.stderr
 
 
+def test_a_node_that_needs_a_missing_optional_package_ends_in_one_line(tmp_path: Path) -> None:
+    """recorder_node without ``rosbags``: one ERROR line naming the package, status 2.
+
+    As after a plain ``colcon build`` without rosdep; a launch with ``record:=true`` then
+    stops, naming the recorder.
+    """
+    (tmp_path / "rosbags").mkdir()
+    (tmp_path / "rosbags" / "__init__.py").write_text(
+        "raise ModuleNotFoundError(\"No module named 'rosbags'\", name='rosbags')\n"
+    )
+    path = os.pathsep.join(p for p in (str(tmp_path), os.environ.get("PYTHONPATH")) if p)
+    result = subprocess.run(
+        [sys.executable, "-m", "infomax_contingency.nodes.entry", "recorder_node"],
+        capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": path},
+    )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "[ERROR]" in lines[0] and "[recorder_node]: " in lines[0], lines
+    assert lines[0].endswith("needs the Python package 'rosbags', which is not installed: pip"
+                             " install rosbags; rosdep key python3-rosbags-pip")  # fmt: skip
+
+
 @pytest.mark.parametrize(("chosen", "threads"), [({}, 1), ({"OPENBLAS_NUM_THREADS": "2"}, 2)])
 def test_a_node_has_one_blas_thread_unless_its_user_chose_a_count(
     tmp_path: Path, chosen: dict[str, str], threads: int

@@ -15,6 +15,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray
+from std_srvs.srv import Trigger
 
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.mic_node import MicNode
@@ -52,8 +53,11 @@ def _set(probe: Probe, executor: SteppedExecutor, node: str, **values: Any) -> N
 
 
 def _threshold_lines(text: str) -> list[str]:
-    return [line.split("[mic_node]: ")[1] for line in text.splitlines()
-            if "[mic_node]: threshold in force" in line]  # fmt: skip
+    """mic_node's lines that name the threshold in force (also a calibration's end)."""
+    said = [line.split("[mic_node]: ", 1)[1] for line in text.splitlines()
+            if "[mic_node]: " in line]  # fmt: skip
+    return [line for line in said if line.startswith(("threshold in force", "calibrated:",
+                                                      "noise floor"))]  # fmt: skip
 
 
 def _mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
@@ -101,11 +105,29 @@ def test_mic_node_logs_a_threshold_that_follows_the_noise_floor_when_it_moved(
     # moves it 20 dB up, -40.5 dB by less than 1 dB (not logged again)
     play([-60.0, -60.0, -60.0, -40.0, -40.0, -40.5])
     assert _threshold_lines(capfd.readouterr().err) == [
-        "threshold in force: -50.11 dB (noise floor -60.1 dB + margin 10 dB; bit_source"
-        " energy)",
+        "noise floor -60.11 dB after 2 windows: threshold -50.11 dB (margin 10 dB)",
         "threshold in force: -30.04 dB (noise floor -40.0 dB + margin 10 dB; bit_source"
         " energy)",
     ]
+
+
+def test_mic_node_logs_the_end_of_its_calibration_and_of_a_recalibration(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The window that completes a calibration yields no bit: its end is logged there."""
+    node, probe, executor, play = _mic(graph, threshold_mode="calibrate")
+    assert _threshold_lines(capfd.readouterr().err) == []  # calibrating: no threshold yet
+    play([-60.0, -20.0])  # calibration_s 1.0: two windows, quiet and loud
+    calibrated = "calibrated: threshold -40.04 dB (quiet -60.0 dB, sound -20.1 dB)"
+    assert _threshold_lines(capfd.readouterr().err) == [calibrated]
+    play([-30.0])  # a bit against that threshold: nothing more
+    assert _threshold_lines(capfd.readouterr().err) == []
+    client = probe.create_client(Trigger, "/mic_node/recalibrate")
+    executor.run_until(client.service_is_ready, "mic_node's ~/recalibrate")
+    answer = client.call_async(Trigger.Request())
+    executor.run_until(answer.done, "the answer of ~/recalibrate")
+    play([-60.0, -20.0])  # the same audio again: the same threshold, logged again
+    assert _threshold_lines(capfd.readouterr().err) == [calibrated]
 
 
 def test_belief_and_posture_nodes_say_what_they_wait_for_and_when_it_came(

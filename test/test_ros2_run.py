@@ -198,3 +198,7 @@ def test_launch_file_starts_the_installed_executables_with_installed_config() ->
         assert f'"{executable} = {PKG}.nodes.entry:{executable}"' in setup
     for config in ("robot.yaml", "fake_room.yaml"):
         assert config in strings and (ROOT / "config" / config).is_file()
+    # The nodes end with the launch: the variable they read (not imported by the file).
+    from infomax_contingency.nodes.runtime import PARENT_PID_VARIABLE
+
+    assert PARENT_PID_VARIABLE in strings

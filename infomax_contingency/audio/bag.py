@@ -390,7 +390,9 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
     * a bag cut by a killed recorder (no ``metadata.yaml``, the file ending inside a
       record) is read up to its last complete chunk, and ``warn`` is told it was cut;
     * a bag whose file holds fewer messages of a wanted topic than its ``metadata.yaml``
-      lists, or a message that does not decode, is damaged: refused, naming what is missing.
+      lists, or a message that does not decode, is damaged: refused, naming what is missing;
+    * a session recorded under a namespace (``/robot1/sound_step``) is read by the plain
+      names (:func:`_session_namespace`).
 
     Raises:
         BagReadError: not a rosbag2 directory, unreadable, damaged, a wanted topic of
@@ -411,17 +413,56 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
         raise BagReadError(f"cannot read the session {directory}: it holds neither"
                            " metadata.yaml nor an .mcap file (not a rosbag2 bag)")
     found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
+    scans = [_scan_file(directory, path, metadata=info is not None, warn=warn)
+             for path in files]
     held: dict[str, str] = {}
-    for path in files:
-        scan = _scan_file(directory, path, metadata=info is not None, warn=warn)
+    for scan in scans:
         held.update(scan.channels.values())
+    namespace = _session_namespace(directory, held, topics)
+    strip = functools.partial(_without_namespace, namespace)
+    held = {strip(topic): kind for topic, kind in held.items()}
+    for scan in scans:
+        scan.channels = {channel: (strip(topic), kind)
+                         for channel, (topic, kind) in scan.channels.items()}
         _decode_into(found, scan, topics, directory)
     _check_types(directory, held, topics, required)
     if info is not None:
-        _check_counts(directory, found, _listed_counts(info))
+        listed = {strip(topic): count for topic, count in _listed_counts(info).items()}
+        _check_counts(directory, found, listed)
     for messages in found.values():
         messages.sort(key=lambda item: item[0])
     return found
+
+
+GLOBAL_TOPICS = ("/diagnostics",)
+"""Session topics that keep their absolute name under a namespace."""
+
+
+def _session_namespace(directory: Path, held: Mapping[str, str],
+                       topics: Mapping[str, str]) -> str:
+    """The namespace a session was recorded under (``/robot1``), or "" for none.
+
+    A graph launched with ``namespace:=robot1`` records ``/robot1/sound_step`` and so on
+    (``/diagnostics`` stays absolute): a bag that holds none of the wanted topics by its
+    plain name but holds them under one namespace is that robot's session. Two
+    namespaces are two robots: refused, naming both.
+    """
+    relative = [topic for topic in topics if topic not in GLOBAL_TOPICS]
+    if any(topic in held for topic in relative):
+        return ""
+    namespaces = {topic[:-len(wanted)] for topic in held for wanted in relative
+                  if topic.endswith(wanted) and len(topic) > len(wanted)}
+    if len(namespaces) > 1:
+        raise BagReadError(f"the session {directory} holds the topics of several robots"
+                           f" ({', '.join(sorted(namespaces))}): record one robot per bag")
+    return namespaces.pop() if namespaces else ""
+
+
+def _without_namespace(namespace: str, topic: str) -> str:
+    """``topic`` with the session's ``namespace`` taken off its front."""
+    if namespace and topic.startswith(namespace + "/"):
+        return topic[len(namespace):]
+    return topic
 
 
 def _scan_file(directory: Path, path: Path, metadata: bool,

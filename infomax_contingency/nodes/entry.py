@@ -5,7 +5,9 @@ and SIGTERM (:class:`~infomax_contingency.nodes.runtime.StopSignals`): 0.3 s on 
 machine, seconds on a loaded one. A launch that stops in that time (another node refused
 its parameters) used to get a KeyboardInterrupt traceback from each node still loading.
 These entry points catch both signals from their first line: such a node exits with
-status 0 and says nothing, as a node stopped later does.
+status 0 and says nothing, as a node stopped later does. A node whose module needs an
+optional package that is not installed (recorder_node without ``rosbags``) ends with
+one ERROR line naming the package, status 2, as a node refusing its parameters does.
 
 They also start each node with one BLAS thread (:func:`use_one_blas_thread`).
 
@@ -21,6 +23,8 @@ import signal
 import sys
 from collections.abc import MutableMapping
 from typing import Any
+
+from infomax_contingency.errors import MissingPackageError
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -73,7 +77,8 @@ def run_module(module: str) -> int:
     may block them across ``exec``: they wait until this function unblocks them).
     Afterwards each signal goes back to its previous handler, unless ``main()`` left it
     with another one: a node that ends ignores both (``StopSignals.ignore_from_now_on``),
-    so a second Ctrl-C while the interpreter shuts down raises nothing.
+    so a second Ctrl-C while the interpreter shuts down raises nothing. A module that
+    cannot load for want of an optional package is logged as one ERROR line (status 2).
     """
     previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
     try:
@@ -82,7 +87,13 @@ def run_module(module: str) -> int:
         # KeyboardInterrupt there; one that came meanwhile is delivered now, to the handler.
         signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         use_one_blas_thread()
-        main = importlib.import_module(module).main
+        try:
+            main = importlib.import_module(module).main
+        except MissingPackageError as error:
+            import rclpy.logging
+
+            rclpy.logging.get_logger(module.rsplit(".", 1)[-1]).error(str(error))
+            return 2
         return main()
     finally:
         for signum, handler in previous.items():

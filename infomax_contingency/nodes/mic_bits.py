@@ -40,6 +40,19 @@ class ThresholdLog:
         self.logged_db: float | None = None
         """The threshold last logged, dB (set it when another line named the threshold)."""
 
+    def after_window(self, bits: BitSource, was_calibrating: bool) -> None:
+        """After a window: the end of a calibration, or a threshold that changed (a refit).
+
+        The window that completes a calibration (or the noise floor's warm-up) yields no
+        bit itself; its end is logged with the source's ready line (the threshold and
+        the clusters or floor it came from), which counts as the threshold's line.
+        """
+        if was_calibrating and not bits.calibrating:
+            self.logger.info(bits.ready_message())
+            self.logged_db = bits.threshold_db
+            return
+        self(bits)
+
     def __call__(self, bits: BitSource) -> None:
         """Log ``bits``' threshold in force if it changed since the last line."""
         threshold_db, last = bits.threshold_db, self.logged_db

@@ -255,10 +255,8 @@ class MicNode(GraphNode):
             was_calibrating = self.bits.calibrating
             bit = self.bits.bit_of(window.energy_db, window.samples)
             energy_db = self.bits.last_energy_db
-            if bit is not None and was_calibrating:
-                self.get_logger().info(self.bits.ready_message())  # names the threshold
-                self.threshold_log.logged_db = self.bits.threshold_db
-            self.threshold_log(self.bits)  # an accepted refit, a moving noise floor
+            # a calibration's end, an accepted refit, a moving noise floor
+            self.threshold_log.after_window(self.bits, was_calibrating)
         self.last_energy_db = energy_db
         if bit is None:  # a calibration window: its energy only
             self.energy_pub.publish(Float32(data=energy_db))

@@ -311,7 +311,7 @@ class BitSource(ABC):
         self.settings = dataclasses.replace(self.settings, **{name: value})
 
     def ready_message(self) -> str:
-        """One line for the log once the first bit comes."""
+        """One line for the log when a calibration (or warm-up) ends: mic_node logs it then."""
         return f"bit source {self.name} ready"
 
     def threshold_origin(self) -> str:
