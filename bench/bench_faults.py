@@ -28,8 +28,9 @@ from pathlib import Path
 from infomax_contingency.cli.demo import isolate_dds
 
 HOLD_S = 2.0
-MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
-       "wait_for_listeners": 3, "start_delay_s": 0.2, "fault_hold_s": HOLD_S}  # fmt: skip
+MIC = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed",
+       "threshold_db": -40.0, "wait_for_listeners": 3, "start_delay_s": 0.2,
+       "fault_hold_s": HOLD_S}  # fmt: skip
 COMMON = {"fault_hold_s": HOLD_S, "source_timeout_s": 1.0}
 NODES = {"mic_node": MIC, "controller_node": COMMON, "belief_node": {"memory_steps": 60,
          **COMMON}}  # fmt: skip

@@ -34,10 +34,10 @@ from typing import Any
 
 from infomax_contingency.cli.demo import isolate_dds
 
-MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
-       "wait_for_listeners": 2}  # controller, belief  # fmt: skip
+MIC = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed",
+       "threshold_db": -40.0, "wait_for_listeners": 2}  # controller, belief  # fmt: skip
 NODES = {
-    "controller_node": {"wait_for_listeners": 2},  # mic, belief (+ the room: below)
+    "controller_node": {"wait_for_listeners": 3},  # mic, belief, speaker (+ the room: below)
     "belief_node": {"memory_steps": 60},
     "posture_node": {},
     "speaker_node": {"dry_run": True},
@@ -92,7 +92,7 @@ def run(workdir: Path, minutes: float, loops: int, source: str, burst_samples: i
     try:
         processes.start("mic_node", MIC)
         for name, parameters in NODES.items():
-            extra = {"wait_for_listeners": 3} if name == "controller_node" and source == "room" \
+            extra = {"wait_for_listeners": 4} if name == "controller_node" and source == "room" \
                 else {}  # fmt: skip
             processes.start(name, {**parameters, **extra})
         if source == "room":

@@ -44,6 +44,7 @@ def graph_nodes(room: dict, audio: bool) -> dict[str, dict]:
     return {
         "mic_node": {
             "source": "topic",
+            "bit_source": "energy",
             "threshold_mode": "fixed",
             "threshold_db": -40.0,
             "wait_for_listeners": 2,  # controller and belief (the recorder reads 'sound')

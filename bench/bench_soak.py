@@ -24,8 +24,8 @@ from pathlib import Path
 from infomax_contingency.cli.demo import isolate_dds
 
 NODES = {
-    "mic_node": {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
-                 "wait_for_listeners": 2},
+    "mic_node": {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed",
+                 "threshold_db": -40.0, "wait_for_listeners": 2},
     "controller_node": {},
     "belief_node": {"memory_steps": 60},
     "posture_node": {},

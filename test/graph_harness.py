@@ -75,7 +75,9 @@ def room_nodes(
 ) -> dict[str, dict[str, Any]]:
     """The graph against the fake room in lockstep (recorder included in the listeners)."""
     return {
-        "mic_node": {"source": "topic", **FIXED_THRESHOLD, "wait_for_listeners": listeners},
+        # energy at -40 dB: in lockstep the room waits for a decision on every window
+        "mic_node": {"source": "topic", "bit_source": "energy", **FIXED_THRESHOLD,
+                     "wait_for_listeners": listeners},
         # mic, belief, room and the recorder hear every decision
         "controller_node": {"wait_for_listeners": listeners + 1},
         "belief_node": {"memory_steps": memory_steps},

@@ -40,9 +40,9 @@ def _one_line_error(capsys, *argv: str) -> str:
 
 
 @pytest.mark.parametrize("offset, fill", [
-    (60_000, b"\x00"),  # read silently as 62 of the 120 steps before
+    (39_152, b"\x00"),  # a chunk's header (opcode and length) zeroed
     (42_500, b"\x00"),  # a SerdeError traceback before
-    (37_500, b"\xff"),  # an OverflowError traceback before
+    (35_562, b"\xff"),  # a message index's header: a length of 2^64 - 1
     (112_500, b"\x00"),  # a MemoryError before (a record declaring 2^64 bytes)
 ])
 def test_a_damaged_bag_is_refused_in_one_line_by_every_reader(tmp_path, capsys, offset, fill):
@@ -63,7 +63,7 @@ def test_a_truncated_bag_with_its_metadata_is_refused_naming_what_is_readable(tm
                                                                               capsys):
     bag = _copy(tmp_path, "truncated", MCAP.read_bytes()[:60_000])
     error = _one_line_error(capsys, "replay", str(bag))
-    assert "is damaged: session_demo.mcap is readable only up to byte 55,910 of 60,000" in error
+    assert "is damaged: session_demo.mcap is readable only up to byte 39,152 of 60,000" in error
 
 
 def test_a_bag_cut_by_kill_9_is_replayed_up_to_its_last_chunk_and_says_so(tmp_path, capsys):
@@ -73,14 +73,14 @@ def test_a_bag_cut_by_kill_9_is_replayed_up_to_its_last_chunk_and_says_so(tmp_pa
     assert main(["replay", str(bag)]) == 0
     captured = capsys.readouterr()
     assert "was cut (no metadata.yaml: was its recorder killed?)" in captured.err
-    assert "up to its last complete chunk, byte 55,910 of 70,000" in captured.err
-    assert "equals the recorded belief at all 54 steps" in captured.out
+    assert "up to its last complete chunk, byte 39,152 of 70,000" in captured.err
+    assert "equals the recorded belief at all 29 steps" in captured.out
     assert main(["analyze", str(bag)]) in (0, 1)
     captured = capsys.readouterr()
     assert "was cut" in captured.err and "vocalizations" in captured.out
     replay = BagReplay(bag, 0.5, 16_000)
-    assert replay.n_windows == 55 and "was cut" in replay.warnings[0]  # 55 bits, 54 answered
-    assert len(recorded_decisions(bag)) == 55
+    assert replay.n_windows == 29 and "was cut" in replay.warnings[0]  # 29 bits, 29 answered
+    assert len(recorded_decisions(bag)) == 29
     # the messages read are exactly the complete file's first ones
     whole = read_topics(SESSION, ("/sound_step", "/belief"))
     cut = read_topics(bag, ("/sound_step", "/belief"))

@@ -80,8 +80,8 @@ def test_episode_value_matches_monte_carlo() -> None:
     totals = np.empty(episodes)
     for episode in range(episodes):
         partner = rng.random() < params.pi
-        k1, k3 = rng.beta(1, 1), rng.beta(1, 1)
-        k2 = rng.beta(1, 1) if partner else k3
+        k1, k3 = rng.beta(params.b11, params.b12), rng.beta(params.b31, params.b32)
+        k2 = rng.beta(params.b21, params.b22) if partner else k3
         rates = {1: k1, 2: k2, 3: k3}
         statistic = Statistic(int(rng.integers(1, params.timer_long_ago + 1)))
         statistic = statistic.observe(params, rng.random() < rates[period_of(params, statistic.z)])

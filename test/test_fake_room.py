@@ -141,13 +141,22 @@ def test_unknown_preset() -> None:
 
 
 def test_closed_loop_finds_the_partner_and_not_the_noise() -> None:
+    """The robot's defaults: its table and mic_node's default bit source (background).
+
+    (The robot's prior on K3, mean 0.05, is that source's; a fixed -40 dB threshold holds
+    the noisy room's K3 at 0.5, far from it, and the belief passes 0.3 early there.)
+    """
+    from infomax_contingency.audio.bitsources import DEFAULT_BIT_SOURCE, make_bit_source
+
     table = PolicyTable.load(
         resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=ROBOT
     )
     results = {}
     for room in ("responsive", "noisy"):
+        bits = make_bit_source(DEFAULT_BIT_SOURCE, 16000, 0.5)
+        bits.follow_model(ROBOT)
         records = simulate_audio_loop(
-            PolicyController(table), FakeRoom(FakeRoomConfig.preset(room), 1), fixed_at_40_db(), 200
+            PolicyController(table), FakeRoom(FakeRoomConfig.preset(room), 1), bits, 200
         )
         results[room] = np.array([r.belief for r in records])
         assert [r.t for r in records] == list(range(1, 201))

@@ -63,7 +63,7 @@ HOLD = {"fault_hold_s": 1.0, "diagnostics_period_s": 0.25}
 """Diagnostics every 0.25 s, and a fault shows in them for 1 s after it last happened (1 s
 and 10 s by default): the test waits for them on the wall clock."""
 
-MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
+MIC = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, "start_delay_s": 0.2, **HOLD}  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1, "start_delay_s": 0.2,
         "lockstep_timeout_s": 2.0, "lockstep_max_speed": 50.0, **HOLD}  # fmt: skip

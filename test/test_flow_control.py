@@ -45,7 +45,7 @@ NO_TIMEOUTS = {"source_timeout_s": 600.0}
 node however long it is starved: a stall of the test process (a loaded machine) must not
 look like a fault."""
 
-MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
+MIC = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3,  # controller, belief, recorder
        "listener_timeout_s": 600.0}  # fmt: skip
 BELIEF = {"memory_steps": MEMORY, "wait_for_listeners": 1, **NO_TIMEOUTS}  # the recorder

@@ -27,7 +27,8 @@ STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief"
 
 def _graph(controller: dict, bag: Path = SESSION, **mic_parameters: object) -> dict:
     mic = {"source": "bag", "bag_dir": str(bag), "lockstep": True, "exit_at_end": True,
-           "threshold_mode": "fixed", "wait_for_listeners": 3, **mic_parameters}
+           "bit_source": "energy", "threshold_mode": "fixed", "wait_for_listeners": 3,
+           **mic_parameters}
     return {"controller_node": controller, "belief_node": {"memory_steps": 60}, "mic_node": mic}
 
 
@@ -73,7 +74,8 @@ def test_a_recorded_room_session_holds_every_step_of_every_topic(tmp_path: Path)
     nodes = {
         "controller_node": {}, "belief_node": {"memory_steps": 60},
         "recorder_node": {"directory": str(bag)},
-        "mic_node": {"source": "topic", "threshold_mode": "fixed", "wait_for_listeners": 3},
+        "mic_node": {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed",
+                     "wait_for_listeners": 3},
         "fake_audio_node": {"seed": 3, "max_windows": steps, "wait_for_truth_listeners": 2,
                             "wait_for_listeners": 2},  # audio: the mic and the recorder
     }

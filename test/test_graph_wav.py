@@ -40,6 +40,7 @@ def test_recorded_interaction_replays_like_the_offline_computation() -> None:
         "lockstep": True,
         "exit_at_end": True,
         "window_s": WINDOW_S,
+        "bit_source": "energy",
         "threshold_mode": "calibrate",
         "calibration_s": CALIBRATION_S,
         "wait_for_listeners": 3,
@@ -104,3 +105,41 @@ def test_recorded_interaction_replays_like_the_offline_bit_source(
         assert mic_node.finished.result() == 0
         graph.executor.run_for_callbacks(20)
         assert graph.recorder.sound == expected
+
+
+def test_self_calibrating_threshold_in_the_graph_equals_the_offline_loop(tmp_path: Path) -> None:
+    """threshold_mode background: the decisions label the windows; graph == offline loop."""
+    from infomax_contingency.audio.wav import write_wav_int16
+    from infomax_contingency.core.controllers import PolicyController
+    from infomax_contingency.core.policy_table import PolicyTable
+    from infomax_contingency.eval.rooms import render_room
+    from infomax_contingency.eval.sessions import wav_background_loop
+    from infomax_contingency.resources import resource_path
+
+    # an office without the robot's sound: distant talkers, knocks and a door
+    samples, _, rate = render_room("office", 20.0, seed=5, controller="fixed:100000")
+    wav = tmp_path / "office.wav"
+    write_wav_int16(wav, samples, rate)
+    params = ModelParams.named("robot")
+    table = PolicyTable.load(
+        resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=params
+    )
+    offline = list(wav_background_loop(wav, params, None, PolicyController(table)))
+    steps = len(offline)
+    assert 20 <= steps < 40, "the first windows only hear the room"
+    assert any(r.u for r in offline) and 0 < sum(r.y for r in offline) < steps
+
+    mic = {"source": "wav", "wav_file": str(wav), "lockstep": True, "exit_at_end": True,
+           "window_s": WINDOW_S, "bit_source": "background", "wait_for_listeners": 3}
+    nodes = {"controller_node": {"wait_for_listeners": 3}, "belief_node": {"memory_steps": 0},
+             "mic_node": mic}  # fmt: skip
+    with stepped_graph(nodes, "mic_node") as graph:
+        graph.run_steps(steps)
+        mic_node = graph.nodes["mic_node"]
+        graph.run_until(mic_node.finished.done, "mic_node to finish at the end of the file")
+        graph.executor.run_for_callbacks(20)
+        rec = graph.recorder
+        assert rec.sound == [bool(r.y) for r in offline]
+        assert rec.vocalize == [bool(r.u) for r in offline]
+        assert rec.belief == [r.belief for r in offline]
+        assert mic_node.bits.rule.labelled["self"] > 0, "the decisions reached the mic"

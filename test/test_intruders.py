@@ -64,7 +64,7 @@ allows both), and the rogue, which waits for its messages to be taken as foreign
 that pace. Replacing a silent source is test_faults.py's (killed nodes) and
 test_stepclock.py's."""
 
-MIC = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
+MIC = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed", "threshold_db": -40.0,
        "wait_for_listeners": 3, **HOLD}  # controller, belief, recorder  # fmt: skip
 ROOM = {"room": "responsive", "seed": 3, "wait_for_truth_listeners": 1,
         "lockstep_max_speed": 50.0, "lockstep_timeout_s": 600.0, **NO_TIMEOUTS, **HOLD}  # fmt: skip

@@ -317,12 +317,12 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
     config = workspace / "install" / "infomax_contingency" / "share" / "infomax_contingency"
     config = config / "config" / "robot.yaml"
     override = tmp_path / "override.yaml"
-    override.write_text("/**/mic_node:\n  ros__parameters:\n    threshold_db: -35.0\n")
-    cases = (  # namespace, arguments after the installed robot.yaml, threshold_db then
-        ("/robot1", f"--params-file {override}", -35.0),
-        ("/robot2", "-p mic_node:threshold_db:=-35.0", -40.0),
-        ("/robot3", "-p threshold_db:=-35.0", -40.0),
-        ("/", "-p mic_node:threshold_db:=-35.0", -35.0),
+    override.write_text("/**/mic_node:\n  ros__parameters:\n    false_alarm: 0.1\n")
+    cases = (  # namespace, arguments after the installed robot.yaml, false_alarm then
+        ("/robot1", f"--params-file {override}", 0.1),
+        ("/robot2", "-p mic_node:false_alarm:=0.1", 0.05),
+        ("/robot3", "-p false_alarm:=0.1", 0.05),
+        ("/", "-p mic_node:false_alarm:=0.1", 0.1),
     )
     # The four nodes run at once, each in its own namespace; their parameters are read
     # through their parameter services (what `ros2 param get` asks).
@@ -347,12 +347,12 @@ def test_overrides_of_a_namespaced_node_in_the_documented_form(
             # A request sent just after the services were discovered can be lost for good:
             # the node may not have matched this client's reader yet (a volatile request,
             # seen once under load). A get changes nothing: ask again until answered.
-            answer = client.get_parameters(["threshold_db"])
+            answer = client.get_parameters(["false_alarm"])
             rclpy.spin_until_future_complete(asker, answer, timeout_sec=REQUEST_RETRY_S)
             while not answer.done():
                 assert process.poll() is None, log.read_text()
                 assert time.monotonic() < deadline, (namespace, arguments, log.read_text())
-                answer = client.get_parameters(["threshold_db"])
+                answer = client.get_parameters(["false_alarm"])
                 rclpy.spin_until_future_complete(asker, answer, timeout_sec=REQUEST_RETRY_S)
             value = answer.result().values[0].double_value
             assert value == expected, (namespace, arguments, value)

@@ -182,6 +182,7 @@ def probe() -> Iterator[Live]:
 def mic_parameters(threshold_db: float, **extra: Any) -> dict[str, Any]:
     return {
         "window_s": WINDOW_S,
+        "bit_source": "energy",
         "threshold_mode": "fixed",
         "threshold_db": threshold_db,
         "wait_for_listeners": 1,

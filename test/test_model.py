@@ -272,7 +272,10 @@ def test_parameter_sets_and_yaml(tmp_path) -> None:
     robot = ModelParams.load("robot")
     assert (robot.dt, robot.ts1, robot.ts2, robot.ta1, robot.ta2) == (0.5, 0, 1, 2, 4)
     path = tmp_path / "params.yaml"
-    path.write_text("model:\n  dt: 0.5\n  ts1: 0\n  ts2: 1\n  ta1: 2\n  ta2: 4\n  pi: 0.01\n")
+    path.write_text(
+        "model:\n  dt: 0.5\n  ts1: 0\n  ts2: 1\n  ta1: 2\n  ta2: 4\n  pi: 0.01\n"
+        "  b31: 0.5\n  b32: 9.5\n"
+    )
     assert ModelParams.load(path) == robot
     assert ModelParams.load(path).digest() == robot.digest()
     path.write_text("dt: 0.5\nts1: 0\nts2: 1\nta1: 2\nta2: 4\npi: 0.01\nb99: 1\n")

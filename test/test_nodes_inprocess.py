@@ -409,8 +409,8 @@ def _audio_message(chunk: np.ndarray) -> Float32MultiArray:
 
 
 def test_mic_topic_source_windows_any_chunking_and_calibrates(run: Callable) -> None:
-    node, probe, graph = run(MicNode, source="topic", calibration_s=2.0, wait_for_listeners=1,
-                             start_delay_s=0.0)  # fmt: skip
+    node, probe, graph = run(MicNode, source="topic", bit_source="energy", calibration_s=2.0,
+                             wait_for_listeners=1, start_delay_s=0.0)  # fmt: skip
     bits = probe.listen("sound", Bool)
     steps = probe.listen("sound_step", Int64MultiArray)
     energies = probe.listen("sound_energy", Float32)
@@ -440,7 +440,7 @@ def test_mic_says_once_when_the_audio_breaks_its_contract(
 
     Counted, worded once, a WARN diagnostic; the audio is still windowed (nothing lost).
     """
-    node, probe, graph = run(MicNode, source="topic", threshold_mode="fixed",
+    node, probe, graph = run(MicNode, source="topic", bit_source="energy", threshold_mode="fixed",
                              wait_for_listeners=1, start_delay_s=0.0)  # fmt: skip
     probe.listen("sound_step", Int64MultiArray)
     energies = probe.listen("sound_energy", Float32)
@@ -509,7 +509,7 @@ def test_mic_bit_sources_window_any_chunking_like_offline(
 
 
 def test_mic_holds_a_burst_until_the_controller_answers(run: Callable) -> None:
-    node, probe, graph = run(MicNode, source="topic", threshold_mode="fixed",
+    node, probe, graph = run(MicNode, source="topic", bit_source="energy", threshold_mode="fixed",
                              threshold_db=-40.0, wait_for_listeners=1, start_delay_s=0.0,
                              max_steps_ahead=4)  # fmt: skip
     steps = probe.listen("sound_step", Int64MultiArray)
@@ -531,7 +531,7 @@ def test_mic_holds_a_burst_until_the_controller_answers(run: Callable) -> None:
 
 
 def test_mic_accepts_an_integer_for_a_float_parameter(run: Callable) -> None:
-    node, _, _ = run(MicNode, source="topic", start_delay_s=1)
+    node, _, _ = run(MicNode, source="topic", bit_source="energy", start_delay_s=1)
     parameter = node.get_parameter("start_delay_s")
     assert parameter.type_ == Parameter.Type.DOUBLE and parameter.value == 1.0
 
@@ -666,8 +666,8 @@ def test_every_parameter_has_a_description_and_numbers_a_range(
 
 
 def test_mic_refuses_a_calibration_that_cannot_separate_sound_from_quiet(run: Callable) -> None:
-    node, probe, graph = run(MicNode, source="topic", calibration_s=2.0, wait_for_listeners=1,
-                             start_delay_s=0.0)  # fmt: skip
+    node, probe, graph = run(MicNode, source="topic", bit_source="energy", calibration_s=2.0,
+                             wait_for_listeners=1, start_delay_s=0.0)  # fmt: skip
     steps = probe.listen("sound_step", Int64MultiArray)
     energies = probe.listen("sound_energy", Float32)
     audio = probe.talk("audio", Float32MultiArray)

@@ -62,13 +62,14 @@ CASES = {
     ),
     "no_threshold_file": (
         "mic_node",
-        ["source:=topic", "threshold_mode:=file"],
+        ["source:=topic", "bit_source:=energy", "threshold_mode:=file"],
         "parameter 'threshold_file' is empty",
     ),
     "bit_source": (
         "mic_node",
         ["source:=topic", "bit_source:=silero"],
-        "parameter 'bit_source' = 'silero' is not allowed: one of energy, speech_band, vad",
+        "parameter 'bit_source' = 'silero' is not allowed: one of energy, speech_band, vad,"
+        " background",
     ),
     "vad_rate": (
         "mic_node",
@@ -98,12 +99,13 @@ CASES = {
     ),
     "noise_refresh": (
         "mic_node",
-        ["source:=topic", "threshold_mode:=noise_floor", "refresh_s:=10.0"],
+        ["source:=topic", "bit_source:=energy", "threshold_mode:=noise_floor", "refresh_s:=10.0"],
         "parameter 'refresh_s' = 10: refits a k-means threshold; threshold_mode noise_floor",
     ),
     "noise_percentile": (
         "mic_node",
-        ["source:=topic", "threshold_mode:=noise_floor", "noise_percentile:=80.0"],
+        ["source:=topic", "bit_source:=energy", "threshold_mode:=noise_floor",
+         "noise_percentile:=80.0"],
         "parameter 'noise_percentile' = 80.0 is not allowed: a number in [0, 50] %",
     ),
     "foreign_table": (

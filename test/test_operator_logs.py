@@ -63,8 +63,8 @@ def _threshold_lines(text: str) -> list[str]:
 def _mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
     """A mic_node on 'audio', started; ``play(levels_db)`` sends one window per level."""
     node, probe, executor = graph(
-        MicNode, source="topic", calibration_s=1.0, wait_for_listeners=1, start_delay_s=0.0,
-        **parameters,
+        MicNode, source="topic", bit_source="energy", calibration_s=1.0, wait_for_listeners=1,
+        start_delay_s=0.0, **parameters,
     )  # fmt: skip
     probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
     energies = probe.listen("sound_energy", Float32)

@@ -106,8 +106,11 @@ def test_parameters_that_cannot_change_are_read_only_with_a_reason(graph: Callab
 def test_an_out_of_range_set_gets_the_start_up_message(graph: Callable) -> None:
     """The node's own check runs before rclpy's range check: the reason is the node's."""
     with pytest.raises(ConfigError) as start_up:
-        MicNode(namespace="start_up", parameter_overrides=[Parameter("threshold_db", value=5.0)])
-    node, probe, executor = graph(MicNode, threshold_mode="fixed", threshold_db=-40.0)
+        MicNode(namespace="start_up", parameter_overrides=[
+            Parameter("bit_source", value="energy"), Parameter("threshold_db", value=5.0)])
+    node, probe, executor = graph(
+        MicNode, bit_source="energy", threshold_mode="fixed", threshold_db=-40.0
+    )
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=5.0)
     assert not result.successful and result.reason == str(start_up.value)
     assert result.reason == (
@@ -126,7 +129,9 @@ def test_an_out_of_range_set_gets_the_start_up_message(graph: Callable) -> None:
 
 
 def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
-    node, probe, executor = graph(MicNode, threshold_mode="fixed", threshold_db=-40.0)
+    node, probe, executor = graph(
+        MicNode, bit_source="energy", threshold_mode="fixed", threshold_db=-40.0
+    )
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
     assert result.successful, result.reason
     assert node.bits.threshold_db == -5.0
@@ -137,7 +142,7 @@ def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
 
 
 def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:
-    node, probe, executor = graph(MicNode, threshold_mode="calibrate")
+    node, probe, executor = graph(MicNode, bit_source="energy", threshold_mode="calibrate")
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
     assert not result.successful and "threshold_mode fixed" in result.reason
     assert node.bits.calibrating
@@ -168,10 +173,11 @@ def test_a_threshold_file_outside_the_parameters_range_is_refused_like_the_param
     loud = _threshold_file(tmp_path / "loud.yaml", 86.28)
     with pytest.raises(ValueError, match="threshold_db 86.28 dB is not allowed: -150 .. 0 dB"):
         MicNode(namespace="start_up",
-                parameter_overrides=[Parameter("threshold_mode", value="file"),
+                parameter_overrides=[Parameter("bit_source", value="energy"),
+                                     Parameter("threshold_mode", value="file"),
                                      Parameter("threshold_file", value=str(loud))])
     # the file's threshold is read by the one load_threshold, which ~/recalibrate calls too
-    node, _, _ = graph(MicNode, threshold_mode="file",
+    node, _, _ = graph(MicNode, bit_source="energy", threshold_mode="file",
                        threshold_file=str(_threshold_file(tmp_path / "ok.yaml", -30)))
     assert node.describe_parameter("threshold_db").floating_point_range[0].to_value == 0.0
 
@@ -182,8 +188,9 @@ def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedEx
     ``play(levels_db, bits_expected)`` sends one 0.5 s noise window per level and returns
     the bits that came back.
     """
-    defaults = {"source": "topic", "threshold_mode": "fixed", "threshold_db": -40.0,
-                "calibration_s": 1.0, "wait_for_listeners": 1, "start_delay_s": 0.0}  # fmt: skip
+    defaults = {"source": "topic", "bit_source": "energy", "threshold_mode": "fixed",
+                "threshold_db": -40.0, "calibration_s": 1.0, "wait_for_listeners": 1,
+                "start_delay_s": 0.0}  # fmt: skip
     node, probe, executor = graph(MicNode, **{**defaults, **parameters})
     bits = probe.listen("sound", Bool)
     probe.listen("sound_step", Int64MultiArray)  # the listener mic_node waits for
@@ -484,7 +491,8 @@ def test_mic_calibrate_live_on_a_wav_file_reads_its_start_again(graph: Callable)
     """A wav source is calibrated again on its first seconds: no window goes without a bit."""
     wav = ROOT / "test" / "data" / "interaction.wav"
     node, probe, executor = graph(
-        MicNode, source="wav", wav_file=str(wav), threshold_mode="calibrate", calibration_s=4.0,
+        MicNode, source="wav", wav_file=str(wav), bit_source="energy", threshold_mode="calibrate",
+        calibration_s=4.0,
     )  # fmt: skip
     answer = recalibrate(probe, executor)
     assert answer.success, answer.message

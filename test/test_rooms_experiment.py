@@ -91,7 +91,7 @@ def test_calibrating_binarizer_takes_room_time_without_steps() -> None:
         ({"binarizer": "loud"}, "binarizer 'loud': unknown binarizer; binarizers: calibrate"),
         ({"binarizer": "fixed"}, "fixed:DB"),
         ({"binarizer": "fixed:loud"}, "bad number"),
-        ({"backgrounds": ("kitchen",)}, "unknown room 'kitchen'"),
+        ({"backgrounds": ("garage",)}, "unknown room 'garage'"),
         ({"controllers": ("greedy",)}, "controllers"),
         ({"partner_states": ("gone",)}, "partner_states"),
         ({"partner_states": ()}, "partner_states"),

@@ -76,7 +76,8 @@ def test_a_wav_with_an_actions_csv_puts_each_sound_on_the_step_before_its_window
     tmp_path: Path, capsys
 ) -> None:
     actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
-    assert main(["replay", str(WAV), "--actions", str(actions), "--json"]) == 0
+    # (--calibrate: a bit for every window, from the first; the default first hears the room)
+    assert main(["replay", str(WAV), "--actions", str(actions), "--json", "--calibrate"]) == 0
     rows = _rows(capsys)
     assert len(rows) == 36 and JSON_KEYS == set(rows[0])
     # A sound commanded at t lies in window floor(t / 0.5) (from 0): the decision on the
@@ -90,9 +91,10 @@ def test_a_reference_channel_gives_the_decisions_of_the_csv(stereo_wav: Path, tm
                                                             capsys) -> None:
     actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
     assert main(["replay", str(stereo_wav), "--actions", str(actions), "--mic-channel", "0",
-                 "--json"]) == 0
+                 "--json", "--calibrate"]) == 0
     from_csv = _rows(capsys)
-    assert main(["replay", str(stereo_wav), "--actions", "channel:1", "--json"]) == 0
+    assert main(["replay", str(stereo_wav), "--actions", "channel:1", "--json",
+                 "--calibrate"]) == 0
     from_channel = _rows(capsys)
     assert [row["t"] for row in from_channel if row["u"]] == [2, 10, 19, 28]
     assert from_channel == from_csv
@@ -156,3 +158,29 @@ def test_bad_channels_and_combinations_are_one_line_and_status_2(stereo_wav: Pat
         error = capsys.readouterr().err
         assert message in error, (arguments, error)
         assert len(error.strip().splitlines()) == 1, error
+
+
+def test_a_noisy_recording_replays_with_the_defaults_where_kmeans_refuses(
+    tmp_path: Path, capsys
+) -> None:
+    """A noisy hall: the default self-calibrating threshold finds the partner.
+
+    A poster session (12 distant talkers at -30 dB), a partner who answers 90 % of the
+    robot's sounds: k-means cannot separate sound from quiet (7 dB); the default threshold
+    finds the partner with the recording's own actions.
+    """
+    from infomax_contingency.eval.rooms import render_room
+    from infomax_contingency.sim.actions import write_actions_csv
+
+    samples, times, rate = render_room("poster-session+partner", 45.0, seed=7,
+                                       controller="fixed:8")  # fmt: skip
+    wav, actions = tmp_path / "hall.wav", tmp_path / "hall.csv"
+    write_wav_int16(wav, samples, rate)
+    write_actions_csv(actions, times)
+    assert main(["replay", str(wav), "--actions", str(actions)]) == 0
+    out = capsys.readouterr().out
+    belief = float(out.split("final P(S=1) = ")[1].split()[0])
+    assert belief > 0.99, out
+    assert "the first 12 windows heard the room" in out  # 8 of warm-up, 4 of delay
+    assert main(["replay", str(wav), "--actions", str(actions), "--calibrate"]) == 2
+    assert "clusters lie only 6.9 dB apart" in capsys.readouterr().err

@@ -132,7 +132,7 @@ def test_rooms() -> None:
     assert 0.4 < np.mean([room.partner_present for room in drawn]) < 0.6
     assert all(room.rates[2] == room.rates[5] for room in drawn if not room.partner_present)
     for spec, message in [
-        ("kitchen", "unknown room"),
+        ("garage", "unknown room"),
         ("responsive:k2=1.5", "k2 must be a probability"),
         ("responsive:k9=0.1", "unknown option"),
         ("baby9:reply=7", "agent period"),
@@ -261,7 +261,7 @@ def test_cli_solve_and_info(tmp_path, capsys) -> None:
             "needs --memory",
         ),
         (["simulate", "--params", "nope"], "unknown parameter set"),
-        (["simulate", "--world", "kitchen"], "unknown room"),
+        (["simulate", "--world", "garage"], "unknown room"),
         (["info", "missing.npz"], "does not exist"),
         (["simulate", "--steps", "0"], "steps must be >= 1"),
     ],

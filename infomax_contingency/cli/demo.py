@@ -7,8 +7,12 @@ process: one line per step (room time, bit, vocalization, belief, posture, groun
 and a verdict. By default a partner answers for the first 60 s and then leaves; the
 graph runs in lockstep, so 120 s of room time take a few seconds.
 
-``--wav FILE`` replays a recording through mic_node instead of the simulated room (the
-threshold is the k-means calibration on the first ``--calibration-s`` seconds).
+``--wav FILE`` replays a recording through mic_node instead of the simulated room, with
+mic_node's default bit source (``background``: the threshold the model calibrates itself
+on the recording's background windows); with ``--bit-source energy`` or ``speech_band``
+the threshold is the k-means calibration of the first ``--calibration-s`` seconds. The
+simulated room runs in lockstep with config/fake_room.yaml's fixed threshold (a source
+that first hears the room would wait for decisions that come only after its bits).
 
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
 arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
@@ -96,14 +100,15 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         "--calibration-s",
         type=finite_number,
         default=10.0,
-        help="seconds of the wav file to calibrate the threshold on (default 10)",
+        help="--wav with --bit-source energy or speech_band: seconds of the wav file to"
+        " calibrate the threshold on (default 10)",
     )
     parser.add_argument(
         "--bit-source",
         choices=tuple(BIT_SOURCES),
-        default="energy",
-        help="how mic_node turns a window into a bit (default energy; see README"
-        " 'Choosing a bit source')",
+        default=None,
+        help="how mic_node turns a window into a bit (default: a wav file mic_node's default,"
+        " background; the simulated room config/fake_room.yaml's, energy at -40 dB)",
     )
     parser.add_argument(
         "--record",
@@ -171,9 +176,16 @@ def describe_dds_profile(profile: str) -> str:
 
 
 def _choose_bit_source(mic: dict[str, Any], args: argparse.Namespace) -> None:
-    """Set mic_node's ``bit_source`` when ``--bit-source`` is not the default."""
-    if args.bit_source != "energy":
-        mic["bit_source"] = args.bit_source
+    """Set mic_node's ``bit_source`` when ``--bit-source`` is given.
+
+    A threshold source on a wav file is calibrated on its first ``--calibration-s`` seconds.
+    """
+    if args.bit_source is None:
+        return
+    mic["bit_source"] = args.bit_source
+    if args.wav and args.bit_source in ("energy", "speech_band"):
+        mic["threshold_mode"] = "calibrate"
+        mic["calibration_s"] = args.calibration_s
 
 
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
@@ -201,8 +213,6 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
             "wav_file": str(Path(args.wav).resolve()),
             "lockstep": True,
             "exit_at_end": True,
-            "threshold_mode": "calibrate",
-            "calibration_s": args.calibration_s,
             "wait_for_listeners": listeners,
             "lockstep_timeout_s": LOCKSTEP_TIMEOUT_S,
         }

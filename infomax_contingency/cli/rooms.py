@@ -73,8 +73,8 @@ def print_rooms(result: dict) -> None:
         print(f"\n{label}")
         print(
             f"  {'room':<24} {'settled':>8} {'seconds to settle':>22} {'vocalizations':>18}"
-            f" {'wrong at end':>13} {'voc/run':>7}  {'P(agent)':>12} {'P(background)':>13}"
-            f" {'P(self)':>12}"
+            f" {'wrong at end':>13} {'ever att.':>9} {'voc/run':>7}  {'P(agent)':>12}"
+            f" {'P(background)':>13} {'P(self)':>12}"
         )
         for room, s in result["summaries"][label].items():
             rates = s["p_active"]
@@ -85,7 +85,9 @@ def print_rooms(result: dict) -> None:
                 f"  {room:<24} {_percent(s['settled']):>8}"
                 f" {_median_ci(s['settled_s_median'], s['settled_s_ci'], ' s'):>22}"
                 f" {vocalizations:>18}"
-                f" {_percent(s['wrong_at_end']):>13} {s['vocalizations_per_run']:>7.1f}"
+                f" {_percent(s['wrong_at_end']):>13}"
+                f" {_percent(s.get('ever_attentive', math.nan)):>9}"
+                f" {s['vocalizations_per_run']:>7.1f}"
                 f"  {_rate(rates['agent']):>12} {_rate(rates['background']):>13}"
                 f" {_rate(rates['self']):>12}"
             )

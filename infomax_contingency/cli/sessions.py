@@ -26,7 +26,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from infomax_contingency.audio.energy import wav_window_count
 from infomax_contingency.audio.wav import open_wav_info
+from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import ReplayedDecisions, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
@@ -37,6 +39,8 @@ from infomax_contingency.eval.sessions import (
     recorded_bits,
     replay_bits,
     replay_recorded,
+    wav_background_bits,
+    wav_background_loop,
     wav_bits,
 )
 from infomax_contingency.sim.actions import read_actions_csv
@@ -77,10 +81,17 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
                         help="wav: the microphone's channel (default: the mix of all; with"
                         " channel:N the lowest channel other than N)")
     parser.add_argument("--threshold-db", type=float, default=None,
-                        help="wav: the sound threshold, dB (default: calibrate)")
+                        help="wav: a fixed sound threshold, dB (default: the self-calibrating"
+                        " threshold of mic_node, threshold_mode background)")
+    parser.add_argument("--calibrate", action="store_true",
+                        help="wav: the k-means threshold of the first --calibration-s seconds"
+                        " instead")
     parser.add_argument("--calibration-s", type=float, default=10.0,
                         help="wav: seconds at its start to calibrate the threshold on"
-                        " (default 10)")
+                        " (--calibrate; default 10)")
+    parser.add_argument("--false-alarm", type=float, default=0.05,
+                        help="wav: the share of background windows above the self-calibrating"
+                        " threshold (mic_node's false_alarm; default 0.05)")
     parser.add_argument("--json", action="store_true", help="one JSON object per step")
     parser.set_defaults(run=run_replay)
 
@@ -142,8 +153,10 @@ def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams) -> tu
         if mic == reference:
             raise ValueError(f"--mic-channel {mic} is the reference channel of --actions"
                              f" {args.actions}")
-    bits, threshold = wav_bits(path, params.dt, mic, args.threshold_db, args.calibration_s)
     memory = args.memory or 0
+    if args.threshold_db is None and not args.calibrate:
+        return _wav_background_records(args, kind, params, path, mic, reference, memory)
+    bits, threshold = wav_bits(path, params.dt, mic, args.threshold_db, args.calibration_s)
     if kind == "controller":
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
                                      memory=memory)
@@ -159,6 +172,34 @@ def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams) -> tu
             what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
         controller = ReplayedDecisions(params, decisions)
     return replay_bits(bits, controller, memory), f"{what}; sound threshold {threshold:.1f} dB"
+
+
+def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelParams,
+                            path: Path, mic: int | None, reference: int | None, memory: int
+                            ) -> tuple[Iterator, str]:
+    """A wav file's steps with mic_node's default threshold (``background``)."""
+    options = {"false_alarm": args.false_alarm}
+    if kind == "controller":
+        WavReplay(path, params.dt, mic)  # the file and its channel first (one-line errors)
+        controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
+                                     memory=memory)
+        records = wav_background_loop(path, params, mic, controller, memory, **options)
+        return records, (f"controller {controller.name} deciding on the recorded bits (what-if);"
+                         " self-calibrating sound threshold")
+    windows = wav_window_count(open_wav_info(path), params.dt)
+    if kind == "csv":
+        decisions = decisions_from_times(read_actions_csv(Path(args.actions)), windows,
+                                         params.dt, f"actions file {args.actions}")
+        what = f"actions from {args.actions}"
+    else:
+        decisions, level = decisions_from_reference(path, reference, params.dt)
+        what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
+    bits, threshold = wav_background_bits(path, params, mic, decisions, **options)
+    steps = [k for k, bit in enumerate(bits) if bit is not None]
+    controller = ReplayedDecisions(params, [decisions[k] for k in steps])
+    records = replay_bits([bool(bits[k]) for k in steps], controller, memory)
+    skipped = len(bits) - len(steps)
+    return records, f"{what}; {threshold}; the first {skipped} windows heard the room (no step)"
 
 
 def run_replay(args: argparse.Namespace) -> int:

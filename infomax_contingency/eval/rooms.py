@@ -75,6 +75,7 @@ from infomax_contingency.sim.fake_room import (
 )
 from infomax_contingency.sim.loop import LoopStep, run_loop
 from infomax_contingency.sim.rooms import (
+    BACKGROUND_CHANGES_S,
     PARTNER_STATES,
     ROOM_CHANGE_S,
     ROOM_SOUNDS,
@@ -119,7 +120,11 @@ declarations (:data:`~infomax_contingency.audio.bitsources.BIT_SOURCES`: each so
   calibrate``, ``calibration_s``); ``fixed:DB``: a fixed threshold, dB (``threshold_db``);
   ``noise_floor[:MARGIN_DB[:WARMUP_S]]``: MARGIN_DB (default 10, ``noise_margin_db``)
   above the tracked floor, which starts on the first WARMUP_S seconds (default 10,
-  ``calibration_s``); ``file:PATH``: a threshold file of the source's level.
+  ``calibration_s``); ``file:PATH``: a threshold file of the source's level;
+  ``background[:FALSE_ALARM[:MARGIN_DB[:HISTORY_S]]]``: the self-calibrating threshold at
+  a share FALSE_ALARM (default 0.05, ``false_alarm``) of the model's background windows
+  of the last HISTORY_S seconds (default 30, ``background_window_s``), plus MARGIN_DB
+  (default 0, ``background_margin_db``).
 * ``vad[:AGGRESSIVENESS[:MIN_VOICED_S]]``: WebRTC's voice-activity detector,
   aggressiveness 0-3 (default 2) and the voiced time a window needs, s (default 0.1).
 
@@ -215,8 +220,17 @@ def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
     return name, options
 
 
-def make_binarizer(spec: str, window_s: float, rate_hz: int = PROCESSING_RATE_HZ) -> BitSource:
+def make_binarizer(
+    spec: str,
+    window_s: float,
+    rate_hz: int = PROCESSING_RATE_HZ,
+    params: ModelParams | None = None,
+) -> BitSource:
     """A fresh bit source from its name (:data:`BINARIZERS`) for windows of ``window_s`` s.
+
+    ``params``: the model whose periods label the windows of a source that
+    :attr:`~infomax_contingency.audio.bitsources.base.BitSource.needs_decisions`
+    (``background``; default: the robot's).
 
     One implementation: the name is parsed by :func:`binarizer_options` and the source
     made by :func:`~infomax_contingency.audio.bitsources.make_bit_source`, as mic_node makes
@@ -224,9 +238,12 @@ def make_binarizer(spec: str, window_s: float, rate_hz: int = PROCESSING_RATE_HZ
     """
     source, options = binarizer_options(spec)
     try:
-        return make_bit_source(source, rate_hz, window_s, **options)
+        bits = make_bit_source(source, rate_hz, window_s, **options)
     except AudioError as error:
         raise BinarizerNameError(spec, str(error)) from None
+    if params is not None and bits.needs_decisions:
+        bits.follow_model(params)
+    return bits
 
 
 LISTENING_BINARIZER = "fixed:-40"
@@ -443,7 +460,7 @@ def run_room(
     rng = np.random.default_rng([seed, 1, run])
     controller = experiment_controller(controller_spec, params, rng)
     world = TimedWorld(
-        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz)),
+        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz, params)),
         round(seconds / config.window_s),
     )
     steps: list[tuple[int, LoopStep[AudioObservation]]] = []
@@ -499,6 +516,11 @@ def settled_step(
     return start + int(sure[0]) if sure.size else None
 
 
+RECOVERY_S = 20.0
+"""In a room whose background changes (:data:`~infomax_contingency.sim.rooms.BACKGROUND_CHANGES_S`),
+the posture must be correct from this many seconds after the change to the end of the run."""
+
+
 def change_time_s(room: str) -> float:
     """When the run's clock starts: the partner's arrival or departure, else 0."""
     state = room[room.index("+") :] if "+" in room else ""
@@ -521,6 +543,11 @@ def run_metrics(
     settled = settled_step(attentive, run.partner, run.belief, bored_below, first)
     truth_at_end = FakeRoomConfig.preset(room).partner_present_at(seconds - dt)
     final_attentive = bool(attentive[-1]) if attentive.size else False
+    background_change = BACKGROUND_CHANGES_S.get(room.partition("+")[0])
+    correct_after_change = None
+    if background_change is not None:
+        late = run.window * dt >= background_change + RECOVERY_S - 1e-9
+        correct_after_change = bool(np.all(attentive[late] == run.partner[late]))
     periods = period_of(params, run.z) if run.z.size else np.zeros(0, dtype=int)
     agent = (periods == AGENT) & run.partner
     background = periods == BACKGROUND
@@ -533,6 +560,8 @@ def run_metrics(
         "partner_at_end": bool(truth_at_end),
         "false_attentive": bool(final_attentive and not truth_at_end),
         "missed_partner": bool(truth_at_end and not final_attentive),
+        "ever_attentive": bool(attentive.any()),
+        "correct_after_change": correct_after_change,
         "bits": {
             "agent": [int(run.y[agent].sum()), int(agent.sum())],
             "background": [int(run.y[background].sum()), int(background.sum())],
@@ -666,6 +695,10 @@ def summarise_room(rows: Sequence[dict], seed: int) -> dict[str, Any]:
         ]
     )
     settled = int(np.isfinite(seconds).sum())
+    ever = sum(r.get("ever_attentive", False) for r in rows)
+    after_change = [
+        r["correct_after_change"] for r in rows if r.get("correct_after_change") is not None
+    ]
     false_attentive = sum(r["false_attentive"] for r in rows)
     missed = sum(r["missed_partner"] for r in rows)
     median_s, ci_s = bootstrap_median(seconds, rng)
@@ -682,6 +715,12 @@ def summarise_room(rows: Sequence[dict], seed: int) -> dict[str, Any]:
         "wrong_at_end_ci": wilson_interval(false_attentive + missed, n),
         "false_attentive": false_attentive / n,
         "missed_partner": missed / n,
+        "ever_attentive": ever / n,
+        "ever_attentive_ci": wilson_interval(ever, n),
+        "correct_after_change": sum(after_change) / len(after_change) if after_change else None,
+        "correct_after_change_ci": wilson_interval(sum(after_change), len(after_change))
+        if after_change
+        else None,
         "vocalizations_per_run": float(np.mean([r["vocalizations"] for r in rows])),
         "steps_per_run": float(np.mean([r["steps"] for r in rows])),
         "p_active": {
@@ -833,7 +872,7 @@ def render_room(
     chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
     recording = _RecordingRoom(config, seed)
     windows = round(seconds / config.window_s)
-    bits = make_binarizer(binarizer, config.window_s, config.rate_hz)
+    bits = make_binarizer(binarizer, config.window_s, config.rate_hz, params)
     world = TimedWorld(AudioWorld(recording, bits), windows)
     actions = []
     try:

@@ -22,8 +22,9 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from infomax_contingency.audio.background import ordinal
 from infomax_contingency.audio.bitsources.rules import Binarizer
-from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.energy import wav_energies
 from infomax_contingency.audio.threshold import (
     bits_from_energies,
@@ -189,6 +190,97 @@ def wav_bits(path: Path, window_s: float, channel: int | None, threshold_db: flo
     while (energy := replay.next_energy()) is not None:
         bits.append(bool(binarizer.push(energy)))
     return bits, float(binarizer.threshold_db)
+
+
+def wav_background_bits(
+    path: Path,
+    params: ModelParams,
+    channel: int | None,
+    decisions: Sequence[bool],
+    **options: object,
+) -> tuple[list[bool | None], str]:
+    """The bits of a wav file's windows with the self-calibrating ``background`` threshold.
+
+    The recording's own decisions (``decisions[k]``: the robot's sound was commanded after
+    window ``k``, from an actions file or a reference channel) label its windows, so the
+    threshold of window ``k`` is that of the background windows before it, as mic_node's
+    would have been in the session. Windows of the warm-up give None (no step).
+    ``options``: settings of the ``background`` bit source (``false_alarm``, ...:
+    :mod:`~infomax_contingency.audio.bitsources.background`).
+
+    Returns:
+        the bits (None for a warm-up window) and one line saying what set the threshold.
+
+    Raises:
+        AudioError: unreadable file or missing channel.
+    """
+    from infomax_contingency.audio.bitsources import make_bit_source
+
+    replay = WavReplay(path, params.dt, channel, samples=True)
+    source = make_bit_source("background", PROCESSING_RATE_HZ, params.dt, **options)
+    source.follow_model(params)
+    rule = source.rule
+    bits: list[bool | None] = []
+    while (window := replay.next_window()) is not None:
+        decision = int(decisions[len(bits)]) if len(bits) < len(decisions) else 0
+        bits.append(source.push_recorded(window, decision))
+    what = (
+        f"sound threshold: the {ordinal(rule.rank)} loudest of the last {len(rule.background)}"
+        " background"
+        f" windows ({rule.threshold_db:.1f} dB at the end; false alarms"
+        f" {rule.false_alarm_now:.3f})"
+        if rule.threshold_db is not None
+        else "sound threshold: the recording is shorter than the warm-up, no bit"
+    )
+    for problem in rule.problems():
+        what += f"; {problem}"
+    return bits, what
+
+
+class _EndOfRecordingError(Exception):
+    """The wav file of :class:`_WavLevels` has no more windows."""
+
+
+class _WavLevels:
+    """A loop world: a wav file's windows through a ``background`` threshold, in the loop.
+
+    The decision on each bit labels the windows after it (as mic_node's ``source: wav``
+    in lockstep); a window of the warm-up yields no step.
+    """
+
+    def __init__(self, path: Path, params: ModelParams, channel: int | None, **options: object
+                 ) -> None:
+        from infomax_contingency.audio.bitsources import make_bit_source
+
+        self.replay = WavReplay(path, params.dt, channel, samples=True)
+        self.source = make_bit_source("background", PROCESSING_RATE_HZ, params.dt, **options)
+        self.source.follow_model(params)
+
+    def observe(self) -> BitObservation | None:
+        window = self.replay.next_window()
+        if window is None:
+            raise _EndOfRecordingError
+        bit = self.source.push_window(window)
+        return None if bit is None else BitObservation(int(bit))
+
+    def act(self, u: int) -> None:
+        self.source.note_decision(u)
+
+
+def wav_background_loop(path: Path, params: ModelParams, channel: int | None,
+                        controller: Controller, memory: int = 0, **options: object
+                        ) -> Iterator[StepRecord]:
+    """``controller`` deciding on a wav file's bits of the ``background`` threshold (what-if).
+
+    The controller's decisions label the windows, as they would live; the recording does
+    not answer them (see :func:`replay_bits`).
+    """
+    world = _WavLevels(path, params, channel, **options)
+    try:
+        for step in run_loop(world, controller, None, memory=memory):
+            yield step_record(controller.params, step)
+    except _EndOfRecordingError:
+        return
 
 
 def decisions_from_times(times: Sequence[float], windows: int, dt: float, what: str

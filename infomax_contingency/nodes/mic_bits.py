@@ -31,7 +31,8 @@ class ThresholdLog:
     mic_node calls it wherever the threshold can change: at start-up, after each window
     (the end of a calibration, an accepted refit, the noise floor), after a live set and a
     ~/recalibrate. A threshold that follows the noise floor window by window is logged
-    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value).
+    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value);
+    so is one that follows the room's background windows (bit source ``background``).
     """
 
     def __init__(self, logger: Any, bit_source: str) -> None:
@@ -59,7 +60,8 @@ class ThresholdLog:
         if threshold_db is None or threshold_db == last:
             return  # no threshold (vad, calibrating: its end is logged), or the same one
         origin = bits.threshold_origin()
-        if last is not None and origin.startswith("noise floor") and (
+        follows_the_room = origin.startswith(("noise floor", "room:"))
+        if last is not None and follows_the_room and (
             abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
         ):
             return

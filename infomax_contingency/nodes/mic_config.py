@@ -236,11 +236,14 @@ def check_bit_settings(config: MicConfig) -> None:
 def make_bits(config: MicConfig, on_problem: Any = None) -> BitSource:
     """The bit source the configuration asks for (a threshold file is read now)."""
     try:
-        return BIT_SOURCES[config.bit_source](
+        bits = BIT_SOURCES[config.bit_source](
             config.bit_settings, config.rate_hz, config.window_s, on_problem
         )
     except AudioError as error:
         raise ConfigError(str(error)) from None
+    if bits.needs_decisions:  # it labels windows by the model's timer
+        bits.follow_model(config.params)
+    return bits
 
 
 def open_window_source(config: MicConfig, samples: bool, log: LogFunction) -> WindowSource:

@@ -103,6 +103,7 @@ class MicNode(GraphNode):
         )
         self.stalled_listeners = self.recent_events()
         self.windows = 0
+        self._withheld_steps: set[int] = set()  # released withheld steps awaiting decisions
         self.last_energy_db = float("nan")
         self.started = self.ended = False
         self.losses = self.recent_events()
@@ -273,6 +274,11 @@ class MicNode(GraphNode):
         self.outbox.answered(decision.step)
         if self.outbox.last_answered == before:
             return  # a repeated answer (a second controller): it releases nothing
+        if self.bits.needs_decisions and not self.controls.recorded_bits:
+            for step in range(before + 1, decision.step + 1):  # a skipped step's was lost
+                u = int(decision.vocalize) if step == decision.step else None
+                self.bits.note_decision(u, step in self._withheld_steps)
+                self._withheld_steps.discard(step)
         if (
             self.started
             and self.pacer is not None
@@ -291,6 +297,9 @@ class MicNode(GraphNode):
         dropped = self.outbox.dropped
         for window in self.self_sound.release(replaying_in_lockstep=self.pacer is not None):
             self.outbox.push(window)
+        if self.bits.needs_decisions and not self.controls.recorded_bits:
+            for _ in range(self.outbox.dropped - dropped):
+                self.bits.note_decision(None)  # a dropped window never gets a decision
         if self.outbox.dropped > dropped:
             self.losses.note(self.now_s())
             self.log_throttled("windows dropped", "warning",
@@ -315,6 +324,8 @@ class MicNode(GraphNode):
         )
         for step, (energy_db, bit, withheld) in self.outbox.release(paced, now):
             self.windows += 1
+            if withheld and self.bits.needs_decisions:
+                self._withheld_steps.add(step)  # the robot's own sound: not the room's
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(

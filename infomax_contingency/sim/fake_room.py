@@ -18,6 +18,14 @@ would on a robot. The room holds (the sounds themselves are made in
 * a TV (``tv_on``): a speech-like programme in stretches of 1.5 .. 6 s with pauses of
   0.2 .. 1.2 s, low-passed at 4 kHz (a small loudspeaker), at a long-term level of
   ``tv_level_db``;
+* (the newer rooms) distant talkers and a TV that speak sentences rendered by espeak-ng
+  (``babble_voice`` / ``tv_voice`` ``tts``, :mod:`~infomax_contingency.sim.tts`), talkers
+  who join one every ``babble_join_s`` seconds (a crowd that grows), a TV switched on at
+  ``tv_start_s``; music (``music_on``, bars of chords, bass and hi-hat at
+  ``music_level_db``), a mains hum (``hum_on``, 50 Hz and harmonics at ``hum_level_db``),
+  traffic passing (``traffic_rate_hz`` swells of 3-8 s at ``traffic_level_db``) and
+  typing (``typing_rate_hz`` bursts of 2-8 s of key clicks at ``typing_level_db``); a
+  partner who speaks espeak-ng sentences (``reply_voice`` ``tts``);
 * the robot hearing itself: after each vocalization, its 200 ms chirp
   (:func:`~infomax_contingency.audio.synth.synthesize_chirp`) starts ``self_delay_s`` after the
   start of the next window, at ``self_level_db``; with ``reverb_rt60_s > 0`` followed by
@@ -79,7 +87,7 @@ from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
 
-REPLY_VOICES = ("noise", "speech")
+REPLY_VOICES = ("noise", "speech", "tts")
 """How a partner's reply sounds (see the module docstring)."""
 
 BABBLE_UTTERANCE_S = (1.0, 4.0)
@@ -97,9 +105,16 @@ FOOTSTEPS_PER_WALK = (4, 10)
 FOOTSTEP_INTERVAL_S = (0.45, 0.6)
 """Shortest and longest time between two footsteps, seconds (uniform per walk)."""
 
-CONTINUOUS_SOURCES = ("floor", "babble", "tv")
+SPEECH_VOICES = ("synthetic", "tts")
+"""How distant talkers and the TV speak: ``synthetic`` (the speech-like bank of
+:func:`~infomax_contingency.sim.room_sounds.speech_bank`) or ``tts`` (sentences spoken by
+espeak-ng, :func:`~infomax_contingency.sim.room_sounds.tts_voices`)."""
+
+CONTINUOUS_SOURCES = ("floor", "babble", "tv", "music", "hum")
 """Sources whose level is their long-term RMS (pauses included)."""
-TRANSIENT_SOURCES = ("event", "door", "footstep", "self", "echo", "reply", "robot_speech")
+TRANSIENT_SOURCES = (
+    "event", "door", "footstep", "self", "echo", "reply", "robot_speech", "traffic", "typing"
+)
 """Sources whose level is the RMS over each sound's duration."""
 
 
@@ -142,6 +157,18 @@ class FakeRoomConfig:
     tv_level_db: float = -35.0
     reverb_rt60_s: float = 0.0
     reverb_level_db: float = -35.0
+    babble_voice: str = "synthetic"
+    babble_join_s: float = 0.0
+    tv_voice: str = "synthetic"
+    tv_start_s: float = 0.0
+    music_on: bool = False
+    music_level_db: float = -35.0
+    hum_on: bool = False
+    hum_level_db: float = -45.0
+    traffic_rate_hz: float = 0.0
+    traffic_level_db: float = -35.0
+    typing_rate_hz: float = 0.0
+    typing_level_db: float = -40.0
     robot_speech_probability: float = 0.0
     robot_speech_rate_hz: float = 0.0
     robot_speech_delay_s: float = 1.0
@@ -161,8 +188,12 @@ class FakeRoomConfig:
             or not 0 <= self.babble_talkers <= 100
         ):
             fail("babble_talkers", "a whole number of talkers in 0 .. 100")
-        if not isinstance(self.tv_on, bool):
-            fail("tv_on", "true or false")
+        for name in ("tv_on", "music_on", "hum_on"):
+            if not isinstance(getattr(self, name), bool):
+                fail(name, "true or false")
+        for name in ("babble_voice", "tv_voice"):
+            if getattr(self, name) not in SPEECH_VOICES:
+                fail(name, f"one of {', '.join(SPEECH_VOICES)}")
         if self.floor_spectrum not in FLOOR_SPECTRA:
             fail("floor_spectrum", f"one of {', '.join(FLOOR_SPECTRA)}")
         if self.reply_voice not in REPLY_VOICES:
@@ -179,33 +210,14 @@ class FakeRoomConfig:
                      "robot_speech_min_s"):
             if getattr(self, name) <= 0:
                 fail(name, "> 0")
-        for name in (
-            "event_rate_hz",
-            "self_delay_s",
-            "reply_delay_min_s",
-            "door_rate_hz",
-            "footsteps_rate_hz",
-            "robot_speech_delay_s",
-            "robot_speech_rate_hz",
-        ):
+        for name in _NON_NEGATIVE_FIELDS:
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
         if not 0.0 <= self.reverb_rt60_s <= 5.0:
             fail("reverb_rt60_s", "a reverberation time in 0 .. 5 s (0: no echo)")
         if not 0.0 < self.babble_cutoff_hz:
             fail("babble_cutoff_hz", "> 0 Hz")
-        for name in (
-            "noise_floor_db",
-            "event_level_db",
-            "self_level_db",
-            "reply_level_db",
-            "door_level_db",
-            "footsteps_level_db",
-            "babble_level_db",
-            "tv_level_db",
-            "reverb_level_db",
-            "robot_speech_level_db",
-        ):
+        for name in _LEVEL_FIELDS:
             if not -150.0 <= getattr(self, name) <= 0.0:
                 fail(name, "a level between -150 and 0 dB (full scale)")
         for name in ("reply_probability", "robot_speech_probability"):
@@ -236,8 +248,44 @@ class FakeRoomConfig:
         return self.partner_leave_s < 0 or time_s < self.partner_leave_s
 
 
+_NON_NEGATIVE_FIELDS = (
+    "event_rate_hz",
+    "self_delay_s",
+    "reply_delay_min_s",
+    "door_rate_hz",
+    "footsteps_rate_hz",
+    "babble_join_s",
+    "tv_start_s",
+    "traffic_rate_hz",
+    "typing_rate_hz",
+    "robot_speech_delay_s",
+    "robot_speech_rate_hz",
+)
+"""Fields of :class:`FakeRoomConfig` that must be >= 0."""
+
+_LEVEL_FIELDS = (
+    "noise_floor_db",
+    "event_level_db",
+    "self_level_db",
+    "reply_level_db",
+    "door_level_db",
+    "footsteps_level_db",
+    "babble_level_db",
+    "tv_level_db",
+    "reverb_level_db",
+    "music_level_db",
+    "hum_level_db",
+    "traffic_level_db",
+    "typing_level_db",
+    "robot_speech_level_db",
+)
+"""Fields of :class:`FakeRoomConfig` that are levels, dB FS (-150 .. 0)."""
+
 _NON_NUMBER_FIELDS = frozenset(
-    {"rate_hz", "babble_talkers", "tv_on", "floor_spectrum", "reply_voice"}
+    {
+        "rate_hz", "babble_talkers", "tv_on", "floor_spectrum", "reply_voice", "babble_voice",
+        "tv_voice", "music_on", "hum_on",
+    }
 )
 """Fields checked on their own in :meth:`FakeRoomConfig.__post_init__` (not plain numbers)."""
 
@@ -381,8 +429,10 @@ class FakeRoom:
         self.config = config
         self.rate = config.rate_hz
         self.window = window_samples(config.rate_hz, config.window_s)
-        streams = np.random.SeedSequence(seed).spawn(10)  # the first three: as ever
-        noise, events, replies, doors, steps, babble, tv, reverb, speech, chatter = (
+        # the first eight as ever, then the newer rooms' sources, then the robot's speech
+        streams = np.random.SeedSequence(seed).spawn(13)
+        (noise, events, replies, doors, steps, babble, tv, reverb, music, traffic, typing,
+         speech, chatter) = (
             np.random.default_rng(stream) for stream in streams
         )
         self._speech_rng = speech
@@ -405,9 +455,15 @@ class FakeRoom:
             else None
         )
         self._partner_f0 = replies.uniform(100.0, 250.0) if config.reply_voice == "speech" else None
+        self._partner_tts = (
+            room_sounds.tts_voices(self.rate, self.rate)[int(replies.integers(6))]
+            if config.reply_voice == "tts"
+            else None
+        )
         self._floor = NoiseFloor(config.floor_spectrum, config.noise_floor_db, noise)
         self._sounds: list[_Sound] = []
         self._streams = self._background_streams(events, doors, steps, babble, tv)
+        self._streams += _newer_streams(self, music, traffic, typing)
         self.windows_made = 0
         self.vocalizations = 0
         self.replies = 0
@@ -491,9 +547,9 @@ class FakeRoom:
             mean_on = 0.5 * sum(BABBLE_UTTERANCE_S)
             duty = mean_on / (mean_on + BABBLE_PAUSE_MEAN_S)
             level = config.babble_level_db - 10.0 * math.log10(config.babble_talkers * duty)
-            for _ in range(config.babble_talkers):
+            for k in range(config.babble_talkers):
                 talker = np.random.default_rng(babble.integers(2**63))
-                streams.append(self._talker(talker, level))
+                streams.append(self._talker(talker, level, k * config.babble_join_s))
         if config.tv_on:
             mean_on, mean_off = 0.5 * sum(TV_STRETCH_S), 0.5 * sum(TV_PAUSE_S)
             duty = mean_on / (mean_on + mean_off)
@@ -507,10 +563,14 @@ class FakeRoom:
         n = max(1, round(seconds * self.rate))
         return rms_scaled(room_sounds.speech_excerpt(voice, n, self.rate, rng), level)
 
-    def _talker(self, rng: np.random.Generator, level: float) -> _SoundStream:
-        """A distant talker: utterances of :data:`BABBLE_UTTERANCE_S` with exponential pauses."""
-        bank = room_sounds.speech_bank(
-            self.rate, self.config.syllable_rate_hz, self.config.babble_cutoff_hz
+    def _talker(self, rng: np.random.Generator, level: float, join_s: float = 0.0) -> _SoundStream:
+        """A distant talker: utterances of :data:`BABBLE_UTTERANCE_S` with exponential pauses.
+
+        ``join_s > 0``: the talker starts talking at that room time (a crowd that grows).
+        """
+        bank = room_sounds.voice_bank(
+            self.config.babble_voice, self.rate, self.config.syllable_rate_hz,
+            self.config.babble_cutoff_hz,
         )
         voice = bank[int(rng.integers(len(bank)))]
         low, high = BABBLE_UTTERANCE_S
@@ -522,12 +582,17 @@ class FakeRoom:
         def gap(parts: list[tuple[int, np.ndarray]]) -> float:
             return parts[0][1].size + rng.exponential(BABBLE_PAUSE_MEAN_S * self.rate)
 
+        if join_s > 0:
+            return _SoundStream("babble", lambda: join_s * self.rate, utterance, gap)
         return _SoundStream("babble", lambda: -rng.uniform(0.0, cycle), utterance, gap)
 
     def _tv(self, rng: np.random.Generator, level: float) -> _SoundStream:
         """The TV programme: stretches of :data:`TV_STRETCH_S`, pauses of :data:`TV_PAUSE_S`."""
-        bank = room_sounds.speech_bank(self.rate, self.config.syllable_rate_hz, TV_CUTOFF_HZ)
+        bank = room_sounds.voice_bank(
+            self.config.tv_voice, self.rate, self.config.syllable_rate_hz, TV_CUTOFF_HZ
+        )
         voice = bank[int(rng.integers(len(bank)))]
+        start_s = self.config.tv_start_s
 
         def stretch() -> list[tuple[int, np.ndarray]]:
             return [(0, self._excerpt(rng, voice, rng.uniform(*TV_STRETCH_S), level))]
@@ -535,6 +600,8 @@ class FakeRoom:
         def gap(parts: list[tuple[int, np.ndarray]]) -> float:
             return parts[0][1].size + rng.uniform(*TV_PAUSE_S) * self.rate
 
+        if start_s > 0:  # switched on then
+            return _SoundStream("tv", lambda: start_s * self.rate, stretch, gap)
         return _SoundStream(
             "tv", lambda: -rng.uniform(0.0, TV_STRETCH_S[1] * self.rate), stretch, gap
         )
@@ -602,6 +669,10 @@ class FakeRoom:
 
     def _reply(self, length_s: float) -> np.ndarray:
         """The partner's reply of ``length_s`` at ``reply_level_db`` (``reply_voice``)."""
+        if self._partner_tts is not None:
+            n = max(1, round(length_s * self.rate))
+            voice = room_sounds.speech_excerpt(self._partner_tts, n, self.rate, self._reply_rng)
+            return rms_scaled(voice, self.config.reply_level_db)
         if self._partner_f0 is not None:
             n = max(1, round(length_s * self.rate))
             voice = room_sounds.speech_like(
@@ -637,7 +708,7 @@ class FakeRoom:
         x = self._floor.next(self.window)
         if self._meter is not None:
             self._measure("floor", x, self.window)
-            for source in ("babble", "tv"):  # continuous: every window counts
+            for source in ("babble", "tv", "music", "hum"):  # continuous: every window counts
                 if self._has(source):
                     self._measure(source, np.zeros(0), self.window)
         remaining = []
@@ -667,7 +738,13 @@ class FakeRoom:
 
     def _has(self, source: str) -> bool:
         """Does the room hold this continuous source."""
-        return self.config.babble_talkers > 0 if source == "babble" else self.config.tv_on
+        config = self.config
+        return {
+            "babble": config.babble_talkers > 0,
+            "tv": config.tv_on,
+            "music": config.music_on,
+            "hum": config.hum_on,
+        }[source]
 
     def _measure(self, source: str, part: np.ndarray, covered: int) -> None:
         """Add a part of a source's sound (its energy) and the samples it covers."""
@@ -690,6 +767,67 @@ class FakeRoom:
             for source, (energy, samples) in self._meter.items()
             if samples > 0
         }
+
+
+
+def _poisson_sounds(
+    room: FakeRoom,
+    source: str,
+    rng: np.random.Generator,
+    rate_hz: float,
+    level_db: float,
+    make: Callable[[int, np.random.Generator], np.ndarray],
+) -> _SoundStream:
+    """Sounds ``make(rate, rng)`` at ``level_db`` (RMS over each), at Poisson times."""
+    gap = room._poisson_gap(rng, rate_hz)
+
+    def sound() -> list[tuple[int, np.ndarray]]:
+        return [(0, rms_scaled(make(room.rate, rng), level_db))]
+
+    return _SoundStream(source, gap, sound, gap)
+
+def _newer_streams(
+room: FakeRoom,
+music: np.random.Generator,
+traffic: np.random.Generator,
+typing: np.random.Generator,
+) -> list[_SoundStream]:
+    """Music, the mains hum, traffic passing and typing (each only if the room has it)."""
+    config, rate = room.config, room.rate
+    streams = []
+    if config.music_on:
+        bar_samples = 4 * round(room_sounds.MUSIC_BEAT_S * rate)
+
+        def bar() -> list[tuple[int, np.ndarray]]:
+            return [(0, rms_scaled(room_sounds.music_bar(rate, music), config.music_level_db))]
+
+        streams.append(
+            _SoundStream(
+                "music", lambda: -music.uniform(0.0, bar_samples), bar, lambda _: bar_samples
+            )
+        )
+    if config.hum_on:
+        block = rate  # 1 s: whole cycles of the hum
+        gain = 10.0 ** (config.hum_level_db / 20.0) / math.sqrt(
+            float(np.mean(room_sounds.mains_hum(block, rate, 0) ** 2))
+        )
+        position = [0]
+
+        def hum() -> list[tuple[int, np.ndarray]]:
+            samples = gain * room_sounds.mains_hum(block, rate, position[0])
+            position[0] += block
+            return [(0, samples)]
+
+        streams.append(_SoundStream("hum", lambda: 0.0, hum, lambda _: block))
+    for name, rng, rate_hz, level_db, make in (
+        ("traffic", traffic, config.traffic_rate_hz, config.traffic_level_db,
+         room_sounds.traffic_pass),
+        ("typing", typing, config.typing_rate_hz, config.typing_level_db,
+         room_sounds.typing_burst),
+    ):  # fmt: skip
+        if rate_hz > 0:
+            streams.append(_poisson_sounds(room, name, rng, rate_hz, level_db, make))
+    return streams
 
 
 def as_transmitted(samples: np.ndarray) -> np.ndarray:
@@ -748,7 +886,9 @@ class AudioWorld:
         return AudioObservation(int(y), energy, window.partner_present, withheld)
 
     def act(self, u: int) -> None:
-        """Vocalize at the start of the next window if ``u`` is 1."""
+        """Vocalize at the start of the next window if ``u`` is 1 (the bit source hears of it)."""
+        if getattr(self.binarizer, "needs_decisions", False):
+            self.binarizer.note_decision(u)
         if u:
             self.room.vocalize()
 

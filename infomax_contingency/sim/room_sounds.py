@@ -243,3 +243,120 @@ def speech_excerpt(
         x[:fade] *= ramp
         x[n - fade :] *= ramp[::-1]
     return x
+
+
+# ---------------------------------------------------------------- sources of the newer rooms
+
+
+@functools.lru_cache(maxsize=8)
+def tts_voices(rate: int, cutoff_hz: float) -> tuple[NDArray[np.float64], ...]:
+    """The espeak-ng speech bank (:func:`~infomax_contingency.sim.tts.tts_bank`), low-passed.
+
+    ``cutoff_hz`` at or above half the rate: as spoken. Unit RMS, read-only.
+    """
+    from infomax_contingency.sim.tts import tts_bank
+
+    voices = []
+    for voice in tts_bank(rate):
+        x = rms_scaled(lowpass(np.asarray(voice), cutoff_hz, rate), 0.0)
+        x.setflags(write=False)
+        voices.append(x)
+    return tuple(voices)
+
+
+MUSIC_BEAT_S = 0.5
+"""Length of a beat of :func:`music_bar`, seconds (120 beats per minute)."""
+_MUSIC_CHORDS_HZ = (
+    (220.0, 277.2, 329.6),  # A major
+    (196.0, 246.9, 293.7),  # G major
+    (174.6, 220.0, 261.6),  # F major
+    (164.8, 207.7, 246.9),  # E major
+)
+
+
+def music_bar(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """Four beats of pop music (arbitrary scale): a chord, a bass line and a hi-hat.
+
+    Each beat of :data:`MUSIC_BEAT_S`: the bar's chord (one of four, three tones with
+    four harmonics each, decaying over the beat), the chord's root an octave down on
+    beats 1 and 3, and a hi-hat (a 30 ms burst of high-passed noise) on every half beat.
+    """
+    beat = round(MUSIC_BEAT_S * rate)
+    n = 4 * beat
+    t = np.arange(beat) / rate
+    chord = _MUSIC_CHORDS_HZ[int(rng.integers(len(_MUSIC_CHORDS_HZ)))]
+    out = np.zeros(n)
+    decay = np.exp(-t / 0.35)
+    for k in range(4):
+        tone = np.zeros(beat)
+        for f in chord:
+            for h in range(1, 5):
+                tone += np.sin(2 * np.pi * f * h * t + rng.uniform(0, 2 * np.pi)) / h**1.5
+        tone *= decay * rng.uniform(0.7, 1.0)
+        if k % 2 == 0:
+            tone += 1.5 * np.sin(2 * np.pi * chord[0] / 2 * t) * np.exp(-t / 0.25)
+        out[k * beat : (k + 1) * beat] += tone
+    hat = round(0.03 * rate)
+    for k in range(8):
+        burst = np.diff(rng.standard_normal(hat + 1)) * np.exp(-np.arange(hat) / (hat / 5))
+        start = k * beat // 2
+        out[start : start + hat] += 0.8 * burst
+    return out
+
+
+def traffic_pass(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """A vehicle passing, 3 .. 8 s: low-passed noise under a swell (arbitrary scale).
+
+    Noise low-passed at 300 .. 800 Hz (tyres and engine from a distance), its loudness a
+    raised cosine over the pass: it swells, peaks half-way and fades.
+    """
+    n = round(rng.uniform(3.0, 8.0) * rate)
+    noise = lowpass(rng.standard_normal(n), rng.uniform(300.0, 800.0), rate)
+    swell = np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 4
+    return noise * swell
+
+
+HUM_HZ = 50.0
+"""Fundamental of :func:`mains_hum`, Hz (mains frequency)."""
+
+
+def mains_hum(n: int, rate: int, start: int) -> NDArray[np.float64]:
+    """Samples ``start .. start + n`` of a steady hum: 50 Hz and harmonics (arbitrary scale).
+
+    Harmonics 1-6 of :data:`HUM_HZ` at 1/k of the fundamental's amplitude (a fridge, a
+    ventilation motor); deterministic and continuous across calls.
+    """
+    t = (start + np.arange(n)) / rate
+    return sum(np.sin(2 * np.pi * HUM_HZ * k * t + 0.7 * k) / k for k in range(1, 7))
+
+
+def typing_burst(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """Someone typing for 2 .. 8 s: key clicks 6 .. 10 per second (arbitrary scale).
+
+    Each click: 4 .. 10 ms of differentiated (high-passed) noise with a fast decay,
+    loudness 0.5 .. 1 (a space bar now and then twice as loud).
+    """
+    n = round(rng.uniform(2.0, 8.0) * rate)
+    out = np.zeros(n)
+    position = 0
+    rate_keys = rng.uniform(6.0, 10.0)
+    while position < n:
+        length = round(rng.uniform(0.004, 0.010) * rate)
+        click = np.diff(rng.standard_normal(length + 1)) * np.exp(-np.arange(length) / (length / 4))
+        gain = rng.uniform(0.5, 1.0) * (2.0 if rng.random() < 0.1 else 1.0)
+        end = min(n, position + length)
+        out[position:end] += gain * click[: end - position]
+        position += max(1, round(rng.exponential(1.0 / rate_keys) * rate))
+    return out
+
+
+def voice_bank(
+    voice: str, rate: int, syllable_rate_hz: float, cutoff_hz: float
+) -> tuple[NDArray[np.float64], ...]:
+    """The voices distant talkers or a TV speak with, low-passed at ``cutoff_hz``.
+
+    ``voice``: ``synthetic`` (:func:`speech_bank`) or ``tts`` (:func:`tts_voices`).
+    """
+    if voice == "tts":
+        return tts_voices(rate, cutoff_hz)
+    return speech_bank(rate, syllable_rate_hz, cutoff_hz)

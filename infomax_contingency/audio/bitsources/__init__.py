@@ -8,6 +8,8 @@ loop's (:func:`make_bit_source`) and a name of ``experiment rooms --binarizer``.
 * ``energy`` — the window energy against a threshold (the paper's rule).
 * ``speech_band`` — the 300-3400 Hz band's energy against a threshold.
 * ``vad`` — WebRTC's voice-activity detector.
+* ``background`` — the window level above the room's own background windows, at a chosen
+  false-alarm share: the threshold the model calibrates itself.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from infomax_contingency.audio.bitsources.background import BackgroundSource
 from infomax_contingency.audio.bitsources.base import BitSource, SettingSpec
 from infomax_contingency.audio.bitsources.level import (
     EnergySource,
@@ -34,11 +37,12 @@ BIT_SOURCES: dict[str, type[BitSource]] = {
         EnergySource,
         SpeechBandSource,
         VadSource,
+        BackgroundSource,
     )
 }
 """Every bit source by name (the order of the docs and of the parameter declarations)."""
 
-DEFAULT_BIT_SOURCE = "energy"
+DEFAULT_BIT_SOURCE = "background"
 """mic_node's ``bit_source`` by default."""
 
 

@@ -1,0 +1,227 @@
+"""The bit source the model calibrates itself: ``background``.
+
+A window is active when its level is above the level that only a chosen share
+(``false_alarm``) of the room's recent *background* windows exceed — the windows whose
+timer is past the agent period, which the model says are background whatever S is — and,
+for every window alike, more than ``reference_margin_db`` above the level of the window
+the robot's last sound followed (:class:`~infomax_contingency.audio.background.BackgroundThreshold`:
+the mathematics, the labels and the diagnostics). Nothing is tuned per room: the
+threshold follows each room, and the model's background rate K3 is held near
+``false_alarm`` in every room (a matching Beta prior on K3 lets the belief use that).
+
+The source needs the decisions (:attr:`needs_decisions`): mic_node hands it each
+decision of ``vocalize_step``, the offline loop
+(:class:`~infomax_contingency.sim.fake_room.AudioWorld`) each of its decisions, a replay
+of a recording its recorded actions. It needs the
+model's periods (:meth:`follow_model`), which mic_node, the offline loop and ``replay``
+give it from their ``params``.
+
+The level is the window's energy with its mean removed (a DC offset neither raises the
+level nor hides a sound; it is reported). The first ``warmup_s`` seconds of background
+(plus the threshold's delay, ``ta2 + 1`` windows) yield no bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from infomax_contingency.audio.background import (
+    BackgroundThreshold,
+    level_and_faults,
+    ordinal,
+)
+from infomax_contingency.audio.bitsources.base import (
+    CALIBRATING,
+    READY,
+    BitSource,
+    NameArgument,
+    SettingError,
+    setting,
+    window_energy_db,
+)
+from infomax_contingency.audio.common import AudioError, as_mono
+from infomax_contingency.core.model import ModelParams
+
+LEAST_RANK = 2
+"""The threshold is at least the 2nd loudest background window: one loud event (a door
+slam) does not raise it above a partner's voice for the whole history."""
+
+ROBOT_PERIODS = (0, 1, 2, 4)
+"""``(ts1, ts2, ta1, ta2)`` used until :meth:`BackgroundSource.follow_model` (the robot's)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class BackgroundSettings:
+    """Settings of ``background`` (mic_node parameters of the same names)."""
+
+    false_alarm: float = setting(
+        0.05,
+        "Share of the room's background windows (timer past the agent period) above the"
+        " threshold; the model's Beta prior on K3 (b31, b32) should match it",
+        low=0.005, high=0.5,
+    )
+    background_window_s: float = setting(
+        30.0, "The threshold is taken over the background windows of this much recent audio",
+        low=1.0, high=86400.0, unit="s",
+    )
+    warmup_s: float = setting(
+        4.0, "Background audio heard before the first bit", low=0.5, high=3600.0, unit="s"
+    )
+    reference_margin_db: float = setting(
+        3.0,
+        "A window must also be this much louder than the window the robot's last sound"
+        " followed (background windows: as far back)", low=0.0, high=60.0, unit="dB",
+    )
+
+
+class BackgroundSource(BitSource):
+    """The window level against the room's own background, at a constant false-alarm rate."""
+
+    name = "background"
+    summary = (
+        "window level above the room's background windows (a share false_alarm of them),"
+        " the model's own calibration"
+    )
+    Settings = BackgroundSettings
+    needs_decisions = True
+    name_modes = {
+        "": (
+            NameArgument("false_alarm", "FALSE_ALARM"),
+            NameArgument("reference_margin_db", "MARGIN_DB"),
+        )
+    }
+
+    def __init__(
+        self,
+        settings: BackgroundSettings,
+        rate_hz: int,
+        window_s: float,
+        on_problem: Callable[[str], None] | None = None,
+    ) -> None:
+        super().__init__(settings, rate_hz, window_s, on_problem)
+        self.periods = ROBOT_PERIODS
+        self.rule = self._new_rule()
+        self._stale_decisions = 0  # decisions still due on bits of a rule replaced
+        self.last_level_db = float("nan")
+        """The level the last bit was decided on (energy without the mean), dB."""
+        self.clipped_windows = 0
+        self.dc_offset_windows = 0
+
+    @classmethod
+    def check_settings(cls, settings: BackgroundSettings, rate_hz: int, window_s: float) -> None:
+        """The warm-up fits in the threshold's history."""
+        if settings.warmup_s > settings.background_window_s:
+            history = settings.background_window_s
+            raise SettingError("warmup_s", f"= {settings.warmup_s:g} s: must not exceed"
+                               f" background_window_s ({history:g} s)")  # fmt: skip
+
+    def _new_rule(self) -> BackgroundThreshold:
+        s, window_s = self.settings, self.window_s
+        ts1, ts2, ta1, ta2 = self.periods
+        return BackgroundThreshold(
+            ts1, ts2, ta2,
+            false_alarm=s.false_alarm,
+            history=max(2, round(s.background_window_s / window_s)),
+            warmup_windows=max(1, round(s.warmup_s / window_s)),
+            ta1=ta1,
+            reference_margin_db=s.reference_margin_db,
+            least_rank=LEAST_RANK,
+        )  # fmt: skip
+
+    def follow_model(self, params: ModelParams) -> None:
+        """Label windows by the periods of ``params`` (before the first window)."""
+        periods = (params.ts1, params.ts2, params.ta1, params.ta2)
+        if periods != self.periods:
+            if self.rule.windows:
+                raise RuntimeError("follow_model() comes before the first window")
+            self.periods = periods
+            self.rule = self._new_rule()
+
+    def note_decision(self, u: int | None, withheld: bool = False) -> None:
+        """The decision on the oldest bit that had none yet (1: vocalize; None: lost).
+
+        ``withheld``: that window was withheld for the robot's own sound; it never sets
+        the threshold. Decisions on bits given before :meth:`recalibrate` are not the new
+        rule's: they are passed over.
+        """
+        if self._stale_decisions:
+            self._stale_decisions -= 1
+            return
+        self.rule.note_decision(u, withheld)
+
+    def decide(self, x: NDArray[np.float64]) -> bool | None:
+        return self.rule.push(self._level(x))
+
+    def push_recorded(self, samples: ArrayLike, decision: int) -> bool | None:
+        """The bit of a recording's window whose decision (taken after it) is known.
+
+        For replays with the recording's actions: the window is labelled without waiting
+        for :meth:`note_decision` (warm-up windows included, which yield no bit).
+        """
+        x = as_mono(samples, "window samples")
+        if x.size != self.samples_per_window:
+            raise AudioError(f"a window must hold {self.samples_per_window} samples, got {x.size}")
+        self.last_energy_db = window_energy_db(x)
+        return self.rule.push(self._level(x), decision=decision)
+
+    def _level(self, x: NDArray[np.float64]) -> float:
+        """The window's level without its mean, dB; counts clipping and DC offset."""
+        self.last_level_db, faults = level_and_faults(x)
+        self.clipped_windows += faults.clipped
+        self.dc_offset_windows += faults.dc_offset
+        return self.last_level_db
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def state(self) -> str:
+        return CALIBRATING if self.rule.calibrating else READY
+
+    @property
+    def threshold_db(self) -> float | None:
+        return self.rule.threshold_db
+
+    def threshold_origin(self) -> str:
+        """The rank, the background windows it was taken over and the false alarms it gives."""
+        rule = self.rule
+        return (f"room: the {ordinal(rule.rank)} loudest of {len(rule.background)} background"
+                f" windows, false alarms {rule.false_alarm_now:.3f}")  # fmt: skip
+
+    def problems(self) -> list[str]:
+        """One line per problem seen in the input (clipping, DC offset, the rule's)."""
+        out = []
+        if self.clipped_windows:
+            out.append(f"{self.clipped_windows} windows were clipped (samples at full scale):"
+                       " lower the input gain")  # fmt: skip
+        if self.dc_offset_windows:
+            out.append(f"{self.dc_offset_windows} windows had a DC offset (removed from the"
+                       " level; check the microphone)")  # fmt: skip
+        return out + self.rule.problems()
+
+    def recalibrate(self) -> str:
+        """Forget the room: a new warm-up on the next windows."""
+        self._stale_decisions += self.rule.awaited_decisions
+        self.rule = self._new_rule()
+        return (f"hearing the room again: no bits for the next {self.rule.warmup_windows}"
+                " background windows (and the threshold's delay)")  # fmt: skip
+
+    def ready_message(self) -> str:
+        rule = self.rule
+        return (
+            f"threshold {rule.threshold_db:.2f} dB from {len(rule.background)} background"
+            f" windows ({ordinal(rule.rank)} loudest: false alarms {rule.false_alarm_now:.3f},"
+            f" target {rule.false_alarm:g})"
+        )
+
+    def diagnostic_values(self) -> dict[str, Any]:
+        values = self.rule.diagnostic_values()
+        values["clipped_windows"] = self.clipped_windows
+        values["dc_offset_windows"] = self.dc_offset_windows
+        values["problems"] = "; ".join(self.problems()) or "none"
+        values["last_level_db"] = self.last_level_db
+        return values

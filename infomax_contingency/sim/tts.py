@@ -1,0 +1,102 @@
+"""Real synthetic speech for the simulated rooms: sentences spoken by espeak-ng.
+
+The rooms of :data:`~infomax_contingency.sim.rooms.ROOM_SOUNDS` whose talkers, TV or
+partner speak with ``voice`` ``tts`` play excerpts of a bank of sentences rendered by
+the ``espeak-ng`` program (a local text-to-speech engine: nothing is downloaded; Debian
+and Ubuntu package it as ``espeak-ng``, which ``make setup`` installs). espeak-ng is
+deterministic, so a room built on it is deterministic from its seed, as the other rooms.
+
+Each voice of :data:`TTS_VOICES` (an espeak-ng voice with a variant, a speed in words per
+minute and a pitch 0-99) reads all of :data:`TTS_SENTENCES` once, in an order of its own;
+its recording, resampled to the room's rate, normalised to unit RMS over its voiced
+parts' time (pauses included), is cached per process (rendering all voices takes well
+under a second).
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+import subprocess
+import wave
+
+import numpy as np
+from numpy.typing import NDArray
+
+TTS_SENTENCES = (
+    "Good morning, did you sleep well last night?",
+    "The train to the city leaves at a quarter past nine.",
+    "Could you pass me the salt and the pepper, please?",
+    "We should paint the kitchen a lighter colour this spring.",
+    "I think the meeting was moved to Thursday afternoon.",
+    "The children are playing football in the garden.",
+    "Tomorrow it will rain in the north and clear up later in the day.",
+    "Have you seen my keys? I left them on the table.",
+    "The museum opens at ten and closes at six in the evening.",
+    "She said the concert was the best one of the whole year.",
+    "Let us take the long way home along the river.",
+    "And now the news: the council voted on the new bridge today.",
+)
+"""What the voices say (one bank per voice; each reads every sentence)."""
+
+TTS_VOICES = (
+    ("en-us+m3", 165, 40),
+    ("en-gb+f2", 150, 60),
+    ("en-us+f4", 175, 70),
+    ("en-gb-scotland+m1", 155, 35),
+    ("en+m7", 170, 50),
+    ("en-us+f1", 160, 55),
+)
+"""espeak-ng voices of the bank: (voice+variant, words per minute, pitch 0-99)."""
+
+PAUSE_BETWEEN_SENTENCES_S = 0.35
+"""Silence between two sentences of a voice's recording, seconds."""
+
+
+class TtsUnavailableError(RuntimeError):
+    """espeak-ng is missing or failed (one line: what to install)."""
+
+
+def _render(text: str, voice: str, speed_wpm: int, pitch: int) -> tuple[NDArray[np.float64], int]:
+    """``text`` spoken by espeak-ng: mono samples in [-1, 1] and the rate, Hz."""
+    command = ["espeak-ng", "-v", voice, "-s", str(speed_wpm), "-p", str(pitch), "--stdout", text]
+    try:
+        result = subprocess.run(command, capture_output=True, check=True, timeout=60)
+    except FileNotFoundError:
+        raise TtsUnavailableError(
+            "this room speaks with espeak-ng, which is not installed: apt-get install espeak-ng"
+        ) from None
+    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as error:
+        raise TtsUnavailableError(f"espeak-ng failed on voice {voice!r}: {error}") from None
+    data = bytearray(result.stdout)
+    # espeak-ng writes to a pipe: the RIFF and data sizes are placeholders; fix them.
+    data[4:8] = (len(data) - 8).to_bytes(4, "little")
+    data[40:44] = (len(data) - 44).to_bytes(4, "little")
+    with wave.open(io.BytesIO(bytes(data))) as reader:
+        rate = reader.getframerate()
+        pcm = np.frombuffer(reader.readframes(reader.getnframes()), dtype="<i2")
+    return pcm.astype(np.float64) / 32768.0, rate
+
+
+@functools.lru_cache(maxsize=4)
+def tts_bank(rate: int) -> tuple[NDArray[np.float64], ...]:
+    """Every voice of :data:`TTS_VOICES` reading :data:`TTS_SENTENCES`, at ``rate``, unit RMS.
+
+    Read-only arrays; made once per process and rate. Raises
+    :class:`TtsUnavailableError` without espeak-ng.
+    """
+    from infomax_contingency.audio.resample import resample
+
+    voices = []
+    for k, (voice, speed, pitch) in enumerate(TTS_VOICES):
+        order = np.random.default_rng(k).permutation(len(TTS_SENTENCES))
+        parts = []
+        for index in order:
+            samples, native = _render(TTS_SENTENCES[index], voice, speed, pitch)
+            parts.append(resample(samples, native, rate))
+            parts.append(np.zeros(round(PAUSE_BETWEEN_SENTENCES_S * rate)))
+        x = np.concatenate(parts)
+        x = x / np.sqrt(np.mean(x * x))
+        x.setflags(write=False)
+        voices.append(x)
+    return tuple(voices)
