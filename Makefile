@@ -52,7 +52,7 @@ endif
 export ROS_AUTOMATIC_DISCOVERY_RANGE ROS_DOMAIN_ID
 
 .PHONY: help setup demo live test lint build clean distclean system-deps apt-missing bytecode \
-	print-python
+	print-python params-doc
 
 help:
 	@echo "make demo       set up (if needed) and run the demo"
@@ -61,6 +61,7 @@ help:
 	@echo "make setup      install missing system packages, create $(VENV), install the package"
 	@echo "make lint       ruff check ."
 	@echo "make bytecode   byte-compile the package (make test, make demo and make live do it first)"
+	@echo "make params-doc regenerate docs/PARAMETERS.md from the nodes' parameter declarations"
 	@echo "make build      colcon build into build/ install/ log/, as a ROS workspace would"
 	@echo "make clean      remove build products and caches (keeps $(VENV))"
 	@echo "make distclean  clean, and remove $(VENV)"
@@ -174,6 +175,10 @@ test: $(STAMP) bytecode
 	# but only where bytecode may be written: with PYTHONDONTWRITEBYTECODE set (as on this
 	# project's machines) each worker rewrote every module on every run, 2 s of CPU each.
 	PYTHONDONTWRITEBYTECODE= "$(VPY)" -m pytest -q $(PYTEST_XDIST) $(PYTEST_ARGS)
+
+# docs/PARAMETERS.md from what the nodes declare (test/test_docs.py fails when it is stale).
+params-doc: $(STAMP)
+	"$(VPY)" -m infomax_contingency.nodes.parameter_reference --out docs/PARAMETERS.md
 
 lint: $(STAMP)
 	"$(VENV)/bin/ruff" check .

@@ -28,6 +28,7 @@ from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.recorder_node import RecorderNode
+from infomax_contingency.nodes.speaker_node import SpeakerNode
 from infomax_contingency.testing.graph import StepRecorder
 from infomax_contingency.testing.stepped import DEFAULT_DEADLINE_S, SteppedExecutor
 
@@ -38,6 +39,7 @@ NODE_CLASSES: dict[str, type[Node]] = {
     "posture_node": PostureNode,
     "fake_audio_node": FakeAudioNode,
     "recorder_node": RecorderNode,
+    "speaker_node": SpeakerNode,
 }
 """Node name -> class, for the nodes a stepped graph can hold."""
 

@@ -306,7 +306,7 @@ REQUEST_RETRY_S = 5.0
 def test_overrides_of_a_namespaced_node_in_the_documented_form(
     workspace: Path, tmp_path: Path
 ) -> None:
-    """README: a second parameter file reaches ``/robot1/mic_node``; ``-p`` does not.
+    """docs/RUNNING.md: a second parameter file reaches ``/robot1/mic_node``; ``-p`` does not.
 
     rcl keeps one entry per node key (``/**``, ``/**/mic_node``, ``/mic_node``) in the
     order the keys first appear; rclpy applies every key that matches the node, later

@@ -148,7 +148,7 @@ def test_solve_cost_counts_what_the_solve_does(name, mode, horizon, memory) -> N
 
 
 def test_solve_cost_of_the_benchmark_horizons() -> None:
-    """The figures bench/bench_solver.py measured (README): statistics exact, memory close."""
+    """The figures bench/bench_solver.py measured: statistics exact, memory close."""
     paper = ModelParams.named("paper")
     assert solve_cost(paper, "episodic", 40).statistics == 5_430_035
     assert solve_cost(paper, "episodic", 100).statistics == 459_812_595
