@@ -148,6 +148,17 @@ def test_the_session_types_are_the_recorders() -> None:
     assert SESSION_TYPES["/audio"] == "std_msgs/msg/Float32MultiArray"
 
 
+def test_controller_node_on_a_cut_bag_says_it_was_cut(tmp_path, capfd):
+    from infomax_contingency.nodes.controller_node import ControllerNode
+    from infomax_contingency.testing.stepped import nodes_on_their_own_executors
+
+    bag = _copy(tmp_path, "cut", MCAP.read_bytes()[:70_000], metadata=False)
+    with nodes_on_their_own_executors() as start:
+        node, _, _ = start(ControllerNode, controller=f"recorded:{bag}")
+        assert node.controller.decisions == recorded_decisions(bag)  # up to the cut
+    assert "was cut (no metadata.yaml: was its recorder killed?)" in capfd.readouterr().err
+
+
 def _copy_under_namespaces(tmp_path: Path, namespaces: tuple[str, ...]) -> Path:
     """The demo session again, every topic but /diagnostics under each of ``namespaces``."""
     from rosbags.rosbag2 import Reader

@@ -8,6 +8,7 @@ cgroup's limit, not only the machine's available memory.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import resource
 import signal
@@ -307,3 +308,67 @@ def test_ctrl_c_of_an_experiment_with_workers_ends_them_all_in_one_line() -> Non
     status, err = _interrupt(process, workers_started)
     assert status in INTERRUPTED, err
     assert err.strip() == "infomax-contingency experiment: interrupted"
+
+
+def test_an_experiments_workers_end_when_the_command_is_killed() -> None:
+    """A command killed with SIGKILL (an OOM kill, a timeout) takes its workers along.
+
+    Before, they ignored Ctrl-C and computed on as orphans for as long as their tasks ran.
+    """
+    process = _command("experiment", "efficiency", "--workers", "2", "--steps", "100000")
+    children = Path(f"/proc/{process.pid}/task/{process.pid}/children")
+    deadline = time.monotonic() + 120
+    try:
+        workers: list[int] = []
+        while len(workers) < 2:
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "the workers never started"
+            time.sleep(0.05)  # polls the child's state; the deadline bounds it
+            workers = [int(pid) for pid in children.read_text().split()] \
+                if children.exists() else []  # fmt: skip
+        os.kill(process.pid, signal.SIGKILL)  # the command alone, not its group
+        process.wait()
+        deadline = time.monotonic() + 30
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.05)  # polls the workers' state; the deadline bounds it
+        assert not [pid for pid in workers if _alive(pid)]
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    from infomax_contingency.lifetime import process_alive
+
+    return process_alive(pid)
+
+
+def test_a_calibration_in_the_node_refuses_a_threshold_outside_the_range() -> None:
+    """mic_node's and replay's calibration (the Binarizer) took +48.7 dB from unscaled audio."""
+    from infomax_contingency.audio.bitsources.rules import Binarizer
+
+    unscaled = [30.0] * 12 + [67.0] * 8  # int16 values stored as floats: quiet and speech
+    rule = Binarizer(None, calibration_windows=20)
+    with pytest.raises(AudioError, match=r"threshold 48\.50 dB .* outside -150 \.\. 0 dB"):
+        rule.calibrate(unscaled)
+    assert rule.threshold_db is None and rule.state == "unseparated"
+    for energy in unscaled:  # a stream: refused, and calibrated again on the next windows
+        assert rule.push(energy) is None
+    assert rule.threshold_db is None and "outside -150 .. 0 dB" in rule.calibration_problem
+    assert rule.calibrate([x - 100.0 for x in unscaled]).threshold_db == pytest.approx(-51.5)
+
+
+def test_calibrate_on_constant_audio_far_outside_full_scale_names_the_scale(tmp_path, capsys):
+    """Audio of 3e38 has no boundary to find; the line said only that (not why)."""
+    samples = np.full(16_000 * 5, 3e38)
+    data = samples.astype("<f4").tobytes()
+    fmt = struct.pack("<HHIIHH", 3, 1, 16_000, 64_000, 4, 32)
+    body = (b"WAVE" + b"fmt " + struct.pack("<I", len(fmt)) + fmt + b"data"
+            + struct.pack("<I", len(data)) + data)  # fmt: skip
+    wav = tmp_path / "huge.wav"
+    wav.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
+    assert main(["calibrate", "--wav", str(wav), "--out", str(tmp_path / "t.yaml")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1
+    assert "10 of 10 windows of" in error and "outside [-1, 1]" in error
+    assert "no boundary between quiet and sound" in error

@@ -5,7 +5,9 @@
   mic_node publishes no more than ``max_steps_ahead`` steps beyond the last one the belief
   node acknowledged on ``step_applied``, so the graph slows down instead of losing steps.
 * One forged message on each stamped topic, with the true stream and controller ids and
-  a step 3000 ahead, is named and ignored by every node that reads it: the graph goes on
+  a step 3000 ahead (beyond the pace) or 10 ahead (within it: told apart by the DDS
+  numbers of its writer), is named and ignored by every node that reads it, and so is a
+  decision with the true controller id on a stream nobody publishes: the graph goes on
   and the belief equals the offline recomputation from the true bits and decisions.
 
 The nodes run on hand-stepped executors (real DDS between them): every wait is a
@@ -19,6 +21,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 from std_msgs.msg import Float32MultiArray, Int64MultiArray
 
 from exact_beliefs import (
@@ -29,6 +32,7 @@ from exact_beliefs import (
     step_pairs,
     true_sources,
 )
+from infomax_contingency.core.stepclock import MAX_STEP_JUMP
 from infomax_contingency.nodes.graph_node import ERROR, WARN
 from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS, STREAM_DEPTH
 from infomax_contingency.nodes.step_topics import (
@@ -132,9 +136,13 @@ FORGED_AHEAD = 3000
 """Steps ahead of the true stream that the forged messages claim."""
 
 
-def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
-    nodes = {"mic_node": MIC, "belief_node": BELIEF, "fake_audio_node": ROOM,
-             "controller_node": {**CONTROLLER, "wait_for_listeners": 4}}  # + the room  # fmt: skip
+@pytest.mark.parametrize("ahead", [FORGED_AHEAD, 10])  # beyond the pace, and within it
+def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node(ahead: int) -> None:
+    held = {"fault_hold_s": 600.0}  # the faults stay shown however slow the machine
+    # the controller waits for the room too (4 listeners)
+    nodes = {"mic_node": MIC, "belief_node": {**BELIEF, **held},
+             "fake_audio_node": {**ROOM, **held},
+             "controller_node": {**CONTROLLER, **held, "wait_for_listeners": 4}}  # fmt: skip
     with stepped_graph(nodes, "fake_audio_node", recorder_qos=LOSSLESS_READER_QOS) as graph:
         rec = graph.recorder
         graph.run_until(lambda: len(rec.belief) >= 50, "50 steps")
@@ -145,21 +153,32 @@ def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
                         and decisions.get_subscription_count() >= 4,  # + mic and room
                         "the forger connected")  # fmt: skip
         stream, controller = true_sources(rec)
-        forged_step = rec.sound_step[-1][1] + FORGED_AHEAD
-        bits.publish(bit_message(StepBit(stream, forged_step, True, 500_000)))
-        decisions.publish(decision_message(StepDecision(stream, forged_step, True, controller)))
+        forged_step = rec.sound_step[-1][1] + ahead
+        forged = [bit_message(StepBit(stream, forged_step, True, 500_000)),
+                  decision_message(StepDecision(stream, forged_step, True, controller)),
+                  # and a decision with the true controller id on a stream that does not exist
+                  decision_message(StepDecision(stream + 1, rec.sound_step[-1][1] + 1, True,
+                                                controller))]  # fmt: skip
+        for message, publisher in zip(forged, (bits, decisions, decisions), strict=True):
+            publisher.publish(message)
         # the graph goes on: the controller answers the true bits, the room hears them
         answered = len(rec.vocalize_step)
         graph.run_until(lambda: len(rec.vocalize_step) >= answered + 101, "100 more steps")
         belief, room = graph.nodes["belief_node"], graph.nodes["fake_audio_node"]
         control = graph.nodes["controller_node"]
-        graph.run_until(lambda: belief.bit_pace.jumps == belief.decision_pace.jumps == 1
-                        and control.pace.jumps == 1 and room.pace.jumps == 1,
+        far = ahead > MAX_STEP_JUMP  # refused by the pace, else by the writer's numbers
+        nodes = (belief.bit_pace, belief.decision_pace, control.pace, room.pace) if far else (
+            belief.bit_writer, belief.decision_writer, control.writer, room.writer)
+        graph.run_until(lambda: [getattr(x, "jumps", 0) or getattr(x, "refused", 0)
+                                 for x in nodes] == [1, 1, 1, 1],
                         "every node to see the forged messages")  # fmt: skip
         level, message, values = belief.diagnostic_status()
-        assert level == ERROR and values["jumps_ignored"] == 2, (message, values)
-        belief.intruders = {}  # once the forger's publishers are gone, the jump shows
-        assert "pace" in belief.diagnostic_status()[1]
+        assert level == ERROR and values["jumps_ignored"] == (2 if far else 0), (message, values)
+        graph.run_until(lambda: belief.foreign.count == (1 if far else 3), "the belief node to"
+                        " name the decision on a stream it never heard")  # fmt: skip
+        assert belief.stream == stream and belief.stream_changes == 0
+        belief.intruders = {}  # once the forger's publishers are gone, the fault shows
+        assert ("pace" if far else "second stream") in belief.diagnostic_status()[1]
         assert control.diagnostic_status()[0] == room.diagnostic_status()[0] == ERROR
 
         # the run ends: every true step is in the belief, exactly
@@ -167,8 +186,12 @@ def test_a_forged_step_far_ahead_is_named_and_ignored_by_every_node() -> None:
         mic = graph.nodes["mic_node"]
         last = mic.outbox.last_step
         graph.run_until(lambda: belief.joiner.next_step == last + 1 and len(rec.belief) == last
-                        and len(rec.vocalize_step) == last + 1,  # with the forged one
+                        and len(rec.vocalize_step) == last + 2,  # with the two forged
                         "the belief node to apply every step")  # fmt: skip
+        # the offline recomputation from the true messages (a forged one came first)
+        rec.sound_step.remove(tuple(forged[0].data))
+        for message in forged[1:]:
+            rec.vocalize_step.remove(tuple(message.data))
         pairs = step_pairs(rec, stream, {controller}, 1, last)
         assert None not in [value for pair in pairs for value in pair]
         assert_same_beliefs(rec.belief, offline_beliefs([(pairs, "start")]), pairs=pairs)

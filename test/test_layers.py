@@ -19,7 +19,7 @@ import pytest
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent / "infomax_contingency"
 
-BASE = ("resources", "errors", "limits")
+BASE = ("resources", "errors", "limits", "lifetime")
 """Top-level modules every layer may use."""
 
 ALLOWED: dict[str, set[str]] = {

@@ -135,9 +135,11 @@ def test_controller_ignores_a_second_stream_and_repeated_steps(run: Callable) ->
     graph.connected(node.step_pub)
     graph.run_until(lambda: node.answering, "the controller to answer")
     first, intruder = bits_of(STREAM, [1, 0, 0, 1]), bits_of(STREAM + 1, [1, 1, 1])
+    second_mic = probe.talk("sound_step", Int64MultiArray)  # a second mic_node: its own writer
+    graph.connected(second_mic)
     for message in (first[0], intruder[0], first[1], first[1], intruder[1], first[2],
                     intruder[2], first[3]):  # fmt: skip
-        sound.publish(message)
+        (second_mic if message in intruder else sound).publish(message)
     graph.run_until(lambda: node.steps == 4 and node.foreign.count == 3, "4 steps, 3 foreign")
     graph.run_for_callbacks(20)
     assert [parse_decision(m).step for m in steps] == [1, 2, 3, 4]
@@ -284,17 +286,26 @@ def test_belief_joins_bits_and_decisions_by_step_whatever_their_order(run: Calla
 
 
 def test_belief_follows_one_stream_and_one_controller(run: Callable) -> None:
-    node, _, graph, sound, vocalize, beliefs = _belief_graph(run)
+    node, probe, graph, sound, vocalize, beliefs = _belief_graph(run)
     rng = np.random.default_rng(3)
     bits, decisions = rng.random(30) < 0.5, rng.random(30) < 0.3
     true_bits, true_decisions = bits_of(STREAM, bits), decisions_of(STREAM, decisions)
     stray_bits = bits_of(STREAM + 9, rng.random(30) < 0.5)
     stray_decisions = decisions_of(STREAM, ~decisions, controller=99)
+    # a second mic_node and a second controller: writers of their own
+    stray_sound = probe.talk("sound_step", Int64MultiArray)
+    stray_vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(stray_sound)
+    graph.connected(stray_vocalize)
     for step in range(30):
         sound.publish(true_bits[step])
-        sound.publish(stray_bits[step])
-        vocalize.publish(stray_decisions[step] if step % 2 else true_decisions[step])
-        vocalize.publish(true_decisions[step] if step % 2 else stray_decisions[step])
+        stray_sound.publish(stray_bits[step])
+        if step % 2:
+            stray_vocalize.publish(stray_decisions[step])
+            vocalize.publish(true_decisions[step])
+        else:
+            vocalize.publish(true_decisions[step])
+            stray_vocalize.publish(stray_decisions[step])
     graph.run_until(lambda: len(beliefs) == 30, "30 beliefs")
     graph.run_for_callbacks(20)
     assert [m.data for m in beliefs] == offline_beliefs(bits, decisions)[0]
@@ -632,12 +643,19 @@ def test_speaker_obeys_only_the_controller_it_follows(run: Callable) -> None:
     true = decisions_of(STREAM, (True, False, False, True, False))
     second = decisions_of(STREAM, [True] * 5, controller=6)  # always vocalize
     forged = decision_message(StepDecision(STREAM, 3000, True, 5))  # the true controller's id
+    other_controller = probe.talk("vocalize_step", Int64MultiArray)  # its own writer
+    forger = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(other_controller)
+    graph.connected(forger)
+    vocalize.publish(true[0])  # the first controller heard is followed
+    graph.run_until(lambda: node._answered == (STREAM, 1), "the first decision")
     for step, (mine, other) in enumerate(zip(true, second, strict=True), start=1):
-        vocalize.publish(mine)
-        vocalize.publish(other)
+        if step > 1:
+            vocalize.publish(mine)
+        other_controller.publish(other)
         if step == 2:
             vocalize.publish(true[0])  # step 1 again
-            vocalize.publish(forged)
+            forger.publish(forged)
     graph.run_until(lambda: node._answered == (STREAM, 5) and node.pace.jumps == 1
                     and node.controllers.foreign_messages == 5, "every decision taken")  # fmt: skip
     assert node.requests == 2, "the followed controller's two vocalizations, once each"

@@ -25,6 +25,7 @@ from infomax_contingency.core.stepclock import (
     SourceLock,
     StepJoiner,
     StepPace,
+    WriterSequence,
 )
 
 ROBOT = ModelParams.named("robot")
@@ -189,40 +190,63 @@ def test_outbox_waits_for_a_listener_that_keeps_up_and_lets_a_stalled_one_go() -
         outbox.push(window)
     assert [s for s, _ in outbox.release(paced=True, now=0.0)] == [1, 2]
     assert outbox.acknowledged(7, 3, now=0.0) is Listening.REFUSED  # never handed out
-    assert outbox.acknowledged(7, 1, now=0.1) is Listening.WAITED_FOR  # from its first on
+    assert outbox.acknowledged(7, 1, now=0.1) is Listening.NOTED  # its first: maybe forged
     outbox.answered(2)
-    # the controller answered both, the listener took one: one more step may go
-    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [3]
-    assert outbox.in_flight == 2 and outbox.last_taken == 1
+    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [3, 4]  # the controller's pace
+    assert outbox.acknowledged(7, 2, now=0.3) is Listening.WAITED_FOR  # it takes steps
+    outbox.answered(4)
+    # the controller answered all, the listener took two: nothing more may go
     assert outbox.release(paced=True, now=0.3) == []
-    assert outbox.acknowledged(7, 3, now=1.0) is Listening.TAKEN
-    outbox.answered(3)
-    assert [s for s, _ in outbox.release(paced=True, now=1.0)] == [4, 5]
-    outbox.answered(5)
+    assert outbox.in_flight == 2 and outbox.last_taken == 2
+    assert outbox.acknowledged(7, 4, now=1.0) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=1.0)] == [5, 6]
+    outbox.answered(6)
     # the listener takes nothing more: waited for until listener_timeout_s has passed
     # since it had steps to take (from the release at 1.0)
     assert outbox.give_up_stalled(now=5.9) == [] and outbox.release(paced=True, now=5.9) == []
     assert outbox.give_up_stalled(now=6.0) == [7] and outbox.given_up == 1
-    assert [s for s, _ in outbox.release(paced=True, now=6.0)] == [6, 7]
-    outbox.answered(7)
-    assert [s for s, _ in outbox.release(paced=True, now=6.1)] == [8, 9]
+    assert [s for s, _ in outbox.release(paced=True, now=6.0)] == [7, 8]
+    outbox.answered(8)
+    assert [s for s, _ in outbox.release(paced=True, now=6.1)] == [9, 10]
     # it takes a step again: waited for until it has caught up
-    assert outbox.acknowledged(7, 3, now=6.2) is Listening.TAKEN  # an old one: no news
-    assert outbox.acknowledged(7, 4, now=6.2) is Listening.WAITED_FOR
-    outbox.answered(9)
+    assert outbox.acknowledged(7, 4, now=6.2) is Listening.TAKEN  # an old one: no news
+    assert outbox.acknowledged(7, 5, now=6.2) is Listening.WAITED_FOR
+    outbox.answered(10)
     assert outbox.release(paced=True, now=6.3) == [] and outbox.in_flight == 5
-    assert outbox.acknowledged(7, 8, now=6.4) is Listening.TAKEN
-    assert [s for s, _ in outbox.release(paced=True, now=6.4)] == [10]
+    assert outbox.acknowledged(7, 9, now=6.4) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=6.4)] == [11]
+
+
+def test_one_forged_acknowledgment_does_not_stall_the_graph() -> None:
+    """A step_applied of a listener that does not exist is no reason to wait (it was 5 s)."""
+    outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
+    for window in range(40):
+        outbox.push(window)
+    outbox.release(paced=True, now=0.0)
+    assert outbox.acknowledged(1, 1, now=0.0) is Listening.NOTED  # the true belief node
+    assert outbox.acknowledged(1, 2, now=0.0) is Listening.WAITED_FOR
+    outbox.answered(2)
+    assert [s for s, _ in outbox.release(paced=True, now=0.1)] == [3, 4]
+    assert outbox.acknowledged(666, 3, now=0.1) is Listening.NOTED  # forged, never again
+    outbox.answered(4)
+    assert outbox.acknowledged(1, 4, now=0.2) is Listening.TAKEN
+    assert [s for s, _ in outbox.release(paced=True, now=0.2)] == [5, 6]  # no wait for 666
+    # a flood of forged listener ids does not make the outbox forget the true one
+    for forged in range(100, 100 + 2 * StepOutbox.MAX_LISTENERS):
+        outbox.acknowledged(forged, 5, now=0.3)
+    assert outbox.listeners[1].waited_for and outbox.in_flight == 2
 
 
 def test_a_listener_that_had_taken_everything_is_not_stalled_by_a_pause() -> None:
     outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
     outbox.push("a")
+    outbox.push("b")
     outbox.release(paced=True, now=0.0)
-    outbox.answered(1)
-    assert outbox.acknowledged(3, 1, now=0.0) is Listening.WAITED_FOR
-    outbox.push("b")  # the next window comes a minute later
-    assert outbox.release(paced=True, now=60.0) == [(2, "b")]
+    outbox.answered(2)
+    assert outbox.acknowledged(3, 1, now=0.0) is Listening.NOTED
+    assert outbox.acknowledged(3, 2, now=0.0) is Listening.WAITED_FOR
+    outbox.push("c")  # the next window comes a minute later
+    assert outbox.release(paced=True, now=60.0) == [(3, "c")]
     assert outbox.give_up_stalled(now=64.9) == [] and outbox.give_up_stalled(now=65.0) == [3]
 
 
@@ -448,3 +472,18 @@ def test_a_backlog_or_a_pause_does_not_make_a_controller_look_silent() -> None:
     assert lock.accept(1, 10.0) is Arrival.FIRST
     assert bits.unanswered_s(10.0, 14.6) == 4.0  # bits of 10.5 .. 14.5 s
     assert lock.accept(2, 14.6, unanswered_s=4.0) is Arrival.SWITCHED and lock.source == 2
+
+
+def test_a_writers_numbers_tell_its_steps_from_forged_ones_with_its_id() -> None:
+    writer = WriterSequence()
+    assert writer.same_writer(5, 105)  # the first message: any
+    assert writer.same_writer(6, 106) and writer.same_writer(9, 107)  # messages lost: fine
+    assert not writer.same_writer(19, 1)  # another writer's first message, 10 steps ahead
+    assert not writer.same_writer(10, 107)  # a number repeated: another writer
+    assert not writer.same_writer(11, 200)  # more messages than steps since: another writer
+    assert writer.same_writer(10, 108) and writer.refused == 3
+    assert writer.same_writer(10, 109)  # a step repeated: not judged (the caller's rules)
+    assert writer.same_writer(11, 110) and not writer.same_writer(12, 110)
+    assert writer.same_writer(11, None)  # no numbers from the middleware: nothing to tell
+    writer.restart()  # a new stream or controller followed
+    assert writer.same_writer(1, 1) and writer.same_writer(2, 2)

@@ -165,9 +165,23 @@ class UnseparatedError(AudioError):
 def require_separation(fit: ThresholdFit, min_separation_db: float) -> ThresholdFit:
     """Return ``fit`` if its cluster means lie at least ``min_separation_db`` apart.
 
+    Its threshold must also lie in the range of thresholds allowed (a threshold file's or
+    the ``threshold_db`` parameter's), so that a calibration in mic_node or ``replay``
+    never uses a threshold the node would refuse from a file.
+
     Raises:
-        UnseparatedError: they lie closer (the message names the gap in dB).
+        AudioError: the threshold lies outside ``THRESHOLD_MIN_DB .. THRESHOLD_MAX_DB``
+            (above 0 dB: windows louder than full scale, float audio stored unscaled).
+        UnseparatedError: the means lie closer (the message names the gap in dB).
     """
+    if not THRESHOLD_MIN_DB <= fit.threshold_db <= THRESHOLD_MAX_DB:
+        raise AudioError(
+            f"calibration refused: its threshold {fit.threshold_db:.2f} dB (quiet"
+            f" {fit.low_mean_db:.1f} dB, sound {fit.high_mean_db:.1f} dB) lies outside"
+            f" {THRESHOLD_MIN_DB:g} .. {THRESHOLD_MAX_DB:g} dB; windows louder than 0 dB hold"
+            " samples outside [-1, 1]: scale the audio to [-1, 1] (float samples stored"
+            " unscaled?)"
+        )
     if not fit.separation_db >= min_separation_db:
         raise UnseparatedError(fit, min_separation_db)
     return fit

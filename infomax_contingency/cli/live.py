@@ -106,6 +106,16 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
     return recording.energies_db, f"device:{recording.device}", what
 
 
+def _full_scale_problem(energies: np.ndarray, what: str) -> str:
+    """What is wrong with windows louder than full scale (0 dB); empty if there are none."""
+    loud = int(np.count_nonzero(energies > THRESHOLD_MAX_DB + FULL_SCALE_SLACK_DB))
+    if not loud:
+        return ""
+    return (f"{loud} of {energies.size} windows of {what} are louder than full scale (up to"
+            f" {float(energies.max()):.1f} dB): its samples lie outside [-1, 1]; scale the"
+            " audio to [-1, 1] (float samples stored unscaled?)")
+
+
 def _check_full_scale(energies: np.ndarray, threshold_db: float, what: str) -> None:
     """Refuse a threshold outside the range mic_node takes; warn of windows above full scale.
 
@@ -113,13 +123,10 @@ def _check_full_scale(energies: np.ndarray, threshold_db: float, what: str) -> N
     (e.g. int16 values written as floats) gives thresholds near +86 dB, which would make
     every bit 0.
     """
-    loud = int(np.count_nonzero(energies > THRESHOLD_MAX_DB + FULL_SCALE_SLACK_DB))
-    if not loud:
+    problem = _full_scale_problem(energies, what)
+    if not problem:
         check_threshold_db(threshold_db, f"calibration on {what}")
         return
-    problem = (f"{loud} of {energies.size} windows of {what} are louder than full scale (up to"
-               f" {float(energies.max()):.1f} dB): its samples lie outside [-1, 1]; scale the"
-               " audio to [-1, 1] (float samples stored unscaled?)")
     if not THRESHOLD_MIN_DB <= threshold_db <= THRESHOLD_MAX_DB:
         raise AudioError(f"{problem}; the threshold {threshold_db:.2f} dB is outside"
                          f" {THRESHOLD_MIN_DB:g} .. {THRESHOLD_MAX_DB:g} dB, nothing written")
@@ -137,7 +144,11 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             f"{what} holds {energies.size} window(s) of {args.window_s} s; calibration needs"
             " at least 2"
         )
-    fit = kmeans_split(energies)
+    try:
+        fit = kmeans_split(energies)
+    except AudioError as error:  # no boundary: say first that the audio is out of scale
+        problem = _full_scale_problem(energies, what)
+        raise AudioError(f"{problem}; {error}" if problem else str(error)) from None
     _check_full_scale(energies, fit.threshold_db, what)
     print(f"calibrated on {energies.size} windows of {args.window_s:g} s from {what}")
     print(

@@ -39,7 +39,10 @@ class Listening(Enum):
     TAKEN = "taken"
     """A step taken (or an old one repeated)."""
     WAITED_FOR = "waited for"
-    """A new listener, or one given up that takes steps again: the outbox waits for it."""
+    """A listener's step after its first acknowledged (a new listener), or one given up
+    that takes steps again: the outbox waits for it."""
+    NOTED = "noted"
+    """A new listener's first acknowledgment: waited for once it takes a later step."""
     REFUSED = "refused"
     """A step never handed out (a forgery): ignored."""
 
@@ -54,8 +57,10 @@ class StepOutbox:
     first) and counted.
 
     Listeners (:meth:`acknowledged`) are the nodes that need every step: a listener is
-    waited for from its first acknowledgment on (a graph without one runs at the
-    controller's pace); one that took nothing for ``listener_timeout_s`` while it had
+    waited for from its second acknowledgment on, once it took a step after the first
+    one it acknowledged (so a single forged acknowledgment, of a listener that does not
+    exist, cannot stall the graph; a graph without one runs at the controller's pace);
+    one that took nothing for ``listener_timeout_s`` while it had
     steps to take is no longer waited for (:meth:`give_up_stalled`: killed, hung) until
     it takes a step again (then the outbox waits until it has caught up: the steps it
     has not taken are in its queue, or it counts them as lost).
@@ -129,11 +134,14 @@ class StepOutbox:
             return Listening.REFUSED
         known = self.listeners.get(listener)
         if known is None:
-            if len(self.listeners) >= self.MAX_LISTENERS:
-                idle = min(self.listeners, key=lambda key: self.listeners[key].busy_since)
+            if len(self.listeners) >= self.MAX_LISTENERS:  # forget one not waited for first
+                idle = min(self.listeners, key=lambda key: (self.listeners[key].waited_for,
+                                                            self.listeners[key].busy_since))
                 del self.listeners[idle]
-            self.listeners[listener] = StepListener(step, now)
-            return Listening.WAITED_FOR
+            # Not waited for until it takes a later step: one message (a forged
+            # acknowledgment) cannot make the graph wait listener_timeout_s for nobody.
+            self.listeners[listener] = StepListener(step, now, waited_for=False)
+            return Listening.NOTED
         if step <= known.taken:
             return Listening.TAKEN  # an old step again: no news
         known.taken, known.busy_since = step, now

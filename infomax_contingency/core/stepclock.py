@@ -23,6 +23,8 @@ listener joins ``y_t`` with ``u_t`` exactly, whatever order and rate they arrive
   steps.
 * :class:`LockstepPacer` releases the next window of a file or simulated room only once
   the decision on the last one came back (or a timeout passed).
+* :class:`WriterSequence` tells a source's own messages from forged ones with its id by
+  their DDS sequence numbers.
 * :class:`RecentEvents` remembers when a fault last happened, so a diagnostic returns to
   OK once the fault is over while its count is kept.
 
@@ -473,6 +475,44 @@ class StepPace:
         """The run taken by the last :attr:`Pace.CONFIRMED`, oldest first (forgotten here)."""
         confirmed, self._confirmed = self._confirmed, []
         return confirmed
+
+
+class WriterSequence:
+    """Whether step messages come from the writer of the source followed (DDS numbers).
+
+    DDS numbers the messages of each writer 1, 2, 3, ... (``publication_sequence_number``)
+    and a source publishes at most one message per step, in order: from one message of
+    the writer to its next, the number grows by at least 1 and by no more than the step.
+    A message with the true source's id from another writer (forged) fails that unless
+    its writer has sent more messages than the true one (a flood). The caller calls
+    :meth:`restart` when it follows another source or stream.
+    """
+
+    def __init__(self) -> None:
+        self.last: tuple[int, int] | None = None
+        """(step, sequence number) of the last message taken."""
+        self.refused = 0
+
+    def restart(self) -> None:
+        """Follow a new writer: its next message is taken."""
+        self.last = None
+
+    def same_writer(self, step: int, sequence: int | None) -> bool:
+        """True if ``step``, numbered ``sequence`` by DDS (None, 0: unknown), may be its.
+
+        A step not ahead of the last one is not judged (the caller ignores a repeated or
+        older step anyway); its number is kept if it is newer (the writer repeated it).
+        """
+        if not sequence:
+            return True
+        if self.last is not None and step <= self.last[0]:
+            self.last = (self.last[0], max(sequence, self.last[1]))
+            return True
+        if self.last is None or 0 < sequence - self.last[1] <= step - self.last[0]:
+            self.last = (step, sequence)
+            return True
+        self.refused += 1
+        return False
 
 
 @dataclass

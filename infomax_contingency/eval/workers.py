@@ -9,13 +9,24 @@ stopped) and lets it go on to the command line, which exits with status 130.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 
+from infomax_contingency.lifetime import signal_when_parent_dies
 
-def _ignore_interrupts() -> None:
+
+def _start_worker(parent: int) -> None:
+    """A worker ignores Ctrl-C, and ends with the command that started it.
+
+    The command may die without ending its workers (SIGKILL, an OOM kill, a CI timeout):
+    they then get SIGTERM rather than compute on for minutes with nobody to read it.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal_when_parent_dies(signal.SIGTERM)
+    if os.getppid() != parent:  # the command died before the signal was asked for
+        os._exit(1)
 
 
 def _end(pool: ProcessPoolExecutor) -> None:
@@ -37,7 +48,8 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     held: list[int] = []
     previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
     try:
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_interrupts)
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_start_worker,
+                                   initargs=(os.getpid(),))
         pool.submit(int).result()  # starts the workers (all of them, with fork)
     finally:
         signal.signal(signal.SIGINT, previous)

@@ -12,7 +12,11 @@ published**, the decision advances the timer. The node follows one controller
 ignored; a followed one silent for ``source_timeout_s`` is replaced by the next one
 heard, a restarted node) and the stream that controller answers (one mic_node run): the
 bits of another stream are counted and kept aside, and used if the controller moves to
-that stream (a restarted mic_node). The fake room hears the same decisions.
+that stream (a restarted mic_node). The controller is taken to move only to a stream whose
+bits this node hears too: its decisions on a stream none of whose bits came are kept
+until they come, and named and ignored once it answers the followed stream again (one
+decision forged with the controller's id and a new stream id cannot move the node off
+its stream). The fake room hears the same decisions.
 
 A withheld bit (heard while the robot declared its own sound on ``self_sound``) is
 not counted: the belief is still published for its step.
@@ -71,8 +75,16 @@ from infomax_contingency.core.stepclock import (
     SourceLock,
     StepJoiner,
     StepPace,
+    WriterSequence,
 )
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
+from infomax_contingency.nodes.graph_node import (
+    ERROR,
+    OK,
+    WARN,
+    GraphNode,
+    take_from_writer,
+    take_on_pace,
+)
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
@@ -81,6 +93,7 @@ from infomax_contingency.nodes.step_topics import (
     VOCALIZE_STEP,
     StepApplied,
     StepBit,
+    StepDecision,
     applied_message,
     new_source_id,
     parse_bit,
@@ -140,6 +153,9 @@ class BeliefNode(GraphNode):
         self.listener_id = new_source_id()
         """This node's id on ``step_applied``."""
         self.bit_pace = StepPace(1.0 / self.params.dt, timeout_s)
+        self.bit_writer = WriterSequence()
+        self.decision_writer = WriterSequence()
+        """The writers of the stream and the controller followed (a forgery is another)."""
         self.decision_pace = StepPace(1.0 / self.params.dt, timeout_s)
         self.jumps = self.recent_events()
         self.resets = 0
@@ -152,6 +168,10 @@ class BeliefNode(GraphNode):
         self.stream: int | None = None
         """The stream followed: the one the followed controller answers."""
         self._held: dict[int, deque[StepBit]] = {}
+        self._unheard: deque[tuple[StepDecision, float, int | None]] = deque(maxlen=HELD_BITS)
+        """Decisions of the followed controller on a stream none of whose bits came yet
+        (with their publication times and DDS numbers): the stream is followed once its bits come; a
+        decision on the followed stream first shows they were forged."""
         self._joining = False
         self._bit_times = PublicationTimes(horizon_s=max(10.0, 4 * self.controllers.silence_s))
         """Publication times (s) of the followed stream's recent bits."""
@@ -202,8 +222,10 @@ class BeliefNode(GraphNode):
             self._hold(bit, now)
             return
         sent = self.sent_s(stamp, now)
-        bits = take_on_pace(self, self.bit_pace, self.jumps, bit.step, sent, bit, "bit",
-                            f"stream {bit.stream}")  # fmt: skip
+        source = f"stream {bit.stream}"
+        bits = take_on_pace(self, self.bit_pace, self.jumps, bit.step, sent, bit, "bit", source)
+        bits = take_from_writer(self, self.bit_writer, self.foreign, bits, bit.step,
+                                self.sequence, source)  # fmt: skip
         if bits:
             self._bit_times.note(sent)
         for taken in bits:
@@ -219,6 +241,12 @@ class BeliefNode(GraphNode):
         held.append(bit)
         while len(self._held) > HELD_STREAMS:
             del self._held[next(iter(self._held))]
+        waiting = [entry for entry in self._unheard if entry[0].stream == bit.stream]
+        if waiting:  # the controller moved to this stream before its bits came here
+            self._unheard.clear()
+            for decision, sent, sequence in waiting:
+                self._take_decision(decision, sent, sequence)
+            return
         if self.stream is not None:
             self.foreign.note(now)
             self.warn_intrusion(
@@ -260,17 +288,46 @@ class BeliefNode(GraphNode):
             )
         if arrival is not Arrival.FOLLOWED:
             self.decision_pace.restart()
+            self.decision_writer.restart()
+        if decision.stream != self.stream and self.stream is not None and not self._held.get(
+                decision.stream):  # fmt: skip
+            self._unheard.append((decision, sent, self.sequence))  # its bits may be on their way
+            return
+        if decision.stream == self.stream:
+            self._name_unheard(now)
+        self._take_decision(decision, sent, self.sequence)
+
+    def _take_decision(self, decision: StepDecision, sent: float, sequence: int | None) -> None:
+        """Apply a decision of the followed controller (following its stream)."""
         if decision.stream != self.stream:
             self._follow(decision.stream, decision.step)
             self.decision_pace.restart()
-        for taken in take_on_pace(self, self.decision_pace, self.jumps, decision.step, sent,
-                                  decision, "decision",
-                                  f"controller {decision.controller}"):  # fmt: skip
+            self.decision_writer.restart()
+        source = f"controller {decision.controller}"
+        on_pace = take_on_pace(self, self.decision_pace, self.jumps, decision.step, sent,
+                               decision, "decision", source)  # fmt: skip
+        for taken in take_from_writer(self, self.decision_writer, self.foreign, on_pace,
+                                      decision.step, sequence, source):  # fmt: skip
             if not self.joiner.decision(taken.step, taken.vocalize):
                 self.warn_intrusion(
                     f"decision for step {taken.step} repeats, goes backwards or answers no"
                     " bit received: ignored"
                 )
+
+    def _name_unheard(self, now: float) -> None:
+        """Name and drop the decisions kept for a stream whose bits never came.
+
+        The controller still answers the followed stream: they were not its own (forged
+        with its id).
+        """
+        for decision, _, _ in self._unheard:
+            self.foreign.note(now)
+            self.warn_intrusion(
+                f"ignoring a decision for step {decision.step} of stream {decision.stream}"
+                f" with the id of controller {decision.controller}: no bit of that stream"
+                f" was heard, and the controller answers stream {self.stream} (forged?)"
+            )
+        self._unheard.clear()
 
     def _follow(self, stream: int, step: int) -> None:
         """The controller answers ``stream`` from ``step`` on: follow it from there.
@@ -297,6 +354,7 @@ class BeliefNode(GraphNode):
             self.joiner.bit(bit.step, bit.observation)
         # The stream's pace from its newest bit held (or from its next bit).
         self.bit_pace.restart(held[-1].step if held else None, time.time())
+        self.bit_writer.restart()
 
     # ------------------------------------------------------------------ steps
 

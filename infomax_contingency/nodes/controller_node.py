@@ -10,7 +10,9 @@ counted observations. ``controller: interval:MIN_S-MAX_S`` replaces the table by
 paper's calibration protocol: vocalize at random intervals, uniform over MIN_S .. MAX_S
 seconds, whatever is heard (seeded by the controller id, which is logged);
 ``controller: recorded:BAG`` answers step t of the stream with the decision the robot
-recorded for step t in a session bag (for mic_node's ``source: bag``: a faithful replay).
+recorded for step t in a session bag (for mic_node's ``source: bag``: a faithful
+replay); a bag cut by a killed recorder is read up to its last chunk, with a WARN line
+naming the cut.
 
 Step clock: the node answers every bit on ``sound_step`` of the stream it follows
 (:class:`~infomax_contingency.core.stepclock.SourceLock`: a second mic_node is counted
@@ -37,6 +39,7 @@ per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -52,8 +55,15 @@ from infomax_contingency.core.controllers import (
 )
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace, WriterSequence
+from infomax_contingency.nodes.graph_node import (
+    ERROR,
+    OK,
+    WARN,
+    GraphNode,
+    take_from_writer,
+    take_on_pace,
+)
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -84,8 +94,13 @@ def _table_path(value: str) -> str:
         raise ConfigError(f"parameter 'policy_file' = {value!r}: {error}") from None
 
 
-def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
-    """The controller of parameter ``controller``: interval:MIN_S-MAX_S or recorded:BAG."""
+def _other_controller(spec: str, params: ModelParams, seed: int,
+                      warn: Callable[[str], None]) -> Controller:  # fmt: skip
+    """The controller of parameter ``controller``: interval:MIN_S-MAX_S or recorded:BAG.
+
+    ``warn`` is told what a bag cut by a killed recorder lacks (its steps after the cut
+    are answered False).
+    """
     kind, _, argument = spec.partition(":")
     try:
         if kind == "interval":
@@ -95,7 +110,7 @@ def _other_controller(spec: str, params: ModelParams, seed: int) -> Controller:
             # this controller needs it (docs/ENVIRONMENT.md).
             from infomax_contingency.audio.bag_replay import recorded_decisions
 
-            return ReplayedDecisions(params, recorded_decisions(Path(argument)),
+            return ReplayedDecisions(params, recorded_decisions(Path(argument), warn),
                                      name=f"recorded:{argument}")
     except (ValueError, OSError, AudioError) as error:
         raise ConfigError(f"parameter 'controller' = {spec!r}: {error}") from None
@@ -140,12 +155,15 @@ class ControllerNode(GraphNode):
         self.controller_id = new_source_id()
         self.table_path = _table_path(path)
         if spec:
-            self.controller = _other_controller(spec, params, self.controller_id)
+            self.controller = _other_controller(spec, params, self.controller_id,
+                                                self.get_logger().warning)
         else:
             table = PolicyTable.load(self.table_path, expected_params=params)
             self.controller = PolicyController(table)
         self.window_us = window_us(params.dt)
         self.streams = SourceLock(timeout_s)
+        self.writer = WriterSequence()
+        """The writer of the stream followed (a forged bit with its id is another)."""
         self.pace = StepPace(1.0 / params.dt, timeout_s)
         self.jumps = self.recent_events()
         self.last_step = 0
@@ -197,6 +215,7 @@ class ControllerNode(GraphNode):
                if self.unanswered_bits else "")
         )
         if held is not None:
+            self.sequence = None  # its number is not known here: it is taken
             self._on_sound_step(*held)
 
     def _on_sound_step(self, msg: Int64MultiArray, stamp: int) -> None:
@@ -236,8 +255,12 @@ class ControllerNode(GraphNode):
             self.controller.missed(self.controller.params.timer_long_ago)
         if arrival is not Arrival.FOLLOWED:
             self.pace.restart()
-        for taken in take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
-                                  bit, "bit", f"stream {bit.stream}"):  # fmt: skip
+            self.writer.restart()
+        source = f"stream {bit.stream}"
+        on_pace = take_on_pace(self, self.pace, self.jumps, bit.step, self.sent_s(stamp, now),
+                               bit, "bit", source)  # fmt: skip
+        for taken in take_from_writer(self, self.writer, self.foreign, on_pace, bit.step,
+                                      self.sequence, source):  # fmt: skip
             self._answer(taken, now)
 
     def _answer(self, bit: StepBit, now: float) -> None:

@@ -66,6 +66,7 @@ from infomax_contingency.core.stepclock import (
     LockstepPacer,
     SourceLock,
     StepPace,
+    WriterSequence,
 )
 from infomax_contingency.nodes.graph_node import (
     ERROR,
@@ -73,6 +74,7 @@ from infomax_contingency.nodes.graph_node import (
     RELEASED_WINDOW,
     WARN,
     GraphNode,
+    take_from_writer,
     take_on_pace,
 )
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader
@@ -258,6 +260,7 @@ class FakeAudioNode(GraphNode):
         self.started = False
         self.controllers = SourceLock(config.source_timeout_s)
         self.pace = StepPace(1.0 / config.room.window_s, config.source_timeout_s)
+        self.writer = WriterSequence()
         self.jumps = self.recent_events()
         self._window_sent_s: float | None = None
         """When the newest window was published (s, system clock)."""
@@ -358,9 +361,12 @@ class FakeAudioNode(GraphNode):
             return
         if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
             self.pace.restart()
-        for taken in take_on_pace(self, self.pace, self.jumps, decision.step,
-                                  self.sent_s(stamp, now), decision, "decision",
-                                  f"controller {decision.controller}"):  # fmt: skip
+            self.writer.restart()
+        source = f"controller {decision.controller}"
+        on_pace = take_on_pace(self, self.pace, self.jumps, decision.step,
+                               self.sent_s(stamp, now), decision, "decision", source)
+        for taken in take_from_writer(self, self.writer, self.foreign, on_pace, decision.step,
+                                      self.sequence, source):  # fmt: skip
             self._hear(taken)
 
     def _hear(self, decision: StepDecision) -> None:

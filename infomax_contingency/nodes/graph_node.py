@@ -42,7 +42,13 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
-from infomax_contingency.core.stepclock import LockstepPacer, Pace, RecentEvents, StepPace
+from infomax_contingency.core.stepclock import (
+    LockstepPacer,
+    Pace,
+    RecentEvents,
+    StepPace,
+    WriterSequence,
+)
 from infomax_contingency.nodes.parameters import ParameterReader
 from infomax_contingency.nodes.qos import STREAM_QOS
 
@@ -99,6 +105,8 @@ class GraphNode(Node):
             self.started_ns = time.time_ns()
             self.stale_messages = 0
             """Messages ignored because they were published before this node started."""
+            self.sequence: int | None = None
+            """The DDS sequence number of the message being received (see subscribe)."""
             self.parameters = ParameterReader(self)
             self.fault_hold_s = self.parameters.number(
                 "fault_hold_s",
@@ -166,6 +174,9 @@ class GraphNode(Node):
     ) -> Subscription:
         """Subscribe; ``callback(msg, stamp)`` gets the publication stamp (ns, 0 = unknown).
 
+        During the callback, :attr:`sequence` is the message's number among its writer's
+        (DDS ``publication_sequence_number``; None if the middleware gives none).
+
         Messages published before this node started are ignored: a node that is
         restarted in the middle of a run does not act on the past (DDS may hand a late
         joiner recent samples from a writer's shared-memory history).
@@ -177,6 +188,7 @@ class GraphNode(Node):
             if 0 < stamp < self.started_ns:
                 self.stale_messages += 1
                 return
+            self.sequence = info.get("publication_sequence_number")
             callback(msg, stamp)
 
         return self.create_subscription(kind, topic, receive, qos)
@@ -422,6 +434,23 @@ def take_on_pace(node: GraphNode, pace: StepPace, jumps: RecentEvents, step: int
         node.get_logger().warning(pace.run_message(source, taken[0].step))
         return taken
     return [message]
+
+
+def take_from_writer(node: GraphNode, writer: WriterSequence, events: RecentEvents,
+                     taken: list[Any], step: int, sequence: int | None, source: str
+                     ) -> list[Any]:  # fmt: skip
+    """``taken`` less its last message if another writer than ``source``'s sent it.
+
+    ``taken`` is what :func:`take_on_pace` gave for a message of ``step``, numbered
+    ``sequence`` by its writer (DDS); one from another writer was forged with the
+    source's id: it is named in a WARN, counted in ``events`` and dropped.
+    """
+    if not taken or writer.same_writer(step, sequence):
+        return taken
+    events.note(node.now_s())
+    node.warn_intrusion(f"step {step} of {source} comes from another writer than its earlier"
+                        " steps (forged with its id?): ignored", "forged")  # fmt: skip
+    return taken[:-1]
 
 
 def _announced_start(logger: Any, waiting_for: str, start: Callable[[], None]

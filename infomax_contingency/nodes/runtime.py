@@ -11,13 +11,11 @@ reason, SIGKILL included (:func:`end_with_parent`).
 
 from __future__ import annotations
 
-import ctypes
 import os
 import signal
 import sys
 import time
 from collections.abc import Callable, MutableMapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -29,6 +27,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from infomax_contingency.errors import USER_ERRORS
+from infomax_contingency.lifetime import process_alive, signal_when_parent_dies
 from infomax_contingency.nodes.parameters import params_files, undeclared_parameters
 
 SPIN_TIMEOUT_S = 0.1
@@ -72,10 +71,6 @@ PARENT_PID_VARIABLE = "INFOMAX_CONTINGENCY_PARENT_PID"
 """Environment variable by which a process that starts nodes (the demo, the test harness)
 names itself: the node then ends with it (:func:`end_with_parent`)."""
 
-_PR_SET_PDEATHSIG = 1
-"""``prctl`` option (linux/prctl.h): the signal this process gets when its parent dies."""
-
-
 def end_with_parent(environ: MutableMapping[str, str] = os.environ) -> bool:
     """Get SIGTERM when the parent named by :data:`PARENT_PID_VARIABLE` dies; False if it has.
 
@@ -95,28 +90,9 @@ def end_with_parent(environ: MutableMapping[str, str] = os.environ) -> bool:
     text = environ.pop(PARENT_PID_VARIABLE, "").strip()
     if not text.isdigit():
         return True
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    signal_when_parent_dies(signal.SIGTERM)
     parent = int(text)
     return os.getppid() == parent or process_alive(parent)
-
-
-def process_alive(pid: int) -> bool:
-    """True while ``pid`` runs (a zombie, dead but not yet reaped, does not count)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except FileNotFoundError:
-        return False
-    except OSError:  # no /proc: ask the kernel (a zombie then counts as alive)
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        except PermissionError:
-            return True
-        return True
-    return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
 
 
 def parent_pid_environment(environ: MutableMapping[str, str]) -> MutableMapping[str, str]:

@@ -47,8 +47,15 @@ from std_msgs.msg import Int64MultiArray
 from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
 from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
 from infomax_contingency.audio.wav import read_wav
-from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace
-from infomax_contingency.nodes.graph_node import ERROR, OK, WARN, GraphNode, take_on_pace
+from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace, WriterSequence
+from infomax_contingency.nodes.graph_node import (
+    ERROR,
+    OK,
+    WARN,
+    GraphNode,
+    take_from_writer,
+    take_on_pace,
+)
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -96,6 +103,7 @@ class SpeakerNode(GraphNode):
         )
         self.controllers = SourceLock(timeout_s)
         self.pace = StepPace(1.0 / read.model().dt, timeout_s)  # one step per window: dt
+        self.writer = WriterSequence()
         self._answered = (0, 0)
         """The last step played or passed: (stream, step)."""
         self.sound = {
@@ -146,8 +154,12 @@ class SpeakerNode(GraphNode):
             return
         if arrival is not Arrival.FOLLOWED or decision.stream != self._answered[0]:
             self.pace.restart()
+            self.writer.restart()
+        source = f"controller {decision.controller}"
         taken = take_on_pace(self, self.pace, self.jumps, decision.step, sent, decision,
-                             "decision", f"controller {decision.controller}")  # fmt: skip
+                             "decision", source)  # fmt: skip
+        taken = take_from_writer(self, self.writer, self.foreign, taken, decision.step,
+                                 self.sequence, source)  # fmt: skip
         if taken:  # a run taken after a jump is in the past: only its newest may sound
             self._obey(taken[-1])
 
