@@ -19,7 +19,7 @@ import numpy as np
 
 from infomax_contingency.core import learning
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.eval.experiments import Scorer
+from infomax_contingency.core.scoring import Scorer
 
 
 def main() -> None:
