@@ -89,6 +89,8 @@ class BitSourceControls:
         self.replay: WindowSource | None = None
         self.recorded_bits = False
         """True for a session bag without audio: its recorded bits are replayed."""
+        self.withheld_steps: set[int] = set()
+        """Steps published withheld (the robot's own sound) whose decision is awaited."""
 
     def use_source(self, source: WindowSource) -> None:
         """Take the window source: calibrate on a replay's start, make the settings live."""
@@ -103,6 +105,34 @@ class BitSourceControls:
         for spec in self.bits.specs():
             if spec.live:
                 self._make_live(spec.name)
+
+    @property
+    def _learns_from_decisions(self) -> bool:
+        return self.bits.needs_decisions and not self.recorded_bits
+
+    def decided(self, last_answered: int, step: int, vocalize: bool) -> None:
+        """The decision on ``step`` came (the last answered before it: ``last_answered``).
+
+        A source that labels windows by the decisions (``background``) gets each one in
+        step order; a step skipped between the two lost its decision (None).
+        """
+        if not self._learns_from_decisions:
+            return
+        for answered in range(last_answered + 1, step + 1):
+            u = int(vocalize) if answered == step else None
+            self.bits.note_decision(u, answered in self.withheld_steps)
+            self.withheld_steps.discard(answered)
+
+    def dropped(self, windows: int) -> None:
+        """``windows`` dropped from the outbox: they never get a decision."""
+        if self._learns_from_decisions:
+            for _ in range(windows):
+                self.bits.note_decision(None)
+
+    def released(self, step: int, withheld: bool) -> None:
+        """``step`` went out; a withheld one (the robot's own sound) is not the room's."""
+        if withheld and self._learns_from_decisions:
+            self.withheld_steps.add(step)
 
     @property
     def _no_audio(self) -> str:

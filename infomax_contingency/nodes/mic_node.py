@@ -75,7 +75,6 @@ MICROPHONE_POLL_S = 0.02
 
 LISTENER_CHECK_S = 0.5
 """Seconds between checks for a listener on 'step_applied' that stalled (killed, hung)."""
-
 ACK_TIMEOUT_S = 5.0
 """Seconds a finishing node waits for its subscribers to acknowledge the last messages."""
 
@@ -103,7 +102,6 @@ class MicNode(GraphNode):
         )
         self.stalled_listeners = self.recent_events()
         self.windows = 0
-        self._withheld_steps: set[int] = set()  # released withheld steps awaiting decisions
         self.last_energy_db = float("nan")
         self.started = self.ended = False
         self.losses = self.recent_events()
@@ -274,11 +272,7 @@ class MicNode(GraphNode):
         self.outbox.answered(decision.step)
         if self.outbox.last_answered == before:
             return  # a repeated answer (a second controller): it releases nothing
-        if self.bits.needs_decisions and not self.controls.recorded_bits:
-            for step in range(before + 1, decision.step + 1):  # a skipped step's was lost
-                u = int(decision.vocalize) if step == decision.step else None
-                self.bits.note_decision(u, step in self._withheld_steps)
-                self._withheld_steps.discard(step)
+        self.controls.decided(before, decision.step, decision.vocalize)
         if (
             self.started
             and self.pacer is not None
@@ -297,9 +291,7 @@ class MicNode(GraphNode):
         dropped = self.outbox.dropped
         for window in self.self_sound.release(replaying_in_lockstep=self.pacer is not None):
             self.outbox.push(window)
-        if self.bits.needs_decisions and not self.controls.recorded_bits:
-            for _ in range(self.outbox.dropped - dropped):
-                self.bits.note_decision(None)  # a dropped window never gets a decision
+        self.controls.dropped(self.outbox.dropped - dropped)
         if self.outbox.dropped > dropped:
             self.losses.note(self.now_s())
             self.log_throttled("windows dropped", "warning",
@@ -324,8 +316,7 @@ class MicNode(GraphNode):
         )
         for step, (energy_db, bit, withheld) in self.outbox.release(paced, now):
             self.windows += 1
-            if withheld and self.bits.needs_decisions:
-                self._withheld_steps.add(step)  # the robot's own sound: not the room's
+            self.controls.released(step, withheld)
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(
@@ -394,10 +385,9 @@ def _on_applied(node: MicNode, msg: Int64MultiArray, stamp: int) -> None:
         return
     taken = node.outbox.acknowledged(applied.listener, applied.step, node.now_s())
     if taken is Listening.WAITED_FOR:
-        node.get_logger().info(
-            f"listener {applied.listener} on '{STEP_APPLIED}' keeps up (step {applied.step}):"
-            f" no step goes more than {node.outbox.max_ahead} ahead of it"
-        )
+        node.get_logger().info(f"listener {applied.listener} on '{STEP_APPLIED}' keeps up (step"
+                               f" {applied.step}): no step goes more than"
+                               f" {node.outbox.max_ahead} ahead of it")
     node._release()  # the node's own subscription (a function: MicNode's size bound)
 
 
