@@ -400,3 +400,15 @@ def test_memory_running_out_where_no_check_foresaw_it_is_one_line(monkeypatch, c
     err = capsys.readouterr().err.strip()
     assert err == ("infomax-contingency simulate: error: out of memory: the sizes asked for"
                    " need more memory than this process may use (docs/LIMITS.md)")
+
+
+@pytest.mark.parametrize("argv", [
+    ("baby9", "--horizon", "1000000"),  # a MemoryError traceback before
+    ("baby9", "--memory", "100000000"),
+    ("rule", "--horizon", "100000"),
+])
+def test_an_experiment_whose_table_would_not_fit_is_refused_before_solving(argv, capsys):
+    assert main(["experiment", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "refusing to solve the " in err and "give a shorter horizon or memory" in err

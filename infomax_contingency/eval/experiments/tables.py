@@ -9,7 +9,8 @@ from pathlib import Path
 from infomax_contingency.core import model
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC, PolicyTable, PolicyTableError
-from infomax_contingency.core.solver import SOLVER_VERSION, solve
+from infomax_contingency.core.solver import SOLVER_VERSION, solve, solve_cost
+from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.resources import resource_path
 
 
@@ -47,7 +48,8 @@ def obtain_table(
 
     The committed one in ``policies/`` if it exists, else one cached earlier, else solved
     now (a few seconds at most) and cached. A cached table from another solver version is
-    solved again.
+    solved again. A table that would not fit in memory is refused before any work
+    (ValueError, one line).
     """
     name = table_name(params, mode, horizon, memory)
     try:
@@ -65,6 +67,9 @@ def obtain_table(
             cached = None  # a damaged cache entry: solve again and overwrite it
         if cached is not None and cached.solver_version == SOLVER_VERSION:
             return cached, path
+    size = f"horizon {horizon}" + (f" and memory {memory}" if memory else "")
+    refuse_over_budget(solve_cost(params, mode, horizon, memory).peak_bytes,
+                       f"solve the {mode} table of {size}", "give a shorter horizon or memory")
     table = solve(params, mode, horizon, memory)
     directory.mkdir(parents=True, exist_ok=True)
     partial = path.with_suffix(f".{os.getpid()}.tmp")
