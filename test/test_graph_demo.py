@@ -392,6 +392,8 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--steps", str(2**31)], "--steps must be in [1, 2147483647]"),
         (["--seed", "-1"], "--seed must be in [0, 2147483647]"),
         (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
+        # the lockstep room waited for the warm-up's decisions: no progress for 30 s
+        (["--bit-source", "background"], "--bit-source background needs --wav: "),
     ],
 )
 def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(

@@ -108,7 +108,8 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         choices=tuple(BIT_SOURCES),
         default=None,
         help="how mic_node turns a window into a bit (default: a wav file mic_node's default,"
-        " background; the simulated room config/fake_room.yaml's, energy at -40 dB)",
+        " background; the simulated room config/fake_room.yaml's, energy at -40 dB; the"
+        " lockstep room cannot run background, which makes no bit in its first 6 s)",
     )
     parser.add_argument(
         "--record",
