@@ -92,7 +92,7 @@ class RoomsConfig:
     backgrounds: tuple[str, ...] = tuple(ROOM_SOUNDS)
     partner_states: tuple[str, ...] = tuple(PARTNER_STATE_NAMES)
     controllers: tuple[str, ...] = CONTROLLER_NAMES
-    binarizer: str = "calibrate"
+    binarizer: str = "background"
     runs: int = 100
     seconds: float = 60.0
     seed: int = 0
