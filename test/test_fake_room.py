@@ -16,6 +16,7 @@ from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import (
     PRESETS,
+    AudioWorld,
     FakeRoom,
     FakeRoomConfig,
     simulate_audio_loop,
@@ -198,3 +199,45 @@ def test_a_room_loads_scipy_signal_only_when_it_filters(room: str, loads_the_fil
     out = subprocess.run([sys.executable, str(child), f"child_room:step_room:{room}",
                           "scipy.signal"], capture_output=True, text=True, check=True)  # fmt: skip
     assert json.loads(out.stdout) == (["scipy.signal"] if loads_the_filters else [])
+
+
+def test_the_offline_loop_tells_a_learning_source_which_windows_were_withheld() -> None:
+    """As mic_node does: the robot's declared speech never sets a background threshold."""
+    from types import SimpleNamespace
+
+    class Room:
+        def __init__(self) -> None:
+            self.robot_sound = iter([False, True, False])
+
+        def next_window(self):
+            return SimpleNamespace(samples=np.zeros(8000, dtype=np.float32),
+                                   partner_present=False, robot_sound=next(self.robot_sound))
+
+        def vocalize(self) -> None:
+            pass
+
+    class LearningSource:
+        needs_decisions = True
+        last_energy_db = -60.0
+
+        def __init__(self) -> None:
+            self.decisions: list[tuple[int | None, bool]] = []
+
+        def push_window(self, samples) -> bool:
+            return False
+
+        def note_decision(self, u, withheld: bool = False) -> None:
+            self.decisions.append((u, withheld))
+
+    source = LearningSource()
+    world = AudioWorld(Room(), source)  # type: ignore[arg-type]
+    for u in (1, 0, 0):
+        world.observe()
+        world.act(u)
+    assert source.decisions == [(1, False), (0, True), (0, False)]
+    undeclared = LearningSource()
+    world = AudioWorld(Room(), undeclared, declare_self_sound=False)  # type: ignore[arg-type]
+    for u in (1, 0, 0):
+        world.observe()
+        world.act(u)
+    assert undeclared.decisions == [(1, False), (0, False), (0, False)]

@@ -874,6 +874,7 @@ class AudioWorld:
         self.room = room
         self.binarizer = binarizer
         self.declare_self_sound = declare_self_sound
+        self._withheld = False  # the last observed window's, for the decision on it
 
     def observe(self) -> AudioObservation | None:
         """The next window's bit, energy and ground truth (None while calibrating)."""
@@ -883,12 +884,17 @@ class AudioWorld:
         if y is None:
             return None
         withheld = self.declare_self_sound and window.robot_sound
+        self._withheld = withheld
         return AudioObservation(int(y), energy, window.partner_present, withheld)
 
     def act(self, u: int) -> None:
-        """Vocalize at the start of the next window if ``u`` is 1 (the bit source hears of it)."""
+        """Vocalize at the start of the next window if ``u`` is 1 (the bit source hears of it).
+
+        A source that learns from the decisions also hears whether the window was withheld
+        (the robot's own sound is not the room's background), as mic_node tells it.
+        """
         if getattr(self.binarizer, "needs_decisions", False):
-            self.binarizer.note_decision(u)
+            self.binarizer.note_decision(u, self._withheld)
         if u:
             self.room.vocalize()
 
