@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from infomax_contingency.cli.experiments.options import commas, name_list, print_json
+from infomax_contingency.cli.experiments.options import add_parameter_sets_option, print_json
 from infomax_contingency.eval.experiments.greedy import GreedyConfig, experiment_greedy
 
 
@@ -53,12 +53,7 @@ def run_greedy(args: argparse.Namespace) -> int:
 def add_greedy_arguments(sub: argparse.ArgumentParser) -> None:
     """The options of ``experiment greedy`` (defaults: :class:`GreedyConfig`)."""
     d = GreedyConfig()
-    sub.add_argument(
-        "--params",
-        type=name_list,
-        default=list(d.param_names),
-        help=f"sets (default {commas(d.param_names)})",
-    )
+    add_parameter_sets_option(sub, d.param_names)
     sub.add_argument(
         "--max-count",
         type=int,

@@ -9,7 +9,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from infomax_contingency.cli.experiments.options import commas, int_list, name_list, print_json
+from infomax_contingency.cli.experiments.options import (
+    add_parameter_sets_option,
+    commas,
+    int_list,
+    print_json,
+)
 from infomax_contingency.cli.formatting import number
 from infomax_contingency.eval import plots
 from infomax_contingency.eval.experiments.horizon import HorizonConfig, experiment_horizon
@@ -52,12 +57,7 @@ def run_horizon(args: argparse.Namespace) -> int:
 def add_horizon_arguments(sub: argparse.ArgumentParser) -> None:
     """The options of ``experiment horizon`` (defaults: :class:`HorizonConfig`)."""
     d = HorizonConfig()
-    sub.add_argument(
-        "--params",
-        type=name_list,
-        default=list(d.param_names),
-        help=f"sets (default {commas(d.param_names)})",
-    )
+    add_parameter_sets_option(sub, d.param_names)
     sub.add_argument(
         "--horizons",
         type=int_list,

@@ -52,3 +52,9 @@ def cache_dir_of(args: argparse.Namespace) -> Path | None:
 def commas(values: Any) -> str:
     """A list default as it is typed on the command line: ``a,b,c``."""
     return ",".join(str(value) for value in values)
+
+
+def add_parameter_sets_option(sub: argparse.ArgumentParser, default: Any) -> None:
+    """``--params a,b``: the parameter sets an experiment runs on (``default``: names)."""
+    sub.add_argument("--params", type=name_list, default=list(default),
+                     help=f"sets (default {commas(default)})")
