@@ -16,9 +16,9 @@ under a second).
 from __future__ import annotations
 
 import functools
-import io
 import subprocess
-import wave
+import tempfile
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,24 +58,27 @@ class TtsUnavailableError(RuntimeError):
 
 
 def _render(text: str, voice: str, speed_wpm: int, pitch: int) -> tuple[NDArray[np.float64], int]:
-    """``text`` spoken by espeak-ng: mono samples in [-1, 1] and the rate, Hz."""
-    command = ["espeak-ng", "-v", voice, "-s", str(speed_wpm), "-p", str(pitch), "--stdout", text]
-    try:
-        result = subprocess.run(command, capture_output=True, check=True, timeout=60)
-    except FileNotFoundError:
-        raise TtsUnavailableError(
-            "this room speaks with espeak-ng, which is not installed: apt-get install espeak-ng"
-        ) from None
-    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as error:
-        raise TtsUnavailableError(f"espeak-ng failed on voice {voice!r}: {error}") from None
-    data = bytearray(result.stdout)
-    # espeak-ng writes to a pipe: the RIFF and data sizes are placeholders; fix them.
-    data[4:8] = (len(data) - 8).to_bytes(4, "little")
-    data[40:44] = (len(data) - 44).to_bytes(4, "little")
-    with wave.open(io.BytesIO(bytes(data))) as reader:
-        rate = reader.getframerate()
-        pcm = np.frombuffer(reader.readframes(reader.getnframes()), dtype="<i2")
-    return pcm.astype(np.float64) / 32768.0, rate
+    """``text`` spoken by espeak-ng: mono samples in [-1, 1] and the rate, Hz.
+
+    espeak-ng writes a wav file, which the package's one wav reader reads.
+    """
+    from infomax_contingency.audio.wav import read_wav
+
+    with tempfile.TemporaryDirectory() as directory:
+        path = Path(directory) / "speech.wav"
+        command = ["espeak-ng", "-v", voice, "-s", str(speed_wpm), "-p", str(pitch),
+                   "-w", str(path), text]
+        try:
+            subprocess.run(command, capture_output=True, check=True, timeout=60)
+        except FileNotFoundError:
+            raise TtsUnavailableError(
+                "this room speaks with espeak-ng, which is not installed: apt-get install"
+                " espeak-ng"
+            ) from None
+        except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as error:
+            raise TtsUnavailableError(f"espeak-ng failed on voice {voice!r}: {error}") from None
+        samples, rate = read_wav(path)
+    return samples[:, 0], rate
 
 
 @functools.lru_cache(maxsize=4)
