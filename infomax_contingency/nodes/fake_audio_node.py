@@ -56,6 +56,7 @@ import sys
 import time
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
@@ -280,11 +281,12 @@ class FakeAudioNode(GraphNode):
         config = self.config
         self._held_window: Timer | None = None
         """The timer that publishes the next window ``window_s / lockstep_max_speed`` after
-        its decision (None: no cap, the decision publishes it)."""
+        its decision (None: no cap, the decision publishes it). It runs on the steady
+        clock: the cap is in real time, and the system clock may be slewed or stepped."""
         if config.lockstep and config.lockstep_max_speed > 0:
             self._held_window = self.create_timer(
                 config.room.window_s / config.lockstep_max_speed, self._release_held_window,
-                autostart=False,
+                clock=Clock(clock_type=ClockType.STEADY_TIME), autostart=False,
             )  # fmt: skip
         self.audio_pub = self.create_publisher(Float32MultiArray, "audio", AUDIO_QOS)
         self.truth_pub = self.create_publisher(Bool, "partner_present", STREAM_QOS)
