@@ -83,7 +83,7 @@ def _starved(graph: SteppedGraph, belief: SteppedExecutor, condition: Callable[[
     made, made_at = -1, time.monotonic()
     while not condition():
         assert time.monotonic() < deadline, f"{what} did not happen within {deadline_s:g} s"
-        graph.executor.executor.spin_once(timeout_sec=0.001)
+        graph.executor.executor.spin_once(timeout_sec=IDLE_S)
         now = time.monotonic()
         if len(rec.sound_step) + len(rec.vocalize_step) != made:
             made, made_at = len(rec.sound_step) + len(rec.vocalize_step), now
