@@ -454,7 +454,8 @@ def test_audio_in_big_chunks_between_processes_gives_the_offline_beliefs(
 ) -> None:
     """Smoke test between processes: 30 s of audio in one message, then 10^7 samples.
 
-    test_intruders.py runs every chunking (0.01 s to 10^7 samples) on the in-process graph.
+    The one test of a 10^7-sample message through the nodes: test_intruders.py runs the
+    other chunkings (0.01 s to 30 s) on the in-process graph.
     """
     rec = graph.recorder
     nodes = {"mic_node": MIC, "controller_node": {**CONTROLLER, "wait_for_listeners": 3},
