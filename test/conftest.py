@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+import speech_bank
 from colcon_workspace import shared_workspace
 from domains import NoFreeDomainError, lock_domain_ids
 from infomax_contingency.nodes.entry import use_one_blas_thread
@@ -81,3 +82,9 @@ def pytest_report_header(config: pytest.Config) -> str:
 def colcon_workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A colcon build of the package, one per run (see ``colcon_workspace.py``)."""
     return shared_workspace(tmp_path_factory)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def shared_speech_bank(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """espeak-ng's speech bank rendered once per run for every worker (``speech_bank.py``)."""
+    speech_bank.install(tmp_path_factory.getbasetemp())
