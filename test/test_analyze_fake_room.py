@@ -27,6 +27,10 @@ from infomax_contingency.eval.fig4 import fig4_study
 from infomax_contingency.eval.sessions import write_offline_session
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, iter_audio_loop
 
+# One worker runs the module: each worker that ran one of its tests made the three
+# sessions of the module fixture again (with `--dist loadgroup`).
+pytestmark = pytest.mark.xdist_group("fake_room_sessions")
+
 ROBOT = ModelParams.named("robot")
 THRESHOLD_DB = -40.0
 REPLY_PROBABILITY = 0.8

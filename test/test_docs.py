@@ -143,6 +143,9 @@ def _running_api(node) -> refs.NodeApi:  # noqa: ANN001 - an rclpy Node
     )
 
 
+# One worker runs every node's case: each worker that ran one started the module's whole
+# graph again (with `--dist loadgroup`).
+@pytest.mark.xdist_group("readme_api_graph")
 @pytest.mark.parametrize("executable", NODES)
 def test_the_readme_ros_api_table_is_what_the_node_does(
     executable: str, readme_api: dict[str, refs.NodeApi], running_graph: dict

@@ -260,6 +260,9 @@ def test_bad_configuration_is_refused_in_process(case: str, tmp_path: Path) -> N
 
 
 @pytest.mark.slow
+# One worker runs every case: the module fixture starts every process case at once, and
+# each worker that ran a case started all of them again (with `--dist loadgroup`).
+@pytest.mark.xdist_group("node_refusals")
 @pytest.mark.parametrize("case", PROCESS_CASES)
 def test_bad_configuration_is_refused_in_one_line(
     refusals: dict[str, subprocess.CompletedProcess], case: str
