@@ -25,12 +25,15 @@ Logs: the bag's path when recording starts, that it waits for the first ``sound_
 Robustness: the MCAP file is flushed every ``flush_period_s`` seconds (a chunk ends
 there), so a recorder killed with ``kill -9`` leaves a file readable up to the last
 complete chunk (``metadata.yaml`` is only written on a clean stop; the MCAP file reads
-without it). A directory that cannot be created or written, or a full disk, gives one
-ERROR line and an ERROR diagnostic; the recorder stops writing and keeps what it has
-written, and the rest of the graph keeps running.
+without it). A bag directory that cannot be created (a parent that is not writable,
+``/proc/x``) is refused at start-up like one that exists: one line, exit status 2. A
+write that fails later (a full disk) gives one ERROR line and an ERROR diagnostic; the
+recorder stops writing and keeps what it has written, and the rest of the graph keeps
+running.
 
-Parameters: ``directory`` (the bag directory to create; one that exists already is
-refused at start-up, exit status 2, which ends a launch: as ``ros2 bag record -o``),
+Parameters: ``directory`` (the bag directory to create; one that exists already or
+cannot be created is refused at start-up, exit status 2, which ends a launch: as
+``ros2 bag record -o``),
 ``session_files`` (comma-separated paths to store with the session), ``flush_period_s``,
 ``record_audio`` (false: leave out the ``audio`` topic, the bulk of a bag).
 Publishes ``session_info``, ``/diagnostics``.
@@ -169,9 +172,10 @@ class RecorderNode(GraphNode):
         self.writer: BagWriter | None = None
         try:
             self.writer = BagWriter(self.directory, custom_data={"session": self.description})
-            self.get_logger().info(f"recording to {self.directory.resolve()}")
-        except BagWriteError as error:
-            self._fail(str(error))
+        except BagWriteError as error:  # nothing to record into: the node (and launch) ends
+            raise ConfigError(f"parameter 'directory' = {str(self.directory)!r}: {error}"
+                              ) from None
+        self.get_logger().info(f"recording to {self.directory.resolve()}")
         self._add_topic(SESSION_TOPIC, String, STREAM_QOS)
         for topic, (kind, qos) in RECORDED_TOPICS.items():
             self._add_topic(topic, kind, qos)
