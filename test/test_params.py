@@ -182,6 +182,27 @@ def test_a_threshold_file_outside_the_parameters_range_is_refused_like_the_param
     assert node.describe_parameter("threshold_db").floating_point_range[0].to_value == 0.0
 
 
+def test_a_threshold_file_that_nothing_reads_is_named_at_start_up(
+    graph: Callable, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Given while the bit source or its threshold_mode reads no file: a WARN, not silence."""
+    path = str(_threshold_file(tmp_path / "t.yaml", -30))
+    unread = f"parameter 'threshold_file' = '{path}' is not read:"
+    for settings, reader in (
+        ({"bit_source": "background"}, "bit_source background reads no threshold file"),
+        ({"bit_source": "energy", "threshold_mode": "calibrate"},
+         "bit_source energy with threshold_mode calibrate reads no threshold file"),
+        ({"bit_source": "vad"}, "bit_source vad reads no threshold file"),
+    ):
+        graph(MicNode, threshold_file=path, **settings)
+        err = capfd.readouterr().err
+        assert f"{unread} {reader}; threshold_mode file of bit_source energy or speech_band" \
+            " reads it" in err, err
+    graph(MicNode, bit_source="energy", threshold_mode="file", threshold_file=path)
+    graph(MicNode, bit_source="background", threshold_file="")  # robot.yaml's: nothing given
+    assert "is not read" not in capfd.readouterr().err
+
+
 def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
     """A mic_node on 'audio' at a fixed -40 dB (1 s calibration if asked), and ``play``.
 

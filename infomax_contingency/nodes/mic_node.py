@@ -87,6 +87,8 @@ class MicNode(GraphNode):
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = mic_config.read_config(self.parameters)
+        if unread := mic_config.unread_threshold_file(self.parameters, config):
+            self.get_logger().warning(unread)
         self.controls = BitSourceControls(self, config)
         self.bits, self.threshold_log = self.controls.bits, self.controls.threshold_log
         self.source = mic_config.open_window_source(config, self.bits.needs_samples, self.log_at)
