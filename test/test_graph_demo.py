@@ -266,11 +266,21 @@ def test_the_nodes_of_a_demo_killed_with_sigkill_end_too() -> None:
 
 @pytest.mark.slow
 def test_a_node_that_refuses_its_parameters_is_named_at_once() -> None:
-    result = demo("--memory", "2000000", "--steps", "10")
-    assert result.returncode == 1, result.stdout + result.stderr
-    assert result.stderr.strip() == (
-        "infomax-contingency demo: error: belief_node exited with status 2: parameter"
-        " 'memory_steps' = 2000000 is not allowed: a whole number in [0, 1000000]"
+    """The demo refuses its own bad arguments first; a node's refusal is still named."""
+    script = (
+        "from infomax_contingency.cli import demo, main\n"
+        "args = main.build_parser().parse_args(['demo', '--steps', '10'])\n"
+        "demo.isolate_dds()\n"
+        "nodes, clock = demo._nodes(args)\n"
+        "nodes['belief_node']['memory_steps'] = 2_000_000\n"
+        "print(demo._run_graph(args, nodes, clock))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
+                            text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip().splitlines()[-1] == (
+        "belief_node exited with status 2: parameter 'memory_steps' = 2000000 is not allowed:"
+        " a whole number in [0, 1000000]"
     )
 
 
@@ -391,6 +401,8 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--calibration-s", "4000"], "--calibration-s must be in (0, 3600] seconds"),
         (["--steps", str(2**31)], "--steps must be in [1, 2147483647]"),
         (["--seed", "-1"], "--seed must be in [0, 2147483647]"),
+        (["--memory", "1000000000000"], "--memory must be in [0, 1000000] (belief_node's"
+                                        " memory_steps; 0 = all), got 1000000000000"),
         (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
         # the lockstep room waited for the warm-up's decisions: no progress for 30 s
         (["--bit-source", "background"], "--bit-source background needs --wav: "),
