@@ -451,3 +451,24 @@ def test_the_experiments_estimates_stay_near_what_they_take():
     robot = ModelParams.load("robot")
     assert 200 * 2**20 < receding_layers_cost(robot, 60, 12).peak_bytes < 400 * 2**20
     assert 150 * 2**20 < receding_layers_cost(robot, 8, 60).peak_bytes < 400 * 2**20
+
+
+def test_learn_and_room_wav_refuse_before_work_what_would_not_fit(capsys, monkeypatch):
+    """A curve point per evaluation of 10^12; a day of sound (5.5 GB) joined into one."""
+    import infomax_contingency.limits as limits
+
+    def no_work(*_args, **_kwargs):
+        raise AssertionError("the work started before the cost check")
+
+    monkeypatch.setattr(importlib.import_module("infomax_contingency.core.learning"), "learn",
+                        no_work)
+    monkeypatch.setattr(importlib.import_module("infomax_contingency.eval.rooms.listening"),
+                        "run_loop", no_work)
+    error = _one_line_error(capsys, "learn", "--budget", str(10**12))
+    assert "refusing to learn with horizon 12 and 1,000,000,001 evaluations" in error
+    assert "a larger --evaluate-every" in error
+    monkeypatch.setattr(limits, "memory_budget", lambda: limits.MemoryBudget(2**30, "a test"))
+    error = _one_line_error(capsys, "room-wav", "quiet", "--seconds", "86400", "--out",
+                            "never.wav")
+    assert "refusing to render 86400 s of room sound: it needs about 10.5 GiB" in error
+    assert not Path("never.wav").exists()
