@@ -232,6 +232,23 @@ def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedEx
     return node, probe, executor, play
 
 
+def test_a_computed_threshold_outside_the_range_is_a_warn_and_gives_no_bits(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A noise floor of audio not scaled to [-1, 1]: no made-up bits, a WARN that says why."""
+    node, _, _, play = _live_mic(graph, threshold_mode="noise_floor", noise_margin_db=10.0,
+                                 noise_window_s=2.0)  # fmt: skip
+    assert play([-5.0, -5.0], 0) == []  # the warm-up (calibration_s 1 s)
+    assert play([-5.0, 5.0, -5.0], 0) == []  # threshold about +5 dB: above full scale
+    level, message, values = node.diagnostic_status()
+    assert level == WARN and "noise-floor threshold: threshold_db" in message, message
+    assert "is not allowed: -150 .. 0 dB" in message and values["calibration_state"] == \
+        "out_of_range"
+    assert capfd.readouterr().err.count("its windows give no bit until it is back in range") == 1
+    # scaled again: from the window after the first quiet one, bits on the new floor
+    assert play([-40.0] * 4 + [-10.0], 4) == [False, False, False, True]
+
+
 def recalibrate(probe: Probe, executor: SteppedExecutor) -> Trigger.Response:
     """Call mic_node's ~/recalibrate; its answer."""
     client = probe.create_client(Trigger, "/mic_node/recalibrate")

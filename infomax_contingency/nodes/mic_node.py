@@ -45,7 +45,7 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources.base import UNSEPARATED
+from infomax_contingency.audio.bitsources.base import OUT_OF_RANGE, UNSEPARATED
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -367,6 +367,8 @@ class MicNode(GraphNode):
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
         if bits.state == UNSEPARATED:
             return ERROR, bits.problem, values
+        if bits.state == OUT_OF_RANGE:  # a threshold it computed: no bits until back in range
+            return WARN, bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
         if self.stalled_listeners.recent(now):

@@ -37,6 +37,7 @@ from infomax_contingency.audio.background import (
 )
 from infomax_contingency.audio.bitsources.base import (
     CALIBRATING,
+    OUT_OF_RANGE,
     READY,
     BitSource,
     NameArgument,
@@ -131,6 +132,7 @@ class BackgroundSource(BitSource):
             ta1=ta1,
             reference_margin_db=s.reference_margin_db,
             least_rank=LEAST_RANK,
+            on_problem=self.on_problem,
         )  # fmt: skip
 
     def follow_model(self, params: ModelParams) -> None:
@@ -180,7 +182,13 @@ class BackgroundSource(BitSource):
 
     @property
     def state(self) -> str:
+        if self.rule.range_guard.problem:
+            return OUT_OF_RANGE
         return CALIBRATING if self.rule.calibrating else READY
+
+    @property
+    def problem(self) -> str:
+        return self.rule.calibration_problem
 
     @property
     def threshold_db(self) -> float | None:

@@ -30,6 +30,10 @@ CALIBRATING = "calibrating"
 UNSEPARATED = "unseparated"
 """State: the last calibration could not separate sound from quiet; collecting the next
 calibration windows (no bits until one succeeds)."""
+OUT_OF_RANGE = "out_of_range"
+"""State: the threshold the source computed lies outside the ``threshold_db`` parameter's
+range (:class:`~infomax_contingency.audio.threshold.ThresholdRangeGuard`); no bits until it
+is back in range."""
 
 
 class SettingError(AudioError):
@@ -253,7 +257,7 @@ class BitSource(ABC):
 
     @property
     def state(self) -> str:
-        """:data:`READY`, :data:`CALIBRATING` or :data:`UNSEPARATED`."""
+        """:data:`READY`, :data:`CALIBRATING`, :data:`UNSEPARATED` or :data:`OUT_OF_RANGE`."""
         return READY
 
     @property
