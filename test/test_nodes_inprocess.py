@@ -46,10 +46,12 @@ from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import SpeakerNode
 from infomax_contingency.nodes.step_topics import (
+    NoStep,
     StepBit,
     StepDecision,
     bit_message,
     decision_message,
+    no_step_message,
     parse_bit,
     parse_decision,
 )
@@ -576,6 +578,40 @@ def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     loud = [float(window_energies_db(w.samples, 16000, 0.5)[0]) > -40 for w in expected]
     assert loud == [False, True, False, False]
     assert [m.data for m in truth] == [False] * 4
+
+
+def test_fake_room_in_lockstep_goes_on_when_the_mic_says_a_window_gave_no_step(
+    run: Callable,
+) -> None:
+    """A window that gave mic_node no step is answered on ``no_step``.
+
+    (Its bit source warming up.) The room goes on, once per window said; then on a
+    decision, as before.
+    """
+    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
+                             start_delay_s=0.0)  # fmt: skip
+    audio = probe.listen("audio", Float32MultiArray)
+    no_step = probe.talk("no_step", Int64MultiArray)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    graph.connected(no_step)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    for window in (1, 1, 2):  # window 1 said twice: one window more, not two
+        no_step.publish(no_step_message(NoStep(STREAM, window)))
+        graph.run_until(lambda w=window: len(audio) == w + 1, f"the window after {window}")
+    graph.run_for_callbacks(30)
+    assert len(audio) == 3 and node.windows_without_step == 2
+    for message in decisions_of(STREAM, [True]):  # the mic's first step: window 3
+        vocalize.publish(message)
+    graph.run_until(lambda: len(audio) == 4, "the window after the first decision")
+    assert node.pacer.answers == 3 and node.pacer.timeouts == 0
+    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
+    expected = [offline.next_window() for _ in range(3)]
+    offline.vocalize()
+    expected.append(offline.next_window())
+    for message, window in zip(audio, expected, strict=True):  # the chirp in window 4
+        assert np.array_equal(np.frombuffer(message.data, np.float32),
+                              as_transmitted(window.samples))  # fmt: skip
 
 
 def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable) -> None:
