@@ -543,6 +543,48 @@ def test_mic_holds_a_burst_until_the_controller_answers(run: Callable) -> None:
     assert node.outbox.dropped == 0
 
 
+def test_mic_says_the_warmup_on_no_step_and_decides_a_window_after_the_decisions_before_it(
+    run: Callable,
+) -> None:
+    """The default source (background) labels windows by the decisions.
+
+    Its 12 warm-up windows give no step, each said on ``no_step``. A window that comes
+    before the decision on the last bit (DDS orders no topic against another: in lockstep
+    the room's next window may overtake the decision) waits for it, so every bit is the
+    offline loop's, which hears each decision before the next window.
+    """
+    node, probe, graph = run(MicNode, source="topic", wait_for_listeners=1, start_delay_s=0.0,
+                             lockstep_timeout_s=600.0)  # fmt: skip
+    steps = probe.listen("sound_step", Int64MultiArray)
+    no_steps = probe.listen("no_step", Int64MultiArray)
+    audio = probe.talk("audio", Float32MultiArray)
+    answers = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(audio)
+    graph.run_until(lambda: node.started and node.count_publishers("vocalize_step") == 1,
+                    "start, with a controller")  # fmt: skip
+    windows = _room_audio(16).reshape(16, 8000)
+    for window in windows[:13]:
+        audio.publish(_audio_message(window))
+    graph.run_until(lambda: len(no_steps) == 12 and len(steps) == 1, "the warm-up, a step")
+    assert [list(m.data) for m in no_steps] == [[node.stream_id, w] for w in range(1, 13)]
+    decisions = [1, 0, 0]
+    for step, (window, u) in enumerate(zip(windows[13:], decisions, strict=True), start=1):
+        audio.publish(_audio_message(window))  # before the decision on step `step`
+        graph.run_for_callbacks(30)
+        assert len(steps) == step and len(node.controls.held) == 1, "it waits for the decision"
+        answers.publish(decisions_of(node.stream_id, [u], first_step=step)[0])
+        graph.run_until(lambda n=step: len(steps) == n + 1, "its step, after the decision")
+    offline = make_bit_source("background", 16000, 0.5)
+    offline.follow_model(ROBOT)
+    expected = [offline.push_window(w) for w in windows[:13]]
+    for window, u in zip(windows[13:], decisions, strict=True):
+        offline.note_decision(u)
+        expected.append(offline.push_window(window))
+    assert expected[:12] == [None] * 12
+    assert [parse_bit(m).bit for m in steps] == expected[12:]
+    assert node.controls.values()["windows_decided_early"] == 0
+
+
 def test_mic_accepts_an_integer_for_a_float_parameter(run: Callable) -> None:
     node, _, _ = run(MicNode, source="topic", bit_source="energy", start_delay_s=1)
     parameter = node.get_parameter("start_delay_s")

@@ -1,9 +1,8 @@
 """mic_node: audio windows to bits — the step clock of the graph.
 
-Where the windows come from (``source``) and how a window becomes a bit
-(``bit_source``) are its configuration (:mod:`~infomax_contingency.nodes.mic_config`); the
-node takes windows from its window source, asks the bit source for their bits and
-publishes them.
+Where the windows come from (``source``) and how a window becomes a bit (``bit_source``,
+held by :mod:`~infomax_contingency.nodes.mic_bits`) are its configuration
+(:mod:`~infomax_contingency.nodes.mic_config`).
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -231,7 +230,12 @@ class MicNode(GraphNode):
         if missed:
             self.losses.note(self.now_s())
             self.contract.chunks_lost()
-        for window in self.source.take():
+        self.controls.hold(self.source.take(), self.outbox.max_backlog)
+        self._decide_held()
+
+    def _decide_held(self) -> None:
+        """Decide the held windows of 'audio' whose decisions before them are in."""
+        for window in self.controls.decidable():
             self._window(window)
 
     def _read_microphone(self) -> None:
@@ -267,6 +271,7 @@ class MicNode(GraphNode):
         if self.outbox.last_answered == before:
             return  # a repeated answer (a second controller): it releases nothing
         self.controls.decided(before, decision.step, decision.vocalize)
+        self._decide_held()
         if (
             self.started
             and self.pacer is not None
@@ -335,7 +340,7 @@ class MicNode(GraphNode):
             "source": self.config.source,
             "stream": self.stream_id,
             "windows": self.windows,
-            "windows_without_step": self.controls.windows_without_step,
+            **self.controls.values(),
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
