@@ -594,12 +594,32 @@ def test_mic_accepts_an_integer_for_a_float_parameter(run: Callable) -> None:
 # ---------------------------------------------------------------------- fake room, speaker
 
 
+def _silent_room(run: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, list]:
+    """A lockstep fake room (silent, no events, seed 4), its probe, executor and audio."""
+    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
+                             start_delay_s=0.0, **parameters)  # fmt: skip
+    return node, probe, graph, probe.listen("audio", Float32MultiArray)
+
+
+def _assert_silent_room_windows(audio: list, vocalize_after: int) -> list:
+    """The messages are the offline room's windows; returns those.
+
+    The robot vocalized after window ``vocalize_after`` (1, 2, ...).
+    """
+    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
+    expected = [offline.next_window() for _ in range(vocalize_after)]
+    offline.vocalize()
+    expected += [offline.next_window() for _ in range(len(audio) - vocalize_after)]
+    for message, window in zip(audio, expected, strict=True):
+        assert np.array_equal(np.frombuffer(message.data, np.float32),
+                              as_transmitted(window.samples))  # fmt: skip
+    return expected
+
+
 def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     run: Callable,
 ) -> None:
-    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
-                             start_delay_s=0.0)  # fmt: skip
-    audio = probe.listen("audio", Float32MultiArray)
+    node, probe, graph, audio = _silent_room(run)
     truth = probe.listen("partner_present", Bool)
     vocalize = probe.talk("vocalize_step", Int64MultiArray)
     graph.connected(vocalize)
@@ -609,14 +629,7 @@ def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     for message in decisions_of(STREAM, [True, False, False]):
         vocalize.publish(message)
     graph.run_until(lambda: len(audio) == 4 and len(truth) == 4, "3 more windows")
-    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
-    expected = [offline.next_window()]
-    offline.vocalize()
-    expected += [offline.next_window() for _ in range(3)]
-    for message, window in zip(audio, expected, strict=True):
-        assert np.array_equal(
-            np.frombuffer(message.data, np.float32), as_transmitted(window.samples)
-        )
+    expected = _assert_silent_room_windows(audio, vocalize_after=1)
     loud = [float(window_energies_db(w.samples, 16000, 0.5)[0]) > -40 for w in expected]
     assert loud == [False, True, False, False]
     assert [m.data for m in truth] == [False] * 4
@@ -630,9 +643,7 @@ def test_fake_room_in_lockstep_goes_on_when_the_mic_says_a_window_gave_no_step(
     (Its bit source warming up.) The room goes on, once per window said; then on a
     decision, as before.
     """
-    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
-                             start_delay_s=0.0)  # fmt: skip
-    audio = probe.listen("audio", Float32MultiArray)
+    node, probe, graph, audio = _silent_room(run)
     no_step = probe.talk("no_step", Int64MultiArray)
     vocalize = probe.talk("vocalize_step", Int64MultiArray)
     graph.connected(vocalize)
@@ -647,13 +658,7 @@ def test_fake_room_in_lockstep_goes_on_when_the_mic_says_a_window_gave_no_step(
         vocalize.publish(message)
     graph.run_until(lambda: len(audio) == 4, "the window after the first decision")
     assert node.pacer.answers == 3 and node.pacer.timeouts == 0
-    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
-    expected = [offline.next_window() for _ in range(3)]
-    offline.vocalize()
-    expected.append(offline.next_window())
-    for message, window in zip(audio, expected, strict=True):  # the chirp in window 4
-        assert np.array_equal(np.frombuffer(message.data, np.float32),
-                              as_transmitted(window.samples))  # fmt: skip
+    _assert_silent_room_windows(audio, vocalize_after=3)  # the chirp in window 4
 
 
 def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable) -> None:
@@ -677,13 +682,7 @@ def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable
     gaps = [window - answer for answer, window in zip(answered, arrived[1:], strict=True)]
     assert min(gaps) >= 0.25, gaps
     assert node.pacer.answers == 3 and node.pacer.timeouts == 0
-    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
-    expected = [offline.next_window()]
-    offline.vocalize()
-    expected += [offline.next_window() for _ in range(3)]
-    for message, window in zip(audio, expected, strict=True):  # the same room, held
-        assert np.array_equal(np.frombuffer(message.data, np.float32),
-                              as_transmitted(window.samples))  # fmt: skip
+    _assert_silent_room_windows(audio, vocalize_after=1)  # the same room, held
 
 
 def test_fake_room_hears_one_controller_once_per_step(run: Callable) -> None:
