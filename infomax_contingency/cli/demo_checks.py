@@ -58,12 +58,6 @@ def check_arguments(args: argparse.Namespace) -> None:
             f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
             f" got {args.calibration_s}"
         )
-    if args.bit_source == "background" and not args.wav:
-        raise ValueError(
-            "--bit-source background needs --wav: the simulated room runs in lockstep and"
-            " waits for a decision on every window, and the source's first 6 s (its warm-up"
-            " on the room's background) give none"
-        )
     if args.record:
         check_record_directory(Path(args.record))
 

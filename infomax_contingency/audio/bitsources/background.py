@@ -156,6 +156,15 @@ class BackgroundSource(BitSource):
             return
         self.rule.note_decision(u, withheld)
 
+    @property
+    def awaited_decisions(self) -> int:
+        """Bits given whose decisions have not come yet (those of a rule replaced aside).
+
+        The next window's bit is the offline loop's once they are in: an agent-period
+        window is held to the level of the window its vocalization was decided on.
+        """
+        return self.rule.awaited_decisions
+
     def decide(self, x: NDArray[np.float64]) -> bool | None:
         return self.rule.push(self._level(x))
 

@@ -175,9 +175,10 @@ class BitSource(ABC):
     """False if a window's full-band energy alone decides its bit (:meth:`push` works)."""
     needs_decisions: ClassVar[bool] = False
     """True if the source labels windows by the model's timer: it then has
-    ``note_decision(u)``, to be called with every decision in order (None: lost), and
-    ``follow_model(params)``, called before the first window with the model whose periods
-    label them."""
+    ``note_decision(u)``, to be called with every decision in order (None: lost),
+    ``awaited_decisions`` (bits given whose decisions have not come yet: the next window's
+    bit is the offline loop's only once they are in) and ``follow_model(params)``, called
+    before the first window with the model whose periods label them."""
     mode_setting: ClassVar[str | None] = None
     """The setting a name's first word after the source gives (``threshold_mode``), if any."""
     name_modes: ClassVar[Mapping[str, tuple[NameArgument, ...]]] = {"": ()}

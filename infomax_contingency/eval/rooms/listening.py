@@ -22,10 +22,9 @@ from infomax_contingency.sim.fake_room import (
 )
 from infomax_contingency.sim.loop import run_loop
 
-LISTENING_BINARIZER = "fixed:-40"
-"""``room-wav``'s default: the fixed threshold config/fake_room.yaml gives mic_node against
-the fake room (a calibration on a room's own first 10 s is refused in the steadier rooms,
-and the robot would stay silent)."""
+LISTENING_BINARIZER = RoomsConfig.binarizer
+"""``room-wav``'s default: mic_node's, the ``background`` source that calibrates itself on
+the room's background windows (its first windows give no bit and no decision)."""
 
 
 RENDER_BASE_BYTES = 200 * 2**20
