@@ -143,7 +143,8 @@ class RecorderNode(GraphNode):
     def configure(self) -> None:
         """Declare and check the parameters; the state they set."""
         read = self.parameters
-        directory = read.text("directory", "", "Bag directory to create (must not exist)")
+        directory = read.text("directory", "", "Bag directory to create (one that exists or"
+                              " cannot be created ends the node at start-up)")
         files = read.text(
             "session_files", "", "Parameter and threshold files to store (comma-separated)"
         )
