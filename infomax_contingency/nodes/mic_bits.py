@@ -97,6 +97,8 @@ class BitSourceControls:
         self.config = config
         self.threshold_log = ThresholdLog(node.get_logger(), config.bit_source)
         self.bits: BitSource = mic_config.make_bits(config, node.get_logger().warning)
+        if unread := mic_config.unread_threshold_file(node.parameters, config):
+            node.get_logger().warning(unread)
         if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
             node.get_logger().info(f"bit source {config.bit_source}: {summary}")

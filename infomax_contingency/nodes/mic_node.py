@@ -87,8 +87,6 @@ class MicNode(GraphNode):
     def configure(self) -> None:
         """Parameters, the bit source, the window source (a replay calibrated ahead)."""
         self.config = config = mic_config.read_config(self.parameters)
-        if unread := mic_config.unread_threshold_file(self.parameters, config):
-            self.get_logger().warning(unread)
         self.controls = BitSourceControls(self, config)
         self.bits, self.threshold_log = self.controls.bits, self.controls.threshold_log
         self.source = mic_config.open_window_source(config, self.bits.needs_samples, self.log_at)
@@ -365,10 +363,8 @@ class MicNode(GraphNode):
             return WARN, f"waiting for {wanted} listeners on '{SOUND_STEP}'", values
         if values.get("state") == DISCONNECTED:
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
-        if bits.state == UNSEPARATED:
-            return ERROR, bits.problem, values
-        if bits.state == OUT_OF_RANGE:  # a threshold it computed: no bits until back in range
-            return WARN, bits.problem, values
+        if bits.state in (UNSEPARATED, OUT_OF_RANGE):  # no bits; out of range: until it is back
+            return (ERROR if bits.state == UNSEPARATED else WARN), bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
         if self.stalled_listeners.recent(now):

@@ -91,7 +91,7 @@ class EfficiencyConfig:
 EFFICIENCY_BASE_BYTES = 2**30
 """Memory of the experiment apart from its runs (the tables, the exact scorer of T = 40),
 bytes: measured 0.9 GB peak resident for a handful of runs in one process."""
-ROW_BYTES = 2 * 2**10
+EFFICIENCY_ROW_BYTES = 2 * 2**10
 """Memory of one run's figures kept until the summaries, bytes (measured 0.8-1.2 KiB)."""
 
 
@@ -119,7 +119,7 @@ def refuse_oversized_efficiency(config: EfficiencyConfig) -> None:
         raise ValueError(f"--steps must be >= 1, got {config.steps}")
     runs = efficiency_runs(config)
     needed = (EFFICIENCY_BASE_BYTES + config.workers * (WORKER_BYTES + RECORD_BYTES * config.steps)
-              + 2 * ROW_BYTES * runs)  # fmt: skip
+              + 2 * EFFICIENCY_ROW_BYTES * runs)  # fmt: skip
     refuse_over_budget(needed, f"run experiment efficiency: {runs:,} runs of {config.steps:,}"
                        f" steps in {config.workers} processes",
                        "give fewer runs or rooms, fewer --steps or fewer --workers")

@@ -79,7 +79,7 @@ LEARN_BYTES_PER_STATISTIC = 64
 of Python floats (measured: about 23 bytes, peak 228 MB for the paper set at T = 40)."""
 LEARN_BASE_BYTES = 200 * 2**20
 """Memory of learning on a short horizon (the interpreter, numpy, the scorer), bytes."""
-CURVE_POINT_BYTES = 256
+LEARN_CURVE_POINT_BYTES = 256
 """Memory of one point of a learning curve (vocalizations, trials, score: three Python
 numbers in lists, and their copy in the result's record), bytes."""
 
@@ -107,7 +107,8 @@ def experiment_learn(config: LearnConfig | None = None) -> dict:
     # at most one evaluation every evaluate_every vocalizations, and one at the end
     points = len(config.seeds) * sum(budget // config.evaluate_every + 1
                                      for _, _, budget in methods)  # fmt: skip
-    refuse_over_budget(learning_cost_bytes(params, config.horizon) + CURVE_POINT_BYTES * points,
+    needed = learning_cost_bytes(params, config.horizon) + LEARN_CURVE_POINT_BYTES * points
+    refuse_over_budget(needed,
                        f"learn with horizon {config.horizon} and {points:,} evaluations",
                        "give a shorter --horizon, a smaller --budget or a larger"
                        " --evaluate-every")  # fmt: skip

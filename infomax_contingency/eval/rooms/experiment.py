@@ -22,9 +22,9 @@ from infomax_contingency.sim.rooms import PARTNER_STATES, ROOM_CHANGE_S, room_ki
 ROOMS_BASE_BYTES = 128 * 2**20
 """Memory of the experiment apart from its runs' figures, bytes (measured 110 MB peak
 resident in one process; a run's audio is made a window at a time, whatever its length)."""
-ROW_BYTES, CURVE_POINT_BYTES = 2 * 2**10, 128
-"""Memory of one run's figures, bytes: ``ROW_BYTES`` plus ``CURVE_POINT_BYTES`` per point
-of its operating curves (threshold x prior; measured 4 KiB with the 24 default points)."""
+ROOMS_ROW_BYTES, ROOMS_CURVE_POINT_BYTES = 2 * 2**10, 128
+"""Memory of one run's figures, bytes: the first, plus the second per point of its operating
+curves (threshold x prior; measured 4 KiB with the 24 default points)."""
 
 
 def refuse_oversized_rooms(config: RoomsConfig) -> None:
@@ -36,7 +36,7 @@ def refuse_oversized_rooms(config: RoomsConfig) -> None:
     runs = len(config.room_names()) * config.runs * len(config.controllers)
     points = len(config.curve_thresholds) * len(config.curve_priors)
     needed = (ROOMS_BASE_BYTES + config.jobs * WORKER_BYTES
-              + 2 * runs * (ROW_BYTES + CURVE_POINT_BYTES * points))  # fmt: skip
+              + 2 * runs * (ROOMS_ROW_BYTES + ROOMS_CURVE_POINT_BYTES * points))  # fmt: skip
     refuse_over_budget(needed, f"run experiment rooms: {runs:,} runs", "give fewer --runs, rooms"
                        " or controllers")  # fmt: skip
 
