@@ -11,8 +11,9 @@ when the publisher sent it), and each topic with the QoS its publishers offer
 
 Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
 ``sound_step``, ``no_step`` (the windows that gave no step), ``sound_energy``,
-``vocalize``, ``vocalize_step``, ``belief``, ``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
-``self_sound`` (the robot's declared own sound), ``/diagnostics``. The session itself
+``vocalize``, ``vocalize_step``, ``belief``, ``posture``, ``joint_targets``,
+``speaker_started``, ``partner_present``, ``self_sound`` (the robot's declared own
+sound), ``/diagnostics``. The session itself
 (the parameter files and threshold file named in ``session_files``, their text) goes
 on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into
 the metadata's ``custom_data``. ``session_info`` is also published (transient-local),
