@@ -661,6 +661,31 @@ def test_fake_room_in_lockstep_goes_on_when_the_mic_says_a_window_gave_no_step(
     _assert_silent_room_windows(audio, vocalize_after=3)  # the chirp in window 4
 
 
+def test_fake_room_in_lockstep_ignores_a_no_step_far_ahead(run: Callable) -> None:
+    """A forged ``no_step`` 3,000 windows ahead releases nothing and blocks nothing.
+
+    (Without the pace rule every real ``no_step`` after it looked like a repeat: the room
+    went on only at its lockstep timeout.)
+    """
+    node, probe, graph, audio = _silent_room(run)
+    no_step = probe.talk("no_step", Int64MultiArray)
+    graph.connected(probe.talk("vocalize_step", Int64MultiArray))  # the room waits for one
+    graph.connected(no_step)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    no_step.publish(no_step_message(NoStep(STREAM, 1)))
+    graph.run_until(lambda: len(audio) == 2, "the window after 1")
+    no_step.publish(no_step_message(NoStep(STREAM, 3001)))
+    graph.run_until(lambda: node.no_step_pace.jumps == 1, "the jump named")
+    for window in (2, 3):
+        no_step.publish(no_step_message(NoStep(STREAM, window)))
+        graph.run_until(lambda w=window: len(audio) == w + 1, f"the window after {window}")
+    graph.run_for_callbacks(30)
+    assert len(audio) == 4 and node.windows_without_step == 3
+    assert node.pacer.timeouts == 0
+    level, _, values = node.diagnostic_status()
+    assert values["jumps_ignored"] == 1 and level == ERROR
+
+
 def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable) -> None:
     """lockstep_max_speed 2: each next window waits 0.25 s after its decision.
 

@@ -100,7 +100,7 @@ def test_a_recorded_run_reads_back_with_the_mcap_reader(
     assert log[2].startswith("'/sound_step' received after ")
     assert log[-1].startswith(
         f"recorded 61 messages to {tmp_path / 'session'}: /session_info 1, /sound_step 30,"
-        " /belief 30; nothing on /sound, /sound_energy, "
+        " /belief 30; nothing on /sound, /no_step, /sound_energy, "
     ), log
     assert (tmp_path / "session" / "metadata.yaml").exists()
     messages = _read_mcap(tmp_path / "session" / "session.mcap")

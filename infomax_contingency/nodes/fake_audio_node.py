@@ -277,6 +277,9 @@ class FakeAudioNode(GraphNode):
         self._answered: tuple[int, int] = (0, 0)
         self._no_step: NoStep = NoStep(0, 0)
         """The newest window mic_node said gave no step."""
+        self.no_step_pace = StepPace(1.0 / config.room.window_s, config.source_timeout_s)
+        """The step clock's pace rule on ``no_step``'s windows: a forged window far ahead
+        would otherwise make every real one look like a repeat."""
         self.windows_without_step = 0
         """Windows released by a ``no_step`` of the window before."""
         self.declare_self_sound = config.declare_self_sound
@@ -395,6 +398,15 @@ class FakeAudioNode(GraphNode):
         no_step = parse_no_step(msg)
         if no_step is None:
             return
+        if no_step.stream != self._no_step.stream:
+            self.no_step_pace.restart()
+        on_pace = take_on_pace(self, self.no_step_pace, self.jumps, no_step.window,
+                               self.sent_s(stamp, self.now_s()), no_step, "no step",
+                               f"the windows of stream {no_step.stream}")  # fmt: skip
+        for taken in on_pace:
+            self._take_no_step(taken)
+
+    def _take_no_step(self, no_step: NoStep) -> None:
         last = self._no_step
         if no_step.stream == last.stream and no_step.window <= last.window:
             return  # said again
@@ -507,7 +519,7 @@ class FakeAudioNode(GraphNode):
         if not self.started:
             return WARN, "waiting for a listener on 'audio'", values
         values["foreign_decisions"] = self.foreign.count
-        values["jumps_ignored"] = self.pace.jumps
+        values["jumps_ignored"] = self.pace.jumps + self.no_step_pace.jumps
         if self.foreign.recent(self.now_s()):
             return ERROR, "decisions from a second controller (ignored)", values
         if self.jumps.recent(self.now_s()):

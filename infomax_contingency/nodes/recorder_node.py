@@ -10,9 +10,10 @@ when the publisher sent it), and each topic with the QoS its publishers offer
 (``offered_qos_profiles`` in the metadata).
 
 Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
-``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
-``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
-``self_sound`` (the robot's declared own sound), ``/diagnostics``. The session itself
+``sound_step``, ``no_step`` (the windows that gave no step), ``sound_energy``,
+``vocalize``, ``vocalize_step``, ``belief``, ``posture``, ``joint_targets``,
+``speaker_started``, ``partner_present``, ``self_sound`` (the robot's declared own
+sound), ``/diagnostics``. The session itself
 (the parameter files and threshold file named in ``session_files``, their text) goes
 on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into
 the metadata's ``custom_data``. ``session_info`` is also published (transient-local),
@@ -82,6 +83,7 @@ falls behind the graph by hundreds of messages while it writes; a keep-last queu
 RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
     "sound": (Bool, RECORDER_QOS),
     "sound_step": (Int64MultiArray, RECORDER_QOS),
+    "no_step": (Int64MultiArray, RECORDER_QOS),
     "sound_energy": (Float32, RECORDER_QOS),
     "vocalize": (Bool, RECORDER_QOS),
     "vocalize_step": (Int64MultiArray, RECORDER_QOS),
