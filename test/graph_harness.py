@@ -71,18 +71,26 @@ class Graph:
 
 
 def room_nodes(
-    room: dict[str, Any], steps: int, memory_steps: int = 0, listeners: int = 3
+    room: dict[str, Any], steps: int, memory_steps: int = 0, listeners: int = 3,
+    bit_source: dict[str, Any] | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """The graph against the fake room in lockstep (recorder included in the listeners)."""
+    """The graph against the fake room in lockstep (recorder included in the listeners).
+
+    ``bit_source``: mic_node's bit source and its settings. By default ``energy`` at a
+    fixed -40 dB, on purpose: every window gives a step (``steps`` windows are ``steps``
+    steps) and which windows are active is known from the room's levels alone. ``{}``:
+    mic_node's default (``background``), whose warm-up windows give no step (the room
+    then makes more than ``steps`` windows: give ``max_windows`` in ``room``).
+    """
+    if bit_source is None:
+        bit_source = {"bit_source": "energy", **FIXED_THRESHOLD}
     return {
-        # energy at -40 dB: in lockstep the room waits for a decision on every window
-        "mic_node": {"source": "topic", "bit_source": "energy", **FIXED_THRESHOLD,
-                     "wait_for_listeners": listeners},
+        "mic_node": {"source": "topic", **bit_source, "wait_for_listeners": listeners},
         # mic, belief, room and the recorder hear every decision
         "controller_node": {"wait_for_listeners": listeners + 1},
         "belief_node": {"memory_steps": memory_steps},
         "posture_node": {},
-        "fake_audio_node": {**room, "max_windows": steps, "wait_for_truth_listeners": 1},
+        "fake_audio_node": {"max_windows": steps, **room, "wait_for_truth_listeners": 1},
     }
 
 
@@ -116,11 +124,17 @@ STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief"
                "/partner_present")
 
 
-def assert_every_step_recorded(bag: Path, steps: int) -> dict[str, list]:
-    """The bag holds ``steps`` messages of every step topic, from step 1; its topics."""
+def assert_every_step_recorded(bag: Path, steps: int, windows: int | None = None
+                               ) -> dict[str, list]:  # fmt: skip
+    """The bag holds ``steps`` messages of every step topic, from step 1; its topics.
+
+    ``windows``: the room's windows, each with its truth (``partner_present``), when
+    some gave no step (default: ``steps``).
+    """
     topics = read_topics(bag, (*STEP_TOPICS, "/session_info"))
     for topic in STEP_TOPICS:
-        assert len(topics[topic]) == steps, (topic, len(topics[topic]))
+        expected = windows if windows is not None and topic == "/partner_present" else steps
+        assert len(topics[topic]) == expected, (topic, len(topics[topic]))
     assert [int(m.data[1]) for _, m in topics["/sound_step"]] == list(range(1, steps + 1))
     assert len(topics["/session_info"]) == 1
     return topics

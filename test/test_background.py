@@ -15,6 +15,7 @@ from infomax_contingency.audio.background import (
     window_faults,
 )
 from infomax_contingency.audio.bitsources import make_bit_source
+from infomax_contingency.audio.bitsources.base import OUT_OF_RANGE
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.eval.rooms import binarizer_options, make_binarizer
 
@@ -156,6 +157,25 @@ def test_bad_levels_give_no_bit_and_a_clear_diagnostic() -> None:
             rule.note_decision(0)
     assert len(rule.background) == 0 and rule.calibrating
     assert any("digital silence" in line for line in rule.problems())
+
+
+def test_a_background_threshold_outside_the_parameters_range_gives_no_bits() -> None:
+    """Unscaled float audio (levels far above 0 dB): no bits, a problem said, none made up."""
+    said: list[str] = []
+    source = make_bit_source("background", RATE, WINDOW_S, on_problem=said.append)
+    rng = np.random.default_rng(5)
+    bits = []
+    for _ in range(60):
+        bit = source.push_window(rng.normal(0.0, 1000.0, N))  # +60 dB: a float wav unscaled
+        bits.append(bit)
+        if bit is not None:
+            source.note_decision(0)
+    assert bits == [None] * 60
+    assert source.state == OUT_OF_RANGE and source.calibrating
+    assert "threshold_db 60" in source.problem and "is not allowed: -150 .. 0 dB" in source.problem
+    assert said == [source.problem]
+    assert any("gave no bit" in line for line in source.problems())
+    assert source.rule.range_guard.windows_out_of_range > 40
 
 
 def test_a_room_louder_than_the_robot_is_said() -> None:

@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES, all_setting_specs, make_bit_source
+from infomax_contingency.audio.bitsources.base import OUT_OF_RANGE
 from infomax_contingency.audio.bitsources.level import SpeechBandLevel
 from infomax_contingency.audio.bitsources.rules import Binarizer, NoiseFloorBinarizer
 from infomax_contingency.audio.common import AudioError
@@ -200,6 +201,24 @@ def test_noise_floor_threshold_warms_up_then_follows_a_slowly_louder_room() -> N
     assert not any(rule.push(level) for level in drift)  # a fixed -50 dB would say "sound"
     assert rule.push(drift[-1] + 20.0) is True  # a sound over the new floor still counts
     assert rule.floor_db > -30.0
+
+
+def test_a_noise_floor_threshold_outside_the_parameters_range_gives_no_bits() -> None:
+    """As a threshold file outside -150 .. 0 dB is refused: no made-up bits, said once."""
+    said: list[str] = []
+    rule = NoiseFloorBinarizer(margin_db=10.0, floor_windows=4, percentile=0.0,
+                               warmup_windows=2, on_problem=said.append)  # fmt: skip
+    assert [rule.push(-5.0) for _ in range(2)] == [None, None]  # warm-up
+    assert rule.threshold_db == 5.0  # unscaled audio: its floor is above full scale - margin
+    assert [rule.push(level) for level in (-5.0, 20.0, -5.0)] == [None, None, None]
+    assert rule.state == OUT_OF_RANGE
+    assert rule.windows_out_of_range == 3
+    assert said == [rule.calibration_problem]  # once, while it lasts
+    assert "threshold_db 5 dB is not allowed: -150 .. 0 dB" in said[0]
+    for _ in range(4):  # the room is scaled again: the floor falls back into range
+        rule.push(-60.0)
+    assert rule.state == "ready" and rule.calibration_problem == ""
+    assert rule.push(-40.0) is True and rule.windows_out_of_range == 4
 
 
 def test_noise_floor_mode_is_offered_for_energy_and_speech_band() -> None:

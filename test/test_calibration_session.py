@@ -58,13 +58,27 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
     (["--min-interval-s", "5", "--max-interval-s", "2"], "need 0 < min <= max"),
     (["--min-interval-s", "0"], "need 0 < min <= max"),
     (["--threshold-file", "/nonexistent.yaml"], "no such file"),
-    (["--calibration-s", "-1"], "--calibration-s must be > 0"),
+    (["--calibration-s", "-1"], "--calibration-s must be in (0, 3600] seconds"),
+    # sizes the nodes refuse are refused before any node starts
+    (["--fake-room", "--minutes", "1e12"], "--minutes must be at most 1.79e+07 (2147483647"
+                                           " windows of 0.5 s: the nodes' max_windows)"),
+    (["--fake-room", "--seed", "99999999999"], "--seed must be in [0, 2147483647]"),
+    (["--calibration-s", "1e9"], "--calibration-s must be in (0, 3600] seconds"),
 ])
 def test_bad_calibration_session_arguments_are_one_line(arguments, message, tmp_path: Path,
                                                         capsys) -> None:
     assert main(["calibration-session", "--out", str(tmp_path / "bag"), *arguments]) == 2
     error = capsys.readouterr().err
     assert message in error and len(error.strip().splitlines()) == 1
+    assert not (tmp_path / "bag").exists()
+
+
+def test_a_threshold_file_for_the_simulated_room_is_refused(tmp_path: Path, capsys) -> None:
+    """The simulated room's mic_node has its own fixed threshold: the file would be ignored."""
+    (tmp_path / "t.yaml").write_text("threshold_db: -30\n")
+    assert main(["calibration-session", "--fake-room", "--out", str(tmp_path / "bag"),
+                 "--threshold-file", str(tmp_path / "t.yaml")]) == 2
+    assert "--threshold-file is read by live audio only" in capsys.readouterr().err
     assert not (tmp_path / "bag").exists()
 
 

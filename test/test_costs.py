@@ -9,6 +9,7 @@ cgroup's limit, not only the machine's available memory.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import resource
 import signal
@@ -431,3 +432,62 @@ def test_an_experiment_whose_table_would_not_fit_is_refused_before_solving(argv,
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "refusing to solve the " in err and "give a shorter horizon or memory" in err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    # a MemoryError once the solve had started
+    (("horizon", "--longest", "100000"),
+     "refusing to solve horizons 1 .. 100000 of paper on counts up to 12: it needs about"),
+    (("horizon", "--domain", "100000"), "give a smaller --longest or --domain"),
+    (("greedy", "--max-count", str(10**9)),
+     "refusing to run experiment greedy on paper with --max-count 1000000000 and --steps 80"),
+    # ran, holding every step
+    (("greedy", "--steps", str(10**12)), "give a smaller --max-count or fewer --steps"),
+    (("efficiency", "--steps", str(10**12)),
+     "refusing to run experiment efficiency: 11,800 runs of 1,000,000,000,000 steps in 2"),
+    (("efficiency", "--named-runs", str(10**12)), "refusing to run experiment efficiency: 72,"),
+    (("efficiency", "--workers", "100000"), "--workers 100000: give 1 .. "),
+    # grew to the memory limit
+    (("rooms", "--runs", str(10**12)),
+     "refusing to run experiment rooms: 192,000,000,000,000 runs: it needs about"),
+    (("rooms", "--jobs", "100000"), "experiment rooms: --jobs 100000: give 1 .. "),
+])
+def test_an_experiment_too_large_is_refused_before_any_work(argv, message, capsys, monkeypatch):
+    def no_work(*_args, **_kwargs):
+        raise AssertionError("the work started before the cost check")
+
+    for module, name in (("infomax_contingency.core.scoring", "backward_induction"),
+                         ("infomax_contingency.eval.experiments.efficiency", "simulate_rooms"),
+                         ("infomax_contingency.eval.rooms.experiment", "simulate_room_runs")):
+        monkeypatch.setattr(importlib.import_module(module), name, no_work)
+    assert message in _one_line_error(capsys, "experiment", *argv)
+
+
+def test_the_experiments_estimates_stay_near_what_they_take():
+    """Near the defaults' measured peak (robot set: horizon 289 MiB, greedy 221 MiB)."""
+    from infomax_contingency.core.scoring import receding_layers_cost
+
+    robot = ModelParams.load("robot")
+    assert 200 * 2**20 < receding_layers_cost(robot, 60, 12).peak_bytes < 400 * 2**20
+    assert 150 * 2**20 < receding_layers_cost(robot, 8, 60).peak_bytes < 400 * 2**20
+
+
+def test_learn_and_room_wav_refuse_before_work_what_would_not_fit(capsys, monkeypatch):
+    """A curve point per evaluation of 10^12; a day of sound (5.5 GB) joined into one."""
+    import infomax_contingency.limits as limits
+
+    def no_work(*_args, **_kwargs):
+        raise AssertionError("the work started before the cost check")
+
+    monkeypatch.setattr(importlib.import_module("infomax_contingency.core.learning"), "learn",
+                        no_work)
+    monkeypatch.setattr(importlib.import_module("infomax_contingency.eval.rooms.listening"),
+                        "run_loop", no_work)
+    error = _one_line_error(capsys, "learn", "--budget", str(10**12))
+    assert "refusing to learn with horizon 12 and 1,000,000,001 evaluations" in error
+    assert "a larger --evaluate-every" in error
+    monkeypatch.setattr(limits, "memory_budget", lambda: limits.MemoryBudget(2**30, "a test"))
+    error = _one_line_error(capsys, "room-wav", "quiet", "--seconds", "86400", "--out",
+                            "never.wav")
+    assert "refusing to render 86400 s of room sound: it needs about 10.5 GiB" in error
+    assert not Path("never.wav").exists()

@@ -24,7 +24,8 @@ from infomax_contingency.nodes import parameter_reference
 from infomax_contingency.nodes.entry import NODES
 from stepped_graph import stepped_graph
 
-DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "policies" / "README.md")
+DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")),
+        *sorted((ROOT / "docs" / "history").glob("*.md")), ROOT / "policies" / "README.md")
 
 KNOWN_STALE: dict[str, set[str]] = {}
 """Stale names, by doc (e.g. ``{"docs/RESULTS.md": {"file `x.py`"}}``), that another
@@ -33,6 +34,10 @@ until it is removed here. Empty today."""
 
 README_MAX_LINES, README_MAX_BYTES = 200, 10 * 1024
 """The README fits on a screen or two; detail goes to docs/."""
+
+RESULTS_MAX_LINES = 400
+"""docs/RESULTS.md gives each experiment its question, command, table, figure and
+conclusion; sweeps that are not results of the current defaults go to docs/history/."""
 
 RCLPY_PUBLISHERS = frozenset({"/rosout", "/parameter_events"})
 """What rclpy publishes for every node by itself."""
@@ -89,6 +94,13 @@ def test_the_readme_fits_on_a_screen() -> None:
     assert lines <= README_MAX_LINES and len(text) <= README_MAX_BYTES, (
         f"README.md has {lines} lines and {len(text)} bytes (at most {README_MAX_LINES} and"
         f" {README_MAX_BYTES}): move detail to docs/ (map in the README)")
+
+
+def test_the_results_stay_in_proportion() -> None:
+    lines = (ROOT / "docs" / "RESULTS.md").read_bytes().count(b"\n")
+    assert lines <= RESULTS_MAX_LINES, (
+        f"docs/RESULTS.md has {lines} lines (at most {RESULTS_MAX_LINES}): one table per question;"
+        " move sweeps that are not results of the current defaults to docs/history/")
 
 
 def test_the_readme_maps_every_doc() -> None:

@@ -58,34 +58,58 @@ def test_demo_finds_the_partner_notices_they_left_and_records_every_step(tmp_pat
     is resent only at its writer's next heartbeat (3 s), and the stop still records it.
     """
     bag = tmp_path / "demo"
-    result = demo("--steps", "200", "--seed", "1", "--leave-at", "50", "--record", str(bag))
+    # mic_node's default source (background) first hears the room: 8 windows of
+    # background and 4 more of its threshold's delay give no bit
+    windows, warmup = 200, 12
+    result = demo("--steps", str(windows), "--seed", "1", "--leave-at", "50", "--record",
+                  str(bag))  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Fast DDS profile fastdds_demo.xml)" in result.stdout.splitlines()[0], result.stdout
     summary = "\n".join(line for line in result.stdout.splitlines() if line.startswith("#"))
     assert "# note:" not in summary, summary  # a released window: not the reproducible run
+    assert "# the first 12 windows (6 s) gave no bit" in summary, summary
     lines = [STEP_LINE.match(line) for line in result.stdout.splitlines()]
     steps = [m for m in lines if m]
-    assert [int(m[1]) for m in steps] == list(range(1, 201))
-    assert float(steps[1][2]) == 0.5, "time column in seconds of room time"
+    assert [int(m[1]) for m in steps] == list(range(1, windows - warmup + 1))
+    assert [float(m[2]) for m in steps[:2]] == [6.0, 6.5], "room time of the step's window"
     postures = [m[6] for m in steps]
     assert postures[0] == "bored" and postures[-1] == "bored", summary
     assert "attentive" in postures, summary
     truth = [
         line.endswith("present") for line in result.stdout.splitlines() if STEP_LINE.match(line)
     ]
-    assert truth == [k < 100 for k in range(200)]
+    assert truth == [warmup + k < 100 for k in range(windows - warmup)]
     verdict = result.stdout.splitlines()[-1]
     assert verdict.startswith("# verdict: found the partner")
     assert "noticed they left" in verdict and "final answer correct" in verdict
 
-    topics = assert_every_step_recorded(bag, 200)
-    assert [m.data for _, m in topics["/partner_present"]] == truth
-    # mic_node's source bag windows the recorded audio again: with the room's threshold
-    # (config/fake_room.yaml: fixed, -40 dB) its bits are the recorded ones.
+    topics = assert_every_step_recorded(bag, windows - warmup, windows)
+    assert [m.data for _, m in topics["/partner_present"]][warmup:] == truth
     replay = BagReplay(bag, 0.5, 16000)
-    assert replay.has_audio and replay.n_windows == 200
-    energies = [replay.next_window()[0] for _ in range(200)]
-    assert [bool(e > -40.0) for e in energies] == [bool(m.data) for _, m in topics["/sound"]]
+    assert replay.has_audio and replay.n_windows == windows
+    # The node processes' run is the offline loop's (the demo's room, memory and table).
+    offline = _offline_demo(seed=1, leave_s=50.0, steps=windows - warmup)
+    assert [m.data for _, m in topics["/sound"]] == [bool(r.y) for r in offline]
+    assert [m.data for _, m in topics["/vocalize"]] == [bool(r.u) for r in offline]
+    assert [m.data for _, m in topics["/belief"]] == [r.belief for r in offline]
+
+
+def _offline_demo(seed: int, leave_s: float, steps: int) -> list:
+    """The demo's run offline: the responsive room, mic_node's default source, the table."""
+    from infomax_contingency.audio.bitsources import DEFAULT_BIT_SOURCE, make_bit_source
+    from infomax_contingency.core.controllers import PolicyController
+    from infomax_contingency.core.model import ModelParams
+    from infomax_contingency.core.policy_table import PolicyTable
+    from infomax_contingency.resources import resource_path
+    from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+
+    params = ModelParams.named("robot")
+    table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"),
+                             expected_params=params)  # fmt: skip
+    bits = make_bit_source(DEFAULT_BIT_SOURCE, 16000, 0.5)
+    bits.follow_model(params)
+    room = FakeRoom(FakeRoomConfig.preset("responsive", partner_leave_s=leave_s), seed)
+    return simulate_audio_loop(PolicyController(table), room, bits, steps, memory=60)
 
 
 @NODE_GRAPHS
@@ -122,12 +146,16 @@ def test_the_shipped_configs_find_the_partner_and_notice_they_left() -> None:
     configs = (str(ROOT / "config" / "robot.yaml"), str(ROOT / "config" / "fake_room.yaml"))
     with stepped_graph(nodes, "fake_audio_node", configs) as graph:
         rec = graph.recorder
-        # The partner of config/fake_room.yaml leaves after 60 s of room time (step 120).
-        graph.run_until(lambda: len(rec.belief) >= 300 and len(rec.partner_present) >= 300,
+        # The partner of config/fake_room.yaml leaves after 60 s of room time (window 120);
+        # mic_node's default source (background) gives no bit in the first 12 windows.
+        graph.run_until(lambda: len(rec.belief) >= 300 and len(rec.partner_present) >= 312,
                         "300 beliefs")  # fmt: skip
         graph.run_until(lambda: len(rec.posture) >= 3, "three postures")
-        beliefs, present = np.array(rec.belief[:300]), np.array(rec.partner_present[:300])
-        assert present[:120].all() and not present[120:].any()
+        windows = rec.step_windows(300)
+        assert windows == list(range(12, 312))
+        beliefs = np.array(rec.belief[:300])
+        present = np.array([rec.partner_present[w] for w in windows])
+        assert present[: 120 - 12].all() and not present[120 - 12 :].any()
         assert beliefs[present].max() > 0.95 and beliefs[-20:].max() < 0.2
         assert [posture for _, posture in rec.posture][:3] == ["bored", "attentive", "bored"]
 
@@ -266,11 +294,21 @@ def test_the_nodes_of_a_demo_killed_with_sigkill_end_too() -> None:
 
 @pytest.mark.slow
 def test_a_node_that_refuses_its_parameters_is_named_at_once() -> None:
-    result = demo("--memory", "2000000", "--steps", "10")
-    assert result.returncode == 1, result.stdout + result.stderr
-    assert result.stderr.strip() == (
-        "infomax-contingency demo: error: belief_node exited with status 2: parameter"
-        " 'memory_steps' = 2000000 is not allowed: a whole number in [0, 1000000]"
+    """The demo refuses its own bad arguments first; a node's refusal is still named."""
+    script = (
+        "from infomax_contingency.cli import demo, main\n"
+        "args = main.build_parser().parse_args(['demo', '--steps', '10'])\n"
+        "demo.isolate_dds()\n"
+        "nodes, clock = demo._nodes(args)\n"
+        "nodes['belief_node']['memory_steps'] = 2_000_000\n"
+        "print(demo._run_graph(args, nodes, clock))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
+                            text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip().splitlines()[-1] == (
+        "belief_node exited with status 2: parameter 'memory_steps' = 2000000 is not allowed:"
+        " a whole number in [0, 1000000]"
     )
 
 
@@ -301,7 +339,7 @@ class StalledRun:
 
     def __init__(self, lost: dict[str, int]) -> None:
         self.belief, self.partner_present, self.lost = [0.5] * 3, [True] * 4, lost
-        self.sound, self.vocalize = [False] * 4, [False] * 4
+        self.sound, self.vocalize, self.no_step = [False] * 4, [False] * 4, []
 
     def counts(self) -> dict[str, int]:
         return {"belief": len(self.belief), "partner_present": len(self.partner_present)}
@@ -391,9 +429,9 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--calibration-s", "4000"], "--calibration-s must be in (0, 3600] seconds"),
         (["--steps", str(2**31)], "--steps must be in [1, 2147483647]"),
         (["--seed", "-1"], "--seed must be in [0, 2147483647]"),
+        (["--memory", "1000000000000"], "--memory must be in [0, 1000000] (belief_node's"
+                                        " memory_steps; 0 = all), got 1000000000000"),
         (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
-        # the lockstep room waited for the warm-up's decisions: no progress for 30 s
-        (["--bit-source", "background"], "--bit-source background needs --wav: "),
     ],
 )
 def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(

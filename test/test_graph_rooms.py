@@ -85,13 +85,18 @@ def test_partner_who_leaves_is_noticed_with_bounded_memory() -> None:
         assert attentive_at <= leave_step < bored_at
 
 
-def _offline(seed: int, steps: int) -> list:
+def _offline(seed: int, steps: int, bit_source: str = "energy") -> list:
+    """The offline loop's run (energy: the fixed threshold of :func:`room_nodes`)."""
     params = ModelParams.named("robot")
     table = PolicyTable.load(
         resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=params
     )
     room = FakeRoom(FakeRoomConfig.preset("responsive"), seed)
-    binarizer = make_bit_source("energy", 16000, 0.5, **FIXED_THRESHOLD)
+    if bit_source == "energy":
+        binarizer = make_bit_source("energy", 16000, 0.5, **FIXED_THRESHOLD)
+    else:
+        binarizer = make_bit_source(bit_source, 16000, 0.5)
+        binarizer.follow_model(params)  # as mic_node does
     return simulate_audio_loop(PolicyController(table), room, binarizer, steps)
 
 
@@ -114,6 +119,32 @@ def test_same_seed_twice_gives_the_same_run_as_offline() -> None:
             runs.append((rec.sound[:steps], rec.vocalize[:steps], rec.belief[:steps]))
     assert runs[0] == runs[1]
     _assert_equals_offline(runs[0], _offline(seed, steps), steps)
+
+
+def test_the_default_bit_source_in_the_lockstep_room_gives_the_offline_run() -> None:
+    """mic_node's default source (background) in the lockstep room equals the offline loop.
+
+    Its warm-up windows give no step (said on ``no_step``, on which the room goes on),
+    then every window a bit; the offline loop skips the same windows, so bits,
+    decisions, beliefs and truths are its own.
+    """
+    steps, seed = 150, 7
+    room = {"room": "responsive", "seed": seed, "max_windows": 0}
+    with stepped_graph(room_nodes(room, steps, bit_source={}), "fake_audio_node") as graph:
+        graph.run_steps(steps)
+        rec = graph.recorder
+        windows = rec.step_windows(steps)
+        graph.run_until(lambda: len(rec.partner_present) > windows[-1], "the steps' truths")
+        run = (rec.sound[:steps], rec.vocalize[:steps], rec.belief[:steps])
+        warmup = [window for _, window in rec.no_step]
+        truths = [rec.partner_present[w] for w in windows]
+        assert graph.nodes["fake_audio_node"].windows_without_step == len(warmup)
+    # 8 background windows (warmup_s 4 s), then the threshold's delay of ta2 = 4 windows
+    assert warmup == list(range(1, 13)) and windows[0] == 12
+    assert windows == list(range(12, 12 + steps))
+    offline = _offline(seed, steps, "background")
+    _assert_equals_offline(run, offline, steps)
+    assert truths == [r.partner_present for r in offline]
 
 
 @pytest.mark.slow

@@ -137,9 +137,18 @@ def launch(workspace: Path, tmp_path: Path) -> Iterator:
 
 @pytest.mark.slow
 @pytest.mark.dds_defaults  # as a robot's user runs it
-def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(workspace: Path, launch) -> None:
+def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(
+    workspace: Path, launch, tmp_path: Path
+) -> None:
+    # mic_node's bit source energy, on purpose: its threshold_db is set live below (the
+    # default source, background, has no threshold to set).
+    room_config = yaml.safe_load((ROOT / "config" / "fake_room.yaml").read_text())
+    room_config["/**/mic_node"]["ros__parameters"]["bit_source"] = "energy"
+    fake_room = tmp_path / "fake_room_energy.yaml"
+    fake_room.write_text(yaml.safe_dump(room_config))
     # log_level sets the nodes' loggers only: rcl's debug lines (thousands) stay out.
-    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true log_level:=debug")
+    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true log_level:=debug"
+                   f" fake_room_file:={fake_room}")  # fmt: skip
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
     # realtime:=true is the default: the room runs at the speed of the room, not lockstep.
     graph.wait_for("[robot7.fake_audio_node]: room 'responsive' (seed 1), real time x1")

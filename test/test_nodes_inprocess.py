@@ -46,10 +46,12 @@ from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import SpeakerNode
 from infomax_contingency.nodes.step_topics import (
+    NoStep,
     StepBit,
     StepDecision,
     bit_message,
     decision_message,
+    no_step_message,
     parse_bit,
     parse_decision,
 )
@@ -541,6 +543,48 @@ def test_mic_holds_a_burst_until_the_controller_answers(run: Callable) -> None:
     assert node.outbox.dropped == 0
 
 
+def test_mic_says_the_warmup_on_no_step_and_decides_a_window_after_the_decisions_before_it(
+    run: Callable,
+) -> None:
+    """The default source (background) labels windows by the decisions.
+
+    Its 12 warm-up windows give no step, each said on ``no_step``. A window that comes
+    before the decision on the last bit (DDS orders no topic against another: in lockstep
+    the room's next window may overtake the decision) waits for it, so every bit is the
+    offline loop's, which hears each decision before the next window.
+    """
+    node, probe, graph = run(MicNode, source="topic", wait_for_listeners=1, start_delay_s=0.0,
+                             lockstep_timeout_s=600.0)  # fmt: skip
+    steps = probe.listen("sound_step", Int64MultiArray)
+    no_steps = probe.listen("no_step", Int64MultiArray)
+    audio = probe.talk("audio", Float32MultiArray)
+    answers = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(audio)
+    graph.run_until(lambda: node.started and node.count_publishers("vocalize_step") == 1,
+                    "start, with a controller")  # fmt: skip
+    windows = _room_audio(16).reshape(16, 8000)
+    for window in windows[:13]:
+        audio.publish(_audio_message(window))
+    graph.run_until(lambda: len(no_steps) == 12 and len(steps) == 1, "the warm-up, a step")
+    assert [list(m.data) for m in no_steps] == [[node.stream_id, w] for w in range(1, 13)]
+    decisions = [1, 0, 0]
+    for step, (window, u) in enumerate(zip(windows[13:], decisions, strict=True), start=1):
+        audio.publish(_audio_message(window))  # before the decision on step `step`
+        graph.run_for_callbacks(30)
+        assert len(steps) == step and len(node.controls.held) == 1, "it waits for the decision"
+        answers.publish(decisions_of(node.stream_id, [u], first_step=step)[0])
+        graph.run_until(lambda n=step: len(steps) == n + 1, "its step, after the decision")
+    offline = make_bit_source("background", 16000, 0.5)
+    offline.follow_model(ROBOT)
+    expected = [offline.push_window(w) for w in windows[:13]]
+    for window, u in zip(windows[13:], decisions, strict=True):
+        offline.note_decision(u)
+        expected.append(offline.push_window(window))
+    assert expected[:12] == [None] * 12
+    assert [parse_bit(m).bit for m in steps] == expected[12:]
+    assert node.controls.values()["windows_decided_early"] == 0
+
+
 def test_mic_accepts_an_integer_for_a_float_parameter(run: Callable) -> None:
     node, _, _ = run(MicNode, source="topic", bit_source="energy", start_delay_s=1)
     parameter = node.get_parameter("start_delay_s")
@@ -550,12 +594,32 @@ def test_mic_accepts_an_integer_for_a_float_parameter(run: Callable) -> None:
 # ---------------------------------------------------------------------- fake room, speaker
 
 
+def _silent_room(run: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, list]:
+    """A lockstep fake room (silent, no events, seed 4), its probe, executor and audio."""
+    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
+                             start_delay_s=0.0, **parameters)  # fmt: skip
+    return node, probe, graph, probe.listen("audio", Float32MultiArray)
+
+
+def _assert_silent_room_windows(audio: list, vocalize_after: int) -> list:
+    """The messages are the offline room's windows; returns those.
+
+    The robot vocalized after window ``vocalize_after`` (1, 2, ...).
+    """
+    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
+    expected = [offline.next_window() for _ in range(vocalize_after)]
+    offline.vocalize()
+    expected += [offline.next_window() for _ in range(len(audio) - vocalize_after)]
+    for message, window in zip(audio, expected, strict=True):
+        assert np.array_equal(np.frombuffer(message.data, np.float32),
+                              as_transmitted(window.samples))  # fmt: skip
+    return expected
+
+
 def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     run: Callable,
 ) -> None:
-    node, probe, graph = run(FakeAudioNode, room="silent", event_rate_hz=0.0, seed=4,
-                             start_delay_s=0.0)  # fmt: skip
-    audio = probe.listen("audio", Float32MultiArray)
+    node, probe, graph, audio = _silent_room(run)
     truth = probe.listen("partner_present", Bool)
     vocalize = probe.talk("vocalize_step", Int64MultiArray)
     graph.connected(vocalize)
@@ -565,17 +629,61 @@ def test_fake_room_waits_in_lockstep_and_puts_the_robot_sound_after_vocalize(
     for message in decisions_of(STREAM, [True, False, False]):
         vocalize.publish(message)
     graph.run_until(lambda: len(audio) == 4 and len(truth) == 4, "3 more windows")
-    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
-    expected = [offline.next_window()]
-    offline.vocalize()
-    expected += [offline.next_window() for _ in range(3)]
-    for message, window in zip(audio, expected, strict=True):
-        assert np.array_equal(
-            np.frombuffer(message.data, np.float32), as_transmitted(window.samples)
-        )
+    expected = _assert_silent_room_windows(audio, vocalize_after=1)
     loud = [float(window_energies_db(w.samples, 16000, 0.5)[0]) > -40 for w in expected]
     assert loud == [False, True, False, False]
     assert [m.data for m in truth] == [False] * 4
+
+
+def test_fake_room_in_lockstep_goes_on_when_the_mic_says_a_window_gave_no_step(
+    run: Callable,
+) -> None:
+    """A window that gave mic_node no step is answered on ``no_step``.
+
+    (Its bit source warming up.) The room goes on, once per window said; then on a
+    decision, as before.
+    """
+    node, probe, graph, audio = _silent_room(run)
+    no_step = probe.talk("no_step", Int64MultiArray)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(vocalize)
+    graph.connected(no_step)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    for window in (1, 1, 2):  # window 1 said twice: one window more, not two
+        no_step.publish(no_step_message(NoStep(STREAM, window)))
+        graph.run_until(lambda w=window: len(audio) == w + 1, f"the window after {window}")
+    graph.run_for_callbacks(30)
+    assert len(audio) == 3 and node.windows_without_step == 2
+    for message in decisions_of(STREAM, [True]):  # the mic's first step: window 3
+        vocalize.publish(message)
+    graph.run_until(lambda: len(audio) == 4, "the window after the first decision")
+    assert node.pacer.answers == 3 and node.pacer.timeouts == 0
+    _assert_silent_room_windows(audio, vocalize_after=3)  # the chirp in window 4
+
+
+def test_fake_room_in_lockstep_ignores_a_no_step_far_ahead(run: Callable) -> None:
+    """A forged ``no_step`` 3,000 windows ahead releases nothing and blocks nothing.
+
+    (Without the pace rule every real ``no_step`` after it looked like a repeat: the room
+    went on only at its lockstep timeout.)
+    """
+    node, probe, graph, audio = _silent_room(run)
+    no_step = probe.talk("no_step", Int64MultiArray)
+    graph.connected(probe.talk("vocalize_step", Int64MultiArray))  # the room waits for one
+    graph.connected(no_step)
+    graph.run_until(lambda: len(audio) == 1, "the first window")
+    no_step.publish(no_step_message(NoStep(STREAM, 1)))
+    graph.run_until(lambda: len(audio) == 2, "the window after 1")
+    no_step.publish(no_step_message(NoStep(STREAM, 3001)))
+    graph.run_until(lambda: node.no_step_pace.jumps == 1, "the jump named")
+    for window in (2, 3):
+        no_step.publish(no_step_message(NoStep(STREAM, window)))
+        graph.run_until(lambda w=window: len(audio) == w + 1, f"the window after {window}")
+    graph.run_for_callbacks(30)
+    assert len(audio) == 4 and node.windows_without_step == 3
+    assert node.pacer.timeouts == 0
+    level, _, values = node.diagnostic_status()
+    assert values["jumps_ignored"] == 1 and level == ERROR
 
 
 def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable) -> None:
@@ -599,13 +707,7 @@ def test_fake_room_in_lockstep_holds_each_window_for_its_max_speed(run: Callable
     gaps = [window - answer for answer, window in zip(answered, arrived[1:], strict=True)]
     assert min(gaps) >= 0.25, gaps
     assert node.pacer.answers == 3 and node.pacer.timeouts == 0
-    offline = FakeRoom(FakeRoomConfig.preset("silent", event_rate_hz=0.0), seed=4)
-    expected = [offline.next_window()]
-    offline.vocalize()
-    expected += [offline.next_window() for _ in range(3)]
-    for message, window in zip(audio, expected, strict=True):  # the same room, held
-        assert np.array_equal(np.frombuffer(message.data, np.float32),
-                              as_transmitted(window.samples))  # fmt: skip
+    _assert_silent_room_windows(audio, vocalize_after=1)  # the same room, held
 
 
 def test_fake_room_hears_one_controller_once_per_step(run: Callable) -> None:

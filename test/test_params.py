@@ -182,6 +182,27 @@ def test_a_threshold_file_outside_the_parameters_range_is_refused_like_the_param
     assert node.describe_parameter("threshold_db").floating_point_range[0].to_value == 0.0
 
 
+def test_a_threshold_file_that_nothing_reads_is_named_at_start_up(
+    graph: Callable, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Given while the bit source or its threshold_mode reads no file: a WARN, not silence."""
+    path = str(_threshold_file(tmp_path / "t.yaml", -30))
+    unread = f"parameter 'threshold_file' = '{path}' is not read:"
+    for settings, reader in (
+        ({"bit_source": "background"}, "bit_source background reads no threshold file"),
+        ({"bit_source": "energy", "threshold_mode": "calibrate"},
+         "bit_source energy with threshold_mode calibrate reads no threshold file"),
+        ({"bit_source": "vad"}, "bit_source vad reads no threshold file"),
+    ):
+        graph(MicNode, threshold_file=path, **settings)
+        err = capfd.readouterr().err
+        assert f"{unread} {reader}; threshold_mode file of bit_source energy or speech_band" \
+            " reads it" in err, err
+    graph(MicNode, bit_source="energy", threshold_mode="file", threshold_file=path)
+    graph(MicNode, bit_source="background", threshold_file="")  # robot.yaml's: nothing given
+    assert "is not read" not in capfd.readouterr().err
+
+
 def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
     """A mic_node on 'audio' at a fixed -40 dB (1 s calibration if asked), and ``play``.
 
@@ -209,6 +230,23 @@ def _live_mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedEx
         return [m.data for m in bits[before:]]
 
     return node, probe, executor, play
+
+
+def test_a_computed_threshold_outside_the_range_is_a_warn_and_gives_no_bits(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A noise floor of audio not scaled to [-1, 1]: no made-up bits, a WARN that says why."""
+    node, _, _, play = _live_mic(graph, threshold_mode="noise_floor", noise_margin_db=10.0,
+                                 noise_window_s=2.0)  # fmt: skip
+    assert play([-5.0, -5.0], 0) == []  # the warm-up (calibration_s 1 s)
+    assert play([-5.0, 5.0, -5.0], 0) == []  # threshold about +5 dB: above full scale
+    level, message, values = node.diagnostic_status()
+    assert level == WARN and "noise-floor threshold: threshold_db" in message, message
+    assert "is not allowed: -150 .. 0 dB" in message and values["calibration_state"] == \
+        "out_of_range"
+    assert capfd.readouterr().err.count("its windows give no bit until it is back in range") == 1
+    # scaled again: from the window after the first quiet one, bits on the new floor
+    assert play([-40.0] * 4 + [-10.0], 4) == [False, False, False, True]
 
 
 def recalibrate(probe: Probe, executor: SteppedExecutor) -> Trigger.Response:

@@ -100,7 +100,7 @@ def test_a_recorded_run_reads_back_with_the_mcap_reader(
     assert log[2].startswith("'/sound_step' received after ")
     assert log[-1].startswith(
         f"recorded 61 messages to {tmp_path / 'session'}: /session_info 1, /sound_step 30,"
-        " /belief 30; nothing on /sound, /sound_energy, "
+        " /belief 30; nothing on /sound, /no_step, /sound_energy, "
     ), log
     assert (tmp_path / "session" / "metadata.yaml").exists()
     messages = _read_mcap(tmp_path / "session" / "session.mcap")
@@ -186,16 +186,14 @@ def test_an_existing_directory_is_refused_at_start_up(ros: None, tmp_path: Path)
     assert list((tmp_path / "session").iterdir()) == []
 
 
-def test_the_recorder_keeps_running_when_the_bag_cannot_be_made(ros: None, tmp_path: Path
-                                                                ) -> None:
+def test_a_bag_that_cannot_be_made_is_refused_at_start_up(ros: None, tmp_path: Path) -> None:
+    """As one that exists: a recorder that would record nothing ends (and so the launch)."""
     (tmp_path / "a_file").write_text("")
-    recorder = RecorderNode(parameter_overrides=[
-        Parameter("directory", value=str(tmp_path / "a_file" / "session"))])
-    try:
-        level, message, _ = recorder.diagnostic_status()
-        assert level == b"\x02" and "cannot create the bag" in message
-    finally:
-        recorder.destroy_node()
+    for directory in (tmp_path / "a_file" / "session", Path("/proc/infomax_no_bag")):
+        with pytest.raises(ConfigError, match=f"'directory' = '{directory}': cannot create"
+                                              " the bag"):
+            RecorderNode(parameter_overrides=[Parameter("directory", value=str(directory))])
+    assert not Path("/proc/infomax_no_bag").exists()
 
 
 def test_a_recorder_killed_with_kill_9_leaves_a_readable_bag(ros: None, tmp_path: Path) -> None:

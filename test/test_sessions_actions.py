@@ -172,8 +172,9 @@ def test_a_noisy_recording_replays_with_the_defaults_where_kmeans_refuses(
     from infomax_contingency.eval.rooms import render_room
     from infomax_contingency.sim.actions import write_actions_csv
 
+    # the robot chirps every 8 steps of fixed -40 dB bits (from window 1: no warm-up)
     samples, times, rate = render_room("poster-session+partner", 45.0, seed=7,
-                                       controller="fixed:8")  # fmt: skip
+                                       controller="fixed:8", binarizer="fixed:-40")  # fmt: skip
     wav, actions = tmp_path / "hall.wav", tmp_path / "hall.csv"
     write_wav_int16(wav, samples, rate)
     write_actions_csv(actions, times)

@@ -487,3 +487,14 @@ def test_a_writers_numbers_tell_its_steps_from_forged_ones_with_its_id() -> None
     assert writer.same_writer(11, None)  # no numbers from the middleware: nothing to tell
     writer.restart()  # a new stream or controller followed
     assert writer.same_writer(1, 1) and writer.same_writer(2, 2)
+
+
+def test_a_forged_decision_for_the_next_step_needs_the_next_number_and_costs_one_step() -> None:
+    """docs/LIMITS.md: its writer's numbering tells it apart, unless it is the next number."""
+    writer = WriterSequence()
+    assert writer.same_writer(7, 40)  # the controller's decision on step 7, its 40th message
+    assert not writer.same_writer(8, 1)  # a forger's own first message: refused
+    assert not writer.same_writer(8, 300)  # a flood's, far ahead in numbers: refused
+    assert writer.same_writer(8, 41)  # a forger with exactly the next number: taken
+    assert writer.same_writer(8, 41)  # the controller's own: a repeat, left to the caller
+    assert writer.same_writer(9, 42)  # and the controller's next decision is taken again

@@ -51,6 +51,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -58,6 +59,7 @@ from numpy.typing import NDArray
 
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import ENERGY_FLOOR, ENERGY_FLOOR_DB
+from infomax_contingency.audio.threshold import ThresholdRangeGuard
 
 SILENCE_DB = ENERGY_FLOOR_DB + 1.0
 """Window levels at or below this are digital silence (all-zero samples), dB."""
@@ -75,6 +77,8 @@ WARMING_UP = "calibrating"
 """State while too few background windows are known (no bit)."""
 READY = "ready"
 """State once the threshold is set (every window gets a bit)."""
+OUT_OF_RANGE = "out_of_range"
+"""State while the threshold lies outside the ``threshold_db`` parameter's range (no bit)."""
 
 
 class WindowFaults(NamedTuple):
@@ -201,6 +205,7 @@ class BackgroundThreshold:
         reference: bool = True,
         reference_margin_db: float = 0.0,
         least_rank: int = 1,
+        on_problem: Callable[[str], None] | None = None,
     ) -> None:
         _check_settings(false_alarm, history, warmup_windows, max_undecided)
         _check_margin("margin_db", margin_db)
@@ -240,9 +245,15 @@ class BackgroundThreshold:
         self.decisions_lost = 0
         self.labelled = {"background": 0, "agent": 0, "self": 0, "unknown": 0}
         """Windows labelled so far, by what their timer said."""
+        self.range_guard = ThresholdRangeGuard("background threshold", on_problem)
+        """Holds the threshold to the ``threshold_db`` parameter's range (no bit outside)."""
         self.fit = None
-        self.calibration_problem = ""
         self.refits_accepted = self.refits_rejected = self.calibration_failures = 0
+
+    @property
+    def calibration_problem(self) -> str:
+        """Why windows give no bit now ("" if they do, or while warming up)."""
+        return self.range_guard.problem
 
     # ---------------------------------------------------------------- the threshold
 
@@ -285,7 +296,9 @@ class BackgroundThreshold:
 
     @property
     def state(self) -> str:
-        """``"calibrating"`` during the warm-up, then ``"ready"``."""
+        """``"calibrating"`` (warm-up), ``"out_of_range"`` (no bits: range_guard), ``"ready"``."""
+        if self.range_guard.problem:
+            return OUT_OF_RANGE
         return WARMING_UP if self.calibrating else READY
 
     def push(self, level_db: float, decision: int | None = None) -> bool | None:
@@ -308,6 +321,8 @@ class BackgroundThreshold:
         threshold = self.threshold_db
         silent = level <= SILENCE_DB
         self.silent_windows += silent
+        if threshold is not None and not self.range_guard.allows(threshold):
+            threshold = None  # no bit rather than one decided on an impossible threshold
         bit = None if threshold is None else (False if silent else level > threshold)
         if bit and self.reference:
             reference = self.reference_db(self._z if not self._waiting else None)
@@ -435,6 +450,11 @@ class BackgroundThreshold:
                 " the partner's replies will hardly stand out (louder robot sound, closer"
                 " microphone)"
             )
+        if self.range_guard.windows_out_of_range:
+            out.append(
+                f"{self.range_guard.windows_out_of_range} windows gave no bit: their threshold"
+                " lay outside the threshold_db parameter's range (audio not scaled to [-1, 1]?)"
+            )
         if self.decisions_lost:
             out.append(
                 f"{self.decisions_lost} decisions never came (no controller answering?):"
@@ -459,5 +479,6 @@ class BackgroundThreshold:
             "labelled_unknown": self.labelled["unknown"],
             "silent_windows": self.silent_windows,
             "decisions_lost": self.decisions_lost,
+            "windows_threshold_out_of_range": self.range_guard.windows_out_of_range,
             "problems": "; ".join(self.problems()) or "none",
         }

@@ -216,6 +216,7 @@ SESSION_TYPES = {
     "/audio": "std_msgs/msg/Float32MultiArray",
     "/sound": "std_msgs/msg/Bool",
     "/sound_step": "std_msgs/msg/Int64MultiArray",
+    "/no_step": "std_msgs/msg/Int64MultiArray",
     "/sound_energy": "std_msgs/msg/Float32",
     "/vocalize": "std_msgs/msg/Bool",
     "/vocalize_step": "std_msgs/msg/Int64MultiArray",

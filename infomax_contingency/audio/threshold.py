@@ -15,6 +15,7 @@ import bisect
 import dataclasses
 import math
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -268,14 +269,61 @@ class NoiseFloorTracker:
         return self._sorted[rank]
 
 
+def threshold_range_problem(value: float, what: str) -> str:
+    """"" if ``value`` (dB) lies in ``THRESHOLD_MIN_DB .. THRESHOLD_MAX_DB``, else why not.
+
+    ``what`` names the value in the one-line message (``"threshold file x.yaml"``).
+    """
+    if THRESHOLD_MIN_DB <= value <= THRESHOLD_MAX_DB:
+        return ""
+    return (f"{what}: threshold_db {value:g} dB is not allowed: {THRESHOLD_MIN_DB:g} .."
+            f" {THRESHOLD_MAX_DB:g} dB (0 dB is a full-scale window of samples in [-1, 1])")
+
+
 def check_threshold_db(value: float, what: str) -> float:
     """``value`` if it lies in ``THRESHOLD_MIN_DB .. THRESHOLD_MAX_DB``, else AudioError.
 
     ``what`` names the value in the one-line message (``"threshold file x.yaml"``).
     """
-    if not THRESHOLD_MIN_DB <= value <= THRESHOLD_MAX_DB:
-        raise AudioError(
-            f"{what}: threshold_db {value:g} dB is not allowed: {THRESHOLD_MIN_DB:g} .."
-            f" {THRESHOLD_MAX_DB:g} dB (0 dB is a full-scale window of samples in [-1, 1])"
-        )
+    if problem := threshold_range_problem(value, what):
+        raise AudioError(problem)
     return float(value)
+
+
+class ThresholdRangeGuard:
+    """Holds a threshold a rule computes itself to the range of the ``threshold_db`` parameter.
+
+    A noise floor plus its margin, or the background's k-th loudest level, lies above
+    0 dB when the audio is not scaled to [-1, 1] (float samples stored unscaled): every
+    bit would be 0, which says "quiet" about a room nobody measured. A window whose
+    threshold lies outside :data:`THRESHOLD_MIN_DB` .. :data:`THRESHOLD_MAX_DB` gets no
+    bit instead (as a threshold file outside the range is refused), is counted, and
+    :attr:`problem` says why until a threshold is in range again; ``on_problem`` is
+    called with it once each time the threshold leaves the range.
+
+    Args:
+        origin: what computes the threshold, for the message (``"noise-floor threshold"``).
+        on_problem: called with :attr:`problem` when the threshold leaves the range.
+    """
+
+    def __init__(self, origin: str, on_problem: Callable[[str], None] | None = None) -> None:
+        self.origin = origin
+        self.on_problem = on_problem
+        self.windows_out_of_range = 0
+        """Windows that got no bit because their threshold lay outside the range."""
+        self.problem = ""
+        """Why windows get no bit now ("" while the threshold lies in the range)."""
+
+    def allows(self, threshold_db: float) -> bool:
+        """True if a bit may be decided on ``threshold_db``; else count the window."""
+        problem = threshold_range_problem(threshold_db, self.origin)
+        if not problem:
+            self.problem = ""
+            return True
+        self.windows_out_of_range += 1
+        if not self.problem:
+            self.problem = (f"{problem}; its windows give no bit until it is back in range"
+                            " (audio not scaled to [-1, 1]?)")  # fmt: skip
+            if self.on_problem is not None:
+                self.on_problem(self.problem)
+        return False

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.cli import demo
+from infomax_contingency.cli.demo_checks import MAX_CALIBRATION_S, MAX_SEED, MAX_STEPS
 
 DEFAULT_INTERVAL_S = (3.0, 6.0)
 """Default range of the random intervals between the robot's sounds, seconds."""
@@ -60,15 +61,29 @@ def register_calibration_session(subparsers: argparse._SubParsersAction) -> None
 
 
 def _check(args: argparse.Namespace) -> int:
-    """The session's steps after checking the arguments (ValueError: one line)."""
+    """The session's steps after checking the arguments (ValueError: one line).
+
+    Every value a node would refuse (the room's and mic's ``max_windows``, the room's
+    ``seed``, mic_node's ``calibration_s``) is refused here, before any node starts.
+    """
     if not (math.isfinite(args.minutes) and args.minutes > 0):
         raise ValueError(f"--minutes must be > 0, got {args.minutes:g}")
+    longest_min = MAX_STEPS * demo.WINDOW_S / 60
+    if args.minutes > longest_min:
+        raise ValueError(f"--minutes must be at most {longest_min:.3g} ({MAX_STEPS} windows of"
+                         f" {demo.WINDOW_S:g} s: the nodes' max_windows), got {args.minutes:g}")
+    if not 0 <= args.seed <= MAX_SEED:
+        raise ValueError(f"--seed must be in [0, {MAX_SEED}], got {args.seed}")
     low, high = args.min_interval_s, args.max_interval_s
     if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
         raise ValueError(f"--min-interval-s and --max-interval-s: need 0 < min <= max"
                          f" seconds, got {low:g} .. {high:g}")
-    if not args.calibration_s > 0:
-        raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s:g}")
+    if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
+        raise ValueError(f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds, got"
+                         f" {args.calibration_s:g}")
+    if args.threshold_file and args.fake_room:
+        raise ValueError("--threshold-file is read by live audio only: the simulated room's"
+                         " mic_node uses config/fake_room.yaml's fixed threshold")
     if args.threshold_file and not Path(args.threshold_file).is_file():
         raise ValueError(f"--threshold-file {args.threshold_file}: no such file")
     if Path(args.out).exists():

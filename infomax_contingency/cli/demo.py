@@ -7,12 +7,13 @@ process: one line per step (room time, bit, vocalization, belief, posture, groun
 and a verdict. By default a partner answers for the first 60 s and then leaves; the
 graph runs in lockstep, so 120 s of room time take a few seconds.
 
-``--wav FILE`` replays a recording through mic_node instead of the simulated room, with
-mic_node's default bit source (``background``: the threshold the model calibrates itself
-on the recording's background windows); with ``--bit-source energy`` or ``speech_band``
-the threshold is the k-means calibration of the first ``--calibration-s`` seconds. The
-simulated room runs in lockstep with config/fake_room.yaml's fixed threshold (a source
-that first hears the room would wait for decisions that come only after its bits).
+mic_node's bit source is its default, ``background`` (the threshold the model calibrates
+itself on the room's background windows): its first windows (about 6 s) are its warm-up
+and give no bit, which mic_node says on ``no_step``, and the lockstep room goes on to its
+next window. ``--wav FILE`` replays a recording through mic_node instead of the simulated
+room; with ``--bit-source energy`` or ``speech_band`` its threshold is the k-means
+calibration of the first ``--calibration-s`` seconds. The table shows each step at the
+time of its window.
 
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
 arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
@@ -107,9 +108,8 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         "--bit-source",
         choices=tuple(BIT_SOURCES),
         default=None,
-        help="how mic_node turns a window into a bit (default: a wav file mic_node's default,"
-        " background; the simulated room config/fake_room.yaml's, energy at -40 dB; the"
-        " lockstep room cannot run background, which makes no bit in its first 6 s)",
+        help="how mic_node turns a window into a bit (default: mic_node's default,"
+        " background, which gives no bit in its first 6 s of warm-up)",
     )
     parser.add_argument(
         "--record",
@@ -412,16 +412,21 @@ def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,
         else:
             ok = False
     else:
-        steps = args.steps
+
+        def stepped() -> int:  # the room's windows less those said to give no step
+            return args.steps - len(recorder.no_step)
+
         ok = _wait_with_watchdog(
             # every column the table prints: the monitor's subscriptions are apart, and
             # its 'sound' once lagged its 'belief' (an IndexError at the table, under load)
-            lambda: min(len(recorder.sound), len(recorder.vocalize), len(recorder.belief),
-                        len(recorder.partner_present)) >= steps,  # fmt: skip
+            lambda: len(recorder.partner_present) >= args.steps
+            and min(len(recorder.sound), len(recorder.vocalize), len(recorder.belief))
+            >= stepped(),
             recorder,
             STALL_TIMEOUT_S,
             processes,
         )
+        steps = stepped()
     if ok:
         return steps, ""
     lost = {topic: n for topic, n in recorder.lost.items() if n}
@@ -512,6 +517,10 @@ def _postures(beliefs: list[float], received: list[str]) -> list[str]:
 
 
 def _print_run(recorder: Any, steps: int, window_s: float, truth: bool) -> None:
+    windows = recorder.step_windows(steps)
+    if windows and windows[0] > 0:
+        print(f"# the first {windows[0]} windows ({windows[0] * window_s:g} s) gave no bit:"
+              " mic_node's bit source heard the room's background first")  # fmt: skip
     beliefs = recorder.belief[:steps]
     received = [posture for _, posture in recorder.posture]
     postures = _postures(beliefs, received)
@@ -525,11 +534,11 @@ def _print_run(recorder: Any, steps: int, window_s: float, truth: bool) -> None:
     print((header + (" partner" if truth else "")).rstrip())
     for k in range(steps):
         line = (
-            f"{k + 1:>5} {k * window_s:>7.1f} {int(recorder.sound[k]):>3}"
+            f"{k + 1:>5} {windows[k] * window_s:>7.1f} {int(recorder.sound[k]):>3}"
             f" {'yes' if recorder.vocalize[k] else '-':>8} {beliefs[k]:>9.4f}  {postures[k]:<9}"
         )
         if truth:
-            line += " present" if recorder.partner_present[k] else " absent"
+            line += " present" if recorder.partner_present[windows[k]] else " absent"
         print(line.rstrip())
 
 
@@ -542,33 +551,37 @@ def _print_verdict(
     received = [t for t, _ in recorder.times["belief"][:steps]]
     run_s = (received[-1] - received[0]) / 1e9 if len(received) > 1 else 0.0
     rate = f" ({(steps - 1) / run_s:.0f} steps/s)" if run_s > 0 else ""
+    audio_s = (steps + len(recorder.no_step)) * window_s
     print(
-        f"# {steps} steps ({steps * window_s:g} s of audio) in {run_s:.2f} s{rate}, after"
+        f"# {steps} steps ({audio_s:g} s of audio) in {run_s:.2f} s{rate}, after"
         f" {elapsed - run_s:.1f} s of start-up; {sum(recorder.vocalize[:steps])} vocalizations;"
         f" final P(S=1) = {final:.4f} -> {thinks}"
     )
     if args.wav:
         print(f"# verdict: the robot thinks: {thinks} (a recording has no ground truth)")
         return
-    truth = recorder.partner_present[:steps]
-    present_steps = [k for k, present in enumerate(truth) if present]
+    windows = recorder.step_windows(steps)  # of each step; the truth is the window's
+    truth = recorder.partner_present[: windows[-1] + 1]
+    present = [w for w, here in enumerate(truth) if here]
     verdicts = []
-    if present_steps:
-        arrive, leave = present_steps[0], present_steps[-1] + 1
-        found = next((k for k in range(arrive, leave) if beliefs[k] > ATTENTIVE_ABOVE), None)
+    if present:
+        arrive, leave = present[0], present[-1] + 1  # windows
+        found = next((k for k in range(steps)
+                      if arrive <= windows[k] < leave and beliefs[k] > ATTENTIVE_ABOVE), None)
         if found is None:
             verdicts.append("MISSED the partner")
         else:
-            delay = (found - arrive + 1) * window_s
+            delay = (windows[found] - arrive + 1) * window_s
             verdicts.append(
                 f"found the partner {delay:.1f} s after they arrived (step {found + 1})"
             )
-        if leave < steps:
-            gone = next((k for k in range(leave, steps) if beliefs[k] < BORED_BELOW), None)
+        if leave < len(truth):
+            gone = next((k for k in range(steps)
+                         if windows[k] >= leave and beliefs[k] < BORED_BELOW), None)
             if gone is None:
                 verdicts.append("did NOT notice that the partner left")
             else:
-                delay = (gone - leave + 1) * window_s
+                delay = (windows[gone] - leave + 1) * window_s
                 verdicts.append(f"noticed they left {delay:.1f} s later (step {gone + 1})")
     else:
         ok = max(beliefs) <= ATTENTIVE_ABOVE

@@ -13,6 +13,8 @@ import math
 import tempfile
 from pathlib import Path
 
+from infomax_contingency.core.model import MAX_MEMORY_STEPS
+
 
 def finite_number(text: str) -> float:
     """An argparse type: a finite number (``nan`` and ``inf`` mean nothing here)."""
@@ -46,20 +48,15 @@ def check_arguments(args: argparse.Namespace) -> None:
             f"--leave-at must be at most {MAX_LEAVE_AT_S:g} s (negative: the partner stays),"
             f" got {args.leave_at}"
         )
-    if args.memory < 0:
-        raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
+    if not 0 <= args.memory <= MAX_MEMORY_STEPS:
+        raise ValueError(f"--memory must be in [0, {MAX_MEMORY_STEPS}] (belief_node's"
+                         f" memory_steps; 0 = all), got {args.memory}")
     if args.wav and not Path(args.wav).is_file():
         raise ValueError(f"--wav {args.wav}: no such file")
     if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
         raise ValueError(
             f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
             f" got {args.calibration_s}"
-        )
-    if args.bit_source == "background" and not args.wav:
-        raise ValueError(
-            "--bit-source background needs --wav: the simulated room runs in lockstep and"
-            " waits for a decision on every window, and the source's first 6 s (its warm-up"
-            " on the room's background) give none"
         )
     if args.record:
         check_record_directory(Path(args.record))

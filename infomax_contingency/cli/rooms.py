@@ -272,7 +272,7 @@ def register_room_wav(subparsers: argparse._SubParsersAction) -> None:
         "--binarizer",
         default=evaluation.LISTENING_BINARIZER,
         help=f"{' | '.join(evaluation.BINARIZERS)} (default {evaluation.LISTENING_BINARIZER},"
-        " config/fake_room.yaml's threshold)",
+        " as mic_node)",
     )
     parser.add_argument("--params", default=d.params_name, help=f"parameter set ({d.params_name})")
     parser.set_defaults(run=_run_room_wav)

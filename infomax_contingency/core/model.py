@@ -446,6 +446,11 @@ def expected_next_entropy(params: ModelParams, statistic: Statistic, u: int) -> 
     return p_active * entropy_active + (1.0 - p_active) * entropy_inactive
 
 
+MAX_MEMORY_STEPS = 1_000_000
+"""Largest sliding memory the robot's belief keeps, observations (belief_node's
+``memory_steps``; the demo refuses a larger ``--memory`` before a node starts)."""
+
+
 class StatisticTracker:
     """The statistic of a running history, with an optional sliding memory and gaps.
 

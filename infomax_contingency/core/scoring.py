@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
+from math import comb
 
 import numpy as np
 
@@ -34,7 +35,9 @@ from infomax_contingency.core.controllers import (
 from infomax_contingency.core.model import SELF, ModelParams, advance_timer, period_of
 from infomax_contingency.core.policy_table import EPISODIC, PolicyTable
 from infomax_contingency.core.solver import (
+    SolveCost,
     backward_induction,
+    induction_cost,
     tuple_quantities,
 )
 from infomax_contingency.core.statespace import count_tuples, n_count_tuples
@@ -85,6 +88,7 @@ def receding_layers(
 
     One backward induction serves every horizon: layer H of a solve with base
     ``max_count + max(horizons)`` holds counts up to ``max_count + max(horizons) - H``.
+    :func:`receding_layers_cost` tells what it takes.
     """
     top = max(horizons)
     solution = backward_induction(params, max_count + top, top, set(horizons))
@@ -93,8 +97,26 @@ def receding_layers(
     for horizon in horizons:
         full = n_count_tuples(solution.max_counts[horizon])
         bits = np.unpackbits(solution.actions[horizon], count=n_timer * full).astype(bool)
-        layers[horizon] = bits.reshape(n_timer, full)[:, : n_count_tuples(max_count)]
+        layers[horizon] = bits.reshape(n_timer, full)[:, : n_count_tuples(max_count)].copy()
     return layers
+
+
+def receding_layers_cost(params: ModelParams, longest: int, max_count: int) -> SolveCost:
+    """Peak memory and time of :func:`receding_layers` for horizons ``1 .. longest`` (at once).
+
+    Closed form for any size: the sweep of :func:`~infomax_contingency.core.solver.solve_cost`
+    from the base ``max_count + longest``, the packed actions of every layer kept
+    (``n_timer * C(max_count + longest + 4, 5) - C(max_count + 4, 5)`` statistics) and one
+    unpacked layer on the domain per horizon (a byte per statistic). A horizon or count
+    below 1 or 0 is refused (ValueError), as by the sweep itself.
+    """
+    if longest < 1 or max_count < 0:
+        raise ValueError(f"need horizons >= 1 and a count >= 0, got {longest} and {max_count}")
+    n_timer = params.n_timer_values
+    kept = n_timer * (comb(max_count + longest + 4, 5) - comb(max_count + 4, 5))
+    domain = n_timer * n_count_tuples(max_count)
+    return induction_cost(params, max_count + longest, longest, kept,
+                          kept // 8 + longest + longest * domain)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------

@@ -124,18 +124,33 @@ def solve_cost(params: ModelParams, mode: str, horizon: int, memory: int = 0) ->
     """
     base, steps, _ = _sweep(mode, horizon, memory)
     n_timer = params.n_timer_values
-    # Layers k = 1 .. K hold the tuples with sums <= base - k: sum_k C(base - k + 4, 4).
-    swept_tuples = comb(base + 4, 5) - comb(base - steps + 4, 5)
     if mode == EPISODIC:
         statistics = n_timer * (comb(horizon + 4, 5) - 1)
         kept_bytes = statistics // 8 + steps  # a rounding byte per kept layer
     else:
         statistics = n_timer * n_count_tuples(memory)
         kept_bytes = (statistics + 7) // 8
+    return induction_cost(params, base, steps, statistics, kept_bytes)
+
+
+def induction_cost(params: ModelParams, base_max_count: int, steps: int, kept_statistics: int,
+                   kept_bytes: int) -> SolveCost:  # fmt: skip
+    """What :func:`backward_induction` takes, in closed form (any size, at once).
+
+    Args:
+        params: model parameters.
+        base_max_count: ``N_0``, the largest count sum of the ``k = 0`` layer.
+        steps: layers swept (``K``).
+        kept_statistics: statistics whose actions the caller keeps.
+        kept_bytes: memory those kept actions take (packed, and any unpacked copies), bytes.
+    """
+    n_timer = params.n_timer_values
+    # Layers k = 1 .. K hold the tuples with sums <= base - k: sum_k C(base - k + 4, 4).
+    swept_tuples = comb(base_max_count + 4, 5) - comb(base_max_count - steps + 4, 5)
     per_tuple = max(MIN_TUPLE_BYTES, TUPLE_BYTES + TUPLE_BYTES_PER_TIMER_VALUE * n_timer)
-    tuples = n_count_tuples(base)
+    tuples = n_count_tuples(base_max_count)
     return SolveCost(
-        statistics=statistics,
+        statistics=kept_statistics,
         updates=n_timer * swept_tuples,
         layers=steps,
         peak_bytes=BASE_BYTES + per_tuple * tuples + kept_bytes,

@@ -22,7 +22,8 @@ listener joins ``y_t`` with ``u_t`` exactly, whatever order and rate they arrive
   two): a single forged message cannot make a listener skip, or wait for, thousands of
   steps.
 * :class:`LockstepPacer` releases the next window of a file or simulated room only once
-  the decision on the last one came back (or a timeout passed).
+  the decision on the last one came back, or word that it gave no step (or a timeout
+  passed).
 * :class:`WriterSequence` tells a source's own messages from forged ones with its id by
   their DDS sequence numbers.
 * :class:`RecentEvents` remembers when a fault last happened, so a diagnostic returns to
@@ -539,11 +540,13 @@ class RecentEvents:
 
 
 class LockstepPacer:
-    """Release the next window when the decision on the last one arrived, or on timeout.
+    """Release the next window when the last one was answered, or on timeout.
 
-    The timeout is a fault guard for a running loop (a controller that died or a lost
-    message): it only applies once a first decision came back, so a graph that is still
-    starting up (a listener not connected yet) is waited for, not overtaken.
+    A window is answered by the decision on it, or (a window that gave the microphone no
+    step: its bit source calibrating or warming up) by the microphone's word that it gave
+    none. The timeout is a fault guard for a running loop (a controller that died or a
+    lost message): it only applies once a first answer came back, so a graph that is
+    still starting up (a listener not connected yet) is waited for, not overtaken.
     Times are seconds on any monotonic clock, passed in by the caller.
 
     Args:
@@ -557,11 +560,11 @@ class LockstepPacer:
         self.timeout_s = timeout_s
         self._sent_at: float | None = None
         self.answers = 0
-        """Decisions that released a window."""
+        """Answers (decisions, or word of no step) that released a window."""
         self.timeouts = 0
         """Windows released by the timeout rather than by a decision."""
         self.stray_decisions = 0
-        """Decisions that arrived while no window was waiting for one (e.g. after a timeout)."""
+        """Answers that arrived while no window was waiting for one (e.g. after a timeout)."""
 
     @property
     def awaiting(self) -> bool:
@@ -577,7 +580,7 @@ class LockstepPacer:
         self._sent_at = now
 
     def answered(self) -> bool:
-        """A decision arrived; True if it releases the next window."""
+        """An answer (a decision, or word of no step) arrived; True if it releases the next."""
         if self._sent_at is None:
             self.stray_decisions += 1
             return False

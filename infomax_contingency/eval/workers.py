@@ -16,6 +16,28 @@ from concurrent.futures import ProcessPoolExecutor
 
 from infomax_contingency.lifetime import signal_when_parent_dies
 
+WORKERS_PER_CPU = 4
+"""Most worker processes per CPU an experiment may start (more only cost memory and
+start-up: the results do not depend on the number)."""
+WORKER_BYTES = 100 * 2**20
+"""Memory of one worker process before its first run (the interpreter, numpy, the
+package; measured 60-90 MB resident), bytes: the experiments' estimates count it."""
+
+
+def max_workers() -> int:
+    """The most worker processes an experiment may start: :data:`WORKERS_PER_CPU` per CPU."""
+    return WORKERS_PER_CPU * (os.cpu_count() or 1)
+
+
+def check_workers(count: int, option: str) -> None:
+    """ValueError (one line) for a number of worker processes below 1 or above :func:`max_workers`.
+
+    ``option`` names it in the message (``"--workers"``).
+    """
+    if not 1 <= count <= max_workers():
+        raise ValueError(f"{option} {count}: give 1 .. {max_workers()} processes"
+                         f" ({WORKERS_PER_CPU} per CPU, os.cpu_count() = {os.cpu_count()})")
+
 
 def _start_worker(parent: int) -> None:
     """A worker ignores Ctrl-C, and ends with the command that started it.
@@ -45,6 +67,7 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     would die and break the pool) and raised once they run; a worker started later gets
     it only between its start and its initializer.
     """
+    check_workers(workers, "workers")
     held: list[int] = []
     previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
     try:

@@ -68,7 +68,7 @@ from typing import Any
 from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.core.model import StatisticTracker, Withheld
+from infomax_contingency.core.model import MAX_MEMORY_STEPS, StatisticTracker, Withheld
 from infomax_contingency.core.stepclock import (
     Arrival,
     PublicationTimes,
@@ -127,7 +127,7 @@ class BeliefNode(GraphNode):
             "Counted observations the statistic keeps (a sliding memory, as the robot"
             " table's M = 60 in config/robot.yaml); 0 = whole history",
             0,
-            1_000_000,
+            MAX_MEMORY_STEPS,
         )
         timeout_s = read.number(
             "source_timeout_s", 3.0,

@@ -13,8 +13,11 @@ delays and the rate of background events; sounds already playing or scheduled pl
 as they were made.
 
 Pacing: in **lockstep** (the default) the audio of window t+1 is published once the
-decision on window t arrived on ``vocalize_step`` (or after ``lockstep_timeout_s``;
-the warning then names what is missing), so the robot's own
+decision on window t arrived on ``vocalize_step`` — or, for a window that gave mic_node
+no step (its bit source calibrating or warming up on the room's background), once
+mic_node said so on ``no_step``; or after ``lockstep_timeout_s`` (the warning then names
+what is missing; the timeout applies from the first answer on, so a graph still starting
+up is waited for) — so the robot's own
 sound and the partner's reply land in the right windows however fast the graph runs
 (``lockstep_max_speed`` > 0: the next window waits ``window_s / lockstep_max_speed``
 after the decision, so the room runs at most that many times real time);
@@ -42,7 +45,8 @@ decision whose step jumps further ahead than the stream's pace allows
 ignored (diagnostics ERROR), so it cannot make the room drop the true decisions as
 repeats.
 
-Subscribes ``vocalize_step`` (std_msgs/Int64MultiArray); publishes ``audio``
+Subscribes ``vocalize_step`` and, in lockstep, ``no_step`` (std_msgs/Int64MultiArray);
+publishes ``audio``
 (Float32MultiArray, mono samples in [-1, 1] at ``rate_hz``), ``partner_present`` (Bool,
 the ground truth of each window, right after its audio), ``self_sound``
 (Int64MultiArray ``[start_ns, end_ns]``) and ``/diagnostics``.
@@ -82,11 +86,14 @@ from infomax_contingency.nodes.parameters import ConfigError, ParameterReader
 from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
+    NO_STEP,
     SELF_SOUND,
     SOUND_STEP,
     VOCALIZE_STEP,
+    NoStep,
     StepDecision,
     parse_decision,
+    parse_no_step,
     self_sound_message,
 )
 from infomax_contingency.sim.fake_room import (
@@ -268,6 +275,13 @@ class FakeAudioNode(GraphNode):
         self.timeouts = self.recent_events()
         self.foreign = self.recent_events()
         self._answered: tuple[int, int] = (0, 0)
+        self._no_step: NoStep = NoStep(0, 0)
+        """The newest window mic_node said gave no step."""
+        self.no_step_pace = StepPace(1.0 / config.room.window_s, config.source_timeout_s)
+        """The step clock's pace rule on ``no_step``'s windows: a forged window far ahead
+        would otherwise make every real one look like a repeat."""
+        self.windows_without_step = 0
+        """Windows released by a ``no_step`` of the window before."""
         self.declare_self_sound = config.declare_self_sound
         self.self_sound_declared = 0
         self._audio_sent_ns: int | None = None
@@ -297,16 +311,17 @@ class FakeAudioNode(GraphNode):
         self.vocalize_sub = self.subscribe(
             Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS
         )
+        if self.pacer is not None:
+            self.subscribe(Int64MultiArray, NO_STEP, self._on_no_step, STEP_READER_QOS)
         self.start_when_ready(
             self._ready,
             config.start_delay_s,
             self._start,
             self.pacer,
             self._on_timeout,
-            "is controller_node running, and does mic_node decide on every window? In"
-            " lockstep mic_node needs threshold_mode fixed or file (or bit_source vad):"
-            " calibrating, or warming up a noise floor, on this stream would wait for"
-            " windows that only come after a decision",
+            "are mic_node and controller_node running? (mic_node answers a window with a"
+            " bit, whose decision releases the next one, or on 'no_step' while its bit"
+            " source hears the room)",
             f"{config.wait_for_listeners} listeners on 'audio'"
             + (f", {config.wait_for_truth_listeners} on 'partner_present'"
                if config.wait_for_truth_listeners else "")
@@ -339,10 +354,7 @@ class FakeAudioNode(GraphNode):
             return "mic_node is not running (nothing publishes 'sound_step')"
         if self.count_publishers(VOCALIZE_STEP) == 0:
             return "controller_node is not running (nothing publishes 'vocalize_step')"
-        return (
-            "mic_node and controller_node are there, but no decision came (a mic_node that"
-            " calibrates on this stream publishes no bits until calibrated)"
-        )
+        return "mic_node and controller_node are there, but neither a decision nor 'no_step' came"
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
@@ -379,11 +391,38 @@ class FakeAudioNode(GraphNode):
         self._answered = (decision.stream, decision.step)
         if decision.vocalize:
             self.room.vocalize()
-        if self.started and self.pacer is not None and self.pacer.answered():
-            if self._held_window is not None:
-                self._held_window.reset()  # fires once, one period from now
-            else:
-                self._publish_window()
+        self._window_answered()
+
+    def _on_no_step(self, msg: Int64MultiArray, stamp: int) -> None:
+        """mic_node heard a window and it gave no step: in lockstep, the next window."""
+        no_step = parse_no_step(msg)
+        if no_step is None:
+            return
+        if no_step.stream != self._no_step.stream:
+            self.no_step_pace.restart()
+        on_pace = take_on_pace(self, self.no_step_pace, self.jumps, no_step.window,
+                               self.sent_s(stamp, self.now_s()), no_step, "no step",
+                               f"the windows of stream {no_step.stream}")  # fmt: skip
+        for taken in on_pace:
+            self._take_no_step(taken)
+
+    def _take_no_step(self, no_step: NoStep) -> None:
+        last = self._no_step
+        if no_step.stream == last.stream and no_step.window <= last.window:
+            return  # said again
+        self._no_step = no_step
+        if self._window_answered():
+            self.windows_without_step += 1
+
+    def _window_answered(self) -> bool:
+        """The window out was answered: release the next (True), at most at the speed cap."""
+        if not (self.started and self.pacer is not None and self.pacer.answered()):
+            return False
+        if self._held_window is not None:
+            self._held_window.reset()  # fires once, one period from now
+        else:
+            self._publish_window()
+        return True
 
     def _release_held_window(self) -> None:
         self._held_window.cancel()
@@ -476,10 +515,11 @@ class FakeAudioNode(GraphNode):
         }
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
+            values["windows_without_step"] = self.windows_without_step
         if not self.started:
             return WARN, "waiting for a listener on 'audio'", values
         values["foreign_decisions"] = self.foreign.count
-        values["jumps_ignored"] = self.pace.jumps
+        values["jumps_ignored"] = self.pace.jumps + self.no_step_pace.jumps
         if self.foreign.recent(self.now_s()):
             return ERROR, "decisions from a second controller (ignored)", values
         if self.jumps.recent(self.now_s()):

@@ -4,22 +4,36 @@
 on a replay's first seconds, lets its live settings change (``ros2 param set``, checked by
 the source), answers ``~/recalibrate`` (std_srvs/Trigger) and logs the threshold in force
 whenever it changes (:class:`ThresholdLog`). A session bag without audio replays its
-recorded bits: then every one of these is refused, with the reason.
+recorded bits: then every one of these is refused, with the reason. It also says each
+window that gives no step (the source calibrating or warming up) on ``no_step``
+(``[stream, window]``), on which a lockstep room releases its next window; and it holds
+the ``audio`` topic's windows of a source that labels windows by the decisions until the
+decisions on the bits before them are in (:meth:`BitSourceControls.decidable`).
 """
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Iterable, Iterator
 from typing import Any
 
+from std_msgs.msg import Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import BitSource, SettingError
 from infomax_contingency.audio.common import AudioError
-from infomax_contingency.audio.windows import WindowSource
+from infomax_contingency.audio.windows import SourceWindow, WindowSource
 from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.qos import STREAM_QOS
+from infomax_contingency.nodes.step_topics import (
+    NO_STEP,
+    VOCALIZE_STEP,
+    NoStep,
+    no_step_message,
+)
 
 NOISE_FLOOR_LOG_STEP_DB = 1.0
 """A threshold that follows the noise floor is logged again once it moved this much, dB."""
@@ -83,6 +97,8 @@ class BitSourceControls:
         self.config = config
         self.threshold_log = ThresholdLog(node.get_logger(), config.bit_source)
         self.bits: BitSource = mic_config.make_bits(config, node.get_logger().warning)
+        if unread := mic_config.unread_threshold_file(node.parameters, config):
+            node.get_logger().warning(unread)
         if config.bit_source != DEFAULT_BIT_SOURCE:
             summary = BIT_SOURCES[config.bit_source].summary
             node.get_logger().info(f"bit source {config.bit_source}: {summary}")
@@ -91,6 +107,89 @@ class BitSourceControls:
         """True for a session bag without audio: its recorded bits are replayed."""
         self.withheld_steps: set[int] = set()
         """Steps published withheld (the robot's own sound) whose decision is awaited."""
+        self.windows = 0
+        """Windows made from the source so far, stepped or not (``no_step`` numbers them)."""
+        self.windows_without_step = 0
+        """Windows that gave no step (calibration, warm-up), each said on ``no_step``."""
+        self.stream = 0
+        self.no_step_pub: Any = None
+        self.held: deque[SourceWindow] = deque()
+        """Windows of the ``audio`` topic waiting for the decisions before them."""
+        self._held_since: float | None = None
+        self._forced = 0  # held windows at the front to be decided without waiting
+        self.decided_without_wait = 0
+        """Held windows decided before the decisions on the bits before them came."""
+
+    def activate(self, stream: int) -> None:
+        """The ``no_step`` publisher of mic_node's ``stream``."""
+        self.stream = stream
+        self.no_step_pub = self.node.create_publisher(Int64MultiArray, NO_STEP, STREAM_QOS)
+
+    def bit_of(self, window: SourceWindow) -> tuple[bool | None, float]:
+        """The window's bit (None: no step, calibration audio) and energy (dB).
+
+        A window with a recorded bit (a session bag without audio) keeps it. A threshold
+        that changed (a calibration's end, an accepted refit, a moving noise floor) is
+        logged.
+        """
+        self.windows += 1
+        if window.recorded_bit is not None:
+            return window.recorded_bit, window.energy_db
+        was_calibrating = self.bits.calibrating
+        bit = self.bits.bit_of(window.energy_db, window.samples)
+        self.threshold_log.after_window(self.bits, was_calibrating)
+        return bit, self.bits.last_energy_db
+
+    def hold(self, windows: Iterable[SourceWindow], max_held: int) -> None:
+        """Windows of the ``audio`` topic, to be decided in order (:meth:`decidable`).
+
+        Beyond ``max_held`` windows waiting (a burst), the oldest are decided now.
+        """
+        self.held.extend(windows)
+        self._forced = max(self._forced, len(self.held) - max_held)
+
+    def decidable(self) -> Iterator[SourceWindow]:
+        """The held windows whose bits may be decided now, one at a time, in order.
+
+        A source that labels windows by the decisions (``background``) decides a window's
+        bit with the decisions on the bits before it known, as the offline loop does: in
+        lockstep the room's next window may reach mic_node before the decision on the last
+        one (DDS orders no topic against another). A window waits for them at most
+        ``lockstep_timeout_s``, and not at all while no controller publishes.
+        """
+        while self.held:
+            if self._forced:
+                self._forced -= 1
+                self._early("more windows waited than max_backlog_s holds")
+            elif self._learns_from_decisions and getattr(self.bits, "awaited_decisions", 0):
+                now = self.node.now_s()
+                self._held_since = now if self._held_since is None else self._held_since
+                if self.node.count_publishers(VOCALIZE_STEP) == 0:
+                    pass  # no controller: nothing to wait for
+                elif now - self._held_since < self.config.lockstep_timeout_s:
+                    return
+                else:
+                    self._early(f"no decision within {self.config.lockstep_timeout_s:g} s")
+            self._held_since = None
+            yield self.held.popleft()
+
+    def _early(self, why: str) -> None:
+        """A held window is decided before the decisions on the bits before it came."""
+        self.decided_without_wait += 1
+        self.node.log_throttled("decided early", "warning", f"a window's bit decided before"
+                                f" the decisions on the bits before it ({why}): its bit may"
+                                " differ from the offline loop's")  # fmt: skip
+
+    def values(self) -> dict[str, int]:
+        """Diagnostic values: windows without a step, held, decided without waiting."""
+        return {"windows_without_step": self.windows_without_step,
+                "windows_held": len(self.held),
+                "windows_decided_early": self.decided_without_wait}  # fmt: skip
+
+    def say_no_step(self) -> None:
+        """The last window gave no step: say so on ``no_step`` (a lockstep room goes on)."""
+        self.windows_without_step += 1
+        self.no_step_pub.publish(no_step_message(NoStep(self.stream, self.windows)))
 
     def use_source(self, source: WindowSource) -> None:
         """Take the window source: calibrate on a replay's start, make the settings live."""

@@ -233,6 +233,23 @@ def check_bit_settings(config: MicConfig) -> None:
         raise ConfigError(f"parameter '{name}' {error.reason}") from None
 
 
+def unread_threshold_file(read: ParameterReader, config: MicConfig) -> str:
+    """A warning when ``threshold_file`` is given but the configuration reads no file; "" if not.
+
+    Only ``threshold_mode: file`` of the sources that have the setting reads it (at
+    start-up and on ``~/recalibrate``); any other source or mode would drop it unseen.
+    """
+    path = read.given("threshold_file")
+    mode = getattr(config.bit_settings, "threshold_mode", None)
+    if not isinstance(path, str) or not path.strip() or mode == "file":
+        return ""
+    readers = [name for name, kind in BIT_SOURCES.items()
+               if any(spec.name == "threshold_file" for spec in kind.specs())]  # fmt: skip
+    chosen = f"bit_source {config.bit_source}" + (f" with threshold_mode {mode}" if mode else "")
+    return (f"parameter 'threshold_file' = {path!r} is not read: {chosen} reads no threshold"
+            f" file; threshold_mode file of bit_source {' or '.join(readers)} reads it")
+
+
 def make_bits(config: MicConfig, on_problem: Any = None) -> BitSource:
     """The bit source the configuration asks for (a threshold file is read now)."""
     try:

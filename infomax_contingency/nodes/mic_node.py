@@ -1,9 +1,8 @@
 """mic_node: audio windows to bits — the step clock of the graph.
 
-Where the windows come from (``source``) and how a window becomes a bit
-(``bit_source``) are its configuration (:mod:`~infomax_contingency.nodes.mic_config`); the
-node takes windows from its window source, asks the bit source for their bits and
-publishes them.
+Where the windows come from (``source``) and how a window becomes a bit (``bit_source``,
+held by :mod:`~infomax_contingency.nodes.mic_bits`) are its configuration
+(:mod:`~infomax_contingency.nodes.mic_config`).
 
 Step clock: every bit is a step ``1, 2, ...`` of this run's *stream* (a random id),
 published on ``sound`` (Bool) and, with its identity and the window length, on
@@ -27,7 +26,8 @@ Self-sound (:mod:`~infomax_contingency.nodes.self_sound`): a window that overlap
 robot's own sound declared on ``self_sound`` is published withheld (``sound_step``); while
 the topic has a publisher, windows wait ``self_sound_hold_s`` past their end for it.
 
-Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB),
+Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB), ``no_step``
+(a window that gave no step, its bit source calibrating: a lockstep room goes on),
 ``/diagnostics`` (for a live microphone also the device, its state, overflows, dropped
 blocks, lost samples, gaps and reconnections). Service ``~/recalibrate``
 (std_srvs/Trigger): the bit source's calibration starts again.
@@ -45,7 +45,7 @@ from rclpy.duration import Duration
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
 from std_srvs.srv import Trigger
 
-from infomax_contingency.audio.bitsources.base import UNSEPARATED
+from infomax_contingency.audio.bitsources.base import OUT_OF_RANGE, UNSEPARATED
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
@@ -135,6 +135,7 @@ class MicNode(GraphNode):
                 " to wav or sounddevice",
             )
         self.create_service(Trigger, "~/recalibrate", self.controls.on_recalibrate)
+        self.controls.activate(self.stream_id)
         self._pace_timer = None
         self.start_when_ready(
             self._listeners_ready,
@@ -229,7 +230,12 @@ class MicNode(GraphNode):
         if missed:
             self.losses.note(self.now_s())
             self.contract.chunks_lost()
-        for window in self.source.take():
+        self.controls.hold(self.source.take(), self.outbox.max_backlog)
+        self._decide_held()
+
+    def _decide_held(self) -> None:
+        """Decide the held windows of 'audio' whose decisions before them are in."""
+        for window in self.controls.decidable():
             self._window(window)
 
     def _read_microphone(self) -> None:
@@ -244,21 +250,13 @@ class MicNode(GraphNode):
     def _window(self, window: SourceWindow) -> bool | None:
         """A window was made: its bit (after calibration) waits in the outbox to go out.
 
-        A window with a recorded bit (a session bag without audio) keeps it. Returns the
-        bit (None for a calibration window).
+        Returns the bit (None for a calibration window: it gives no step, and says so).
         """
-        if window.recorded_bit is not None:
-            bit: bool | None = window.recorded_bit
-            energy_db = window.energy_db
-        else:
-            was_calibrating = self.bits.calibrating
-            bit = self.bits.bit_of(window.energy_db, window.samples)
-            energy_db = self.bits.last_energy_db
-            # a calibration's end, an accepted refit, a moving noise floor
-            self.threshold_log.after_window(self.bits, was_calibrating)
+        bit, energy_db = self.controls.bit_of(window)
         self.last_energy_db = energy_db
-        if bit is None:  # a calibration window: its energy only
+        if bit is None:  # a calibration window: its energy, and word that it gave no step
             self.energy_pub.publish(Float32(data=energy_db))
+            self.controls.say_no_step()
             return None
         self.self_sound.push(window, energy_db, bit)
         self._release()
@@ -273,6 +271,7 @@ class MicNode(GraphNode):
         if self.outbox.last_answered == before:
             return  # a repeated answer (a second controller): it releases nothing
         self.controls.decided(before, decision.step, decision.vocalize)
+        self._decide_held()
         if (
             self.started
             and self.pacer is not None
@@ -341,6 +340,7 @@ class MicNode(GraphNode):
             "source": self.config.source,
             "stream": self.stream_id,
             "windows": self.windows,
+            **self.controls.values(),
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
             "windows_dropped": self.outbox.dropped,
@@ -363,8 +363,8 @@ class MicNode(GraphNode):
             return WARN, f"waiting for {wanted} listeners on '{SOUND_STEP}'", values
         if values.get("state") == DISCONNECTED:
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
-        if bits.state == UNSEPARATED:
-            return ERROR, bits.problem, values
+        if bits.state in (UNSEPARATED, OUT_OF_RANGE):  # no bits; out of range: until it is back
+            return (ERROR if bits.state == UNSEPARATED else WARN), bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
         if self.stalled_listeners.recent(now):

@@ -315,6 +315,15 @@ class ParameterReader:
             allowed,
         )
 
+    def given(self, name: str) -> Any:
+        """The value given for ``name`` (parameter file, ``-p``), declared or not; None if none.
+
+        rcl hands a node every value meant for it; one the node does not declare is
+        otherwise dropped without a word.
+        """
+        override = getattr(self._node, "_parameter_overrides", {}).get(name)
+        return None if override is None else override.value
+
     def declared(self, spec: SettingSpec) -> Any:
         """The parameter a bit source declares (:class:`SettingSpec`): same name, range, text.
 
@@ -353,10 +362,9 @@ class ParameterReader:
         parameter file that still sets it to dt works; another value would silently be
         another window than the one meant, so the node stops and says so.
         """
-        given = getattr(self._node, "_parameter_overrides", {}).get("window_s")
-        if given is None:
+        value = self.given("window_s")
+        if value is None:
             return
-        value = given.value
         if isinstance(value, int | float) and not isinstance(value, bool):
             if abs(value - dt) <= 1e-9:
                 return

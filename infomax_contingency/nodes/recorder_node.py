@@ -10,9 +10,10 @@ when the publisher sent it), and each topic with the QoS its publishers offer
 (``offered_qos_profiles`` in the metadata).
 
 Topics (:data:`RECORDED_TOPICS`): ``audio`` (when a publisher exists), ``sound``,
-``sound_step``, ``sound_energy``, ``vocalize``, ``vocalize_step``, ``belief``,
-``posture``, ``joint_targets``, ``speaker_started``, ``partner_present``,
-``self_sound`` (the robot's declared own sound), ``/diagnostics``. The session itself
+``sound_step``, ``no_step`` (the windows that gave no step), ``sound_energy``,
+``vocalize``, ``vocalize_step``, ``belief``, ``posture``, ``joint_targets``,
+``speaker_started``, ``partner_present``, ``self_sound`` (the robot's declared own
+sound), ``/diagnostics``. The session itself
 (the parameter files and threshold file named in ``session_files``, their text) goes
 on the topic ``session_info`` (std_msgs/String, YAML) as the first message, and into
 the metadata's ``custom_data``. ``session_info`` is also published (transient-local),
@@ -25,12 +26,15 @@ Logs: the bag's path when recording starts, that it waits for the first ``sound_
 Robustness: the MCAP file is flushed every ``flush_period_s`` seconds (a chunk ends
 there), so a recorder killed with ``kill -9`` leaves a file readable up to the last
 complete chunk (``metadata.yaml`` is only written on a clean stop; the MCAP file reads
-without it). A directory that cannot be created or written, or a full disk, gives one
-ERROR line and an ERROR diagnostic; the recorder stops writing and keeps what it has
-written, and the rest of the graph keeps running.
+without it). A bag directory that cannot be created (a parent that is not writable,
+``/proc/x``) is refused at start-up like one that exists: one line, exit status 2. A
+write that fails later (a full disk) gives one ERROR line and an ERROR diagnostic; the
+recorder stops writing and keeps what it has written, and the rest of the graph keeps
+running.
 
-Parameters: ``directory`` (the bag directory to create; one that exists already is
-refused at start-up, exit status 2, which ends a launch: as ``ros2 bag record -o``),
+Parameters: ``directory`` (the bag directory to create; one that exists already or
+cannot be created is refused at start-up, exit status 2, which ends a launch: as
+``ros2 bag record -o``),
 ``session_files`` (comma-separated paths to store with the session), ``flush_period_s``,
 ``record_audio`` (false: leave out the ``audio`` topic, the bulk of a bag).
 Publishes ``session_info``, ``/diagnostics``.
@@ -79,6 +83,7 @@ falls behind the graph by hundreds of messages while it writes; a keep-last queu
 RECORDED_TOPICS: dict[str, tuple[type, QoSProfile]] = {
     "sound": (Bool, RECORDER_QOS),
     "sound_step": (Int64MultiArray, RECORDER_QOS),
+    "no_step": (Int64MultiArray, RECORDER_QOS),
     "sound_energy": (Float32, RECORDER_QOS),
     "vocalize": (Bool, RECORDER_QOS),
     "vocalize_step": (Int64MultiArray, RECORDER_QOS),
@@ -140,7 +145,8 @@ class RecorderNode(GraphNode):
     def configure(self) -> None:
         """Declare and check the parameters; the state they set."""
         read = self.parameters
-        directory = read.text("directory", "", "Bag directory to create (must not exist)")
+        directory = read.text("directory", "", "Bag directory to create (one that exists or"
+                              " cannot be created ends the node at start-up)")
         files = read.text(
             "session_files", "", "Parameter and threshold files to store (comma-separated)"
         )
@@ -169,9 +175,10 @@ class RecorderNode(GraphNode):
         self.writer: BagWriter | None = None
         try:
             self.writer = BagWriter(self.directory, custom_data={"session": self.description})
-            self.get_logger().info(f"recording to {self.directory.resolve()}")
-        except BagWriteError as error:
-            self._fail(str(error))
+        except BagWriteError as error:  # nothing to record into: the node (and launch) ends
+            raise ConfigError(f"parameter 'directory' = {str(self.directory)!r}: {error}"
+                              ) from None
+        self.get_logger().info(f"recording to {self.directory.resolve()}")
         self._add_topic(SESSION_TOPIC, String, STREAM_QOS)
         for topic, (kind, qos) in RECORDED_TOPICS.items():
             self._add_topic(topic, kind, qos)

@@ -15,7 +15,11 @@ dimension labelled with the field names):
   that window, by ``controller`` (a random id chosen by each run of controller_node);
 * ``step_applied``: ``[stream, step, listener]`` — ``listener`` (a random id chosen by
   each run of belief_node) applied every step of ``stream`` up to ``step``: mic_node's
-  flow control waits for it (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`).
+  flow control waits for it (:class:`~infomax_contingency.core.flowcontrol.StepOutbox`);
+* ``no_step``: ``[stream, window]`` — mic_node heard window ``window`` (1, 2, ... of all
+  the windows it made, stepped or not) of ``stream`` and it yields no step: its bit
+  source is calibrating or warming up. A lockstep room (fake_audio_node) releases its
+  next window on it, as it does on the decision on a window that gave a step.
 
 A listener joins the two exactly by ``(stream, step)``
 (:class:`~infomax_contingency.core.stepclock.StepJoiner`) and follows one stream and one
@@ -34,6 +38,7 @@ from infomax_contingency.core.model import Withheld
 SOUND_STEP = "sound_step"
 VOCALIZE_STEP = "vocalize_step"
 STEP_APPLIED = "step_applied"
+NO_STEP = "no_step"
 SELF_SOUND = "self_sound"
 """The topic on which any node declares the robot's own sound (see
 :mod:`~infomax_contingency.core.selfsound`)."""
@@ -42,6 +47,7 @@ _SOUND_FIELDS = ("stream", "step", "bit", "window_us", "withheld")
 _SELF_SOUND_FIELDS = ("start_ns", "end_ns")
 _VOCALIZE_FIELDS = ("stream", "step", "vocalize", "controller")
 _APPLIED_FIELDS = ("stream", "step", "listener")
+_NO_STEP_FIELDS = ("stream", "window")
 
 
 class StepBit(NamedTuple):
@@ -67,6 +73,13 @@ class StepApplied(NamedTuple):
     listener: int
 
 
+class NoStep(NamedTuple):
+    """Window ``window`` of ``stream`` (counting every window mic_node made) gave no step."""
+
+    stream: int
+    window: int
+
+
 class StepDecision(NamedTuple):
     """A decision with the identity of the bit it answers."""
 
@@ -87,7 +100,8 @@ def _dimension(fields: tuple[str, ...]) -> MultiArrayDimension:
 
 _LAYOUTS = {
     fields: [_dimension(fields)]
-    for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS, _SELF_SOUND_FIELDS, _APPLIED_FIELDS)
+    for fields in (_SOUND_FIELDS, _VOCALIZE_FIELDS, _SELF_SOUND_FIELDS, _APPLIED_FIELDS,
+                   _NO_STEP_FIELDS)
 }
 """The one-dimension layout of each message kind, made once (a message per window)."""
 
@@ -112,6 +126,19 @@ def decision_message(decision: StepDecision) -> Int64MultiArray:
 def applied_message(applied: StepApplied) -> Int64MultiArray:
     """The ``step_applied`` message of ``applied``."""
     return _message(_APPLIED_FIELDS, tuple(applied))
+
+
+def no_step_message(no_step: NoStep) -> Int64MultiArray:
+    """The ``no_step`` message of ``no_step``."""
+    return _message(_NO_STEP_FIELDS, tuple(no_step))
+
+
+def parse_no_step(message: Int64MultiArray) -> NoStep | None:
+    """The window in a ``no_step`` message, or None if the message is malformed."""
+    data = list(message.data)
+    if len(data) != len(_NO_STEP_FIELDS) or min(data) <= 0:
+        return None
+    return NoStep(*data)
 
 
 def parse_applied(message: Int64MultiArray) -> StepApplied | None:

@@ -225,7 +225,8 @@ class StepRecorder(Node):
     """Records the step-clock topics as they arrive.
 
     Attributes (lists, in arrival order): ``sound``, ``energy``, ``vocalize``, ``belief``,
-    ``partner_present``, ``sound_step`` and ``vocalize_step`` (tuples of their fields),
+    ``partner_present``, ``sound_step``, ``vocalize_step`` and ``no_step`` (tuples of their
+    fields),
     ``posture`` (every posture message, with the number of beliefs received before it);
     ``times[topic]``: ``(received, published)`` per message, both system-clock
     nanoseconds (DDS reception and source timestamps).
@@ -270,6 +271,7 @@ class StepRecorder(Node):
         self.posture: list[tuple[int, str]] = []
         self.sound_step: list[tuple[int, ...]] = []
         self.vocalize_step: list[tuple[int, ...]] = []
+        self.no_step: list[tuple[int, ...]] = []
         self.times: dict[str, list[tuple[float, int]]] = {}
         self.on_message: Callable[[str], None] | None = None
         self._stream_qos = stream_qos
@@ -295,13 +297,14 @@ class StepRecorder(Node):
             )
 
     def record_step_topics(self) -> None:
-        """Subscribe ``sound_step`` and ``vocalize_step`` (now, if not at construction).
+        """Subscribe ``sound_step``, ``vocalize_step`` and ``no_step`` (now, or later).
 
         mic_node counts the listeners of ``sound_step`` before its first bit: a recorder
         that subscribes it only once its other topics reach it (:meth:`sees`) is counted
         only when it will miss none of the graph's messages.
         """
-        steps = (("sound_step", self.sound_step), ("vocalize_step", self.vocalize_step))
+        steps = (("sound_step", self.sound_step), ("vocalize_step", self.vocalize_step),
+                 ("no_step", self.no_step))
         for topic, store in steps:
             self.times[topic] = []
             self._subscribe(Int64MultiArray, topic, self._recorder(topic, store), self._stream_qos)
@@ -358,6 +361,23 @@ class StepRecorder(Node):
         """The last posture received (None before any)."""
         with self.lock:
             return self.posture[-1][1] if self.posture else None
+
+    def step_windows(self, steps: int) -> list[int]:
+        """The window (0, 1, ... of all mic_node made) of each of the first ``steps`` steps.
+
+        Windows said on ``no_step`` (the bit source's warm-up) gave none. In lockstep with
+        the fake room, window ``w`` is the room's: its truth is ``partner_present[w]`` and
+        its room time ``w * window_s``.
+        """
+        with self.lock:
+            skipped = {window - 1 for _, window in self.no_step}
+        windows: list[int] = []
+        window = 0
+        while len(windows) < steps:
+            if window not in skipped:
+                windows.append(window)
+            window += 1
+        return windows
 
     def counts(self) -> dict[str, int]:
         """Messages received per topic."""

@@ -37,6 +37,7 @@ from infomax_contingency.audio.background import (
 )
 from infomax_contingency.audio.bitsources.base import (
     CALIBRATING,
+    OUT_OF_RANGE,
     READY,
     BitSource,
     NameArgument,
@@ -131,6 +132,7 @@ class BackgroundSource(BitSource):
             ta1=ta1,
             reference_margin_db=s.reference_margin_db,
             least_rank=LEAST_RANK,
+            on_problem=self.on_problem,
         )  # fmt: skip
 
     def follow_model(self, params: ModelParams) -> None:
@@ -153,6 +155,15 @@ class BackgroundSource(BitSource):
             self._stale_decisions -= 1
             return
         self.rule.note_decision(u, withheld)
+
+    @property
+    def awaited_decisions(self) -> int:
+        """Bits given whose decisions have not come yet (those of a rule replaced aside).
+
+        The next window's bit is the offline loop's once they are in: an agent-period
+        window is held to the level of the window its vocalization was decided on.
+        """
+        return self.rule.awaited_decisions
 
     def decide(self, x: NDArray[np.float64]) -> bool | None:
         return self.rule.push(self._level(x))
@@ -180,7 +191,13 @@ class BackgroundSource(BitSource):
 
     @property
     def state(self) -> str:
+        if self.rule.range_guard.problem:
+            return OUT_OF_RANGE
         return CALIBRATING if self.rule.calibrating else READY
+
+    @property
+    def problem(self) -> str:
+        return self.rule.calibration_problem
 
     @property
     def threshold_db(self) -> float | None:

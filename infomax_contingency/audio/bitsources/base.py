@@ -30,6 +30,10 @@ CALIBRATING = "calibrating"
 UNSEPARATED = "unseparated"
 """State: the last calibration could not separate sound from quiet; collecting the next
 calibration windows (no bits until one succeeds)."""
+OUT_OF_RANGE = "out_of_range"
+"""State: the threshold the source computed lies outside the ``threshold_db`` parameter's
+range (:class:`~infomax_contingency.audio.threshold.ThresholdRangeGuard`); no bits until it
+is back in range."""
 
 
 class SettingError(AudioError):
@@ -171,9 +175,10 @@ class BitSource(ABC):
     """False if a window's full-band energy alone decides its bit (:meth:`push` works)."""
     needs_decisions: ClassVar[bool] = False
     """True if the source labels windows by the model's timer: it then has
-    ``note_decision(u)``, to be called with every decision in order (None: lost), and
-    ``follow_model(params)``, called before the first window with the model whose periods
-    label them."""
+    ``note_decision(u)``, to be called with every decision in order (None: lost),
+    ``awaited_decisions`` (bits given whose decisions have not come yet: the next window's
+    bit is the offline loop's only once they are in) and ``follow_model(params)``, called
+    before the first window with the model whose periods label them."""
     mode_setting: ClassVar[str | None] = None
     """The setting a name's first word after the source gives (``threshold_mode``), if any."""
     name_modes: ClassVar[Mapping[str, tuple[NameArgument, ...]]] = {"": ()}
@@ -253,7 +258,7 @@ class BitSource(ABC):
 
     @property
     def state(self) -> str:
-        """:data:`READY`, :data:`CALIBRATING` or :data:`UNSEPARATED`."""
+        """:data:`READY`, :data:`CALIBRATING`, :data:`UNSEPARATED` or :data:`OUT_OF_RANGE`."""
         return READY
 
     @property

@@ -184,6 +184,7 @@ class LevelSource(BitSource):
                 max(1, round(s.noise_window_s / window_s)),
                 s.noise_percentile,
                 calibration_window_count(s.calibration_s, window_s),
+                self.on_problem,
             )
         if s.threshold_mode == "calibrate":
             windows = calibration_window_count(s.calibration_s, window_s)

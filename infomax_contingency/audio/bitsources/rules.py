@@ -19,13 +19,19 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from infomax_contingency.audio.bitsources.base import CALIBRATING, READY, UNSEPARATED
+from infomax_contingency.audio.bitsources.base import (
+    CALIBRATING,
+    OUT_OF_RANGE,
+    READY,
+    UNSEPARATED,
+)
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.threshold import (
     DEFAULT_MIN_SEPARATION_DB,
     NoiseFloorTracker,
     OnlineThreshold,
     ThresholdFit,
+    ThresholdRangeGuard,
     UnseparatedError,
     bits_from_energies,
     kmeans_split,
@@ -202,10 +208,17 @@ class NoiseFloorBinarizer:
         floor_windows: windows the floor is taken over (>= 1).
         percentile: the floor's percentile, 0 (minimum) .. 50.
         warmup_windows: windows that only start the floor (>= 1).
+        on_problem: called with :attr:`calibration_problem` when the threshold leaves the
+            ``threshold_db`` parameter's range (its windows then give no bit).
     """
 
     def __init__(
-        self, margin_db: float, floor_windows: int, percentile: float, warmup_windows: int
+        self,
+        margin_db: float,
+        floor_windows: int,
+        percentile: float,
+        warmup_windows: int,
+        on_problem: Callable[[str], None] | None = None,
     ) -> None:
         if (
             isinstance(margin_db, bool)
@@ -222,8 +235,8 @@ class NoiseFloorBinarizer:
         self.margin_db = float(margin_db)
         self.warmup_windows = warmup_windows
         self.tracker = NoiseFloorTracker(floor_windows, percentile)
+        self.range_guard = ThresholdRangeGuard("noise-floor threshold", on_problem)
         self.fit: ThresholdFit | None = None
-        self.calibration_problem = ""
         self.refits_accepted = 0
         self.refits_rejected = 0
         self.calibration_failures = 0
@@ -246,15 +259,27 @@ class NoiseFloorBinarizer:
 
     @property
     def state(self) -> str:
-        """``"calibrating"`` during the warm-up, then ``"ready"``."""
-        return CALIBRATING if self.calibrating else READY
+        """``"calibrating"`` (warm-up), ``"out_of_range"`` (no bits: range_guard), ``"ready"``."""
+        if self.range_guard.problem:
+            return OUT_OF_RANGE
+        return CALIBRATING if len(self.tracker) < self.warmup_windows else READY
+
+    @property
+    def calibration_problem(self) -> str:
+        """Why windows give no bit now ("" if they do, or while warming up)."""
+        return self.range_guard.problem
+
+    @property
+    def windows_out_of_range(self) -> int:
+        """Windows that got no bit: their threshold lay outside the parameter's range."""
+        return self.range_guard.windows_out_of_range
 
     def push(self, level_db: float) -> bool | None:
-        """The bit of one window; None during the warm-up."""
+        """The bit of one window; None during the warm-up and while out of range."""
         if not math.isfinite(level_db):
             raise AudioError(f"window level must be finite, got {level_db!r}")
         threshold = self.threshold_db
         self.tracker.add(level_db)
-        if threshold is None:
+        if threshold is None or not self.range_guard.allows(threshold):
             return None
         return bool(bits_from_energies(level_db, threshold))

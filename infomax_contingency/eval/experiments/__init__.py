@@ -49,16 +49,30 @@ from infomax_contingency.eval.experiments.baby9 import (
     baby9_session,
     experiment_baby9,
 )
-from infomax_contingency.eval.experiments.efficiency import EfficiencyConfig, experiment_efficiency
-from infomax_contingency.eval.experiments.greedy import GreedyConfig, experiment_greedy, greedy_set
+from infomax_contingency.eval.experiments.efficiency import (
+    EFFICIENCY_BASE_BYTES,
+    EFFICIENCY_ROW_BYTES,
+    EfficiencyConfig,
+    efficiency_runs,
+    experiment_efficiency,
+    refuse_oversized_efficiency,
+)
+from infomax_contingency.eval.experiments.greedy import (
+    GreedyConfig,
+    experiment_greedy,
+    greedy_set,
+    refuse_oversized_greedy,
+)
 from infomax_contingency.eval.experiments.horizon import (
     HorizonConfig,
     experiment_horizon,
     horizon_set,
+    refuse_oversized_horizon,
 )
 from infomax_contingency.eval.experiments.learn import (
     LEARN_BASE_BYTES,
     LEARN_BYTES_PER_STATISTIC,
+    LEARN_CURVE_POINT_BYTES,
     LearnConfig,
     experiment_learn,
     learning_cost_bytes,
@@ -99,8 +113,11 @@ from infomax_contingency.eval.experiments.tables import (
 )
 
 __all__ = [
+    "EFFICIENCY_BASE_BYTES",
+    "EFFICIENCY_ROW_BYTES",
     "LEARN_BASE_BYTES",
     "LEARN_BYTES_PER_STATISTIC",
+    "LEARN_CURVE_POINT_BYTES",
     "PRIOR_ROOM_SPEC",
     "RULE_STATISTIC_FIELDS",
     "SWITCHES",
@@ -119,6 +136,7 @@ __all__ = [
     "default_cache_dir",
     "detection_figures",
     "efficiency_room",
+    "efficiency_runs",
     "experiment_baby9",
     "experiment_controller",
     "experiment_efficiency",
@@ -134,6 +152,9 @@ __all__ = [
     "paired_entropy_difference",
     "parse_method",
     "prior_weighted_entropy",
+    "refuse_oversized_efficiency",
+    "refuse_oversized_greedy",
+    "refuse_oversized_horizon",
     "rule_agreement",
     "rule_statistics",
     "run_metrics",

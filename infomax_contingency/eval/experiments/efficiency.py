@@ -37,7 +37,10 @@ from infomax_contingency.eval.experiments.summaries import (
     summarise,
 )
 from infomax_contingency.eval.experiments.tables import obtain_table
+from infomax_contingency.eval.workers import WORKER_BYTES, check_workers
+from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.sim.rooms import NAMED_BACKGROUNDS, PARTNER_REPLY, SELF_HEARING
+from infomax_contingency.sim.simulation import RECORD_BYTES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,6 +86,43 @@ class EfficiencyConfig:
     intervals: tuple[int, ...] = tuple(range(3, 13))
     confident: float = 0.95
     workers: int = 2
+
+
+EFFICIENCY_BASE_BYTES = 2**30
+"""Memory of the experiment apart from its runs (the tables, the exact scorer of T = 40),
+bytes: measured 0.9 GB peak resident for a handful of runs in one process."""
+EFFICIENCY_ROW_BYTES = 2 * 2**10
+"""Memory of one run's figures kept until the summaries, bytes (measured 0.8-1.2 KiB)."""
+
+
+def efficiency_runs(config: EfficiencyConfig) -> int:
+    """Runs of the experiment (tuning, every controller in the rooms, the switching rooms)."""
+    controllers = 1 + len(config.receding) + 4  # episodic, receding, rule, greedy, fixed, random
+    rooms = config.prior_rooms + 2 * len(NAMED_BACKGROUNDS) * config.named_runs
+    return (config.tuning_rooms * len(config.intervals) + rooms * controllers
+            + len(SWITCHES) * config.switch_runs * len(config.receding))  # fmt: skip
+
+
+def refuse_oversized_efficiency(config: EfficiencyConfig) -> None:
+    """Refuse, before any run, sizes that cannot run or would not fit in memory (one line).
+
+    The estimate: :data:`EFFICIENCY_BASE_BYTES`, each worker process with the records of
+    the run it holds (``steps`` records of
+    :data:`~infomax_contingency.sim.simulation.RECORD_BYTES`), and every run's figures
+    twice (a worker's are copied to this process at once).
+    """
+    check_workers(config.workers, "--workers")
+    for name in ("prior_rooms", "named_runs", "switch_runs", "tuning_rooms"):
+        if (count := getattr(config, name)) < 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {count}")
+    if config.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {config.steps}")
+    runs = efficiency_runs(config)
+    needed = (EFFICIENCY_BASE_BYTES + config.workers * (WORKER_BYTES + RECORD_BYTES * config.steps)
+              + 2 * EFFICIENCY_ROW_BYTES * runs)  # fmt: skip
+    refuse_over_budget(needed, f"run experiment efficiency: {runs:,} runs of {config.steps:,}"
+                       f" steps in {config.workers} processes",
+                       "give fewer runs or rooms, fewer --steps or fewer --workers")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -257,6 +297,7 @@ def experiment_efficiency(config: EfficiencyConfig, cache_dir: Path | None = Non
     probability 1/K (the same rate). Tables are the committed ones or solved now.
     """
     params = ModelParams.load(config.params_name)
+    refuse_oversized_efficiency(config)
     if config.switch_step >= config.steps:
         raise ValueError("the switch step must fall inside the run (switch_step < steps)")
     if config.reference not in config.receding:

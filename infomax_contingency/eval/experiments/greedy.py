@@ -9,8 +9,14 @@ import numpy as np
 from infomax_contingency.core import model
 from infomax_contingency.core.controllers import make_controller
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.scoring import greedy_actions, receding_layers
-from infomax_contingency.sim.simulation import simulate
+from infomax_contingency.core.scoring import (
+    greedy_actions,
+    receding_layers,
+    receding_layers_cost,
+)
+from infomax_contingency.core.statespace import n_count_tuples
+from infomax_contingency.limits import refuse_over_budget
+from infomax_contingency.sim.simulation import RECORD_BYTES, simulate
 from infomax_contingency.sim.world import make_room
 
 
@@ -31,6 +37,28 @@ class GreedyConfig:
     longest_horizon: int = 8
     steps: int = 80
     seed: int = 0
+
+
+def refuse_oversized_greedy(config: GreedyConfig) -> None:
+    """Refuse, before any work, sizes that cannot run or would not fit in memory (one line).
+
+    The estimate of each set is the backward induction of
+    :func:`~infomax_contingency.core.scoring.receding_layers_cost` (horizons 1 ..
+    ``longest_horizon``, counts up to ``max_count``; ``greedy_actions`` sweeps less), the
+    greedy actions kept and the example run's records.
+    """
+    if config.max_count < 0:
+        raise ValueError(f"--max-count must be >= 0, got {config.max_count}")
+    if config.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {config.steps}")
+    for name in config.param_names:
+        params = ModelParams.load(name)
+        needed = (receding_layers_cost(params, config.longest_horizon, config.max_count).peak_bytes
+                  + params.n_timer_values * n_count_tuples(config.max_count)
+                  + RECORD_BYTES * config.steps)  # fmt: skip
+        refuse_over_budget(needed, f"run experiment greedy on {name} with --max-count"
+                           f" {config.max_count} and --steps {config.steps}",
+                           "give a smaller --max-count or fewer --steps")
 
 
 def greedy_set(config: GreedyConfig, name: str) -> dict:
@@ -70,5 +98,6 @@ def experiment_greedy(config: GreedyConfig | None = None) -> dict:
     controller in a responsive room.
     """
     config = config or GreedyConfig()
+    refuse_oversized_greedy(config)
     results = [greedy_set(config, name) for name in config.param_names]
     return {"experiment": "greedy", "max_count": config.max_count, "sets": results}

@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.core.scoring import receding_layers
+from infomax_contingency.core.scoring import receding_layers, receding_layers_cost
 from infomax_contingency.core.statespace import count_tuples
+from infomax_contingency.limits import refuse_over_budget
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +46,26 @@ def _vocalizing_fraction_map(
     with np.errstate(invalid="ignore"):
         fraction = np.where(cells > 0, vocal / np.maximum(cells, 1), np.nan)
     return [[None if np.isnan(v) else float(v) for v in row] for row in fraction]
+
+
+def refuse_oversized_horizon(config: HorizonConfig) -> None:
+    """Refuse, before any work, sizes that cannot run or would not fit in memory (one line).
+
+    The estimate of each set is :func:`~infomax_contingency.core.scoring.receding_layers_cost`
+    of horizons 1 .. ``longest_horizon`` on counts up to ``domain_max_count``.
+    """
+    if not config.horizons or min(config.horizons) < 1:
+        raise ValueError(f"--horizons must be >= 1, got {list(config.horizons)}")
+    if config.domain_max_count < 0:
+        raise ValueError(f"--domain must be >= 0, got {config.domain_max_count}")
+    if config.longest_horizon < max(config.horizons):
+        raise ValueError("the longest horizon must be >= every listed horizon")
+    for name in config.param_names:
+        cost = receding_layers_cost(ModelParams.load(name), config.longest_horizon,
+                                    config.domain_max_count)  # fmt: skip
+        refuse_over_budget(cost.peak_bytes, f"solve horizons 1 .. {config.longest_horizon} of"
+                           f" {name} on counts up to {config.domain_max_count}",
+                           "give a smaller --longest or --domain")
 
 
 def horizon_set(config: HorizonConfig, name: str) -> dict:
@@ -95,8 +116,7 @@ def experiment_horizon(config: HorizonConfig | None = None) -> dict:
     fraction of count tuples with the given ``(n2, n3)`` where the policy vocalizes.
     """
     config = config or HorizonConfig()
-    if config.longest_horizon < max(config.horizons):
-        raise ValueError("the longest horizon must be >= every listed horizon")
+    refuse_oversized_horizon(config)
     return {
         "experiment": "horizon",
         "domain_max_count": config.domain_max_count,

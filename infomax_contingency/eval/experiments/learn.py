@@ -79,6 +79,9 @@ LEARN_BYTES_PER_STATISTIC = 64
 of Python floats (measured: about 23 bytes, peak 228 MB for the paper set at T = 40)."""
 LEARN_BASE_BYTES = 200 * 2**20
 """Memory of learning on a short horizon (the interpreter, numpy, the scorer), bytes."""
+LEARN_CURVE_POINT_BYTES = 256
+"""Memory of one point of a learning curve (vocalizations, trials, score: three Python
+numbers in lists, and their copy in the result's record), bytes."""
 
 
 def learning_cost_bytes(params: ModelParams, horizon: int) -> int:
@@ -98,10 +101,18 @@ def experiment_learn(config: LearnConfig | None = None) -> dict:
     params = ModelParams.load(config.params_name)
     if config.horizon < 2:
         raise ValueError(f"learning horizon must be >= 2 steps, got {config.horizon}")
-    refuse_over_budget(learning_cost_bytes(params, config.horizon),
-                       f"learn with horizon {config.horizon}", "give a shorter --horizon")
-    scorer = Scorer(params, config.horizon)
     methods = [parse_method(text, config.budget) for text in config.methods]
+    if config.evaluate_every < 1 or min(budget for _, _, budget in methods) < 1:
+        raise ValueError("the budget and --evaluate-every must be >= 1 vocalization")
+    # at most one evaluation every evaluate_every vocalizations, and one at the end
+    points = len(config.seeds) * sum(budget // config.evaluate_every + 1
+                                     for _, _, budget in methods)  # fmt: skip
+    needed = learning_cost_bytes(params, config.horizon) + LEARN_CURVE_POINT_BYTES * points
+    refuse_over_budget(needed,
+                       f"learn with horizon {config.horizon} and {points:,} evaluations",
+                       "give a shorter --horizon, a smaller --budget or a larger"
+                       " --evaluate-every")  # fmt: skip
+    scorer = Scorer(params, config.horizon)
     curves = []
     for name, settings, budget in methods:
         for seed in config.seeds:

@@ -52,11 +52,16 @@ from infomax_contingency.eval.rooms.config import (
     room_seed,
 )
 from infomax_contingency.eval.rooms.experiment import (
+    ROOMS_BASE_BYTES,
+    ROOMS_CURVE_POINT_BYTES,
+    ROOMS_ROW_BYTES,
     experiment_rooms,
+    refuse_oversized_rooms,
     simulate_room_runs,
 )
 from infomax_contingency.eval.rooms.listening import (
     LISTENING_BINARIZER,
+    RENDER_BASE_BYTES,
     render_room,
 )
 from infomax_contingency.eval.rooms.running import (
@@ -87,6 +92,10 @@ __all__ = [
     "LISTENING_BINARIZER",
     "PARTNER_STATE_NAMES",
     "RECOVERY_S",
+    "RENDER_BASE_BYTES",
+    "ROOMS_BASE_BYTES",
+    "ROOMS_CURVE_POINT_BYTES",
+    "ROOMS_ROW_BYTES",
     "SHORT_NAME_SOURCE",
     "BinarizerNameError",
     "RoomRun",
@@ -102,6 +111,7 @@ __all__ = [
     "make_binarizer",
     "operating_curves",
     "postures",
+    "refuse_oversized_rooms",
     "render_room",
     "room_seed",
     "run_metrics",

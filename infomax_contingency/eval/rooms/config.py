@@ -14,6 +14,7 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import RECEDING
 from infomax_contingency.eval.experiments.tables import obtain_table
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
+from infomax_contingency.eval.workers import check_workers
 from infomax_contingency.sim.rooms import (
     PARTNER_STATES,
     ROOM_CHANGE_S,
@@ -142,8 +143,7 @@ class RoomsConfig:
         for value in self.curve_priors:
             if not 0.0 < value < 1.0:
                 fail("curve_priors", "probabilities in (0, 1)")
-        if self.jobs < 1:
-            fail("jobs", ">= 1")
+        check_workers(self.jobs, "experiment rooms: --jobs")
 
     def room_names(self) -> list[str]:
         """Every room of the experiment, each background in each of its partner states."""

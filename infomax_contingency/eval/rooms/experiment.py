@@ -15,8 +15,30 @@ from infomax_contingency.eval.rooms.summaries import (
     operating_curves,
     summarise_room,
 )
-from infomax_contingency.eval.workers import worker_pool
+from infomax_contingency.eval.workers import WORKER_BYTES, worker_pool
+from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.sim.rooms import PARTNER_STATES, ROOM_CHANGE_S, room_kind
+
+ROOMS_BASE_BYTES = 128 * 2**20
+"""Memory of the experiment apart from its runs' figures, bytes (measured 110 MB peak
+resident in one process; a run's audio is made a window at a time, whatever its length)."""
+ROOMS_ROW_BYTES, ROOMS_CURVE_POINT_BYTES = 2 * 2**10, 128
+"""Memory of one run's figures, bytes: the first, plus the second per point of its operating
+curves (threshold x prior; measured 4 KiB with the 24 default points)."""
+
+
+def refuse_oversized_rooms(config: RoomsConfig) -> None:
+    """Refuse, before any run, an experiment whose figures would not fit in memory (one line).
+
+    The estimate: :data:`ROOMS_BASE_BYTES`, the worker processes, and every run's figures
+    twice (a worker's are copied to this process at once).
+    """
+    runs = len(config.room_names()) * config.runs * len(config.controllers)
+    points = len(config.curve_thresholds) * len(config.curve_priors)
+    needed = (ROOMS_BASE_BYTES + config.jobs * WORKER_BYTES
+              + 2 * runs * (ROOMS_ROW_BYTES + ROOMS_CURVE_POINT_BYTES * points))  # fmt: skip
+    refuse_over_budget(needed, f"run experiment rooms: {runs:,} runs", "give fewer --runs, rooms"
+                       " or controllers")  # fmt: skip
 
 
 def _run_batch(
@@ -85,6 +107,7 @@ def experiment_rooms(config: RoomsConfig, cache_dir: Path | None = None) -> dict
     params = ModelParams.load(config.params_name)
     for name in config.room_names():
         room_kind(name)  # every name is in the one registry
+    refuse_oversized_rooms(config)
     controllers = controller_specs(params, config.controllers, cache_dir)
     rows = simulate_room_runs(config, controllers)
     summaries: dict[str, dict[str, Any]] = {}

@@ -12,6 +12,7 @@ from infomax_contingency.eval.experiments.runs import experiment_controller
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
 from infomax_contingency.eval.rooms.config import CONTROLLER_NAMES, RoomsConfig, controller_specs
 from infomax_contingency.eval.rooms.running import RoomTimeUpError, TimedWorld
+from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.sim.fake_room import (
     AudioWorld,
     FakeRoom,
@@ -21,10 +22,14 @@ from infomax_contingency.sim.fake_room import (
 )
 from infomax_contingency.sim.loop import run_loop
 
-LISTENING_BINARIZER = "fixed:-40"
-"""``room-wav``'s default: the fixed threshold config/fake_room.yaml gives mic_node against
-the fake room (a calibration on a room's own first 10 s is refused in the steadier rooms,
-and the robot would stay silent)."""
+LISTENING_BINARIZER = RoomsConfig.binarizer
+"""``room-wav``'s default: mic_node's, the ``background`` source that calibrates itself on
+the room's background windows (its first windows give no bit and no decision)."""
+
+
+RENDER_BASE_BYTES = 200 * 2**20
+"""Memory of :func:`render_room` apart from the sound it keeps (float32 samples, twice
+while they are joined), bytes."""
 
 
 class _RecordingRoom(FakeRoom):
@@ -71,9 +76,12 @@ def render_room(
         if controller in CONTROLLER_NAMES
         else controller
     )
+    windows = round(seconds / config.window_s)
+    samples = windows * round(config.window_s * config.rate_hz)
+    refuse_over_budget(RENDER_BASE_BYTES + 2 * 4 * samples, f"render {seconds:g} s of room sound",
+                       "give fewer --seconds")
     chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
     recording = _RecordingRoom(config, seed)
-    windows = round(seconds / config.window_s)
     bits = make_binarizer(binarizer, config.window_s, config.rate_hz, params)
     world = TimedWorld(AudioWorld(recording, bits), windows)
     actions = []
