@@ -219,6 +219,24 @@ def alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
+def described(pid: int) -> str:
+    """What a test's failure says of a process still running: its node, state and waits.
+
+    The node (from its command line), its state, the signals pending, blocked and
+    handled, and where its threads wait in the kernel.
+    """
+    proc = Path(f"/proc/{pid}")
+    try:
+        words = (proc / "cmdline").read_bytes().split(b"\0")
+        node = next((w.decode() for w in words if w.endswith(b"_node")), "?")
+        status = [line for line in (proc / "status").read_text().splitlines()
+                  if line.startswith(("State", "SigPnd", "ShdPnd", "SigBlk", "SigCgt"))]
+        waits = sorted({(task / "wchan").read_text() for task in (proc / "task").iterdir()})
+    except OSError as error:
+        return f"{pid}: {error}"
+    return f"{pid} {node}: {'; '.join(status)}; threads waiting in {waits}"
+
+
 @NODE_GRAPHS
 @pytest.mark.slow
 @pytest.mark.parametrize(
@@ -281,7 +299,8 @@ def test_the_nodes_of_a_demo_killed_with_sigkill_end_too() -> None:
         process.kill()
         process.communicate(timeout=30)
         assert wait_until(lambda: not [pid for pid in nodes if alive(pid)], 30.0), (
-            "node processes left running after the demo was killed"
+            "node processes left running 30 s after the demo was killed: "
+            + " | ".join(described(pid) for pid in nodes if alive(pid))
         )
     finally:
         if process.poll() is None:
