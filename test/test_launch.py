@@ -104,6 +104,18 @@ class Launch:
             assert time.monotonic() < deadline, f"no {text!r} in:\n{self.output()[-3000:]}"
             time.sleep(0.2)  # polls the log file; the deadline above bounds it
 
+    def wait(self, timeout_s: float) -> int:
+        """The exit status of ``ros2 launch``; AssertionError with its output after ``timeout_s``.
+
+        The output's tail says which node processes had not finished (a launch names each
+        one as it ends).
+        """
+        try:
+            return self.process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"ros2 launch still running after {timeout_s:g} s:\n"
+                                 f"{self.output()[-3000:]}") from None  # fmt: skip
+
     def stop(self) -> int:
         """Ctrl-C in a terminal: SIGINT to the whole process group, once; the exit status.
 
@@ -113,7 +125,7 @@ class Launch:
         it by the signal (status -2), which says nothing about the nodes.
         """
         os.killpg(self.process.pid, signal.SIGINT)
-        return self.process.wait(timeout=60.0)
+        return self.wait(60.0)
 
     def close(self) -> None:
         if self.process.poll() is None:
@@ -212,7 +224,7 @@ def test_ctrl_c_as_the_nodes_start_and_a_bad_choice_end_the_launch_in_one_clear_
     assert output.strip().splitlines()[-1].endswith(
         "launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped"
     ), output[-3000:]
-    assert maybe.process.wait(timeout=60) != 0
+    assert maybe.wait(60) != 0
     refusal = """provided value "maybe" is not valid. Valid options are: ['true', 'false']"""
     assert refusal in maybe.output(), maybe.output()
     assert "process started" not in maybe.output()
@@ -228,16 +240,16 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
     (tmp_path / "old_session").mkdir()
     recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
-    assert graph.process.wait(timeout=60) is not None
+    assert graph.wait(60) is not None
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
     assert lines[-1].endswith(
         "launch stopped: mic_node-1 exited with status 2 (its error is above)"
     )
-    assert missing.process.wait(timeout=60) is not None
+    assert missing.wait(60) is not None
     assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in missing.output()
     # a recorder refuses a directory that exists: the launch ends, naming it
-    assert recorded.process.wait(timeout=60) is not None
+    assert recorded.wait(60) is not None
     assert "old_session' exists already" in recorded.output(), recorded.output()[-3000:]
     assert recorded.output().strip().splitlines()[-1].endswith(
         "launch stopped: recorder_node-6 exited with status 2 (its error is above)"
@@ -295,7 +307,7 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
     graph = launch(
         f"contingency.launch.py use_fake_room:=true realtime:=false params_file:={params}"
     )
-    assert graph.process.wait(timeout=120) == 0, graph.output()[-3000:]
+    assert graph.wait(120) == 0, graph.output()[-3000:]
     output = graph.output()
     assert "[mic_node]: 8 bits published (max_windows): stopping" in output
     assert "mic_node-1 finished by itself (max_windows or exit_at_end): stopping" in output
