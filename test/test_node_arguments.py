@@ -81,6 +81,46 @@ def test_a_node_that_ends_ignoring_stop_signals_keeps_ignoring_them(
             signal.signal(signum, handler)
 
 
+def test_the_stop_deadline_starts_once_with_the_first_stop() -> None:
+    """A second signal, or the spin's end after a signal, does not start a second deadline."""
+    ended: list[tuple[str, float]] = []
+    stop = runtime.StopSignals("probe", deadline_s=0.05,
+                               on_deadline=lambda *named: ended.append(named))  # fmt: skip
+    stop._handle(signal.SIGTERM, None)
+    stop._handle(signal.SIGINT, None)
+    stop.start_deadline()
+    stop._deadline.join(5)
+    stop.start_deadline()  # after it fired: nothing more
+    assert stop.requested and ended == [("probe", 0.05)]
+
+
+def test_a_node_process_stuck_after_its_stop_signal_ends_by_the_deadline() -> None:
+    """A process whose stop hangs (a DDS teardown on a loaded machine) still ends, in one line.
+
+    Before, a node stuck there outlived a demo killed with SIGKILL, and a launch waited on it.
+    """
+    program = (
+        "import time\n"
+        "from infomax_contingency.nodes import runtime\n"
+        "stop = runtime.StopSignals('stuck_node', deadline_s=1.0).install()\n"
+        "print('ready', flush=True)\n"
+        "while True:\n"
+        "    time.sleep(0.05)  # the stop hangs: requested is never looked at\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert process.stdout.readline() == "ready\n"
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 1
+    assert err == "stuck_node: not stopped 1 s after the stop signal; ending now\n"
+
+
 def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:
     result = subprocess.run(
         [sys.executable, "-m", "infomax_contingency.nodes.entry", "no_such_node"],

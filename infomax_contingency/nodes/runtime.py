@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, MutableMapping, Sequence
 from typing import Any
@@ -101,18 +102,43 @@ def parent_pid_environment(environ: MutableMapping[str, str]) -> MutableMapping[
     return environ
 
 
+STOP_DEADLINE_S = 20.0
+"""Seconds after a stop signal by which a node process has ended, whatever hangs: the stop
+itself takes at most :data:`STOP_BUDGET_S` and the teardown about a second more; a
+process still there (a DDS teardown stuck on a loaded machine, a parent's SIGKILL that
+left it alone) then ends at once, with one line and status 1, rather than run on."""
+
+
+def _end_now(program: str, deadline_s: float) -> None:
+    """The stop deadline passed: one line on stderr, then end without any more teardown."""
+    try:
+        sys.stderr.write(f"{program}: not stopped {deadline_s:g} s after the stop signal;"
+                         " ending now\n")  # fmt: skip
+        sys.stderr.flush()
+    finally:
+        os._exit(1)
+
+
 class StopSignals:
     """Ctrl-C (SIGINT) and SIGTERM ask the spin loop to stop; nothing is raised.
 
     The Python-level handler only sets :attr:`requested`; the spin loop looks at it after
     every executor wait (at most :data:`SPIN_TIMEOUT_S`), so a signal never interrupts a
     callback, a second one during the shutdown changes nothing, and the process ends with
-    status 0 after destroying its nodes.
+    status 0 after destroying its nodes. The first signal (or the end of the spin) also
+    starts a deadline (``deadline_s``, :data:`STOP_DEADLINE_S`): a process that has not
+    ended by then is ended by ``on_deadline`` (:func:`_end_now`).
+
+    Args:
+        program: the process's name in the deadline's line.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, program: str = "node", deadline_s: float = STOP_DEADLINE_S,
+                 on_deadline: Callable[[str, float], None] = _end_now) -> None:  # fmt: skip
         self.requested = False
         self._previous: dict[int, Any] = {}
+        self._deadline = threading.Timer(deadline_s, on_deadline, (program, deadline_s))
+        self._deadline.daemon = True
 
     def install(self) -> StopSignals:
         """Take over SIGINT and SIGTERM (main thread only; elsewhere a no-op)."""
@@ -125,6 +151,12 @@ class StopSignals:
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.requested = True
+        self.start_deadline()
+
+    def start_deadline(self) -> None:
+        """The process is stopping (a signal, or its node finished): it ends by the deadline."""
+        if not self._deadline.is_alive() and not self._deadline.finished.is_set():
+            self._deadline.start()
 
     def restore(self) -> None:
         """Give the signals back to their previous handlers."""
@@ -271,7 +303,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
     error line (status 2); Ctrl-C and SIGTERM end the process cleanly (status 0), also
     when they arrive again during shutdown; no traceback either way.
     """
-    stop = StopSignals().install()
+    stop = StopSignals(program).install()
     if not end_with_parent():
         print(f"{program}: the process that started it is gone; not starting", file=sys.stderr)
         stop.restore()
@@ -297,6 +329,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
                     lambda f: any_finished.done() or any_finished.set_result(f.result())
                 )
         spin_until_done(executor, any_finished, stop)
+        stop.start_deadline()
         stop_by = time.monotonic() + STOP_BUDGET_S
         await_acknowledgments(nodes, min(ACK_BUDGET_S, STOP_BUDGET_S))
         drain_queued_messages(executor, nodes, max(0.0, stop_by - time.monotonic()))
