@@ -66,8 +66,10 @@ def ros2(workspace: Path, arguments: str, timeout_s: float = 60.0) -> str:
     return result.stdout + result.stderr
 
 
-NOT_DISCOVERED_YET = ("Node not found", "Waiting for", "not available")
-"""What the CLI says while the node it asks is not known to its discovery yet."""
+NOT_DISCOVERED_YET = ("Node not found", "Waiting for", "not available",
+                      "Wait for service timed out")  # fmt: skip
+"""What the CLI says while the node it asks is not known to its discovery yet (the last:
+its service not discovered within the CLI's own wait, on a loaded machine)."""
 
 
 def ros2_once_known(workspace: Path, arguments: str, timeout_s: float = 60.0) -> str:
@@ -181,6 +183,7 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(
         answers = {key: future.result() for key, future in running.items()}
     assert "data:" in answers["echo"], answers["echo"]
     assert "Set parameter successful" in answers["set"], answers["set"]
+    assert "Set parameter successful" in answers["threshold"], answers["threshold"]
     graph.wait_for("parameter 'attentive_above' set to 0.5")
     # the reason, as the node gives it (bored_below must stay below attentive_above, 0.9
     # or 0.5); read-only parameters give theirs the same way (test_params.py)

@@ -81,17 +81,24 @@ def test_a_node_that_ends_ignoring_stop_signals_keeps_ignoring_them(
             signal.signal(signum, handler)
 
 
-def test_the_stop_deadline_starts_once_with_the_first_stop() -> None:
-    """A second signal, or the spin's end after a signal, does not start a second deadline."""
+def test_the_stop_deadline_starts_once_with_the_first_stop(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Nothing happens before a stop; the first stop (not a later one) starts the deadline."""
+    monkeypatch.setattr(runtime, "DEADLINE_POLL_S", 0.01)
     ended: list[tuple[str, float]] = []
-    stop = runtime.StopSignals("probe", deadline_s=0.05,
+    stop = runtime.StopSignals("probe", deadline_s=0.3,
                                on_deadline=lambda *named: ended.append(named))  # fmt: skip
+    stop._watchdog.start()  # as install() does, without taking over this process's signals
+    stop._watchdog.join(0.5)
+    assert stop._watchdog.is_alive() and not ended  # no stop yet: no deadline
     stop._handle(signal.SIGTERM, None)
+    began = stop.stopping_since
     stop._handle(signal.SIGINT, None)
     stop.start_deadline()
-    stop._deadline.join(5)
-    stop.start_deadline()  # after it fired: nothing more
-    assert stop.requested and ended == [("probe", 0.05)]
+    assert stop.requested and stop.stopping_since == began
+    stop._watchdog.join(30)
+    assert not stop._watchdog.is_alive() and ended == [("probe", 0.3)]
 
 
 def test_a_node_process_stuck_after_its_stop_signal_ends_by_the_deadline() -> None:

@@ -108,6 +108,9 @@ itself takes at most :data:`STOP_BUDGET_S` and the teardown about a second more;
 process still there (a DDS teardown stuck on a loaded machine, a parent's SIGKILL that
 left it alone) then ends at once, with one line and status 1, rather than run on."""
 
+DEADLINE_POLL_S = 0.5
+"""Seconds between two looks of the stop deadline's watchdog at whether a stop began."""
+
 
 def _end_now(program: str, deadline_s: float) -> None:
     """The stop deadline passed: one line on stderr, then end without any more teardown."""
@@ -125,9 +128,13 @@ class StopSignals:
     The Python-level handler only sets :attr:`requested`; the spin loop looks at it after
     every executor wait (at most :data:`SPIN_TIMEOUT_S`), so a signal never interrupts a
     callback, a second one during the shutdown changes nothing, and the process ends with
-    status 0 after destroying its nodes. The first signal (or the end of the spin) also
-    starts a deadline (``deadline_s``, :data:`STOP_DEADLINE_S`): a process that has not
-    ended by then is ended by ``on_deadline`` (:func:`_end_now`).
+    status 0 after destroying its nodes.
+
+    :meth:`install` also starts a watchdog thread (daemon): once a stop began (a signal,
+    or :meth:`start_deadline` when the node finished), a process that has not ended
+    ``deadline_s`` (:data:`STOP_DEADLINE_S`) later is ended by ``on_deadline``
+    (:func:`_end_now`). The thread is started here, never from the signal handler or
+    while the interpreter shuts down; the handler only sets flags.
 
     Args:
         program: the process's name in the deadline's line.
@@ -136,17 +143,31 @@ class StopSignals:
     def __init__(self, program: str = "node", deadline_s: float = STOP_DEADLINE_S,
                  on_deadline: Callable[[str, float], None] = _end_now) -> None:  # fmt: skip
         self.requested = False
+        self.stopping_since: float | None = None
+        """``time.monotonic()`` when the stop began (None: running)."""
         self._previous: dict[int, Any] = {}
-        self._deadline = threading.Timer(deadline_s, on_deadline, (program, deadline_s))
-        self._deadline.daemon = True
+        self._program = program
+        self._deadline_s = deadline_s
+        self._on_deadline = on_deadline
+        self._watchdog = threading.Thread(target=self._watch, name="stop-deadline",
+                                          daemon=True)  # fmt: skip
+
+    def _watch(self) -> None:
+        while self.stopping_since is None or (
+            time.monotonic() - self.stopping_since < self._deadline_s
+        ):
+            time.sleep(DEADLINE_POLL_S)
+        self._on_deadline(self._program, self._deadline_s)
 
     def install(self) -> StopSignals:
-        """Take over SIGINT and SIGTERM (main thread only; elsewhere a no-op)."""
+        """Take over SIGINT and SIGTERM (main thread only; elsewhere a no-op); the watchdog."""
         for signum in (signal.SIGINT, signal.SIGTERM):
             try:
                 self._previous[signum] = signal.signal(signum, self._handle)
             except ValueError:  # not the main thread
                 pass
+        if not self._watchdog.is_alive():
+            self._watchdog.start()
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
@@ -155,8 +176,8 @@ class StopSignals:
 
     def start_deadline(self) -> None:
         """The process is stopping (a signal, or its node finished): it ends by the deadline."""
-        if not self._deadline.is_alive() and not self._deadline.finished.is_set():
-            self._deadline.start()
+        if self.stopping_since is None:
+            self.stopping_since = time.monotonic()
 
     def restore(self) -> None:
         """Give the signals back to their previous handlers."""
@@ -301,7 +322,8 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
 
     A node that fails to start on bad parameters or another user error is named in one
     error line (status 2); Ctrl-C and SIGTERM end the process cleanly (status 0), also
-    when they arrive again during shutdown; no traceback either way.
+    when they arrive again during shutdown; no traceback either way. A process's main:
+    it ends by :data:`STOP_DEADLINE_S` after its nodes stop.
     """
     stop = StopSignals(program).install()
     if not end_with_parent():
