@@ -13,9 +13,14 @@ itself keeps the profile: Fast DDS reads it once per process).
 Every process of the suite uses one BLAS thread, as the nodes' entry points give theirs
 (``use_one_blas_thread``): a thread per core in each of hundreds of processes only costs
 start-up CPU on a machine the suite already keeps busy.
+
+Ctrl-C reaches the suite's child processes as it would from a terminal: a suite started
+where SIGINT is ignored (a background job of a script, ``nohup``) would hand that on to
+every child, and the tests of what a Ctrl-C does would wait for nothing.
 """
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -26,6 +31,9 @@ from domains import NoFreeDomainError, lock_domain_ids
 from infomax_contingency.nodes.entry import use_one_blas_thread
 
 use_one_blas_thread()
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # children inherit an ignored signal
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 _forced = os.environ.get("INFOMAX_TEST_DOMAIN_ID", "").strip()
