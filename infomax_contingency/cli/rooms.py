@@ -110,7 +110,7 @@ def print_rooms(result: dict) -> None:
         "\ninformation bound (known rates): per vocalization with the partner there,"
         " agent windows x KL(Bern(P agent) || Bern(P background)) nats; vocalizations to"
         f" P(S=1) = {config['attentive_above']:g} from the prior {result['params_pi']:g}"
-        " at least; P(agent) the bound needs for 3 / 4 / 8 vocalizations"
+        " at least; P(agent) the bound needs for 3 / 4 / 6 vocalizations"
     )
     for label in result["controllers"]:
         for background, bound in result.get("information_bound", {}).get(label, {}).items():
@@ -122,6 +122,32 @@ def print_rooms(result: dict) -> None:
                 f" {bound['p_background']:.2f}: {bound['nats_per_vocalization']:.3f} nats,"
                 f" >= {number(bound['vocalizations_bound']).replace('never', 'inf')} vocalizations;"
                 f" needs {needed}"
+            )
+    _print_belief_figures(result)
+
+
+def _print_belief_figures(result: dict) -> None:
+    """Per room: the model's own belief on independent bits at the measured rates."""
+    config = result["config"]
+    print(
+        "\nthe model's belief on independent bits at those rates (exact): median vocalizations"
+        f" to P(S=1) = {config['attentive_above']:g}; chance by 3 / 4 / 6 vocalizations;"
+        " P(agent) it needs for a median of 3 / 4 / 6"
+    )
+    for label in result["controllers"]:
+        for background, bound in result.get("information_bound", {}).get(label, {}).items():
+            belief = bound.get("belief")
+            if not belief:
+                continue
+            chances = " / ".join(f"{p:.2f}" for p in belief["p_crossed_by"].values())
+            needed = " / ".join(
+                "none" if p is None else f"{p:.2f}" for p in belief["p_agent_needed"].values()
+            )
+            median = belief["median_vocalizations"]
+            print(
+                f"  {label[:22]:<22} {background:<15} {belief['background_windows']} background"
+                f" windows per vocalization: median {'> 20' if median is None else median};"
+                f" by 3 / 4 / 6: {chances}; needs {needed}"
             )
 
 

@@ -11,13 +11,23 @@ only ones whose distribution depends on S; natural logs throughout). The robot's
 does not know the rates (it integrates over their priors), so it gains less: the
 vocalizations this bound gives are a *lower bound* on what any controller and posture
 rule need to move the belief from the prior ``pi`` to a threshold.
+
+The bound is an expectation, and it ignores what the belief must learn. What the model's
+own belief needs is :func:`belief_crossing`: the exact distribution of the number of
+vocalizations after which the model's posterior (its Beta priors on K2 and K3, nothing
+known) first exceeds the threshold, when the bits are independent at exactly the given
+rates. A room whose bits had no other flaw could do no better with that belief; where
+the rooms experiment needs more, the room's bits are not independent (bursts), or the
+controller spaces its vocalizations differently.
 """
 
 from __future__ import annotations
 
 import math
 
-from infomax_contingency.core.model import ModelParams
+import numpy as np
+
+from infomax_contingency.core.model import ModelParams, log_odds
 
 
 def _check_probability(value: float, name: str) -> float:
@@ -98,8 +108,123 @@ def agent_rate_needed(
     return high
 
 
-VOCALIZATION_TARGETS = (3, 4, 8)
-"""Issue 13's targets, vocalizations to a correct posture: quiet room, office, poster session."""
+VOCALIZATION_TARGETS = (3, 4, 6)
+"""Vocalizations to a correct posture the rooms are held to: quiet and office rooms, babble
+rooms, TV rooms (docs/RESULTS.md section 7)."""
+
+MAX_CROSSING_VOCALIZATIONS = 40
+"""Most vocalizations :func:`belief_crossing` follows (its cost grows with the square)."""
+
+
+def belief_crossing(
+    params: ModelParams,
+    p_agent: float,
+    p_background: float,
+    background_windows: int,
+    target: float,
+    vocalizations: int,
+) -> np.ndarray:
+    """Exact P(the model's belief first exceeds ``target`` after n vocalizations).
+
+    The schedule: ``background_windows`` background windows, then per vocalization its
+    self-feedback windows (not counted), its agent windows (``ta1 .. ta2``) and again
+    ``background_windows`` background windows. With the partner there, agent bits are
+    active with probability ``p_agent`` and background bits with ``p_background``, each
+    independently. The belief is the model's (:func:`~infomax_contingency.core.model.log_odds`
+    from the prior ``params.pi``, the whole history: no sliding memory), looked at after
+    every window, as posture_node does. A crossing in the windows after vocalization n
+    (before vocalization n + 1) counts as n vocalizations.
+
+    Returns:
+        ``vocalizations + 2`` probabilities: entry n (0 .. ``vocalizations``) that the
+        first crossing comes after exactly n vocalizations, the last that it has not come
+        by then. They sum to 1. Cost: O(``vocalizations``^3 x windows) floating-point
+        operations (a dynamic programme over the active counts).
+    """
+    p_agent = _check_probability(p_agent, "p_agent")
+    p_background = _check_probability(p_background, "p_background")
+    for value, name, most in (
+        (background_windows, "background_windows", 1000),
+        (vocalizations, "vocalizations", MAX_CROSSING_VOCALIZATIONS),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= most:
+            raise ValueError(f"{name} = {value!r}: must be a whole number in 0 .. {most}")
+    if not 0.0 < target < 1.0:
+        raise ValueError(f"target = {target!r}: must be in (0, 1)")
+    agent = agent_window_count(params)
+    threshold = math.log(target) - math.log1p(-target)
+    # mass[p2, p3]: P(counts so far and no crossing yet)
+    mass = np.zeros((agent * vocalizations + 1, background_windows * (vocalizations + 1) + 1))
+    mass[0, 0] = 1.0
+    p2 = np.arange(mass.shape[0])[:, None]
+    p3 = np.arange(mass.shape[1])[None, :]
+    crossing = np.zeros(vocalizations + 2)
+    n2 = n3 = 0
+    schedule = [(0, "background")] * background_windows + [
+        (n, period)
+        for n in range(1, vocalizations + 1)
+        for period in ["agent"] * agent + ["background"] * background_windows
+    ]
+    for made, period in schedule:
+        axis, p = (0, p_agent) if period == "agent" else (1, p_background)
+        shifted = np.roll(mass, 1, axis=axis)
+        if axis == 0:
+            shifted[0, :] = 0.0
+            n2 += 1
+        else:
+            shifted[:, 0] = 0.0
+            n3 += 1
+        mass = (1.0 - p) * mass + p * shifted
+        possible = (p2 <= n2) & (p3 <= n3)
+        lam = log_odds(params, np.minimum(p2, n2), n2 - np.minimum(p2, n2),
+                       np.minimum(p3, n3), n3 - np.minimum(p3, n3))  # fmt: skip
+        crossed = possible & (lam > threshold)
+        crossing[made] += mass[crossed].sum()
+        mass[crossed] = 0.0
+    if vocalizations == 0 and not background_windows:
+        lam0 = float(log_odds(params, 0, 0, 0, 0))
+        crossing[0] = 1.0 if lam0 > threshold else 0.0
+        mass[0, 0] = 1.0 - crossing[0]
+    crossing[-1] = mass.sum()
+    return crossing
+
+
+def belief_median_vocalizations(crossing: np.ndarray) -> int | None:
+    """The median of :func:`belief_crossing`'s distribution; None if it is not reached."""
+    reached = np.flatnonzero(np.cumsum(crossing[:-1]) >= 0.5)
+    return int(reached[0]) if reached.size else None
+
+
+def agent_rate_the_belief_needs(
+    params: ModelParams,
+    p_background: float,
+    background_windows: int,
+    target: float,
+    vocalizations: int,
+) -> float | None:
+    """The least P(active) in agent windows for which the belief's median is <= ``vocalizations``.
+
+    :func:`belief_crossing` with ``p_agent`` searched in ``[p_background, 1]`` to 1e-3
+    (the chance of a crossing by n vocalizations grows with ``p_agent``); None if even
+    ``p_agent = 1`` is not enough.
+    """
+
+    def enough(p_agent: float) -> bool:
+        crossing = belief_crossing(
+            params, p_agent, p_background, background_windows, target, vocalizations
+        )
+        return float(crossing[:-1].sum()) >= 0.5
+
+    if not enough(1.0):
+        return None
+    low, high = _check_probability(p_background, "p_background"), 1.0
+    while high - low > 1e-3:
+        middle = 0.5 * (low + high)
+        if enough(middle):
+            high = middle
+        else:
+            low = middle
+    return high
 
 
 def information_bound(
@@ -108,6 +233,7 @@ def information_bound(
     params: ModelParams,
     target: float,
     vocalization_targets: tuple[int, ...] = VOCALIZATION_TARGETS,
+    background_windows: int | None = None,
 ) -> dict[str, object]:
     """The bound for one measured contrast, as plain data.
 
@@ -116,9 +242,32 @@ def information_bound(
     ``vocalizations_bound`` (:func:`vocalizations_bound`) and ``p_agent_needed``: per
     number of vocalizations in ``vocalization_targets``, the least P(active) in agent
     windows that the bound allows with this ``p_background`` (None: none suffices).
+    With ``background_windows`` (background windows per vocalization), also ``belief``:
+    the model's own belief on independent bits at these rates (:func:`belief_crossing`):
+    its median vocalizations to ``target``, the chance of a crossing by each target
+    number, and the least P(agent) for a median within each
+    (:func:`agent_rate_the_belief_needs`).
     """
     windows = agent_window_count(params)
+    belief: dict[str, object] | None = None
+    if background_windows is not None:
+        crossing = belief_crossing(
+            params, p_agent, p_background, background_windows, target,
+            MAX_CROSSING_VOCALIZATIONS // 2,
+        )  # fmt: skip
+        belief = {
+            "background_windows": background_windows,
+            "median_vocalizations": belief_median_vocalizations(crossing),
+            "p_crossed_by": {str(n): float(crossing[: n + 1].sum()) for n in vocalization_targets},
+            "p_agent_needed": {
+                str(n): agent_rate_the_belief_needs(
+                    params, p_background, background_windows, target, n
+                )
+                for n in vocalization_targets
+            },
+        }
     return {
+        "belief": belief,
         "p_agent": p_agent,
         "p_background": p_background,
         "nats_per_vocalization": evidence_per_vocalization(p_agent, p_background, windows),

@@ -121,7 +121,8 @@ def contrast_bounds(
 
     P(active) in agent-period and background windows of the ``+partner`` runs
     (:func:`~infomax_contingency.eval.information.information_bound`, to the posture's
-    ``attentive_above`` from the model's prior).
+    ``attentive_above`` from the model's prior), and the model's own belief on independent
+    bits at those rates, with the runs' background windows per vocalization (rounded).
     """
     out: dict[str, Any] = {}
     for background in config.backgrounds:
@@ -131,7 +132,13 @@ def contrast_bounds(
         rates = summary["p_active"]
         if not (rates["agent"]["windows"] and rates["background"]["windows"]):
             continue
+        vocalizations = summary["vocalizations_per_run"] * summary["runs"]
+        per_vocalization = rates["background"]["windows"] / max(vocalizations, 1.0)
         out[background] = information_bound(
-            rates["agent"]["p"], rates["background"]["p"], params, config.attentive_above
+            rates["agent"]["p"],
+            rates["background"]["p"],
+            params,
+            config.attentive_above,
+            background_windows=min(round(per_vocalization), 1000),
         )
     return out
