@@ -1,0 +1,200 @@
+"""Two probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+
+``levels``: an observation richer than one bit. Each window of the default runs gets one
+of three levels, referenced to the room's background windows like the default bit
+source: 2 = the default bit is active; 1 = not, but the window is louder than all but a
+share ``--share`` of the background windows known ``ta2 + 1`` windows before it (the
+k-th loudest, k as the default source takes it); 0 = neither. The belief is the model's
+with Dirichlet priors in place of its Beta priors (the same exact posterior, for three
+outcomes): uniform (1, 1, 1) on the agent period's levels, and on the background's the
+shares the thresholds set, worth 10 windows (as the robot set's Beta(0.5, 9.5) is for
+one bit). The decisions are those of the default runs (the controller keeps its table on
+the bits); the figures compare the posture's settling on the same runs.
+
+``timer``: the share of active bits by timer value (0 .. ta2 + 1) in empty rooms, with the
+robot's chirp as the room plays it and with it muted (no sound, no echo): windows after
+a vocalization are compared with the background windows the model takes as their
+reference.
+
+Run from the repository root::
+
+    .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 40]
+    .venv/bin/python bench/probe_detection.py timer [--rooms street,...] [--runs 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import heapq
+import math
+
+import numpy as np
+from scipy.special import gammaln
+
+from infomax_contingency.audio.background import rank_for
+from infomax_contingency.audio.bitsources.background import LEAST_RANK
+from infomax_contingency.core.model import AGENT, BACKGROUND, ModelParams, period_of
+from infomax_contingency.eval.rooms import controller_specs, run_room
+from infomax_contingency.eval.rooms.running import RoomRun
+from infomax_contingency.eval.rooms.scoring import postures, settled_step
+from infomax_contingency.sim.fake_room import FakeRoomConfig
+
+HISTORY_WINDOWS = 60
+"""Background windows a level's threshold is taken over (the default source's 30 s)."""
+WARMUP_WINDOWS = 8
+"""Background windows known before a window can be given level 1."""
+BACKGROUND_PRIOR_WINDOWS = 10.0
+"""What the Dirichlet prior on the background's levels is worth, windows."""
+
+
+def log_dirichlet(alpha: np.ndarray) -> float:
+    """Log of the multivariate Beta function of ``alpha``."""
+    return float(np.sum(gammaln(alpha)) - gammaln(np.sum(alpha)))
+
+
+def dirichlet_log_odds(
+    params: ModelParams, agent: np.ndarray, background: np.ndarray,
+    agent_prior: np.ndarray, background_prior: np.ndarray,
+) -> float:  # fmt: skip
+    """Log posterior odds of S = 1 from level counts (MODEL.md section 2 with Dirichlets)."""
+    prior = math.log(params.pi) - math.log1p(-params.pi)
+    return (
+        prior
+        + log_dirichlet(agent_prior + agent)
+        - log_dirichlet(agent_prior)
+        + log_dirichlet(background_prior + background)
+        - log_dirichlet(background_prior + agent + background)
+    )
+
+
+def levels_of(params: ModelParams, run: RoomRun, share: float) -> np.ndarray:
+    """Level 0, 1 or 2 of each step of ``run`` (the module's docstring)."""
+    known: list[tuple[int, float]] = []
+    levels = np.where(run.y == 1, 2, 0)
+    for t, (window, level) in enumerate(zip(run.window, run.energy_db, strict=True)):
+        usable = [lv for w, lv in known if w <= window - (params.ta2 + 1)][-HISTORY_WINDOWS:]
+        if not run.y[t] and len(usable) >= WARMUP_WINDOWS:
+            kth = heapq.nlargest(rank_for(share, len(usable), LEAST_RANK), usable)[-1]
+            levels[t] = int(level > kth)
+        if run.z[t] > params.ta2:
+            known.append((int(window), float(level)))
+    return levels
+
+
+def belief_log_odds(
+    params: ModelParams, run: RoomRun, observations: np.ndarray, outcomes: int,
+    agent_prior: np.ndarray, background_prior: np.ndarray, memory: int,
+) -> np.ndarray:  # fmt: skip
+    """Log odds after each step: the counts of the last ``memory`` counted observations."""
+    periods = period_of(params, run.z)
+    counted: list[tuple[int, int]] = []
+    out = np.zeros(observations.size)
+    for t, (period, observation) in enumerate(zip(periods, observations, strict=True)):
+        if period in (AGENT, BACKGROUND):
+            counted = [*counted, (int(period), int(observation))][-memory:]
+        counts = {AGENT: np.zeros(outcomes), BACKGROUND: np.zeros(outcomes)}
+        for counted_period, counted_observation in counted:
+            counts[counted_period][counted_observation] += 1
+        out[t] = dirichlet_log_odds(
+            params, counts[AGENT], counts[BACKGROUND], agent_prior, background_prior
+        )
+    return out
+
+
+def outcome(run: RoomRun, log_odds: np.ndarray, partner_room: bool) -> int | bool | None:
+    """Vocalizations to a settled posture (partner room; None: never), or ever attentive."""
+    beliefs = 1.0 / (1.0 + np.exp(-log_odds))
+    attentive = postures(beliefs, 0.9, 0.2)
+    if not partner_room:
+        return bool(attentive.any())
+    settled = settled_step(attentive, run.partner, beliefs, 0.2, 0)
+    return None if settled is None else int(run.u[:settled].sum())
+
+
+def probe_levels(params: ModelParams, rooms: list[str], runs: int, shares: list[float]) -> None:
+    """Print the ``levels`` probe (the module's docstring)."""
+    spec = controller_specs(params, ["optimal"])[0][1]
+    false_alarm = 0.05
+    for room in rooms:
+        partner_room = room.endswith("+partner")
+        results: dict[str, list] = {"one bit": []} | {f"3 levels, share {s:g}": [] for s in shares}
+        for k in range(runs):
+            run = run_room(params, room, spec, "background", 60.0, 0, k, HISTORY_WINDOWS)
+            bit_log_odds = belief_log_odds(
+                params, run, run.y.astype(int), 2, np.array([params.b22, params.b21]),
+                np.array([params.b32, params.b31]), HISTORY_WINDOWS,
+            )  # fmt: skip
+            if not np.allclose(bit_log_odds, run.log_odds):
+                raise SystemExit("the Dirichlet belief on one bit differs from the model's")
+            results["one bit"].append(outcome(run, run.log_odds, partner_room))
+            for share in shares:
+                shares_set = np.array([1 - share, share - false_alarm, false_alarm])
+                log_odds = belief_log_odds(
+                    params, run, levels_of(params, run, share), 3, np.ones(3),
+                    BACKGROUND_PRIOR_WINDOWS * shares_set, HISTORY_WINDOWS,
+                )  # fmt: skip
+                results[f"3 levels, share {share:g}"].append(
+                    outcome(run, log_odds, partner_room)
+                )
+        for name, values in results.items():
+            if partner_room:
+                settled = [v for v in values if v is not None]
+                median = f"{np.median(settled):g}" if settled else "-"
+                print(f"{room:<24} {name:<22} settled {len(settled)}/{runs},"
+                      f" median vocalizations {median}")  # fmt: skip
+            else:
+                print(f"{room:<24} {name:<22} ever attentive {sum(values)}/{runs}")
+
+
+def probe_timer(params: ModelParams, rooms: list[str], runs: int) -> None:
+    """Print the ``timer`` probe (the module's docstring)."""
+    spec = controller_specs(params, ["optimal"])[0][1]
+    preset = FakeRoomConfig.preset
+    timers = range(params.ta2 + 2)
+    for room in rooms:
+        for muted in (False, True):
+
+            def room_config(name: str, muted: bool = muted) -> FakeRoomConfig:
+                config = preset(name)
+                if muted:
+                    config = dataclasses.replace(config, self_level_db=-150.0, reverb_rt60_s=0.0)
+                return config
+
+            active: dict[int, list[int]] = {z: [] for z in timers}
+            FakeRoomConfig.preset = staticmethod(room_config)  # type: ignore[method-assign]
+            try:
+                for k in range(runs):
+                    run = run_room(params, room, spec, "background", 60.0, 0, k, HISTORY_WINDOWS)
+                    for z in timers:
+                        active[z].extend(run.y[run.z == z].tolist())
+            finally:
+                FakeRoomConfig.preset = staticmethod(preset)  # type: ignore[method-assign]
+            cells = "  ".join(f"z={z}: {np.mean(active[z]):.3f}" for z in timers)
+            print(f"{room:<14} {'chirp muted' if muted else 'as played':<12} {cells}")
+
+
+LEVELS_ROOMS = "tv-on+partner,living-room+partner,open-office+partner,street,home-office"
+"""Rooms of the ``levels`` probe by default: where the default misses a target."""
+
+
+def main() -> None:
+    """Parse the command line and print the chosen probe."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("probe", choices=("levels", "timer"))
+    parser.add_argument("--rooms", default="")
+    parser.add_argument("--runs", type=int, default=30)
+    parser.add_argument("--shares", default="0.25,0.5", help="levels: shares for level 1")
+    args = parser.parse_args()
+    params = ModelParams.named("robot")
+    if args.probe == "levels":
+        rooms = args.rooms or LEVELS_ROOMS
+        shares = [float(s) for s in args.shares.split(",")]
+        probe_levels(params, rooms.split(","), args.runs, shares)
+    else:
+        rooms = args.rooms or "street,home-office,crowd-grows,office"
+        probe_timer(params, rooms.split(","), args.runs)
+
+
+if __name__ == "__main__":
+    main()
