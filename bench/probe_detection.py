@@ -18,7 +18,8 @@ reference.
 
 Run from the repository root::
 
-    .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 40]
+    .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
+        [--no-reference]
     .venv/bin/python bench/probe_detection.py timer [--rooms street,...] [--runs 30]
 """
 
@@ -44,6 +45,8 @@ HISTORY_WINDOWS = 60
 """Background windows a level's threshold is taken over (the default source's 30 s)."""
 WARMUP_WINDOWS = 8
 """Background windows known before a window can be given level 1."""
+REFERENCE_MARGIN_DB = 3.0
+"""The default source's ``reference_margin_db``."""
 BACKGROUND_PRIOR_WINDOWS = 10.0
 """What the Dirichlet prior on the background's levels is worth, windows."""
 
@@ -68,15 +71,25 @@ def dirichlet_log_odds(
     )
 
 
-def levels_of(params: ModelParams, run: RoomRun, share: float) -> np.ndarray:
-    """Level 0, 1 or 2 of each step of ``run`` (the module's docstring)."""
+def levels_of(params: ModelParams, run: RoomRun, share: float, reference: bool) -> np.ndarray:
+    """Level 0, 1 or 2 of each step of ``run`` (the module's docstring).
+
+    With ``reference``, level 1 is also held to the default source's reference: louder than
+    the window the robot's last sound followed (agent windows), or than the window as far
+    back (others), by :data:`REFERENCE_MARGIN_DB`.
+    """
     known: list[tuple[int, float]] = []
     levels = np.where(run.y == 1, 2, 0)
+    by_window = dict(zip(run.window.tolist(), run.energy_db.tolist(), strict=True))
+    span = params.ta2 - params.ta1 + 1
     for t, (window, level) in enumerate(zip(run.window, run.energy_db, strict=True)):
         usable = [lv for w, lv in known if w <= window - (params.ta2 + 1)][-HISTORY_WINDOWS:]
         if not run.y[t] and len(usable) >= WARMUP_WINDOWS:
             kth = heapq.nlargest(rank_for(share, len(usable), LEAST_RANK), usable)[-1]
-            levels[t] = int(level > kth)
+            z = int(run.z[t])
+            back = z + 1 if params.ta1 <= z <= params.ta2 else params.ta1 + 1 + window % span
+            before = by_window.get(int(window) - back, -math.inf) if reference else -math.inf
+            levels[t] = int(level > kth and level > before + REFERENCE_MARGIN_DB)
         if run.z[t] > params.ta2:
             known.append((int(window), float(level)))
     return levels
@@ -112,7 +125,9 @@ def outcome(run: RoomRun, log_odds: np.ndarray, partner_room: bool) -> int | boo
     return None if settled is None else int(run.u[:settled].sum())
 
 
-def probe_levels(params: ModelParams, rooms: list[str], runs: int, shares: list[float]) -> None:
+def probe_levels(
+    params: ModelParams, rooms: list[str], runs: int, shares: list[float], reference: bool
+) -> None:
     """Print the ``levels`` probe (the module's docstring)."""
     spec = controller_specs(params, ["optimal"])[0][1]
     false_alarm = 0.05
@@ -131,18 +146,16 @@ def probe_levels(params: ModelParams, rooms: list[str], runs: int, shares: list[
             for share in shares:
                 shares_set = np.array([1 - share, share - false_alarm, false_alarm])
                 log_odds = belief_log_odds(
-                    params, run, levels_of(params, run, share), 3, np.ones(3),
+                    params, run, levels_of(params, run, share, reference), 3, np.ones(3),
                     BACKGROUND_PRIOR_WINDOWS * shares_set, HISTORY_WINDOWS,
                 )  # fmt: skip
-                results[f"3 levels, share {share:g}"].append(
-                    outcome(run, log_odds, partner_room)
-                )
+                results[f"3 levels, share {share:g}"].append(outcome(run, log_odds, partner_room))
         for name, values in results.items():
             if partner_room:
                 settled = [v for v in values if v is not None]
-                median = f"{np.median(settled):g}" if settled else "-"
-                print(f"{room:<24} {name:<22} settled {len(settled)}/{runs},"
-                      f" median vocalizations {median}")  # fmt: skip
+                median = np.median([math.inf if v is None else v for v in values])
+                print(f"{room:<24} {name:<22} settled {len(settled)}/{runs}, median"
+                      f" vocalizations {median:g} (a run never settled counts as inf)")  # fmt: skip
             else:
                 print(f"{room:<24} {name:<22} ever attentive {sum(values)}/{runs}")
 
@@ -185,12 +198,17 @@ def main() -> None:
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
     parser.add_argument("--shares", default="0.25,0.5", help="levels: shares for level 1")
+    parser.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="levels: level 1 without the reference to an earlier window",
+    )
     args = parser.parse_args()
     params = ModelParams.named("robot")
     if args.probe == "levels":
         rooms = args.rooms or LEVELS_ROOMS
         shares = [float(s) for s in args.shares.split(",")]
-        probe_levels(params, rooms.split(","), args.runs, shares)
+        probe_levels(params, rooms.split(","), args.runs, shares, not args.no_reference)
     else:
         rooms = args.rooms or "street,home-office,crowd-grows,office"
         probe_timer(params, rooms.split(","), args.runs)
