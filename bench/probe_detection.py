@@ -14,13 +14,15 @@ the bits); the figures compare the posture's settling on the same runs.
 ``timer``: the share of active bits by timer value (0 .. ta2 + 1) in empty rooms, with the
 robot's chirp as the room plays it and with it muted (no sound, no echo): windows after
 a vocalization are compared with the background windows the model takes as their
-reference.
+reference; ``--controller`` puts another controller in the optimal table's place (one
+that ignores the bits: ``random:0.125``, ``fixed:8``).
 
 Run from the repository root::
 
     .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
         [--no-reference]
-    .venv/bin/python bench/probe_detection.py timer [--rooms street,...] [--runs 30]
+    .venv/bin/python bench/probe_detection.py timer [--rooms street,...] [--runs 100]
+        [--controller random:0.125]
 """
 
 from __future__ import annotations
@@ -160,9 +162,9 @@ def probe_levels(
                 print(f"{room:<24} {name:<22} ever attentive {sum(values)}/{runs}")
 
 
-def probe_timer(params: ModelParams, rooms: list[str], runs: int) -> None:
-    """Print the ``timer`` probe (the module's docstring)."""
-    spec = controller_specs(params, ["optimal"])[0][1]
+def probe_timer(params: ModelParams, rooms: list[str], runs: int, controller: str) -> None:
+    """Print the ``timer`` probe (the module's docstring) with ``controller`` deciding."""
+    spec = controller_specs(params, ["optimal"])[0][1] if controller == "optimal" else controller
     preset = FakeRoomConfig.preset
     timers = range(params.ta2 + 2)
     for room in rooms:
@@ -199,6 +201,11 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=30)
     parser.add_argument("--shares", default="0.25,0.5", help="levels: shares for level 1")
     parser.add_argument(
+        "--controller",
+        default="optimal",
+        help="timer: optimal (the default table) or a controller specification, e.g. random:0.125",
+    )
+    parser.add_argument(
         "--no-reference",
         action="store_true",
         help="levels: level 1 without the reference to an earlier window",
@@ -211,7 +218,7 @@ def main() -> None:
         probe_levels(params, rooms.split(","), args.runs, shares, not args.no_reference)
     else:
         rooms = args.rooms or "street,home-office,crowd-grows,office"
-        probe_timer(params, rooms.split(","), args.runs)
+        probe_timer(params, rooms.split(","), args.runs, args.controller)
 
 
 if __name__ == "__main__":
