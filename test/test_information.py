@@ -124,6 +124,8 @@ def test_the_belief_needs_more_than_the_bound_and_its_need_is_met_exactly() -> N
     at = belief_crossing(params, needed, 0.041, 5, 0.9, 4)
     below = belief_crossing(params, needed - 2e-3, 0.041, 5, 0.9, 4)
     assert at[:-1].sum() >= 0.5 > below[:-1].sum()
+    # a prior already past the target crosses before any vocalization
+    assert belief_crossing(params, 0.5, 0.1, 5, params.pi / 2, 3)[0] == 1.0
     # no contrast: never enough
     assert agent_rate_the_belief_needs(params, 0.999, 1, 0.9, 3) is None
     with pytest.raises(ValueError, match="vocalizations = 41"):

@@ -141,8 +141,40 @@ def belief_crossing(
         by then. They sum to 1. Cost: O(``vocalizations``^3 x windows) floating-point
         operations (a dynamic programme over the active counts).
     """
-    p_agent = _check_probability(p_agent, "p_agent")
-    p_background = _check_probability(p_background, "p_background")
+    _check_crossing_arguments(p_agent, p_background, background_windows, target, vocalizations)
+    agent = agent_window_count(params)
+    threshold = math.log(target) - math.log1p(-target)
+    crossing = np.zeros(vocalizations + 2)
+    if float(log_odds(params, 0, 0, 0, 0)) > threshold:  # the prior alone is past the target
+        crossing[0] = 1.0
+        return crossing
+    # mass[p2, p3]: P(these active counts so far and no crossing yet)
+    mass = np.zeros((agent * vocalizations + 1, background_windows * (vocalizations + 1) + 1))
+    mass[0, 0] = 1.0
+    p2 = np.arange(mass.shape[0])[:, None]
+    p3 = np.arange(mass.shape[1])[None, :]
+    counted = [0, 0]  # agent and background windows counted so far
+    for made, is_agent in _crossing_schedule(agent, background_windows, vocalizations):
+        axis = 0 if is_agent else 1
+        mass = _count_window(mass, axis, p_agent if is_agent else p_background)
+        counted[axis] += 1
+        n2, n3 = counted
+        lam = log_odds(params, np.minimum(p2, n2), n2 - np.minimum(p2, n2),
+                       np.minimum(p3, n3), n3 - np.minimum(p3, n3))  # fmt: skip
+        crossed = (p2 <= n2) & (p3 <= n3) & (lam > threshold)
+        crossing[made] += mass[crossed].sum()
+        mass[crossed] = 0.0
+    crossing[-1] = mass.sum()
+    return crossing
+
+
+def _check_crossing_arguments(
+    p_agent: float, p_background: float, background_windows: int, target: float,
+    vocalizations: int,
+) -> None:  # fmt: skip
+    """ValueError naming the first argument of :func:`belief_crossing` that is wrong."""
+    _check_probability(p_agent, "p_agent")
+    _check_probability(p_background, "p_background")
     for value, name, most in (
         (background_windows, "background_windows", 1000),
         (vocalizations, "vocalizations", MAX_CROSSING_VOCALIZATIONS),
@@ -151,42 +183,26 @@ def belief_crossing(
             raise ValueError(f"{name} = {value!r}: must be a whole number in 0 .. {most}")
     if not 0.0 < target < 1.0:
         raise ValueError(f"target = {target!r}: must be in (0, 1)")
-    agent = agent_window_count(params)
-    threshold = math.log(target) - math.log1p(-target)
-    # mass[p2, p3]: P(counts so far and no crossing yet)
-    mass = np.zeros((agent * vocalizations + 1, background_windows * (vocalizations + 1) + 1))
-    mass[0, 0] = 1.0
-    p2 = np.arange(mass.shape[0])[:, None]
-    p3 = np.arange(mass.shape[1])[None, :]
-    crossing = np.zeros(vocalizations + 2)
-    n2 = n3 = 0
-    schedule = [(0, "background")] * background_windows + [
-        (n, period)
-        for n in range(1, vocalizations + 1)
-        for period in ["agent"] * agent + ["background"] * background_windows
+
+
+def _crossing_schedule(
+    agent_windows: int, background_windows: int, vocalizations: int
+) -> list[tuple[int, bool]]:
+    """(vocalizations made, an agent window?) of each counted window of the schedule, in order."""
+    per_vocalization = [True] * agent_windows + [False] * background_windows
+    return [(0, False)] * background_windows + [
+        (made, is_agent) for made in range(1, vocalizations + 1) for is_agent in per_vocalization
     ]
-    for made, period in schedule:
-        axis, p = (0, p_agent) if period == "agent" else (1, p_background)
-        shifted = np.roll(mass, 1, axis=axis)
-        if axis == 0:
-            shifted[0, :] = 0.0
-            n2 += 1
-        else:
-            shifted[:, 0] = 0.0
-            n3 += 1
-        mass = (1.0 - p) * mass + p * shifted
-        possible = (p2 <= n2) & (p3 <= n3)
-        lam = log_odds(params, np.minimum(p2, n2), n2 - np.minimum(p2, n2),
-                       np.minimum(p3, n3), n3 - np.minimum(p3, n3))  # fmt: skip
-        crossed = possible & (lam > threshold)
-        crossing[made] += mass[crossed].sum()
-        mass[crossed] = 0.0
-    if vocalizations == 0 and not background_windows:
-        lam0 = float(log_odds(params, 0, 0, 0, 0))
-        crossing[0] = 1.0 if lam0 > threshold else 0.0
-        mass[0, 0] = 1.0 - crossing[0]
-    crossing[-1] = mass.sum()
-    return crossing
+
+
+def _count_window(mass: np.ndarray, axis: int, p_active: float) -> np.ndarray:
+    """``mass`` after one more window counted along ``axis``, active with ``p_active``."""
+    shifted = np.roll(mass, 1, axis=axis)
+    if axis == 0:
+        shifted[0, :] = 0.0
+    else:
+        shifted[:, 0] = 0.0
+    return (1.0 - p_active) * mass + p_active * shifted
 
 
 def belief_median_vocalizations(crossing: np.ndarray) -> int | None:
