@@ -55,6 +55,50 @@ def test_a_stop_signal_while_a_node_loads_ends_it_with_status_0_and_no_traceback
             signal.signal(signum, handler)
 
 
+def test_a_stop_whose_exit_is_lost_while_a_node_loads_still_ends_it_quietly(
+    tmp_path: Path,
+) -> None:
+    """Python cannot raise from a ``__del__`` or a weakref callback, and importlib runs such.
+
+    A Ctrl-C handled there lost its ``SystemExit``: the node printed "Exception ignored
+    in ... Traceback" and went on starting (seen once in a launch stopped at start-up).
+    """
+    (tmp_path / "loading_node.py").write_text(
+        "import os, signal\n"
+        "class Stopper:\n"
+        "    def __del__(self):\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "        sum(range(1000))  # the handler runs here, inside __del__\n"
+        "Stopper()\n"
+        "def main():\n    print('main ran', flush=True)\n    return 3\n"
+    )
+    program = (
+        f"import sys; sys.path.insert(0, {str(tmp_path)!r})\n"
+        "from infomax_contingency.nodes import entry\n"
+        "sys.exit(entry.run_module('loading_node'))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                            timeout=60)  # fmt: skip
+    assert (result.returncode, result.stdout, result.stderr) == (0, "", "")
+
+
+def test_a_stop_lost_before_main_took_the_signals_is_a_stop_requested(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A lost stop inside ``main()``, before its StopSignals: the node stops at once."""
+    monkeypatch.setattr(entry, "_stop_came_while_starting", True)
+    ended: list[tuple[str, float]] = []
+    stop = runtime.StopSignals("probe", deadline_s=0.05,
+                               on_deadline=lambda *named: ended.append(named))  # fmt: skip
+    try:
+        stop.install()
+        assert stop.requested and stop.stopping_since is not None
+    finally:
+        stop.restore()
+        stop._watchdog.join(30)
+    assert ended == [("probe", 0.05)]
+
+
 def test_a_node_that_ends_ignoring_stop_signals_keeps_ignoring_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

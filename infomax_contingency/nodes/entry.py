@@ -17,6 +17,7 @@ test harness and the demo start their node processes so).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 import signal
@@ -61,7 +62,24 @@ def use_one_blas_thread(environ: MutableMapping[str, str] = os.environ) -> None:
         environ["OPENBLAS_NUM_THREADS"] = "1"
 
 
+_stop_came_while_starting = False
+
+
+def stopped_while_starting() -> bool:
+    """True once a stop signal came before the node's ``main()`` took the signals over.
+
+    The handler's ``SystemExit`` can be lost: Python cannot raise from a weakref callback
+    or a ``__del__`` (importlib runs such callbacks while it loads modules) and only
+    reports it. :func:`run_module` then ends the node once its module has loaded, and
+    :meth:`~infomax_contingency.nodes.runtime.StopSignals.install` takes it as a stop
+    requested if ``main()`` has already begun.
+    """
+    return _stop_came_while_starting
+
+
 def _stopped_while_starting(signum: int, frame: Any) -> None:
+    global _stop_came_while_starting
+    _stop_came_while_starting = True
     # The process ends: a second stop signal (the terminal's Ctrl-C and ros2 launch's
     # both reach a node) must not raise a KeyboardInterrupt on the way out.
     for stop_signal in STOP_SIGNALS:
@@ -69,18 +87,29 @@ def _stopped_while_starting(signum: int, frame: Any) -> None:
     raise SystemExit(0)
 
 
+def _quiet_about_a_lost_stop(unraisable: Any, report: Any = sys.__unraisablehook__) -> None:
+    """``sys.unraisablehook`` while a node starts: a lost stop's ``SystemExit`` is not news."""
+    if _stop_came_while_starting and unraisable.exc_type is SystemExit:
+        return
+    report(unraisable)
+
+
 def run_module(module: str) -> int:
     """Import ``module`` and return what its ``main()`` returns (the exit status).
 
     A stop signal before ``main()`` takes the signals over raises ``SystemExit(0)``; so
     does one that arrived while the process started with the signals blocked (a launcher
-    may block them across ``exec``: they wait until this function unblocks them).
+    may block them across ``exec``: they wait until this function unblocks them), and one
+    whose ``SystemExit`` was lost while the module loaded (:func:`stopped_while_starting`).
     Afterwards each signal goes back to its previous handler, unless ``main()`` left it
     with another one: a node that ends ignores both (``StopSignals.ignore_from_now_on``),
     so a second Ctrl-C while the interpreter shuts down raises nothing. A module that
     cannot load for want of an optional package is logged as one ERROR line (status 2).
     """
+    global _stop_came_while_starting
     previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
+    report = sys.unraisablehook
+    sys.unraisablehook = functools.partial(_quiet_about_a_lost_stop, report=report)
     try:
         # contingency.launch.py starts the nodes with both signals blocked, so that a Ctrl-C
         # while the interpreter itself starts (before this line) waits instead of raising a
@@ -94,11 +123,15 @@ def run_module(module: str) -> int:
 
             rclpy.logging.get_logger(module.rsplit(".", 1)[-1]).error(str(error))
             return 2
+        if _stop_came_while_starting:  # its SystemExit was lost while the module loaded
+            raise SystemExit(0)
         return main()
     finally:
         for signum, handler in previous.items():
             if signal.getsignal(signum) is _stopped_while_starting:
                 signal.signal(signum, handler)
+        sys.unraisablehook = report
+        _stop_came_while_starting = False
 
 
 def _entry(node: str) -> Any:

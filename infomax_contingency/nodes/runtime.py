@@ -168,6 +168,9 @@ class StopSignals:
                 pass
         if not self._watchdog.is_alive():
             self._watchdog.start()
+        entry = sys.modules.get("infomax_contingency.nodes.entry")
+        if entry is not None and entry.stopped_while_starting():
+            self._handle(signal.SIGINT, None)  # a stop that came before, its exit lost
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
