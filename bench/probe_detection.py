@@ -1,4 +1,4 @@
-"""Two probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+"""Three probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
 ``levels``: an observation richer than one bit. Each window of the default runs gets one
 of three levels, referenced to the room's background windows like the default bit
@@ -17,12 +17,17 @@ a vocalization are compared with the background windows the model takes as their
 reference; ``--controller`` puts another controller in the optimal table's place (one
 that ignores the bits: ``random:0.125``, ``fixed:8``).
 
+``table``: how one more active bit, of the background or of the agent period, changes the
+optimal table's decision at the first background timer value, over statistics sampled as
+in an empty room.
+
 Run from the repository root::
 
     .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
         [--no-reference]
     .venv/bin/python bench/probe_detection.py timer [--rooms street,...] [--runs 100]
         [--controller random:0.125]
+    .venv/bin/python bench/probe_detection.py table
 """
 
 from __future__ import annotations
@@ -37,7 +42,8 @@ from scipy.special import gammaln
 
 from infomax_contingency.audio.background import rank_for
 from infomax_contingency.audio.bitsources.background import LEAST_RANK
-from infomax_contingency.core.model import AGENT, BACKGROUND, ModelParams, period_of
+from infomax_contingency.core.model import AGENT, BACKGROUND, ModelParams, Statistic, period_of
+from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.eval.rooms import controller_specs, run_room
 from infomax_contingency.eval.rooms.running import RoomRun
 from infomax_contingency.eval.rooms.scoring import postures, settled_step
@@ -193,10 +199,37 @@ LEVELS_ROOMS = "tv-on+partner,living-room+partner,open-office+partner,street,hom
 """Rooms of the ``levels`` probe by default: where the default misses a target."""
 
 
+def probe_table(params: ModelParams, samples: int) -> None:
+    """Print the ``table`` probe: how one more active bit changes the table's decision at z = 5.
+
+    Statistics sampled as in an empty room's sliding memory (``n2 + n3 <= 60``, bits active
+    with probability 0.05), at the first background timer value.
+    """
+    table = PolicyTable.load(controller_specs(params, ["optimal"])[0][1].removeprefix("policy:"))
+    rng = np.random.default_rng(1)
+    z = params.ta2 + 1
+    asks = {"background": [0, 0], "agent": [0, 0]}  # [asks where it would not, stays silent]
+    for _ in range(samples):
+        n2 = int(rng.integers(1, 25))
+        n3 = int(rng.integers(1, 61 - n2))
+        p2, p3 = int(rng.binomial(n2 - 1, 0.05)), int(rng.binomial(n3 - 1, 0.05))
+        before = table.action(Statistic(z, p2, n2 - p2, p3, n3 - p3))
+        for period, after in (
+            ("background", table.action(Statistic(z, p2, n2 - p2, p3 + 1, n3 - p3 - 1))),
+            ("agent", table.action(Statistic(z, p2 + 1, n2 - p2 - 1, p3, n3 - p3))),
+        ):
+            asks[period][0] += after > before
+            asks[period][1] += after < before
+    for period, (more, fewer) in asks.items():
+        print(f"one more active {period} bit: asks where it would not have in {more / samples:.1%},"
+              f" stays silent where it would have asked in {fewer / samples:.1%}"
+              f" of {samples} statistics")  # fmt: skip
+
+
 def main() -> None:
     """Parse the command line and print the chosen probe."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("probe", choices=("levels", "timer"))
+    parser.add_argument("probe", choices=("levels", "timer", "table"))
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
     parser.add_argument("--shares", default="0.25,0.5", help="levels: shares for level 1")
@@ -216,6 +249,8 @@ def main() -> None:
         rooms = args.rooms or LEVELS_ROOMS
         shares = [float(s) for s in args.shares.split(",")]
         probe_levels(params, rooms.split(","), args.runs, shares, not args.no_reference)
+    elif args.probe == "table":
+        probe_table(params, 20000)
     else:
         rooms = args.rooms or "street,home-office,crowd-grows,office"
         probe_timer(params, rooms.split(","), args.runs, args.controller)
