@@ -1,7 +1,10 @@
-"""A process that ends with its parent: the parent-death signal and a liveness check.
+"""A process that ends with its parent, and one stopped while it starts.
 
-No rclpy, no package imports: node processes (:mod:`~infomax_contingency.nodes.runtime`)
-and the experiments' worker processes (:mod:`~infomax_contingency.eval.workers`) use it.
+The parent-death signal and a liveness check; and whether a stop signal came while a node
+process was still starting (:func:`note_stop_while_starting`). No rclpy, no package
+imports: node processes (:mod:`~infomax_contingency.nodes.entry`,
+:mod:`~infomax_contingency.nodes.runtime`) and the experiments' worker processes
+(:mod:`~infomax_contingency.eval.workers`) use it.
 """
 
 from __future__ import annotations
@@ -43,3 +46,20 @@ def process_alive(pid: int) -> bool:
             return True
         return True
     return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+
+
+_stop_while_starting = [False]  # one per process, however the node's entry module was run
+
+
+def note_stop_while_starting(came: bool = True) -> None:
+    """Note (``came``) or forget that a stop signal came before the node's ``main()`` took over.
+
+    Kept here rather than in :mod:`~infomax_contingency.nodes.entry`: run with ``python -m``,
+    that module is ``__main__``, and the node's own modules import a second copy of it.
+    """
+    _stop_while_starting[0] = came
+
+
+def stop_came_while_starting() -> bool:
+    """True once :func:`note_stop_while_starting` noted a stop (until it is forgotten)."""
+    return _stop_while_starting[0]

@@ -6,6 +6,7 @@ while a node is still loading ends it quietly.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import signal
 import subprocess
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from infomax_contingency import lifetime
 from infomax_contingency.nodes import entry, runtime
 
 
@@ -85,8 +87,23 @@ def test_a_stop_whose_exit_is_lost_while_a_node_loads_still_ends_it_quietly(
 def test_a_stop_lost_before_main_took_the_signals_is_a_stop_requested(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A lost stop inside ``main()``, before its StopSignals: the node stops at once."""
-    monkeypatch.setattr(entry, "_stop_came_while_starting", True)
+    """A lost stop inside ``main()``, before its StopSignals: the node stops at once.
+
+    The entry module may run as ``__main__`` (``python -m``) beside a second copy that the
+    node's modules import: the stop is noted where both copies see it.
+    """
+    monkeypatch.setattr(lifetime, "_stop_while_starting", [False])  # the original kept as it is
+    spec = importlib.util.spec_from_file_location("entry_as_main", entry.__file__)
+    entry_as_main = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(entry_as_main)
+    before = {s: signal.getsignal(s) for s in entry.STOP_SIGNALS}
+    try:
+        with pytest.raises(SystemExit):
+            entry_as_main._stopped_while_starting(signal.SIGINT, None)
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler)
+    assert entry.stopped_while_starting()
     ended: list[tuple[str, float]] = []
     stop = runtime.StopSignals("probe", deadline_s=0.05,
                                on_deadline=lambda *named: ended.append(named))  # fmt: skip

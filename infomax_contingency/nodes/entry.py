@@ -26,6 +26,7 @@ from collections.abc import MutableMapping
 from typing import Any
 
 from infomax_contingency.errors import MissingPackageError
+from infomax_contingency.lifetime import note_stop_while_starting, stop_came_while_starting
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -62,9 +63,6 @@ def use_one_blas_thread(environ: MutableMapping[str, str] = os.environ) -> None:
         environ["OPENBLAS_NUM_THREADS"] = "1"
 
 
-_stop_came_while_starting = False
-
-
 def stopped_while_starting() -> bool:
     """True once a stop signal came before the node's ``main()`` took the signals over.
 
@@ -74,12 +72,11 @@ def stopped_while_starting() -> bool:
     :meth:`~infomax_contingency.nodes.runtime.StopSignals.install` takes it as a stop
     requested if ``main()`` has already begun.
     """
-    return _stop_came_while_starting
+    return stop_came_while_starting()
 
 
 def _stopped_while_starting(signum: int, frame: Any) -> None:
-    global _stop_came_while_starting
-    _stop_came_while_starting = True
+    note_stop_while_starting()
     # The process ends: a second stop signal (the terminal's Ctrl-C and ros2 launch's
     # both reach a node) must not raise a KeyboardInterrupt on the way out.
     for stop_signal in STOP_SIGNALS:
@@ -88,8 +85,12 @@ def _stopped_while_starting(signum: int, frame: Any) -> None:
 
 
 def _quiet_about_a_lost_stop(unraisable: Any, report: Any = sys.__unraisablehook__) -> None:
-    """``sys.unraisablehook`` while a node starts: a lost stop's ``SystemExit`` is not news."""
-    if _stop_came_while_starting and unraisable.exc_type is SystemExit:
+    """``sys.unraisablehook`` while :func:`run_module` runs: a lost stop's exit is not news.
+
+    Only a ``SystemExit`` after a stop signal came while starting is kept quiet; everything
+    else goes to ``report`` (the hook before).
+    """
+    if stop_came_while_starting() and unraisable.exc_type is SystemExit:
         return
     report(unraisable)
 
@@ -106,10 +107,9 @@ def run_module(module: str) -> int:
     so a second Ctrl-C while the interpreter shuts down raises nothing. A module that
     cannot load for want of an optional package is logged as one ERROR line (status 2).
     """
-    global _stop_came_while_starting
     previous = {signum: signal.signal(signum, _stopped_while_starting) for signum in STOP_SIGNALS}
     report = sys.unraisablehook
-    sys.unraisablehook = functools.partial(_quiet_about_a_lost_stop, report=report)
+    quiet = sys.unraisablehook = functools.partial(_quiet_about_a_lost_stop, report=report)
     try:
         # contingency.launch.py starts the nodes with both signals blocked, so that a Ctrl-C
         # while the interpreter itself starts (before this line) waits instead of raising a
@@ -123,15 +123,16 @@ def run_module(module: str) -> int:
 
             rclpy.logging.get_logger(module.rsplit(".", 1)[-1]).error(str(error))
             return 2
-        if _stop_came_while_starting:  # its SystemExit was lost while the module loaded
+        if stop_came_while_starting():  # its SystemExit was lost while the module loaded
             raise SystemExit(0)
         return main()
     finally:
         for signum, handler in previous.items():
             if signal.getsignal(signum) is _stopped_while_starting:
                 signal.signal(signum, handler)
-        sys.unraisablehook = report
-        _stop_came_while_starting = False
+        if sys.unraisablehook is quiet:  # unless main() put in a hook of its own
+            sys.unraisablehook = report
+        note_stop_while_starting(False)
 
 
 def _entry(node: str) -> Any:

@@ -28,7 +28,11 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from infomax_contingency.errors import USER_ERRORS
-from infomax_contingency.lifetime import process_alive, signal_when_parent_dies
+from infomax_contingency.lifetime import (
+    process_alive,
+    signal_when_parent_dies,
+    stop_came_while_starting,
+)
 from infomax_contingency.nodes.parameters import params_files, undeclared_parameters
 
 SPIN_TIMEOUT_S = 0.1
@@ -168,9 +172,8 @@ class StopSignals:
                 pass
         if not self._watchdog.is_alive():
             self._watchdog.start()
-        entry = sys.modules.get("infomax_contingency.nodes.entry")
-        if entry is not None and entry.stopped_while_starting():
-            self._handle(signal.SIGINT, None)  # a stop that came before, its exit lost
+        if stop_came_while_starting():  # a stop that came before, its exit lost
+            self._handle(signal.SIGINT, None)
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
