@@ -133,3 +133,9 @@ def test_the_belief_needs_more_than_the_bound_and_its_need_is_met_exactly() -> N
     bound = information_bound(0.41, 0.041, params, 0.9, background_windows=5)
     assert bound["belief"]["median_vocalizations"] == median
     assert information_bound(0.41, 0.041, params, 0.9)["belief"] is None
+    # a target beyond the vocalizations followed for the median is followed too
+    late = information_bound(0.2, 0.041, params, 0.9, (3, 25), background_windows=5)["belief"]
+    exact = belief_crossing(params, 0.2, 0.041, 5, 0.9, 25)[:26].sum()
+    assert late["p_crossed_by"]["25"] == pytest.approx(exact) and exact < 0.99
+    with pytest.raises(ValueError, match="above 40"):
+        information_bound(0.41, 0.041, params, 0.9, (3, 41), background_windows=5)

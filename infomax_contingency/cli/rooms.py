@@ -19,8 +19,15 @@ from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.cli.formatting import json_default, number
 from infomax_contingency.eval import plots
 from infomax_contingency.eval import rooms as evaluation
+from infomax_contingency.eval.information import (
+    CROSSING_VOCALIZATIONS_FOLLOWED,
+    VOCALIZATION_TARGETS,
+)
 from infomax_contingency.sim.actions import write_actions_csv
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES
+
+_TARGETS = " / ".join(str(n) for n in VOCALIZATION_TARGETS)
+"""The vocalization targets the bounds are printed for, as the header names them."""
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -110,7 +117,7 @@ def print_rooms(result: dict) -> None:
         "\ninformation bound (known rates): per vocalization with the partner there,"
         " agent windows x KL(Bern(P agent) || Bern(P background)) nats; vocalizations to"
         f" P(S=1) = {config['attentive_above']:g} from the prior {result['params_pi']:g}"
-        " at least; P(agent) the bound needs for 3 / 4 / 6 vocalizations"
+        f" at least; P(agent) the bound needs for {_TARGETS} vocalizations"
     )
     for label in result["controllers"]:
         for background, bound in result.get("information_bound", {}).get(label, {}).items():
@@ -131,8 +138,8 @@ def _print_belief_figures(result: dict) -> None:
     config = result["config"]
     print(
         "\nthe model's belief on independent bits at those rates (exact): median vocalizations"
-        f" to P(S=1) = {config['attentive_above']:g}; chance by 3 / 4 / 6 vocalizations;"
-        " P(agent) it needs for a median of 3 / 4 / 6"
+        f" to P(S=1) = {config['attentive_above']:g}; chance by {_TARGETS} vocalizations;"
+        f" P(agent) it needs for a median of {_TARGETS}"
     )
     for label in result["controllers"]:
         for background, bound in result.get("information_bound", {}).get(label, {}).items():
@@ -144,10 +151,12 @@ def _print_belief_figures(result: dict) -> None:
                 "none" if p is None else f"{p:.2f}" for p in belief["p_agent_needed"].values()
             )
             median = belief["median_vocalizations"]
+            median_text = f"> {CROSSING_VOCALIZATIONS_FOLLOWED}" if median is None else median
+            targets = " / ".join(belief["p_crossed_by"])
             print(
                 f"  {label[:22]:<22} {background:<15} {belief['background_windows']} background"
-                f" windows per vocalization: median {'> 20' if median is None else median};"
-                f" by 3 / 4 / 6: {chances}; needs {needed}"
+                f" windows per vocalization: median {median_text};"
+                f" by {targets}: {chances}; needs {needed}"
             )
 
 

@@ -10,7 +10,10 @@ import numpy as np
 
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.experiments.summaries import bootstrap_median, wilson_interval
-from infomax_contingency.eval.information import information_bound
+from infomax_contingency.eval.information import (
+    MAX_CROSSING_BACKGROUND_WINDOWS,
+    information_bound,
+)
 from infomax_contingency.eval.rooms.config import RoomsConfig
 
 
@@ -139,6 +142,6 @@ def contrast_bounds(
             rates["background"]["p"],
             params,
             config.attentive_above,
-            background_windows=min(round(per_vocalization), 1000),
+            background_windows=min(round(per_vocalization), MAX_CROSSING_BACKGROUND_WINDOWS),
         )
     return out
