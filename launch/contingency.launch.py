@@ -86,6 +86,14 @@ PARENT_PID_VARIABLE = "INFOMAX_CONTINGENCY_PARENT_PID"
 """What names the process a node ends with (``nodes/runtime.PARENT_PID_VARIABLE``; not
 imported, so that loading this file loads nothing of the package)."""
 
+NODE_STOP_DEADLINE_S = 20.0
+"""Seconds a node takes at most to end after its stop signal (``nodes/runtime.STOP_DEADLINE_S``;
+not imported, as above). ``ros2 launch`` escalates a Ctrl-C to SIGTERM after
+``sigterm_timeout`` (5 s) and to SIGKILL after ``sigkill_timeout`` more; that wait is this
+long, so a node slow to stop on a loaded machine (its stop waits up to 5 s for
+acknowledgments and queued samples) finishes its stop, or ends itself with one line,
+rather than being killed halfway (seen once: mic_node killed, status -9, under load)."""
+
 BOOLEAN_CHOICES = ["true", "false"]
 """The values of the true/false launch arguments; ``ros2 launch`` refuses any other."""
 
@@ -245,6 +253,7 @@ def _graph(context: LaunchContext) -> list:
             additional_env={PARENT_PID_VARIABLE: str(os.getpid())},
             output="screen",
             emulate_tty=True,
+            sigkill_timeout=str(NODE_STOP_DEADLINE_S),
         )
 
     record = _is_true(context, "record")

@@ -201,6 +201,8 @@ def test_launch_file_starts_the_installed_executables_with_installed_config() ->
     for config in ("robot.yaml", "fake_room.yaml"):
         assert config in strings and (ROOT / "config" / config).is_file()
     # The nodes end with the launch: the variable they read (not imported by the file).
-    from infomax_contingency.nodes.runtime import PARENT_PID_VARIABLE
+    from infomax_contingency.nodes.runtime import PARENT_PID_VARIABLE, STOP_DEADLINE_S
 
     assert PARENT_PID_VARIABLE in strings
+    # ... and are killed only after their own stop deadline (also not imported)
+    assert STOP_DEADLINE_S in strings
