@@ -1,4 +1,4 @@
-"""Three probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+"""Four probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
 ``levels``: an observation richer than one bit. Each window of the default runs gets one
 of three levels, referenced to the room's background windows like the default bit
@@ -18,8 +18,12 @@ reference; ``--controller`` puts another controller in the optimal table's place
 that ignores the bits: ``random:0.125``, ``fixed:8``).
 
 ``table``: how one more active bit, of the background or of the agent period, changes the
-optimal table's decision at the first background timer value, over statistics sampled as
-in an empty room.
+optimal table's decision at the background timer value, over statistics sampled as in an
+empty room.
+
+``decisions``: the background windows the robot decided to vocalize on, against all
+background windows (active share, median level), and the agent windows' active share;
+``--controller`` as for ``timer``.
 
 Run from the repository root::
 
@@ -28,6 +32,8 @@ Run from the repository root::
     .venv/bin/python bench/probe_detection.py timer [--rooms street,...] [--runs 100]
         [--controller random:0.125]
     .venv/bin/python bench/probe_detection.py table
+    .venv/bin/python bench/probe_detection.py decisions [--rooms street,tv-on+partner]
+        [--controller fixed:8]
 """
 
 from __future__ import annotations
@@ -45,12 +51,15 @@ from infomax_contingency.audio.bitsources.background import LEAST_RANK
 from infomax_contingency.core.model import AGENT, BACKGROUND, ModelParams, Statistic, period_of
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.eval.rooms import controller_specs, run_room
+from infomax_contingency.eval.rooms.config import RoomsConfig
 from infomax_contingency.eval.rooms.running import RoomRun
 from infomax_contingency.eval.rooms.scoring import postures, settled_step
 from infomax_contingency.sim.fake_room import FakeRoomConfig
 
 HISTORY_WINDOWS = 60
 """Background windows a level's threshold is taken over (the default source's 30 s)."""
+BELIEF_MEMORY = RoomsConfig().memory
+"""The belief's sliding memory, steps, as in ``experiment rooms``."""
 WARMUP_WINDOWS = 8
 """Background windows known before a window can be given level 1."""
 REFERENCE_MARGIN_DB = 3.0
@@ -143,10 +152,10 @@ def probe_levels(
         partner_room = room.endswith("+partner")
         results: dict[str, list] = {"one bit": []} | {f"3 levels, share {s:g}": [] for s in shares}
         for k in range(runs):
-            run = run_room(params, room, spec, "background", 60.0, 0, k, HISTORY_WINDOWS)
+            run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
             bit_log_odds = belief_log_odds(
                 params, run, run.y.astype(int), 2, np.array([params.b22, params.b21]),
-                np.array([params.b32, params.b31]), HISTORY_WINDOWS,
+                np.array([params.b32, params.b31]), BELIEF_MEMORY,
             )  # fmt: skip
             if not np.allclose(bit_log_odds, run.log_odds):
                 raise SystemExit("the Dirichlet belief on one bit differs from the model's")
@@ -155,7 +164,7 @@ def probe_levels(
                 shares_set = np.array([1 - share, share - false_alarm, false_alarm])
                 log_odds = belief_log_odds(
                     params, run, levels_of(params, run, share, reference), 3, np.ones(3),
-                    BACKGROUND_PRIOR_WINDOWS * shares_set, HISTORY_WINDOWS,
+                    BACKGROUND_PRIOR_WINDOWS * shares_set, BELIEF_MEMORY,
                 )  # fmt: skip
                 results[f"3 levels, share {share:g}"].append(outcome(run, log_odds, partner_room))
         for name, values in results.items():
@@ -186,7 +195,7 @@ def probe_timer(params: ModelParams, rooms: list[str], runs: int, controller: st
             FakeRoomConfig.preset = staticmethod(room_config)  # type: ignore[method-assign]
             try:
                 for k in range(runs):
-                    run = run_room(params, room, spec, "background", 60.0, 0, k, HISTORY_WINDOWS)
+                    run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
                     for z in timers:
                         active[z].extend(run.y[run.z == z].tolist())
             finally:
@@ -199,11 +208,43 @@ LEVELS_ROOMS = "tv-on+partner,living-room+partner,open-office+partner,street,hom
 """Rooms of the ``levels`` probe by default: where the default misses a target."""
 
 
+def probe_decisions(params: ModelParams, rooms: list[str], runs: int, controller: str) -> None:
+    """Print the ``decisions`` probe: the windows the robot decided to ask on, against the rest.
+
+    Per room: the share of active bits and the median level (dB) of the background windows
+    on which the controller decided to vocalize, and of all background windows; and the
+    share of active agent-period bits after those decisions.
+    """
+    spec = controller_specs(params, ["optimal"])[0][1] if controller == "optimal" else controller
+    for room in rooms:
+        decided: list[tuple[int, float]] = []
+        background: list[tuple[int, float]] = []
+        agent: list[int] = []
+        for k in range(runs):
+            run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
+            periods = period_of(params, run.z)
+            for t in range(run.y.size):
+                if periods[t] == BACKGROUND:
+                    window = (int(run.y[t]), float(run.energy_db[t]))
+                    background.append(window)
+                    if run.u[t]:
+                        decided.append(window)
+            agent.extend(run.y[periods == AGENT].tolist())
+        cells = []
+        for name, windows in (("decided on", decided), ("all background", background)):
+            bits, levels = zip(*windows, strict=True) if windows else ((), ())
+            cells.append(f"{name}: {np.mean(bits):.3f} active, median {np.median(levels):.1f} dB"
+                         f" ({len(windows)})")  # fmt: skip
+        print(f"{room:<16} {controller[:12]:<12} " + "; ".join(cells)
+              + f"; agent windows {np.mean(agent):.3f} active")  # fmt: skip
+
+
 def probe_table(params: ModelParams, samples: int) -> None:
-    """Print the ``table`` probe: how one more active bit changes the table's decision at z = 5.
+    """Print the ``table`` probe: how one more active bit changes the table's decision.
 
     Statistics sampled as in an empty room's sliding memory (``n2 + n3 <= 60``, bits active
-    with probability 0.05), at the first background timer value.
+    with probability 0.05), at the background timer value ``z = ta2 + 1`` (where the
+    timer stays until the robot vocalizes).
     """
     table = PolicyTable.load(controller_specs(params, ["optimal"])[0][1].removeprefix("policy:"))
     rng = np.random.default_rng(1)
@@ -229,7 +270,7 @@ def probe_table(params: ModelParams, samples: int) -> None:
 def main() -> None:
     """Parse the command line and print the chosen probe."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("probe", choices=("levels", "timer", "table"))
+    parser.add_argument("probe", choices=("levels", "timer", "table", "decisions"))
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
     parser.add_argument("--shares", default="0.25,0.5", help="levels: shares for level 1")
@@ -251,6 +292,9 @@ def main() -> None:
         probe_levels(params, rooms.split(","), args.runs, shares, not args.no_reference)
     elif args.probe == "table":
         probe_table(params, 20000)
+    elif args.probe == "decisions":
+        rooms = args.rooms or "street,tv-on+partner"
+        probe_decisions(params, rooms.split(","), args.runs, args.controller)
     else:
         rooms = args.rooms or "street,home-office,crowd-grows,office"
         probe_timer(params, rooms.split(","), args.runs, args.controller)
