@@ -40,14 +40,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import heapq
 import math
 
 import numpy as np
 from scipy.special import gammaln
 
-from infomax_contingency.audio.background import rank_for
+from infomax_contingency.audio.background import BackgroundThreshold
 from infomax_contingency.audio.bitsources.background import LEAST_RANK
+from infomax_contingency.audio.common import AudioError
 from infomax_contingency.core.model import AGENT, BACKGROUND, ModelParams, Statistic, period_of
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.eval.rooms import controller_specs, run_room
@@ -91,24 +91,21 @@ def dirichlet_log_odds(
 def levels_of(params: ModelParams, run: RoomRun, share: float, reference: bool) -> np.ndarray:
     """Level 0, 1 or 2 of each step of ``run`` (the module's docstring).
 
-    With ``reference``, level 1 is also held to the default source's reference: louder than
-    the window the robot's last sound followed (agent windows), or than the window as far
-    back (others), by :data:`REFERENCE_MARGIN_DB`.
+    Level 1 is the default source's own rule (:class:`BackgroundThreshold`) at the false-alarm
+    share ``share``, fed the run's windows and decisions; with ``reference`` it keeps the
+    source's reference rule (louder than the window the robot's last sound followed, by
+    :data:`REFERENCE_MARGIN_DB`), without it not.
     """
-    known: list[tuple[int, float]] = []
+    rule = BackgroundThreshold(
+        params.ts1, params.ts2, params.ta2, false_alarm=share, history=HISTORY_WINDOWS,
+        warmup_windows=WARMUP_WINDOWS, ta1=params.ta1, reference=reference,
+        reference_margin_db=REFERENCE_MARGIN_DB, least_rank=LEAST_RANK,
+    )  # fmt: skip
     levels = np.where(run.y == 1, 2, 0)
-    by_window = dict(zip(run.window.tolist(), run.energy_db.tolist(), strict=True))
-    span = params.ta2 - params.ta1 + 1
-    for t, (window, level) in enumerate(zip(run.window, run.energy_db, strict=True)):
-        usable = [lv for w, lv in known if w <= window - (params.ta2 + 1)][-HISTORY_WINDOWS:]
-        if not run.y[t] and len(usable) >= WARMUP_WINDOWS:
-            kth = heapq.nlargest(rank_for(share, len(usable), LEAST_RANK), usable)[-1]
-            z = int(run.z[t])
-            back = z + 1 if params.ta1 <= z <= params.ta2 else params.ta1 + 1 + window % span
-            before = by_window.get(int(window) - back, -math.inf) if reference else -math.inf
-            levels[t] = int(level > kth and level > before + REFERENCE_MARGIN_DB)
-        if run.z[t] > params.ta2:
-            known.append((int(window), float(level)))
+    for t, (level, decision) in enumerate(zip(run.energy_db, run.u, strict=True)):
+        louder = rule.push(float(level), decision=int(decision))
+        if not run.y[t] and louder:
+            levels[t] = 1
     return levels
 
 
@@ -285,10 +282,22 @@ def main() -> None:
         help="levels: level 1 without the reference to an earlier window",
     )
     args = parser.parse_args()
+    if args.runs < 1:
+        parser.error(f"--runs must be at least 1, got {args.runs}")
+    try:
+        run_probe(args)
+    except (ValueError, AudioError) as error:  # a bad room, share or controller: one line
+        parser.error(str(error))
+
+
+def run_probe(args: argparse.Namespace) -> None:
+    """Run the probe ``args`` name (ValueError or AudioError for a bad room, share, controller)."""
     params = ModelParams.named("robot")
     if args.probe == "levels":
         rooms = args.rooms or LEVELS_ROOMS
         shares = [float(s) for s in args.shares.split(",")]
+        if not all(0.05 < share <= 0.5 for share in shares):
+            raise ValueError(f"--shares must lie in (0.05, 0.5] (above the bit's), got {shares}")
         probe_levels(params, rooms.split(","), args.runs, shares, not args.no_reference)
     elif args.probe == "table":
         probe_table(params, 20000)
