@@ -1,4 +1,4 @@
-"""Four probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+"""Six probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
 ``levels``: an observation richer than one bit. Each window of the default runs gets one
 of three levels, referenced to the room's background windows like the default bit
@@ -25,6 +25,19 @@ empty room.
 background windows (active share, median level), and the agent windows' active share;
 ``--controller`` as for ``timer``.
 
+``context``: a belief for windows that are not independent. Each counted window's context
+is the bit of the counted window before it (0 for the first); the bits are a Markov chain:
+under S = 0 every counted window is active with probability ``K3[c]`` in context ``c``,
+under S = 1 the agent period's with ``K2[c]`` and the background's with ``K3[c]``, each
+with its own Beta prior (the model's for context 0; for context 1 the agent's and
+``--context-prior`` for the background). The exact posterior, recomputed on the default
+runs like ``levels``; ``average`` is the Bayesian average (even odds) of this model and
+the model's independent windows.
+
+``gate``: the optimal table, but a vocalization it decides on an active window is put off
+to the next quiet one (the robot never asks while the room is loud); the bit source and
+the belief are the default's.
+
 Run from the repository root::
 
     .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
@@ -34,13 +47,18 @@ Run from the repository root::
     .venv/bin/python bench/probe_detection.py table
     .venv/bin/python bench/probe_detection.py decisions [--rooms street,tv-on+partner]
         [--controller fixed:8]
+    .venv/bin/python bench/probe_detection.py context [--rooms ...] [--runs 100]
+        [--context-prior 1,1]
+    .venv/bin/python bench/probe_detection.py gate [--rooms ...] [--runs 100]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
+from collections.abc import Iterator
 
 import numpy as np
 from scipy.special import gammaln
@@ -48,9 +66,18 @@ from scipy.special import gammaln
 from infomax_contingency.audio.background import BackgroundThreshold
 from infomax_contingency.audio.bitsources.background import LEAST_RANK
 from infomax_contingency.audio.common import AudioError
-from infomax_contingency.core.model import AGENT, BACKGROUND, ModelParams, Statistic, period_of
+from infomax_contingency.core.controllers import Controller, PolicyController
+from infomax_contingency.core.model import (
+    AGENT,
+    BACKGROUND,
+    ModelParams,
+    Statistic,
+    Withheld,
+    period_of,
+)
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.eval.rooms import controller_specs, run_room
+from infomax_contingency.eval.rooms import running as rooms_running
 from infomax_contingency.eval.rooms.config import RoomsConfig
 from infomax_contingency.eval.rooms.running import RoomRun
 from infomax_contingency.eval.rooms.scoring import postures, settled_step
@@ -201,8 +228,189 @@ def probe_timer(params: ModelParams, rooms: list[str], runs: int, controller: st
             print(f"{room:<14} {'chirp muted' if muted else 'as played':<12} {cells}")
 
 
+def log_beta_bernoulli(prior: tuple[float, float], active: float, quiet: float) -> float:
+    """Log marginal likelihood of a bit sequence with these counts under a Beta prior."""
+    a, b = prior
+    return float(gammaln(a + active) + gammaln(b + quiet) - gammaln(a + b + active + quiet)
+                 - gammaln(a) - gammaln(b) + gammaln(a + b))  # fmt: skip
+
+
+def context_log_odds(
+    params: ModelParams, run: RoomRun, contexts: np.ndarray,
+    background_active_prior: tuple[float, float], average: bool,
+) -> np.ndarray:  # fmt: skip
+    """Log odds of S = 1 after each step under the ``context`` probe's Markov model.
+
+    ``contexts``: each step's context (0/1); the last :data:`BELIEF_MEMORY` counted windows
+    count, as for the belief node. With ``average`` the odds are those of the Bayesian
+    average (even prior odds) of this model and the model's independent windows.
+    """
+    agent_prior = (params.b21, params.b22)
+    background_priors = ((params.b31, params.b32), background_active_prior)
+    periods = period_of(params, run.z)
+    counted: list[tuple[int, int, int]] = []
+    prior_odds = math.log(params.pi) - math.log1p(-params.pi)
+    out = np.zeros(run.y.size)
+    for t, period in enumerate(periods):
+        if period in (AGENT, BACKGROUND):
+            counted = [*counted, (0 if period == AGENT else 1, int(contexts[t]), int(run.y[t]))]
+            counted = counted[-BELIEF_MEMORY:]
+        n = np.zeros((2, 2, 2))  # [agent 0 / background 1, context, bit]
+        for which, context, bit in counted:
+            n[which, context, bit] += 1
+        markov_partner = sum(
+            log_beta_bernoulli(agent_prior, n[0, c, 1], n[0, c, 0])
+            + log_beta_bernoulli(background_priors[c], n[1, c, 1], n[1, c, 0])
+            for c in (0, 1)
+        )
+        markov_none = sum(
+            log_beta_bernoulli(
+                background_priors[c], n[0, c, 1] + n[1, c, 1], n[0, c, 0] + n[1, c, 0]
+            )
+            for c in (0, 1)
+        )
+        if not average:
+            out[t] = prior_odds + markov_partner - markov_none
+            continue
+        agent, background = n[0].sum(axis=0), n[1].sum(axis=0)
+        independent_partner = log_beta_bernoulli(
+            agent_prior, agent[1], agent[0]
+        ) + log_beta_bernoulli(background_priors[0], background[1], background[0])
+        independent_none = log_beta_bernoulli(
+            background_priors[0], agent[1] + background[1], agent[0] + background[0]
+        )
+        out[t] = (
+            prior_odds
+            + np.logaddexp(independent_partner, markov_partner)
+            - np.logaddexp(independent_none, markov_none)
+        )
+    return out
+
+
+def previous_counted_bits(params: ModelParams, run: RoomRun) -> np.ndarray:
+    """Each step's context: the bit of the counted window before it (0 for the first)."""
+    periods = period_of(params, run.z)
+    contexts = np.zeros(run.y.size, dtype=int)
+    last = 0
+    for t, period in enumerate(periods):
+        contexts[t] = last
+        if period in (AGENT, BACKGROUND):
+            last = int(run.y[t])
+    return contexts
+
+
+def print_outcomes(room: str, name: str, values: list, runs: int) -> None:
+    """One line: settled share and median vocalizations, or the share ever attentive."""
+    if room.endswith("+partner"):
+        settled = [v for v in values if v is not None]
+        median = np.median([math.inf if v is None else v for v in values])
+        print(f"{room:<24} {name:<30} settled {len(settled)}/{runs}, median"
+              f" vocalizations {median:g} (a run never settled counts as inf)")  # fmt: skip
+    else:
+        print(f"{room:<24} {name:<30} ever attentive {sum(values)}/{runs}")
+
+
+def probe_context(
+    params: ModelParams, rooms: list[str], runs: int, background_active_prior: tuple[float, float]
+) -> None:
+    """Print the ``context`` probe (the module's docstring)."""
+    spec = controller_specs(params, ["optimal"])[0][1]
+    variants = {"Markov": False, "average with independent": True}
+    for room in rooms:
+        partner_room = room.endswith("+partner")
+        results: dict[str, list] = {"independent (the default)": []} | {v: [] for v in variants}
+        cells = np.zeros((2, 2, 2))  # [agent 0 / background 1, context, bit] over the runs
+        for k in range(runs):
+            run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
+            no_context = context_log_odds(
+                params, run, np.zeros(run.y.size, dtype=int), background_active_prior, False
+            )
+            if not np.allclose(no_context, run.log_odds):
+                raise SystemExit("the Markov belief in one context differs from the model's")
+            results["independent (the default)"].append(outcome(run, run.log_odds, partner_room))
+            contexts = previous_counted_bits(params, run)
+            periods = period_of(params, run.z)
+            for which, period in enumerate((AGENT, BACKGROUND)):
+                for context in (0, 1):
+                    bits = run.y[(periods == period) & (contexts == context)]
+                    cells[which, context] += (np.sum(bits == 0), np.sum(bits == 1))
+            for name, average in variants.items():
+                odds = context_log_odds(params, run, contexts, background_active_prior, average)
+                results[name].append(outcome(run, odds, partner_room))
+        shares = "; ".join(
+            f"{period} after {'an active' if context else 'a quiet'} window"
+            f" {cells[which, context, 1] / max(cells[which, context].sum(), 1):.3f}"
+            f" ({cells[which, context].sum() / runs:.1f} per run)"
+            for which, period in enumerate(("agent", "background"))
+            for context in (0, 1)
+        )
+        print(f"{room:<24} active share: {shares}")
+        for name, values in results.items():
+            print_outcomes(room, name, values, runs)
+
+
+class QuietGatedController(PolicyController):
+    """The optimal table, but a vocalization decided on an active window is put off."""
+
+    def step(self, y: int | Withheld) -> int:
+        """As :meth:`PolicyController.step`, with u = 0 whenever the window's bit is 1."""
+        if self.table.mode != "receding":
+            raise ValueError("the gate probe needs a receding table")
+        statistic = self.tracker.observe_window(y)
+        u = 0 if y == 1 else int(self.decide(statistic))
+        self.tracker.act(u)
+        return u
+
+
+@contextlib.contextmanager
+def gated_tables() -> Iterator[None]:
+    """Within the block, the rooms experiment's table controllers are quiet-gated."""
+    make = rooms_running.experiment_controller
+
+    def gated(spec: str, params: ModelParams, rng: np.random.Generator) -> Controller:
+        controller = make(spec, params, rng)
+        if isinstance(controller, PolicyController):
+            return QuietGatedController(controller.table)
+        return controller
+
+    rooms_running.experiment_controller = gated  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        rooms_running.experiment_controller = make  # type: ignore[assignment]
+
+
+def probe_gate(params: ModelParams, rooms: list[str], runs: int) -> None:
+    """Print the ``gate`` probe (the module's docstring)."""
+    spec = controller_specs(params, ["optimal"])[0][1]
+    for room in rooms:
+        partner_room = room.endswith("+partner")
+        names = ("the table (the default)", "the table, quiet-gated")
+        results: dict[str, list] = {name: [] for name in names}
+        bits: dict[str, dict[int, list]] = {name: {AGENT: [], BACKGROUND: []} for name in names}
+        for k in range(runs):
+            for name in names:
+                with gated_tables() if name.endswith("gated") else contextlib.nullcontext():
+                    run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
+                if name.endswith("gated") and np.any(run.u[run.y == 1]):
+                    raise SystemExit("the gated table vocalized on an active window")
+                results[name].append(outcome(run, run.log_odds, partner_room))
+                periods = period_of(params, run.z)
+                for period in (AGENT, BACKGROUND):
+                    bits[name][period].extend(run.y[periods == period].tolist())
+        for name, values in results.items():
+            print_outcomes(room, name, values, runs)
+            print(f"{room:<24} {name:<30} active share: agent {np.mean(bits[name][AGENT]):.3f},"
+                  f" background {np.mean(bits[name][BACKGROUND]):.3f}")  # fmt: skip
+
+
 LEVELS_ROOMS = "tv-on+partner,living-room+partner,open-office+partner,street,home-office"
 """Rooms of the ``levels`` probe by default: where the default misses a target."""
+CONTEXT_ROOMS = (
+    "quiet+partner,office+partner,open-office+partner,tv-on+partner,living-room+partner,"
+    "street+partner,home-office+partner,street,home-office,crowd-grows,tv-switched-on"
+)
+"""Rooms of the ``context`` and ``gate`` probes: the missed targets and the fast rooms."""
 
 
 def probe_decisions(params: ModelParams, rooms: list[str], runs: int, controller: str) -> None:
@@ -267,7 +475,9 @@ def probe_table(params: ModelParams, samples: int) -> None:
 def main() -> None:
     """Parse the command line and print the chosen probe."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("probe", choices=("levels", "timer", "table", "decisions"))
+    parser.add_argument(
+        "probe", choices=("levels", "timer", "table", "decisions", "context", "gate")
+    )
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
     parser.add_argument("--shares", default="0.25,0.5", help="levels: shares for level 1")
@@ -280,6 +490,11 @@ def main() -> None:
         "--no-reference",
         action="store_true",
         help="levels: level 1 without the reference to an earlier window",
+    )
+    parser.add_argument(
+        "--context-prior",
+        default="1,1",
+        help="context: the Beta prior (a,b) on the background's rate after an active window",
     )
     args = parser.parse_args()
     if args.runs < 1:
@@ -299,6 +514,18 @@ def run_probe(args: argparse.Namespace) -> None:
         if not all(0.05 < share <= 0.5 for share in shares):
             raise ValueError(f"--shares must lie in (0.05, 0.5] (above the bit's), got {shares}")
         probe_levels(params, rooms.split(","), args.runs, shares, not args.no_reference)
+    elif args.probe in ("context", "gate"):
+        rooms = (args.rooms or CONTEXT_ROOMS).split(",")
+        if args.probe == "gate":
+            probe_gate(params, rooms, args.runs)
+            return
+        try:
+            prior = tuple(float(v) for v in args.context_prior.split(","))
+        except ValueError:
+            prior = ()
+        if len(prior) != 2 or not all(v > 0 for v in prior):
+            raise ValueError(f"--context-prior must be two numbers > 0, got {args.context_prior}")
+        probe_context(params, rooms, args.runs, (prior[0], prior[1]))
     elif args.probe == "table":
         probe_table(params, 20000)
     elif args.probe == "decisions":
