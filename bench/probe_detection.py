@@ -32,7 +32,7 @@ under S = 1 the agent period's with ``K2[c]`` and the background's with ``K3[c]`
 with its own Beta prior (the model's for context 0; for context 1 the agent's and
 ``--context-prior`` for the background). The exact posterior, recomputed on the default
 runs like ``levels``; ``average`` is the Bayesian average (even odds) of this model and
-the model's independent windows.
+the model's independent windows. With ``--gated``, on the runs of the ``gate`` probe's table.
 
 ``gate``: the optimal table, but a vocalization it decides on an active window is put off
 to the next quiet one (the robot never asks while the room is loud); the bit source and
@@ -48,7 +48,7 @@ Run from the repository root::
     .venv/bin/python bench/probe_detection.py decisions [--rooms street,tv-on+partner]
         [--controller fixed:8]
     .venv/bin/python bench/probe_detection.py context [--rooms ...] [--runs 100]
-        [--context-prior 1,1]
+        [--context-prior 1,1] [--gated]
     .venv/bin/python bench/probe_detection.py gate [--rooms ...] [--runs 100]
 """
 
@@ -311,9 +311,13 @@ def print_outcomes(room: str, name: str, values: list, runs: int) -> None:
 
 
 def probe_context(
-    params: ModelParams, rooms: list[str], runs: int, background_active_prior: tuple[float, float]
+    params: ModelParams,
+    rooms: list[str],
+    runs: int,
+    background_active_prior: tuple[float, float],
+    gated: bool,
 ) -> None:
-    """Print the ``context`` probe (the module's docstring)."""
+    """Print the ``context`` probe (the module's docstring); ``gated``: the gated table decides."""
     spec = controller_specs(params, ["optimal"])[0][1]
     variants = {"Markov": False, "average with independent": True}
     for room in rooms:
@@ -321,7 +325,8 @@ def probe_context(
         results: dict[str, list] = {"independent (the default)": []} | {v: [] for v in variants}
         cells = np.zeros((2, 2, 2))  # [agent 0 / background 1, context, bit] over the runs
         for k in range(runs):
-            run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
+            with gated_tables() if gated else contextlib.nullcontext():
+                run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
             no_context = context_log_odds(
                 params, run, np.zeros(run.y.size, dtype=int), background_active_prior, False
             )
@@ -496,6 +501,9 @@ def main() -> None:
         default="1,1",
         help="context: the Beta prior (a,b) on the background's rate after an active window",
     )
+    parser.add_argument(
+        "--gated", action="store_true", help="context: on the runs of the gate probe's table"
+    )
     args = parser.parse_args()
     if args.runs < 1:
         parser.error(f"--runs must be at least 1, got {args.runs}")
@@ -525,7 +533,7 @@ def run_probe(args: argparse.Namespace) -> None:
             prior = ()
         if len(prior) != 2 or not all(v > 0 for v in prior):
             raise ValueError(f"--context-prior must be two numbers > 0, got {args.context_prior}")
-        probe_context(params, rooms, args.runs, (prior[0], prior[1]))
+        probe_context(params, rooms, args.runs, (prior[0], prior[1]), args.gated)
     elif args.probe == "table":
         probe_table(params, 20000)
     elif args.probe == "decisions":
