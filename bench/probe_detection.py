@@ -192,13 +192,7 @@ def probe_levels(
                 )  # fmt: skip
                 results[f"3 levels, share {share:g}"].append(outcome(run, log_odds, partner_room))
         for name, values in results.items():
-            if partner_room:
-                settled = [v for v in values if v is not None]
-                median = np.median([math.inf if v is None else v for v in values])
-                print(f"{room:<24} {name:<22} settled {len(settled)}/{runs}, median"
-                      f" vocalizations {median:g} (a run never settled counts as inf)")  # fmt: skip
-            else:
-                print(f"{room:<24} {name:<22} ever attentive {sum(values)}/{runs}")
+            print_outcomes(room, name, values, runs)
 
 
 def probe_timer(params: ModelParams, rooms: list[str], runs: int, controller: str) -> None:
