@@ -73,6 +73,8 @@ from infomax_contingency.core.model import (
     ModelParams,
     Statistic,
     Withheld,
+    belief_from_log_odds,
+    betaln,
     period_of,
 )
 from infomax_contingency.core.policy_table import PolicyTable
@@ -158,7 +160,7 @@ def belief_log_odds(
 
 def outcome(run: RoomRun, log_odds: np.ndarray, partner_room: bool) -> int | bool | None:
     """Vocalizations to a settled posture (partner room; None: never), or ever attentive."""
-    beliefs = 1.0 / (1.0 + np.exp(-log_odds))
+    beliefs = belief_from_log_odds(log_odds)
     attentive = postures(beliefs, 0.9, 0.2)
     if not partner_room:
         return bool(attentive.any())
@@ -225,8 +227,7 @@ def probe_timer(params: ModelParams, rooms: list[str], runs: int, controller: st
 def log_beta_bernoulli(prior: tuple[float, float], active: float, quiet: float) -> float:
     """Log marginal likelihood of a bit sequence with these counts under a Beta prior."""
     a, b = prior
-    return float(gammaln(a + active) + gammaln(b + quiet) - gammaln(a + b + active + quiet)
-                 - gammaln(a) - gammaln(b) + gammaln(a + b))  # fmt: skip
+    return float(betaln(a + active, b + quiet) - betaln(a, b))
 
 
 def context_log_odds(
@@ -351,14 +352,16 @@ def probe_context(
 class QuietGatedController(PolicyController):
     """The optimal table, but a vocalization decided on an active window is put off."""
 
+    window_active = False
+
     def step(self, y: int | Withheld) -> int:
         """As :meth:`PolicyController.step`, with u = 0 whenever the window's bit is 1."""
-        if self.table.mode != "receding":
-            raise ValueError("the gate probe needs a receding table")
-        statistic = self.tracker.observe_window(y)
-        u = 0 if y == 1 else int(self.decide(statistic))
-        self.tracker.act(u)
-        return u
+        self.window_active = y == 1
+        return super().step(y)
+
+    def decide(self, statistic: Statistic) -> int:
+        """The table's decision, or silence on an active window."""
+        return 0 if self.window_active else super().decide(statistic)
 
 
 @contextlib.contextmanager
