@@ -33,6 +33,13 @@ with its own Beta prior (the model's for context 0; for context 1 the agent's an
 ``--context-prior`` for the background). The exact posterior, recomputed on the default
 runs like ``levels``; ``average`` is the Bayesian average (even odds) of this model and
 the model's independent windows. With ``--gated``, on the runs of the ``gate`` probe's table.
+With ``--persistence``, also with the prior on the background's rate after an active window
+estimated, step by step, from the room's background levels as the bit source could:
+``exceedance`` (loud windows at ``--persistence-share``, their odds ratio carried to the bits'
+rate) or ``copula`` (the rank correlation of consecutive levels through Gaussian levels); each
+prior has the estimate's mean and variance. Each room's line "any counted window after an active
+one" is the rate such an estimate aims at (in an empty room: what ``--context-prior`` is given
+for the belief told the room's persistence exactly).
 
 ``gate``: the optimal table, but a vocalization it decides on an active window is put off
 to the next quiet one (the robot never asks while the room is loud); the bit source and
@@ -48,7 +55,8 @@ Run from the repository root::
     .venv/bin/python bench/probe_detection.py decisions [--rooms street,tv-on+partner]
         [--controller fixed:8]
     .venv/bin/python bench/probe_detection.py context [--rooms ...] [--runs 100]
-        [--context-prior 1,1] [--gated]
+        [--context-prior 1,1] [--gated] [--persistence exceedance|copula]
+        [--persistence-share 0.2]
     .venv/bin/python bench/probe_detection.py gate [--rooms ...] [--runs 100]
 """
 
@@ -57,11 +65,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import math
 from collections.abc import Iterator
 
 import numpy as np
-from scipy.special import gammaln
+from scipy import stats
+from scipy.special import expit, gammaln, logit
 
 from infomax_contingency.audio.background import BackgroundThreshold
 from infomax_contingency.audio.bitsources.background import LEAST_RANK
@@ -232,16 +242,18 @@ def log_beta_bernoulli(prior: tuple[float, float], active: float, quiet: float) 
 
 def context_log_odds(
     params: ModelParams, run: RoomRun, contexts: np.ndarray,
-    background_active_prior: tuple[float, float], average: bool,
+    background_active_prior: tuple[float, float] | np.ndarray, average: bool,
 ) -> np.ndarray:  # fmt: skip
     """Log odds of S = 1 after each step under the ``context`` probe's Markov model.
 
     ``contexts``: each step's context (0/1); the last :data:`BELIEF_MEMORY` counted windows
-    count, as for the belief node. With ``average`` the odds are those of the Bayesian
-    average (even prior odds) of this model and the model's independent windows.
+    count, as for the belief node. ``background_active_prior``: the Beta prior on the
+    background's rate after an active window, one for every step or one per step (rows).
+    With ``average`` the odds are those of the Bayesian average (even prior odds) of this
+    model and the model's independent windows.
     """
     agent_prior = (params.b21, params.b22)
-    background_priors = ((params.b31, params.b32), background_active_prior)
+    step_priors = np.broadcast_to(np.asarray(background_active_prior, float), (run.y.size, 2))
     periods = period_of(params, run.z)
     counted: list[tuple[int, int, int]] = []
     prior_odds = math.log(params.pi) - math.log1p(-params.pi)
@@ -250,6 +262,7 @@ def context_log_odds(
         if period in (AGENT, BACKGROUND):
             counted = [*counted, (0 if period == AGENT else 1, int(contexts[t]), int(run.y[t]))]
             counted = counted[-BELIEF_MEMORY:]
+        background_priors = ((params.b31, params.b32), tuple(step_priors[t]))
         n = np.zeros((2, 2, 2))  # [agent 0 / background 1, context, bit]
         for which, context, bit in counted:
             n[which, context, bit] += 1
@@ -294,6 +307,105 @@ def previous_counted_bits(params: ModelParams, run: RoomRun) -> np.ndarray:
     return contexts
 
 
+QUADRATURE = (np.arange(16) + 0.5) / 16
+"""Quantiles at which the posteriors of the exceedance rates are taken (16 each)."""
+
+
+def exceedance_priors(params: ModelParams, run: RoomRun, share: float) -> np.ndarray:
+    """Per step, a Beta prior on the background's rate after an active window, from levels.
+
+    The room's persistence as the bit source could see it: each window is marked loud when
+    its level exceeds the k-th loudest of the background windows known before it at the
+    false-alarm share ``share`` (the default source's rank rule, no reference). Over pairs
+    of consecutive background windows up to the step, the rate of loud after loud and of
+    loud after quiet have Beta posteriors (uniform priors); their odds ratio, carried to the
+    bits' rate (the mean of the model's prior on K3: odds ratios of exceedances change
+    less with the level than the rates), gives a rate after an active window for every
+    pair of quantiles of the two (:data:`QUADRATURE`); the prior has the mean and variance
+    of those (the uncertainty of the estimate carried through: near-uniform while little
+    is known). From the run's steps: the warm-up windows, which the bit source also has,
+    give none.
+    """
+    rule = BackgroundThreshold(
+        params.ts1, params.ts2, params.ta2, false_alarm=share, history=HISTORY_WINDOWS,
+        warmup_windows=WARMUP_WINDOWS, ta1=params.ta1, reference=False, least_rank=LEAST_RANK,
+    )  # fmt: skip
+    background = period_of(params, run.z) == BACKGROUND
+    counts = np.zeros((2, 2))  # [loud before, loud now]
+    base_log_odds = math.log(params.b31 / params.b32)
+    previous: bool | None = None
+    priors = np.ones((run.y.size, 2))
+    for t, (level, decision) in enumerate(zip(run.energy_db, run.u, strict=True)):
+        loud = rule.push(float(level), decision=int(decision))
+        current = bool(loud) if background[t] and loud is not None else None
+        if previous is not None and current is not None:
+            counts[int(previous), int(current)] += 1
+        previous = current
+        after_loud = stats.beta.ppf(QUADRATURE, counts[1, 1] + 1, counts[1, 0] + 1)
+        after_quiet = stats.beta.ppf(QUADRATURE, counts[0, 1] + 1, counts[0, 0] + 1)
+        log_ratio = logit(after_loud)[:, None] - logit(after_quiet)
+        rates = expit(base_log_odds + log_ratio)
+        mean = float(np.clip(rates.mean(), 1e-3, 1 - 1e-3))
+        worth = max(mean * (1 - mean) / max(float(rates.var()), 1e-6) - 1, 1.0)
+        priors[t] = (worth * mean, worth * (1 - mean))
+    return priors
+
+
+@functools.cache
+def copula_persistence(rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """P(active | the window before active) against the correlation of consecutive levels.
+
+    For Gaussian levels a share ``rate`` of which is above the threshold, on a grid of
+    correlations (returned with it).
+    """
+    correlations = np.linspace(-0.95, 0.99, 195)
+    edge = stats.norm.isf(rate)
+    both = [
+        stats.multivariate_normal.cdf([-edge, -edge], cov=[[1, r], [r, 1]])
+        for r in correlations
+    ]
+    return correlations, np.asarray(both) / rate
+
+
+def copula_priors(params: ModelParams, run: RoomRun, least_pairs: int = 4) -> np.ndarray:
+    """Per step, a Beta prior on the background's rate after an active window, from levels.
+
+    The room's persistence as the bit source could see it without a single active window:
+    the rank correlation of consecutive background windows' levels up to the step, read as
+    the correlation of Gaussian levels (2 sin(pi rho_s / 6)), gives the rate of an active
+    window after an active one at the model's K3 (the mean of its prior), through the
+    bivariate normal (:func:`copula_persistence`). The prior has that mean and the variance
+    of the estimate (Fisher's z, standard error sqrt(1.06 / (n - 3)) for n pairs, carried
+    through); uniform below ``least_pairs`` pairs. From the run's steps, as
+    :func:`exceedance_priors`.
+    """
+    rate = params.b31 / (params.b31 + params.b32)
+    correlations, persistence = copula_persistence(rate)
+    background = period_of(params, run.z) == BACKGROUND
+    pairs: list[tuple[float, float]] = []
+    priors = np.ones((run.y.size, 2))
+    for t in range(run.y.size):
+        if t and background[t] and background[t - 1]:
+            pairs.append((float(run.energy_db[t - 1]), float(run.energy_db[t])))
+        n = len(pairs)
+        if n < least_pairs:
+            continue
+        first, second = np.asarray(pairs).T
+        rank_correlation = stats.spearmanr(first, second).statistic
+        if not np.isfinite(rank_correlation):
+            continue
+        z = math.atanh(np.clip(2 * math.sin(math.pi * rank_correlation / 6), -0.95, 0.99))
+        spread = math.sqrt(1.06 / max(n - 3, 1))
+        low, mean, high = np.interp(
+            np.tanh([z - spread, z, z + spread]), correlations, persistence
+        )
+        mean = float(np.clip(mean, 1e-3, 1 - 1e-3))
+        variance = max(((high - low) / 2) ** 2, 1e-6)
+        worth = max(mean * (1 - mean) / variance - 1, 1.0)
+        priors[t] = (worth * mean, worth * (1 - mean))
+    return priors
+
+
 def print_outcomes(room: str, name: str, values: list, runs: int) -> None:
     """One line: settled share and median vocalizations, or the share ever attentive."""
     if room.endswith("+partner"):
@@ -311,14 +423,22 @@ def probe_context(
     runs: int,
     background_active_prior: tuple[float, float],
     gated: bool,
+    persistence: str = "",
+    persistence_share: float = 0.2,
 ) -> None:
-    """Print the ``context`` probe (the module's docstring); ``gated``: the gated table decides."""
+    """Print the ``context`` probe (the module's docstring); ``gated``: the gated table decides.
+
+    ``persistence``: also with the prior after an active window from the room's levels,
+    ``exceedance`` (:func:`exceedance_priors` at ``persistence_share``) or ``copula``
+    (:func:`copula_priors`).
+    """
     spec = controller_specs(params, ["optimal"])[0][1]
     variants = {"Markov": False, "average with independent": True}
     for room in rooms:
         partner_room = room.endswith("+partner")
         results: dict[str, list] = {"independent (the default)": []} | {v: [] for v in variants}
         cells = np.zeros((2, 2, 2))  # [agent 0 / background 1, context, bit] over the runs
+        estimates: list[float] = []
         for k in range(runs):
             with gated_tables() if gated else contextlib.nullcontext():
                 run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY)
@@ -337,6 +457,18 @@ def probe_context(
             for name, average in variants.items():
                 odds = context_log_odds(params, run, contexts, background_active_prior, average)
                 results[name].append(outcome(run, odds, partner_room))
+            if persistence:
+                priors = (
+                    copula_priors(params, run)
+                    if persistence == "copula"
+                    else exceedance_priors(params, run, persistence_share)
+                )
+                estimates.append(priors[-1, 0] / priors[-1].sum())
+                for name, average in variants.items():
+                    odds = context_log_odds(params, run, contexts, priors, average)
+                    results.setdefault(f"{name}, {persistence}", []).append(
+                        outcome(run, odds, partner_room)
+                    )
         shares = "; ".join(
             f"{period} after {'an active' if context else 'a quiet'} window"
             f" {cells[which, context, 1] / max(cells[which, context].sum(), 1):.3f}"
@@ -344,7 +476,13 @@ def probe_context(
             for which, period in enumerate(("agent", "background"))
             for context in (0, 1)
         )
-        print(f"{room:<24} active share: {shares}")
+        after_active = cells[:, 1].sum(axis=0)
+        print(f"{room:<24} active share: {shares}; any counted window after an active one"
+              f" {after_active[1] / max(after_active.sum(), 1):.3f}")  # fmt: skip
+        if estimates:
+            print(f"{room:<24} {persistence} estimate of that rate at 60 s: median"
+                  f" {np.median(estimates):.2f}, 10-90 % {np.quantile(estimates, 0.1):.2f}-"
+                  f"{np.quantile(estimates, 0.9):.2f}")  # fmt: skip
         for name, values in results.items():
             print_outcomes(room, name, values, runs)
 
@@ -501,6 +639,18 @@ def main() -> None:
     parser.add_argument(
         "--gated", action="store_true", help="context: on the runs of the gate probe's table"
     )
+    parser.add_argument(
+        "--persistence",
+        choices=("exceedance", "copula"),
+        help="context: also with the prior after an active window estimated from the room's"
+        " background levels",
+    )
+    parser.add_argument(
+        "--persistence-share",
+        type=float,
+        default=0.2,
+        help="context, --persistence exceedance: loud windows at this false-alarm share",
+    )
     args = parser.parse_args()
     if args.runs < 1:
         parser.error(f"--runs must be at least 1, got {args.runs}")
@@ -530,7 +680,13 @@ def run_probe(args: argparse.Namespace) -> None:
             prior = ()
         if len(prior) != 2 or not all(v > 0 for v in prior):
             raise ValueError(f"--context-prior must be two numbers > 0, got {args.context_prior}")
-        probe_context(params, rooms, args.runs, (prior[0], prior[1]), args.gated)
+        if not 0.05 < args.persistence_share <= 0.5:
+            share = args.persistence_share
+            raise ValueError(f"--persistence-share must lie in (0.05, 0.5], got {share}")
+        probe_context(
+            params, rooms, args.runs, (prior[0], prior[1]), args.gated,
+            args.persistence or "", args.persistence_share,
+        )  # fmt: skip
     elif args.probe == "table":
         probe_table(params, 20000)
     elif args.probe == "decisions":
