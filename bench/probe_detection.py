@@ -1,4 +1,4 @@
-"""Six probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+"""Seven probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
 ``levels``: an observation richer than one bit. Each window of the default runs gets one
 of three levels, referenced to the room's background windows like the default bit
@@ -45,6 +45,13 @@ for the belief told the room's persistence exactly).
 to the next quiet one (the robot never asks while the room is loud); the bit source and
 the belief are the default's.
 
+``straddle``: the default bit source, but a window's level is the louder of its own and that
+of the 0.5 s straddling it and the window before (a reply that crosses a window edge is heard
+whole in one of them); every window alike, so the threshold still sets the false-alarm share.
+It runs ``experiment rooms`` on ``--rooms`` (room names without a partner state) in the
+partner states ``--partner-states``, its table printed as that command prints it;
+``--least-rank``: the threshold's least rank (the source's 2).
+
 Run from the repository root::
 
     .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
@@ -58,6 +65,8 @@ Run from the repository root::
         [--context-prior 1,1] [--gated] [--persistence exceedance|copula]
         [--persistence-share 0.2]
     .venv/bin/python bench/probe_detection.py gate [--rooms ...] [--runs 100]
+    .venv/bin/python bench/probe_detection.py straddle [--rooms quiet,...] [--runs 100]
+        [--partner-states absent,partner,arriving,leaving] [--least-rank 2]
 """
 
 from __future__ import annotations
@@ -73,9 +82,11 @@ import numpy as np
 from scipy import stats
 from scipy.special import expit, gammaln, logit
 
-from infomax_contingency.audio.background import BackgroundThreshold
-from infomax_contingency.audio.bitsources.background import LEAST_RANK
+import infomax_contingency.audio.bitsources.background as background_source
+from infomax_contingency.audio.background import BackgroundThreshold, level_and_faults
+from infomax_contingency.audio.bitsources.background import LEAST_RANK, BackgroundSource
 from infomax_contingency.audio.common import AudioError
+from infomax_contingency.cli.main import main as command_line
 from infomax_contingency.core.controllers import Controller, PolicyController
 from infomax_contingency.core.model import (
     AGENT,
@@ -544,6 +555,50 @@ def probe_gate(params: ModelParams, rooms: list[str], runs: int) -> None:
                   f" background {np.mean(bits[name][BACKGROUND]):.3f}")  # fmt: skip
 
 
+@contextlib.contextmanager
+def straddled_levels(least_rank: int) -> Iterator[None]:
+    """Within the block, the default source's level is the ``straddle`` probe's."""
+    own_level = BackgroundSource._level
+    source_least_rank = background_source.LEAST_RANK
+
+    def straddled(self: BackgroundSource, x: np.ndarray) -> float:
+        level = own_level(self, x)
+        previous = getattr(self, "previous_window", None)
+        self.previous_window = x.copy()
+        if previous is None or previous.size != x.size:
+            return level
+        half = x.size // 2
+        span_level, _ = level_and_faults(np.concatenate((previous[half:], x[:half])))
+        self.last_level_db = max(level, span_level)
+        return self.last_level_db
+
+    BackgroundSource._level = straddled  # type: ignore[method-assign]
+    background_source.LEAST_RANK = least_rank
+    try:
+        yield
+    finally:
+        BackgroundSource._level = own_level  # type: ignore[method-assign]
+        background_source.LEAST_RANK = source_least_rank
+
+
+def probe_straddle(rooms: str, runs: int, partner_states: str, least_rank: int) -> None:
+    """Print the ``straddle`` probe: ``experiment rooms`` with the straddled level."""
+    with straddled_levels(least_rank):
+        status = command_line([
+            "experiment", "rooms", "--rooms", rooms, "--partner-states", partner_states,
+            "--controllers", "optimal", "--runs", str(runs),
+        ])  # fmt: skip
+    if status:
+        raise SystemExit(status)
+
+
+ALL_ROOMS = (
+    "quiet,office,open-office,poster-session,cafe,tv-on,living-room,tv-switched-on,crowd-grows,"
+    "kitchen,street,home-office"
+)
+"""Rooms of the ``straddle`` probe by default: every room of RESULTS.md section 7."""
+
+
 LEVELS_ROOMS = "tv-on+partner,living-room+partner,open-office+partner,street,home-office"
 """Rooms of the ``levels`` probe by default: where the default misses a target."""
 CONTEXT_ROOMS = (
@@ -616,7 +671,8 @@ def main() -> None:
     """Parse the command line and print the chosen probe."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "probe", choices=("levels", "timer", "table", "decisions", "context", "gate")
+        "probe",
+        choices=("levels", "timer", "table", "decisions", "context", "gate", "straddle"),
     )
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
@@ -651,6 +707,14 @@ def main() -> None:
         default=0.2,
         help="context, --persistence exceedance: loud windows at this false-alarm share",
     )
+    parser.add_argument(
+        "--partner-states",
+        default="absent,partner,arriving,leaving",
+        help="straddle: the partner states (as experiment rooms takes them)",
+    )
+    parser.add_argument(
+        "--least-rank", type=int, default=LEAST_RANK, help="straddle: the threshold's least rank"
+    )
     args = parser.parse_args()
     if args.runs < 1:
         parser.error(f"--runs must be at least 1, got {args.runs}")
@@ -663,7 +727,11 @@ def main() -> None:
 def run_probe(args: argparse.Namespace) -> None:
     """Run the probe ``args`` name (ValueError or AudioError for a bad room, share, controller)."""
     params = ModelParams.named("robot")
-    if args.probe == "levels":
+    if args.probe == "straddle":
+        if args.least_rank < 1:
+            raise ValueError(f"--least-rank must be at least 1, got {args.least_rank}")
+        probe_straddle(args.rooms or ALL_ROOMS, args.runs, args.partner_states, args.least_rank)
+    elif args.probe == "levels":
         rooms = args.rooms or LEVELS_ROOMS
         shares = [float(s) for s in args.shares.split(",")]
         if not all(0.05 < share <= 0.5 for share in shares):
