@@ -80,7 +80,7 @@ from collections.abc import Iterator
 
 import numpy as np
 from scipy import stats
-from scipy.special import expit, gammaln, logit
+from scipy.special import gammaln, logit
 
 import infomax_contingency.audio.bitsources.background as background_source
 from infomax_contingency.audio.background import BackgroundThreshold, level_and_faults
@@ -96,6 +96,8 @@ from infomax_contingency.core.model import (
     Withheld,
     belief_from_log_odds,
     betaln,
+    expit,
+    log_odds,
     period_of,
 )
 from infomax_contingency.core.policy_table import PolicyTable
@@ -128,9 +130,8 @@ def dirichlet_log_odds(
     agent_prior: np.ndarray, background_prior: np.ndarray,
 ) -> float:  # fmt: skip
     """Log posterior odds of S = 1 from level counts (MODEL.md section 2 with Dirichlets)."""
-    prior = math.log(params.pi) - math.log1p(-params.pi)
     return (
-        prior
+        float(log_odds(params, 0, 0, 0, 0))  # the prior's: nothing counted
         + log_dirichlet(agent_prior + agent)
         - log_dirichlet(agent_prior)
         + log_dirichlet(background_prior + background)
@@ -267,7 +268,7 @@ def context_log_odds(
     step_priors = np.broadcast_to(np.asarray(background_active_prior, float), (run.y.size, 2))
     periods = period_of(params, run.z)
     counted: list[tuple[int, int, int]] = []
-    prior_odds = math.log(params.pi) - math.log1p(-params.pi)
+    prior_odds = float(log_odds(params, 0, 0, 0, 0))  # nothing counted: the prior's
     out = np.zeros(run.y.size)
     for t, period in enumerate(periods):
         if period in (AGENT, BACKGROUND):

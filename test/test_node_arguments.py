@@ -103,7 +103,7 @@ def test_a_stop_lost_before_main_took_the_signals_is_a_stop_requested(
     finally:
         for signum, handler in before.items():
             signal.signal(signum, handler)
-    assert entry.stopped_while_starting()
+    assert lifetime.stop_came_while_starting()
     ended: list[tuple[str, float]] = []
     stop = runtime.StopSignals("probe", deadline_s=0.05,
                                on_deadline=lambda *named: ended.append(named))  # fmt: skip

@@ -63,18 +63,6 @@ def use_one_blas_thread(environ: MutableMapping[str, str] = os.environ) -> None:
         environ["OPENBLAS_NUM_THREADS"] = "1"
 
 
-def stopped_while_starting() -> bool:
-    """True once a stop signal came before the node's ``main()`` took the signals over.
-
-    The handler's ``SystemExit`` can be lost: Python cannot raise from a weakref callback
-    or a ``__del__`` (importlib runs such callbacks while it loads modules) and only
-    reports it. :func:`run_module` then ends the node once its module has loaded, and
-    :meth:`~infomax_contingency.nodes.runtime.StopSignals.install` takes it as a stop
-    requested if ``main()`` has already begun.
-    """
-    return stop_came_while_starting()
-
-
 def _stopped_while_starting(signum: int, frame: Any) -> None:
     note_stop_while_starting()
     # The process ends: a second stop signal (the terminal's Ctrl-C and ros2 launch's
@@ -101,7 +89,10 @@ def run_module(module: str) -> int:
     A stop signal before ``main()`` takes the signals over raises ``SystemExit(0)``; so
     does one that arrived while the process started with the signals blocked (a launcher
     may block them across ``exec``: they wait until this function unblocks them), and one
-    whose ``SystemExit`` was lost while the module loaded (:func:`stopped_while_starting`).
+    whose ``SystemExit`` was lost while the module loaded: Python cannot raise from a
+    weakref callback or a ``__del__``, which importlib runs, and only reports it
+    (:func:`~infomax_contingency.lifetime.stop_came_while_starting`; ``StopSignals.install``
+    takes such a stop as requested if ``main()`` has already begun).
     Afterwards each signal goes back to its previous handler, unless ``main()`` left it
     with another one: a node that ends ignores both (``StopSignals.ignore_from_now_on``),
     so a second Ctrl-C while the interpreter shuts down raises nothing. A module that
