@@ -67,7 +67,10 @@ class BackgroundSettings:
         low=0.005, high=0.5,
     )
     background_window_s: float = setting(
-        30.0, "The threshold is taken over the background windows of this much recent audio",
+        30.0,
+        "The threshold is taken over the room's last background windows, this much sound"
+        " of them (windows of the robot's sound and of the agent period are skipped: it"
+        " reaches further back while the robot asks)",
         low=1.0, high=86400.0, unit="s",
     )
     warmup_s: float = setting(
