@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import brute_force
 from infomax_contingency.audio.resample import load_mono
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.cli.main import main
+from infomax_contingency.core.model import NAMED_PARAMS
 from infomax_contingency.eval.sessions import decisions_from_times, load_session
 from infomax_contingency.resources import resource_path
 
@@ -85,6 +87,31 @@ def test_a_wav_with_an_actions_csv_puts_each_sound_on_the_step_before_its_window
     assert [row["t"] for row in rows if row["u"]] == [2, 10, 19, 28]
     assert [row["z"] for row in rows if row["t"] in (3, 11, 20, 29)] == [0, 0, 0, 0]
     assert all(row["y"] for row in rows if row["t"] in (3, 11, 20, 29))  # the chirp heard
+
+
+def test_a_sound_during_the_warm_up_labels_the_steps_after_it(tmp_path: Path, capsys) -> None:
+    """A recorded robot that spoke before the default threshold's first bit.
+
+    Its sound and the windows after it are counted in their own periods, not as
+    background: each step's timer follows every recorded decision (warm-up windows' too),
+    and the belief equals direct counting of the steps' bits at those timers.
+    """
+    actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
+    assert main(["replay", str(WAV), "--actions", str(actions), "--json"]) == 0
+    rows = _rows(capsys)
+    params = NAMED_PARAMS["robot"]
+    decisions = decisions_from_times(CHIRPS_S, 36, params.dt, "x")
+    timers = [params.ta2 + 1]
+    for u in decisions:
+        timers.append(brute_force.next_timer(params, timers[-1], int(u)))
+    first = 36 - len(rows)  # the windows before it heard the room (no step)
+    # (the sounds took windows from the warm-up: the first step comes after the third)
+    assert rows[0]["z"] == timers[first] < params.ta2 + 1, first
+    events = []
+    for k, row in enumerate(rows):
+        assert (row["z"], row["u"]) == (timers[first + k], int(decisions[first + k]))
+        events.append((brute_force.period(params, row["z"]), row["y"]))
+        assert row["belief"] == pytest.approx(brute_force.belief(params, events), abs=1e-12)
 
 
 def test_a_reference_channel_gives_the_decisions_of_the_csv(stereo_wav: Path, tmp_path: Path,

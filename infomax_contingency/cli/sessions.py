@@ -39,6 +39,7 @@ from infomax_contingency.eval.sessions import (
     recorded_bits,
     replay_bits,
     replay_recorded,
+    replay_windows,
     wav_background_bits,
     wav_background_loop,
     wav_bits,
@@ -195,10 +196,8 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
         decisions, level = decisions_from_reference(path, reference, params.dt)
         what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
     bits, threshold = wav_background_bits(path, params, mic, decisions, **options)
-    steps = [k for k, bit in enumerate(bits) if bit is not None]
-    controller = ReplayedDecisions(params, [decisions[k] for k in steps])
-    records = replay_bits([bool(bits[k]) for k in steps], controller, memory)
-    skipped = len(bits) - len(steps)
+    records = replay_windows(bits, decisions, params, memory)
+    skipped = sum(bit is None for bit in bits)
     return records, f"{what}; {threshold}; the first {skipped} windows heard the room (no step)"
 
 

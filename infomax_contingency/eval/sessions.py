@@ -165,6 +165,38 @@ def replay_bits(bits: Sequence[bool], controller: Controller, memory: int = 0
     return (step_record(controller.params, step) for step in loop)
 
 
+def replay_windows(bits: Sequence[bool | None], decisions: Sequence[bool], params: ModelParams,
+                   memory: int = 0) -> Iterator[StepRecord]:
+    """A recording's windows with its own decisions, as ``simulate --json`` rows.
+
+    ``bits[k]`` is window ``k``'s bit, None where it gave none (the threshold's warm-up):
+    such a window is no step, but the decision taken after it (``decisions[k]``; 0 past
+    their end) still moves the timer, so a robot that spoke during the warm-up has the
+    windows after its sound counted in the agent period and the background, as they were,
+    not as background. Steps count the windows with a bit, from 1; the belief keeps
+    ``memory`` counted observations (0 = all) and starts from zero counts, the timer
+    "long ago". With a bit in every window this is :func:`replay_bits` with
+    :class:`~infomax_contingency.core.controllers.ReplayedDecisions`.
+    """
+    tracker = StatisticTracker(params, memory=memory)
+    step = 0
+    for k, bit in enumerate(bits):
+        u = int(k < len(decisions) and bool(decisions[k]))
+        if bit is None:
+            tracker.skip_observation()
+            tracker.act(u)
+            continue
+        step += 1
+        z = tracker.statistic.z
+        statistic = tracker.observe(bool(bit))
+        yield StepRecord(
+            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(bool(bit)), u=u,
+            belief=statistic.belief(params), entropy=statistic.entropy(params),
+            ratio=statistic.variance_ratio(params),
+        )  # fmt: skip
+        tracker.act(u)
+
+
 def recorded_bits(session: RecordedSession) -> list[bool]:
     """The bits of the session's stream in step order (a step never recorded is skipped)."""
     return [bit for _, bit in sorted(dict(session.bits).items())]
