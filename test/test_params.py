@@ -295,6 +295,23 @@ def test_mic_recalibrate_starts_a_new_calibration_on_a_stream(graph: Callable) -
     assert node.bits.rule.refits_accepted >= 1
 
 
+def test_mic_withholds_the_bits_right_after_a_recalibration(graph: Callable) -> None:
+    """The windows of a new calibration give no step: the next ta2 + 1 bits go out withheld.
+
+    The controller and the belief count steps, the model's timer windows: right after a
+    gap a step's timer may lag its window's (core.selfsound.GapWithholding).
+    """
+    node, probe, executor, play = _live_mic(graph, threshold_mode="calibrate")
+    steps = probe.listen("sound_step", Int64MultiArray)
+    executor.run_until(lambda: node.step_pub.get_subscription_count() >= 2, "a second listener")
+    assert play([-60.0, -20.0] + [-60.0, -20.0] * 2, 4) == [False, True] * 2
+    assert recalibrate(probe, executor).success
+    play([-60.0, -20.0] + [-60.0, -20.0] * 4, 8)  # 2 windows calibrate, then 8 bits
+    withheld = [m.data[4] for m in steps]
+    assert withheld == [0] * 4 + [1] * 5 + [0] * 3, withheld  # ta2 + 1 = 5 (robot)
+    assert node.diagnostic_status()[2]["bits_withheld_after_gap"] == 5
+
+
 def test_mic_recalibrate_in_fixed_mode_keeps_the_live_threshold(graph: Callable) -> None:
     node, probe, executor, play = _live_mic(graph)
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-30.0)

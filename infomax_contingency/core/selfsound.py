@@ -21,7 +21,9 @@ applied silently to the wrong windows.
 :class:`SelfSoundGate` holds the windows and decides; :class:`ChunkClock` gives the
 windows of an audio stream that carries no timestamps (the ``audio`` topic) their time
 ranges from the chunks' publication times. Times are integers in nanoseconds on one
-clock, passed in by the caller: nothing here reads a clock.
+clock, passed in by the caller: nothing here reads a clock. :class:`GapWithholding`
+withholds the bits right after windows that gave no step, for another reason (the
+steps' timer lagging the windows').
 
 A withheld window is no evidence of any kind: a rule that learns from the windows
 (e.g. a threshold that takes the windows the model counts as background for the
@@ -292,3 +294,60 @@ def describe(gate: SelfSoundGate[Any]) -> dict[str, Any]:
     if gate.problems:
         values["self_sound_last_problem"] = gate.problems[-1]
     return values
+
+
+class GapWithholding:
+    """Bits withheld right after a gap: windows without a step, or audio lost between them.
+
+    The controller and the belief count steps; the model's timer counts windows. After
+    windows that gave no step (a bit source calibrating again, a threshold out of range)
+    or audio lost between two windows, a step's timer may lag its window's: for up to
+    ``steps`` (``ta2 + 1``) steps it can still put a window in the robot's own sound or
+    the agent period of a vocalization made before the gap. Those bits are withheld (no
+    one counts them, exactly as the robot's own sound), and from then on the steps'
+    timer is the windows' again (a vocalization meanwhile sets both to 0). Windows
+    before the first bit never start a gap: the timer is "long ago" for both.
+
+    Pure bookkeeping: mic_node and the offline loop
+    (:class:`~infomax_contingency.sim.fake_room.AudioWorld`) use it alike.
+    """
+
+    def __init__(self, steps: int) -> None:
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+        self.steps = steps
+        self.bits = 0
+        """Bits given so far."""
+        self.withheld = 0
+        """Bits withheld because they came right after a gap."""
+        self.gaps = 0
+        """Gaps that started a withholding (a gap within one counts once)."""
+        self._left = 0
+
+    def no_step(self) -> bool:
+        """A window gave no step; True if that starts a withholding (for one log line)."""
+        return self._gap()
+
+    def bit(self, audio_lost_before: bool = False) -> bool:
+        """A window gives a bit; True if it goes out withheld.
+
+        ``audio_lost_before``: at least one window's worth of audio was lost right before
+        it (a live device's gap).
+        """
+        if audio_lost_before:
+            self._gap()
+        self.bits += 1
+        if not self._left:
+            return False
+        self._left -= 1
+        self.withheld += 1
+        return True
+
+    def _gap(self) -> bool:
+        if not self.bits:
+            return False
+        starts = not self._left
+        self.gaps += starts
+        self._left = self.steps
+        return starts
+

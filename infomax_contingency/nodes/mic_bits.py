@@ -13,6 +13,7 @@ decisions on the bits before them are in (:meth:`BitSourceControls.decidable`).
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Iterable, Iterator
 from typing import Any
@@ -24,6 +25,7 @@ from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import BitSource, SettingError
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.windows import SourceWindow, WindowSource
+from infomax_contingency.core.selfsound import GapWithholding
 from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
@@ -119,6 +121,8 @@ class BitSourceControls:
         self._forced = 0  # held windows at the front to be decided without waiting
         self.decided_without_wait = 0
         """Held windows decided before the decisions on the bits before them came."""
+        self.gap = GapWithholding(config.params.ta2 + 1)
+        """Bits withheld right after windows without a step (:meth:`after_gap`)."""
 
     def activate(self, stream: int) -> None:
         """The ``no_step`` publisher of mic_node's ``stream``."""
@@ -183,6 +187,7 @@ class BitSourceControls:
     def values(self) -> dict[str, int]:
         """Diagnostic values: windows without a step, held, decided without waiting."""
         return {"windows_without_step": self.windows_without_step,
+                "bits_withheld_after_gap": self.gap.withheld,
                 "windows_held": len(self.held),
                 "windows_decided_early": self.decided_without_wait}  # fmt: skip
 
@@ -190,6 +195,29 @@ class BitSourceControls:
         """The last window gave no step: say so on ``no_step`` (a lockstep room goes on)."""
         self.windows_without_step += 1
         self.no_step_pub.publish(no_step_message(NoStep(self.stream, self.windows)))
+        if self.gap.no_step():
+            self._log_gap("gave no step (the bit source calibrating again)")
+
+    def after_gap(self, window: SourceWindow) -> SourceWindow:
+        """A window that gives a bit, withheld if it comes right after a gap.
+
+        See :class:`~infomax_contingency.core.selfsound.GapWithholding`: after windows
+        without a step or audio lost between windows, the next ``ta2 + 1`` bits go out
+        withheld, so no step is counted in a period its window was not in.
+        """
+        lost = window.gap_s >= self.config.window_s
+        gaps = self.gap.gaps
+        withheld = self.gap.bit(audio_lost_before=lost)
+        if self.gap.gaps > gaps:
+            self._log_gap(f"were lost ({window.gap_s:.2f} s of audio)")
+        return dataclasses.replace(window, withheld=True) if withheld else window
+
+    def _log_gap(self, what: str) -> None:
+        self.node.log_throttled(
+            "gap", "info",
+            f"windows after step {self.gap.bits} {what}: the next {self.gap.steps} bits go"
+            " out withheld (until then a step's timer may lag its window's)",
+        )  # fmt: skip
 
     def use_source(self, source: WindowSource) -> None:
         """Take the window source: calibrate on a replay's start, make the settings live."""

@@ -23,8 +23,8 @@ is connected, plus ``start_delay_s`` for the rest of the graph to connect; windo
 node (exit status 0) after that many bits, once the subscribers have acknowledged them.
 
 Self-sound (:mod:`~infomax_contingency.nodes.self_sound`): a window that overlaps the
-robot's own sound declared on ``self_sound`` is published withheld (``sound_step``); while
-the topic has a publisher, windows wait ``self_sound_hold_s`` past their end for it.
+robot's own sound declared on ``self_sound`` is published withheld (as are bits after a gap:
+``GapWithholding``); while it has a publisher, windows wait ``self_sound_hold_s`` past their end.
 
 Publishes ``sound`` (Bool, once per window), ``sound_energy`` (Float32, dB), ``no_step``
 (a window that gave no step, its bit source calibrating: a lockstep room goes on),
@@ -258,7 +258,7 @@ class MicNode(GraphNode):
             self.energy_pub.publish(Float32(data=energy_db))
             self.controls.say_no_step()
             return None
-        self.self_sound.push(window, energy_db, bit)
+        self.self_sound.push(self.controls.after_gap(window), energy_db, bit)
         self._release()
         return bit
 

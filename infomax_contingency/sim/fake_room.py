@@ -78,12 +78,15 @@ from infomax_contingency.audio.common import PROCESSING_RATE_HZ
 from infomax_contingency.audio.energy import window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
+from infomax_contingency.core.selfsound import GapWithholding
 from infomax_contingency.sim import room_sounds
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.room_sounds import FLOOR_SPECTRA, NoiseFloor, rms_scaled
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 
+ROBOT_GAP_STEPS = NAMED_PARAMS["robot"].ta2 + 1
+"""Bits an :class:`AudioWorld` withholds after a gap unless told (the robot's ``ta2 + 1``)."""
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
 
@@ -867,13 +870,18 @@ class AudioWorld:
         declare_self_sound: a window that overlaps the robot's speech is withheld (as
             the graph does when fake_audio_node publishes ``self_sound``); False: it is
             evidence like any other (the robot says nothing about its own sound).
+        gap_steps: bits withheld after windows without a step, once a bit was given
+            (:class:`~infomax_contingency.core.selfsound.GapWithholding`: ``ta2 + 1``).
     """
 
     def __init__(self, room: FakeRoom, binarizer: BitSource,
-                 declare_self_sound: bool = True) -> None:  # fmt: skip
+                 declare_self_sound: bool = True, gap_steps: int = ROBOT_GAP_STEPS
+                 ) -> None:  # fmt: skip
         self.room = room
         self.binarizer = binarizer
         self.declare_self_sound = declare_self_sound
+        self.gap = GapWithholding(gap_steps)
+        """Bits withheld right after windows without a step, as mic_node withholds them."""
         self._withheld = False  # the last observed window's, for the decision on it
 
     def observe(self) -> AudioObservation | None:
@@ -882,8 +890,10 @@ class AudioWorld:
         y = self.binarizer.push_window(as_transmitted(window.samples).astype(np.float64))
         energy = self.binarizer.last_energy_db
         if y is None:
+            self.gap.no_step()
             return None
-        withheld = self.declare_self_sound and window.robot_sound
+        after_gap = self.gap.bit()
+        withheld = (self.declare_self_sound and window.robot_sound) or after_gap
         self._withheld = withheld
         return AudioObservation(int(y), energy, window.partner_present, withheld)
 
@@ -932,7 +942,7 @@ def iter_audio_loop(
 ) -> Iterator[AudioStepRecord]:
     """The streaming form of :func:`simulate_audio_loop` (``steps = None``: without end)."""
     params = controller.params
-    world = AudioWorld(room, binarizer, declare_self_sound)
+    world = AudioWorld(room, binarizer, declare_self_sound, params.ta2 + 1)
     for step in run_loop(world, controller, steps, memory=memory):
         seen = step.observation
         yield AudioStepRecord(

@@ -83,7 +83,7 @@ def render_room(
     chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
     recording = _RecordingRoom(config, seed)
     bits = make_binarizer(binarizer, config.window_s, config.rate_hz, params)
-    world = TimedWorld(AudioWorld(recording, bits), windows)
+    world = TimedWorld(AudioWorld(recording, bits, gap_steps=params.ta2 + 1), windows)
     actions = []
     try:
         for step in run_loop(world, chosen, None):

@@ -82,7 +82,8 @@ def run_room(
     rng = np.random.default_rng([seed, 1, run])
     controller = experiment_controller(controller_spec, params, rng)
     world = TimedWorld(
-        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz, params)),
+        AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz, params),
+                   gap_steps=params.ta2 + 1),
         round(seconds / config.window_s),
     )
     steps: list[tuple[int, LoopStep[AudioObservation]]] = []
