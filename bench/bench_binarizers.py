@@ -92,7 +92,8 @@ def contrast(
     active = {"self": 0, "agent": 0, "background": 0}
     count = dict.fromkeys(active, 0)
     for seed in range(seeds):
-        world = AudioWorld(FakeRoom(room_config(room), seed), make_source(label))
+        world = AudioWorld(FakeRoom(room_config(room), seed), make_source(label),
+                           gap_steps=params.ta2 + 1)
         controller = FixedIntervalController(params, interval)
         for step in run_loop(world, controller, steps):
             if params.ts1 <= step.z <= params.ts2:

@@ -1,9 +1,10 @@
 """Recordings built outside the room renderer, replayed as a user would: detection figures.
 
 Each recording is 60 s of a hall at 16 kHz written as a wav file with its actions CSV,
-from sources ``sim/fake_room.py`` does not use: babble of 16 espeak-ng talkers
-(low-passed 1.8 kHz) at ``--babble-db`` RMS with brown noise 6 dB under it; a robot
-chirping (a 0.4-s sweep, 900-2100 Hz, -20 dB) at irregular times 2.5-6 s apart, its
+from sources ``sim/fake_room.py`` does not use: babble of 16 copies of two espeak-ng
+talkers at random offsets and gains (low-passed 1.8 kHz) at ``--babble-db`` RMS with brown
+noise 6 dB under it; a robot chirping (a 0.4-s sweep, 900-1860 Hz, -20 dB) at irregular
+times 2.5-6 s apart, its
 own schedule (not the optimal table); a partner who answers 90 % of the chirps 0.9-1.3 s
 later with one of six espeak-ng words at -26 dB, or nobody. ``announcements`` adds a
 public-address voice 4 dB above the babble for two 11.7-s stretches (12 s and 41 s in):

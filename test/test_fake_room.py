@@ -230,13 +230,14 @@ def test_the_offline_loop_tells_a_learning_source_which_windows_were_withheld() 
             self.decisions.append((u, withheld))
 
     source = LearningSource()
-    world = AudioWorld(Room(), source)  # type: ignore[arg-type]
+    world = AudioWorld(Room(), source, gap_steps=5)  # type: ignore[arg-type]
     for u in (1, 0, 0):
         world.observe()
         world.act(u)
     assert source.decisions == [(1, False), (0, True), (0, False)]
     undeclared = LearningSource()
-    world = AudioWorld(Room(), undeclared, declare_self_sound=False)  # type: ignore[arg-type]
+    world = AudioWorld(Room(), undeclared, declare_self_sound=False,  # type: ignore[arg-type]
+                       gap_steps=5)
     for u in (1, 0, 0):
         world.observe()
         world.act(u)

@@ -224,6 +224,7 @@ def test_window_sources_give_each_window_its_time_range() -> None:
     topic.feed(np.zeros(500, np.float32), 4, NOW + 10 * NS_PER_S)  # chunk 3 lost: a gap
     (after_gap,) = topic.take()
     assert after_gap.time_range_ns(0, 0, 0.5) == (NOW + 9_500_000_000, NOW + 10 * NS_PER_S)
+    assert (first.gap_s, second.gap_s, after_gap.gap_s) == (0.0, 0.0, 0.5)  # audio lost before
     live = SourceWindow(-50.0, start_time=100.0, end_time=100.5)  # monotonic seconds
     assert live.time_range_ns(NOW, 101 * NS_PER_S, 0.5) == (NOW - NS_PER_S,
                                                             NOW - NS_PER_S // 2)  # fmt: skip

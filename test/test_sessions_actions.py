@@ -74,6 +74,26 @@ def test_another_controller_on_the_recorded_bits_is_a_what_if(capsys) -> None:
     assert [row["y"] for row in rows] == [int(b) for _, b in load_session(SESSION).bits]
 
 
+def test_a_what_if_on_a_session_with_withheld_steps_leaves_them_uncounted(
+    tmp_path: Path, capsys
+) -> None:
+    from infomax_contingency.eval.sessions import write_offline_session
+
+    bits = [k % 3 == 0 for k in range(24)]
+    withheld = [k in (4, 5, 6, 13) for k in range(24)]  # the robot's sound, a gap
+    bag = write_offline_session(tmp_path / "bag", bits, [False] * 24, [0.01] * 24, 0.5,
+                                withheld=withheld)  # fmt: skip
+    assert main(["replay", str(bag), "--actions", "fixed:4", "--json"]) == 0
+    rows = _rows(capsys)
+    params = NAMED_PARAMS["robot"]
+    events = []
+    for k, row in enumerate(rows):
+        assert (row["y"], row["u"]) == (int(bits[k]), int((k + 1) % 4 == 0))
+        if not withheld[k]:
+            events.append((brute_force.period(params, row["z"]), row["y"]))
+        assert row["belief"] == pytest.approx(brute_force.belief(params, events), abs=1e-12)
+
+
 def test_a_wav_with_an_actions_csv_puts_each_sound_on_the_step_before_its_window(
     tmp_path: Path, capsys
 ) -> None:

@@ -59,7 +59,8 @@ class SourceWindow:
         span_ns: its time range ``[start, end)`` on the clock of the chunks'
             publication times, ns (the ``audio`` topic:
             :class:`~infomax_contingency.core.selfsound.ChunkClock`), else None.
-        withheld: a session recorded it withheld (heard during the robot's own sound).
+        withheld: a session recorded it withheld (the robot's own sound, or right after
+            windows without a step).
     """
 
     energy_db: float
@@ -150,6 +151,7 @@ class TopicWindows(WindowSource):
         self._ready: list[SourceWindow] = []
         self.dropped_chunks = 0
         """Chunks found missing."""
+        self._lost_s = 0.0  # audio missed before the next window (its ``gap_s``)
         self.bad_chunks = 0
         """Chunks of bad samples, ignored."""
 
@@ -170,6 +172,7 @@ class TopicWindows(WindowSource):
                 self._assembler.reset()
                 self._clock.reset()
                 self._windows_since_gap = 0
+                self._lost_s = max(missed * len(chunk), 1) / self.rate_hz  # chunks as this one
             self._last_sequence = sequence
         try:
             windows = self._assembler.push_windows(chunk)
@@ -184,7 +187,9 @@ class TopicWindows(WindowSource):
             first = self._windows_since_gap * n
             self._windows_since_gap += 1
             span = self._clock.window_ns(first, n) if published_ns is not None else None
-            self._ready.append(SourceWindow(float(e), w if self.samples else None, span_ns=span))
+            self._ready.append(SourceWindow(float(e), w if self.samples else None, span_ns=span,
+                                            gap_s=self._lost_s))  # fmt: skip
+            self._lost_s = 0.0
         return missed
 
     def take(self) -> list[SourceWindow]:

@@ -197,8 +197,11 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
         what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
     bits, threshold = wav_background_bits(path, params, mic, decisions, **options)
     records = replay_windows(bits, decisions, params, memory)
-    skipped = sum(bit is None for bit in bits)
-    return records, f"{what}; {threshold}; the first {skipped} windows heard the room (no step)"
+    first = next((k for k, bit in enumerate(bits) if bit is not None), len(bits))
+    later = sum(bit is None for bit in bits[first:])
+    more = f", {later} later windows gave no step either" if later else ""
+    return records, (f"{what}; {threshold}; the first {first} windows heard the room (no step)"
+                     f"{more}")  # fmt: skip
 
 
 def run_replay(args: argparse.Namespace) -> int:

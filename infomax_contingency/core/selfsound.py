@@ -297,16 +297,23 @@ def describe(gate: SelfSoundGate[Any]) -> dict[str, Any]:
 
 
 class GapWithholding:
-    """Bits withheld right after a gap: windows without a step, or audio lost between them.
+    """Bits withheld right after a gap: windows without a step, lost or dropped.
 
     The controller and the belief count steps; the model's timer counts windows. After
-    windows that gave no step (a bit source calibrating again, a threshold out of range)
-    or audio lost between two windows, a step's timer may lag its window's: for up to
-    ``steps`` (``ta2 + 1``) steps it can still put a window in the robot's own sound or
-    the agent period of a vocalization made before the gap. Those bits are withheld (no
-    one counts them, exactly as the robot's own sound), and from then on the steps'
-    timer is the windows' again (a vocalization meanwhile sets both to 0). Windows
-    before the first bit never start a gap: the timer is "long ago" for both.
+    windows that gave no step (a bit source calibrating again, a threshold out of range),
+    audio lost between windows, or windows dropped before they got a step, a step's timer
+    lags its window's: a step within ``steps`` (``ta2 + 1``) of a vocalization decided
+    before the gap would be counted in the robot's own sound or the agent period though
+    its window is later. Those bits are withheld (no one counts them, exactly as the
+    robot's own sound); from then on the steps' timer is the windows' again.
+
+    Call :meth:`bit` for each step in order (``gap_before``: a gap came right before its
+    window) and :meth:`decided` with each decision when it is known. With the decisions
+    on every step before the gap known, exactly the steps whose timer could lag are
+    withheld (none if no vocalization came in the last ``steps`` steps); otherwise
+    ``steps`` bits. A vocalization decided on a step after the gap ends the withholding
+    (both timers are 0 after it). A gap before the first bit is none: both timers are
+    "long ago" then.
 
     Pure bookkeeping: mic_node and the offline loop
     (:class:`~infomax_contingency.sim.fake_room.AudioWorld`) use it alike.
@@ -317,25 +324,26 @@ class GapWithholding:
             raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
         self.steps = steps
         self.bits = 0
-        """Bits given so far."""
+        """Steps given so far (the last one's number)."""
         self.withheld = 0
         """Bits withheld because they came right after a gap."""
         self.gaps = 0
-        """Gaps that started a withholding (a gap within one counts once)."""
-        self._left = 0
+        """Gaps after the first bit."""
+        self._left = 0  # bits still to withhold
+        self._first_after_gap = 0  # the step of the first bit after the last gap
+        self._decided = 0  # the highest step whose decision came
+        self._vocalized: int | None = None  # the last step decided with a vocalization
+        self._lost: int | None = None  # the last step whose decision was lost
 
-    def no_step(self) -> bool:
-        """A window gave no step; True if that starts a withholding (for one log line)."""
-        return self._gap()
+    def bit(self, gap_before: bool = False) -> bool:
+        """The next step's bit; True if it is withheld.
 
-    def bit(self, audio_lost_before: bool = False) -> bool:
-        """A window gives a bit; True if it goes out withheld.
-
-        ``audio_lost_before``: at least one window's worth of audio was lost right before
-        it (a live device's gap).
+        ``gap_before``: windows gave no step, were lost or dropped right before its window.
         """
-        if audio_lost_before:
-            self._gap()
+        if gap_before and self.bits:
+            self.gaps += 1
+            self._first_after_gap = self.bits + 1
+            self._left = self._lagging_steps()
         self.bits += 1
         if not self._left:
             return False
@@ -343,11 +351,25 @@ class GapWithholding:
         self.withheld += 1
         return True
 
-    def _gap(self) -> bool:
-        if not self.bits:
-            return False
-        starts = not self._left
-        self.gaps += starts
-        self._left = self.steps
-        return starts
+    def decided(self, step: int, u: int | None) -> None:
+        """The decision on ``step`` (1: vocalize, 0: not, None: lost), in step order."""
+        if u is None:
+            self._lost = step
+        elif u:
+            self._vocalized = step
+            if self._first_after_gap and step >= self._first_after_gap:
+                self._left = 0  # both timers are 0 from the next step on
+        self._decided = max(self._decided, step)
 
+    def _lagging_steps(self) -> int:
+        """Steps from the next one whose timer may lag their window's."""
+        known = self._decided >= self.bits and (
+            self._lost is None or (self._vocalized is not None and self._lost < self._vocalized)
+        )
+        if not known:
+            return self.steps
+        if self._vocalized is None:
+            return 0
+        # the step after a vocalization decided on step v has timer 0: step s has s - v - 1,
+        # which lags while it is at most ta2 (s <= v + steps)
+        return max(0, self._vocalized + self.steps - self.bits)

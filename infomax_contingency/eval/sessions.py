@@ -21,6 +21,7 @@ import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from infomax_contingency.audio.background import ordinal
 from infomax_contingency.audio.bitsources.rules import Binarizer
@@ -34,10 +35,10 @@ from infomax_contingency.audio.threshold import (
 from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
-from infomax_contingency.core.selfsound import recorded_observation
+from infomax_contingency.core.selfsound import GapWithholding, recorded_observation
 from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.sim.loop import run_loop
-from infomax_contingency.sim.simulation import BitObservation, StepRecord, step_record
+from infomax_contingency.sim.simulation import StepRecord, step_record
 
 SESSION_TOPICS = ("/sound_step", "/vocalize_step", "/belief", "/diagnostics")
 """Topics a replay with recorded actions reads."""
@@ -138,20 +139,30 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
 # What-if replays and plain wav files: actions from a policy, a CSV file or a channel.
 
 
+class _RecordedBit(NamedTuple):
+    """A recorded step's bit, and whether it was withheld (counted by no one)."""
+
+    y: int
+    withheld: bool = False
+
+
 class _GivenBits:
     """A loop world that hears given bits whatever is decided (a recording)."""
 
-    def __init__(self, bits: Sequence[bool]) -> None:
+    def __init__(self, bits: Sequence[bool | Withheld]) -> None:
         self.bits = iter(bits)
 
-    def observe(self) -> BitObservation:
-        return BitObservation(int(next(self.bits)))
+    def observe(self) -> _RecordedBit:
+        bit = next(self.bits)
+        if isinstance(bit, Withheld):
+            return _RecordedBit(int(bit.bit), withheld=True)
+        return _RecordedBit(int(bit))
 
     def act(self, u: int) -> None:
         """A recording does not answer."""
 
 
-def replay_bits(bits: Sequence[bool], controller: Controller, memory: int = 0
+def replay_bits(bits: Sequence[bool | Withheld], controller: Controller, memory: int = 0
                 ) -> Iterator[StepRecord]:
     """The steps of ``controller`` deciding on recorded ``bits``, as ``simulate --json`` rows.
 
@@ -197,8 +208,11 @@ def replay_windows(bits: Sequence[bool | None], decisions: Sequence[bool], param
         tracker.act(u)
 
 
-def recorded_bits(session: RecordedSession) -> list[bool]:
-    """The bits of the session's stream in step order (a step never recorded is skipped)."""
+def recorded_bits(session: RecordedSession) -> list[bool | Withheld]:
+    """The bits of the session's stream in step order (a step never recorded is skipped).
+
+    A withheld step's bit is a :class:`~infomax_contingency.core.model.Withheld`.
+    """
     return [bit for _, bit in sorted(dict(session.bits).items())]
 
 
@@ -277,7 +291,9 @@ class _WavLevels:
     """A loop world: a wav file's windows through a ``background`` threshold, in the loop.
 
     The decision on each bit labels the windows after it (as mic_node's ``source: wav``
-    in lockstep); a window of the warm-up yields no step.
+    in lockstep); a window of the warm-up yields no step, and the bits right after
+    windows without a step are withheld, as mic_node's
+    (:class:`~infomax_contingency.core.selfsound.GapWithholding`).
     """
 
     def __init__(self, path: Path, params: ModelParams, channel: int | None, **options: object
@@ -287,16 +303,25 @@ class _WavLevels:
         self.replay = WavReplay(path, params.dt, channel, samples=True)
         self.source = make_bit_source("background", PROCESSING_RATE_HZ, params.dt, **options)
         self.source.follow_model(params)
+        self.gap = GapWithholding(params.ta2 + 1)
+        self._gap_next = False
+        self._withheld = False
 
-    def observe(self) -> BitObservation | None:
+    def observe(self) -> _RecordedBit | None:
         window = self.replay.next_window()
         if window is None:
             raise _EndOfRecordingError
         bit = self.source.push_window(window)
-        return None if bit is None else BitObservation(int(bit))
+        if bit is None:
+            self._gap_next = True
+            return None
+        self._withheld = self.gap.bit(gap_before=self._gap_next)
+        self._gap_next = False
+        return _RecordedBit(int(bit), withheld=self._withheld)
 
     def act(self, u: int) -> None:
-        self.source.note_decision(u)
+        self.gap.decided(self.gap.bits, u)
+        self.source.note_decision(u, self._withheld)
 
 
 def wav_background_loop(path: Path, params: ModelParams, channel: int | None,

@@ -18,8 +18,9 @@ until they come, and named and ignored once it answers the followed stream again
 decision forged with the controller's id and a new stream id cannot move the node off
 its stream). The fake room hears the same decisions.
 
-A withheld bit (heard while the robot declared its own sound on ``self_sound``) is
-not counted: the belief is still published for its step.
+A withheld bit (heard while the robot declared its own sound on ``self_sound``, or
+right after windows without a step) is not counted: the belief is still published for
+its step.
 
 Nothing is guessed: a step whose bit can no longer arrive is applied without it (not
 counted), a step whose decision can no longer arrive leaves the timer uncertain until it

@@ -29,8 +29,8 @@ ignored, and one whose step jumps further ahead than the stream's pace allows
 ignored (diagnostics ERROR) unless the stream goes on from there for
 ``source_timeout_s`` with nothing on pace meanwhile (its messages were lost). Bits whose
 window length is not the model's dt are refused. A withheld bit (the window overlapped
-the robot's declared own sound, ``self_sound``) is answered like any other, but the
-statistic does not count it.
+the robot's declared own sound, ``self_sound``, or came right after windows without a
+step) is answered like any other, but the statistic does not count it.
 
 Subscribes ``sound_step`` (std_msgs/Int64MultiArray); publishes ``vocalize`` (Bool, one
 per bit), ``vocalize_step`` (Int64MultiArray) and ``/diagnostics``.

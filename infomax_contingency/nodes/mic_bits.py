@@ -13,7 +13,6 @@ decisions on the bits before them are in (:meth:`BitSourceControls.decidable`).
 
 from __future__ import annotations
 
-import dataclasses
 from collections import deque
 from collections.abc import Iterable, Iterator
 from typing import Any
@@ -122,7 +121,9 @@ class BitSourceControls:
         self.decided_without_wait = 0
         """Held windows decided before the decisions on the bits before them came."""
         self.gap = GapWithholding(config.params.ta2 + 1)
-        """Bits withheld right after windows without a step (:meth:`after_gap`)."""
+        """Bits withheld right after a gap (:meth:`gap_before`, :meth:`released`)."""
+        self._gap_next = False  # windows gave no step since the last window with a bit
+        self._drop_gap = False  # windows were dropped from the outbox since the last step
 
     def activate(self, stream: int) -> None:
         """The ``no_step`` publisher of mic_node's ``stream``."""
@@ -195,28 +196,22 @@ class BitSourceControls:
         """The last window gave no step: say so on ``no_step`` (a lockstep room goes on)."""
         self.windows_without_step += 1
         self.no_step_pub.publish(no_step_message(NoStep(self.stream, self.windows)))
-        if self.gap.no_step():
-            self._log_gap("gave no step (the bit source calibrating again)")
+        if self.gap.bits and not self._gap_next:
+            self._log_gap("gave no step (the bit source calibrating, or out of range)")
+        self._gap_next = True
 
-    def after_gap(self, window: SourceWindow) -> SourceWindow:
-        """A window that gives a bit, withheld if it comes right after a gap.
-
-        See :class:`~infomax_contingency.core.selfsound.GapWithholding`: after windows
-        without a step or audio lost between windows, the next ``ta2 + 1`` bits go out
-        withheld, so no step is counted in a period its window was not in.
-        """
-        lost = window.gap_s >= self.config.window_s
-        gaps = self.gap.gaps
-        withheld = self.gap.bit(audio_lost_before=lost)
-        if self.gap.gaps > gaps:
+    def gap_before(self, window: SourceWindow) -> bool:
+        """True if windows gave no step or audio was lost right before ``window`` (a bit)."""
+        if window.gap_s > 0 and self.gap.bits:
             self._log_gap(f"were lost ({window.gap_s:.2f} s of audio)")
-        return dataclasses.replace(window, withheld=True) if withheld else window
+        gap, self._gap_next = self._gap_next or window.gap_s > 0, False
+        return gap
 
     def _log_gap(self, what: str) -> None:
         self.node.log_throttled(
             "gap", "info",
-            f"windows after step {self.gap.bits} {what}: the next {self.gap.steps} bits go"
-            " out withheld (until then a step's timer may lag its window's)",
+            f"windows after step {self.gap.bits} {what}: up to {self.gap.steps} bits after"
+            " them go out withheld (a step's timer may lag its window's until then)",
         )  # fmt: skip
 
     def use_source(self, source: WindowSource) -> None:
@@ -241,25 +236,34 @@ class BitSourceControls:
         """The decision on ``step`` came (the last answered before it: ``last_answered``).
 
         A source that labels windows by the decisions (``background``) gets each one in
-        step order; a step skipped between the two lost its decision (None).
+        step order, and so does the withholding after gaps; a step skipped between the two
+        lost its decision (None).
         """
-        if not self._learns_from_decisions:
-            return
         for answered in range(last_answered + 1, step + 1):
             u = int(vocalize) if answered == step else None
-            self.bits.note_decision(u, answered in self.withheld_steps)
-            self.withheld_steps.discard(answered)
+            self.gap.decided(answered, u)
+            if self._learns_from_decisions:
+                self.bits.note_decision(u, answered in self.withheld_steps)
+                self.withheld_steps.discard(answered)
 
     def dropped(self, windows: int) -> None:
-        """``windows`` dropped from the outbox: they never get a decision."""
+        """``windows`` dropped from the outbox: they never get a decision (a gap)."""
+        self._drop_gap = self._drop_gap or windows > 0
         if self._learns_from_decisions:
             for _ in range(windows):
                 self.bits.note_decision(None)
 
-    def released(self, step: int, withheld: bool) -> None:
-        """``step`` went out; a withheld one (the robot's own sound) is not the room's."""
+    def released(self, step: int, withheld: bool, gap_before: bool) -> bool:
+        """``step`` goes out; True if withheld (the robot's own sound, or right after a gap).
+
+        ``gap_before``: :meth:`gap_before` of its window. A withheld step is not the room's.
+        """
+        after_gap = self.gap.bit(gap_before or self._drop_gap)
+        self._drop_gap = False
+        withheld = withheld or after_gap
         if withheld and self._learns_from_decisions:
             self.withheld_steps.add(step)
+        return withheld
 
     @property
     def _no_audio(self) -> str:

@@ -258,7 +258,7 @@ class MicNode(GraphNode):
             self.energy_pub.publish(Float32(data=energy_db))
             self.controls.say_no_step()
             return None
-        self.self_sound.push(self.controls.after_gap(window), energy_db, bit)
+        self.self_sound.push(window, energy_db, bit, self.controls.gap_before(window))
         self._release()
         return bit
 
@@ -313,9 +313,9 @@ class MicNode(GraphNode):
             outbox.in_flight + outbox.backlog > outbox.max_ahead
             and self._decisions_sub.get_publisher_count() > 0
         )
-        for step, (energy_db, bit, withheld) in self.outbox.release(paced, now):
+        for step, (energy_db, bit, withheld, gap_before) in self.outbox.release(paced, now):
             self.windows += 1
-            self.controls.released(step, withheld)
+            withheld = self.controls.released(step, withheld, gap_before)
             self.energy_pub.publish(Float32(data=energy_db))
             self.sound_pub.publish(Bool(data=bit))
             self.step_pub.publish(

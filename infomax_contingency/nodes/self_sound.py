@@ -61,13 +61,16 @@ class SelfSoundInput:
             self.faults.note(self.node.now_s())
             self.node.log_throttled("self_sound", "warning", verdict.problem)
 
-    def push(self, window: SourceWindow, energy_db: float, bit: bool) -> None:
-        """A window's bit: it waits for the ranges that may overlap its time range."""
-        span = window.time_range_ns(self._now_ns(), time.monotonic_ns(), self.window_s)
-        self.gate.push(*span, (energy_db, bit, window.withheld))
+    def push(self, window: SourceWindow, energy_db: float, bit: bool, gap_before: bool) -> None:
+        """A window's bit: it waits for the ranges that may overlap its time range.
 
-    def release(self, replaying_in_lockstep: bool) -> list[tuple[float, bool, bool]]:
-        """``(energy_db, bit, withheld)`` of the windows that may go now, oldest first.
+        ``gap_before`` is carried along (mic_node's withholding after gaps).
+        """
+        span = window.time_range_ns(self._now_ns(), time.monotonic_ns(), self.window_s)
+        self.gate.push(*span, (energy_db, bit, window.withheld, gap_before))
+
+    def release(self, replaying_in_lockstep: bool) -> list[tuple[float, bool, bool, bool]]:
+        """``(energy_db, bit, withheld, gap_before)`` of the windows that may go now, oldest first.
 
         Windows wait only while someone publishes on ``self_sound``; a replay in
         lockstep has no live sound to wait for.
@@ -75,7 +78,8 @@ class SelfSoundInput:
         if not self.gate.waiting:
             return []
         holding = not replaying_in_lockstep and self._subscription.get_publisher_count() > 0
-        return [(energy_db, bit, withheld or recorded) for (energy_db, bit, recorded), withheld
+        return [(energy_db, bit, withheld or recorded, gap)
+                for (energy_db, bit, recorded, gap), withheld
                 in self.gate.release(self._now_ns(), holding)]  # fmt: skip
 
     def values(self) -> dict[str, Any]:

@@ -7,8 +7,9 @@ dimension labelled with the field names):
 * ``sound_step``: ``[stream, step, bit, window_us, withheld]`` — the bit ``y_t`` of
   window ``step`` (1, 2, ...) of ``stream`` (a random id chosen by each run of mic_node),
   whose windows last ``window_us`` microseconds; ``withheld`` is 1 when the window
-  overlapped sound the robot declared as its own (``self_sound``): the bit is what was
-  heard, but it is no evidence and no listener counts it
+  overlapped sound the robot declared as its own (``self_sound``) or came right after
+  windows without a step (:class:`~infomax_contingency.core.selfsound.GapWithholding`):
+  the bit is what was heard, but it is no evidence and no listener counts it
   (:class:`~infomax_contingency.core.model.Withheld`). A message of the first four
   fields only (recordings made before ``withheld`` existed) is a window not withheld;
 * ``vocalize_step``: ``[stream, step, vocalize, controller]`` — the decision ``u_t`` on
@@ -51,7 +52,7 @@ _NO_STEP_FIELDS = ("stream", "window")
 
 
 class StepBit(NamedTuple):
-    """A bit with its identity; ``withheld``: heard during the robot's own sound."""
+    """A bit with its identity; ``withheld``: the robot's own sound, or right after a gap."""
 
     stream: int
     step: int

@@ -78,15 +78,13 @@ from infomax_contingency.audio.common import PROCESSING_RATE_HZ
 from infomax_contingency.audio.energy import window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
+from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.selfsound import GapWithholding
 from infomax_contingency.sim import room_sounds
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.room_sounds import FLOOR_SPECTRA, NoiseFloor, rms_scaled
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 
-ROBOT_GAP_STEPS = NAMED_PARAMS["robot"].ta2 + 1
-"""Bits an :class:`AudioWorld` withholds after a gap unless told (the robot's ``ta2 + 1``)."""
 ROBOT_SOUND_S = 0.2
 """Length of the robot's chirp, seconds."""
 
@@ -845,8 +843,9 @@ class AudioObservation(NamedTuple):
         y: the window's bit.
         energy_db: the window's energy (of the float32 samples), dB.
         partner_present: the room's ground truth at the start of the window.
-        withheld: the window overlaps the robot's declared speech: observed, not
-            counted (:func:`~infomax_contingency.sim.loop.run_loop`).
+        withheld: the window overlaps the robot's declared speech, or comes right after
+            windows without a step: observed, not counted
+            (:func:`~infomax_contingency.sim.loop.run_loop`).
     """
 
     y: int
@@ -870,18 +869,19 @@ class AudioWorld:
         declare_self_sound: a window that overlaps the robot's speech is withheld (as
             the graph does when fake_audio_node publishes ``self_sound``); False: it is
             evidence like any other (the robot says nothing about its own sound).
-        gap_steps: bits withheld after windows without a step, once a bit was given
-            (:class:`~infomax_contingency.core.selfsound.GapWithholding`: ``ta2 + 1``).
+        gap_steps: the model's ``ta2 + 1``: bits right after windows without a step are
+            withheld as mic_node withholds them
+            (:class:`~infomax_contingency.core.selfsound.GapWithholding`).
     """
 
     def __init__(self, room: FakeRoom, binarizer: BitSource,
-                 declare_self_sound: bool = True, gap_steps: int = ROBOT_GAP_STEPS
-                 ) -> None:  # fmt: skip
+                 declare_self_sound: bool = True, *, gap_steps: int) -> None:  # fmt: skip
         self.room = room
         self.binarizer = binarizer
         self.declare_self_sound = declare_self_sound
         self.gap = GapWithholding(gap_steps)
         """Bits withheld right after windows without a step, as mic_node withholds them."""
+        self._gap_next = False  # windows gave no step since the last bit
         self._withheld = False  # the last observed window's, for the decision on it
 
     def observe(self) -> AudioObservation | None:
@@ -890,9 +890,10 @@ class AudioWorld:
         y = self.binarizer.push_window(as_transmitted(window.samples).astype(np.float64))
         energy = self.binarizer.last_energy_db
         if y is None:
-            self.gap.no_step()
+            self._gap_next = True
             return None
-        after_gap = self.gap.bit()
+        after_gap = self.gap.bit(gap_before=self._gap_next)
+        self._gap_next = False
         withheld = (self.declare_self_sound and window.robot_sound) or after_gap
         self._withheld = withheld
         return AudioObservation(int(y), energy, window.partner_present, withheld)
@@ -903,6 +904,7 @@ class AudioWorld:
         A source that learns from the decisions also hears whether the window was withheld
         (the robot's own sound is not the room's background), as mic_node tells it.
         """
+        self.gap.decided(self.gap.bits, u)
         if getattr(self.binarizer, "needs_decisions", False):
             self.binarizer.note_decision(u, self._withheld)
         if u:
@@ -920,7 +922,7 @@ class AudioStepRecord:
         u: the decision taken after it (1 = vocalize).
         belief: P(S=1) after counting y.
         partner_present: the room's ground truth at the start of the window.
-        withheld: y was not counted (the robot's declared speech).
+        withheld: y was not counted (the robot's declared speech, or right after a gap).
     """
 
     t: int
@@ -942,7 +944,7 @@ def iter_audio_loop(
 ) -> Iterator[AudioStepRecord]:
     """The streaming form of :func:`simulate_audio_loop` (``steps = None``: without end)."""
     params = controller.params
-    world = AudioWorld(room, binarizer, declare_self_sound, params.ta2 + 1)
+    world = AudioWorld(room, binarizer, declare_self_sound, gap_steps=params.ta2 + 1)
     for step in run_loop(world, controller, steps, memory=memory):
         seen = step.observation
         yield AudioStepRecord(

@@ -26,8 +26,9 @@ class Observation(Protocol):
     """What a world reports for one window: at least its bit ``y`` (0 or 1).
 
     A world whose observations have a true ``withheld`` attribute reports a window the
-    robot declared as its own sound: it is observed, but not counted (by the reporting
-    statistic nor the controller's: :class:`~infomax_contingency.core.model.Withheld`).
+    robot declared as its own sound, or one right after windows without a step: it is
+    observed, but not counted (by the reporting statistic nor the controller's:
+    :class:`~infomax_contingency.core.model.Withheld`).
     """
 
     @property
