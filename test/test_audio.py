@@ -546,6 +546,17 @@ def test_save_refuses_non_finite_fit(tmp_path) -> None:
         )
 
 
+def test_save_refuses_a_directory_and_leaves_nothing_behind(tmp_path) -> None:
+    fit = ThresholdFit(-30.0, -50.0, -10.0, 1, 1)
+    with pytest.raises(AudioError, match="it is a directory"):
+        save_threshold(tmp_path, fit, window_s=0.1, rate=16000, source="x")
+    (tmp_path / "t.yaml").mkdir()
+    (tmp_path / "t.yaml" / "inside").write_text("")  # a directory that cannot be replaced
+    with pytest.raises(AudioError, match="it is a directory"):
+        save_threshold(tmp_path / "t.yaml", fit, window_s=0.1, rate=16000, source="x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
+
+
 # --------------------------------------------------------------------------- synthesis
 
 

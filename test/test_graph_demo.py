@@ -124,14 +124,36 @@ def test_demo_replays_a_wav_file() -> None:
     assert result.stdout.splitlines()[-1].startswith("# verdict: the robot thinks:")
 
 
+@NODE_GRAPHS
 @pytest.mark.slow
-def test_demo_refuses_a_missing_wav_file() -> None:
+def test_demo_says_in_one_line_why_a_recording_gave_no_step(tmp_path: Path) -> None:
+    """3 s of audio: all of it goes to the default source's warm-up (about 6 s)."""
+    from infomax_contingency.audio.wav import write_wav_int16
+
+    short = tmp_path / "short.wav"
+    write_wav_int16(short, np.random.default_rng(0).normal(0, 0.01, 3 * 16000), 16000)
+    result = demo("--wav", str(short))
+    assert result.returncode == 1, result.stdout + result.stderr
+    errors = [line for line in result.stderr.splitlines() if "demo: error" in line]
+    assert errors == [f"infomax-contingency demo: error: {short} gave no step: its 6 windows"
+                      " all went by without a bit (the bit source hears about 6 s of"
+                      " background that is not digital silence first; mic_node's lines"
+                      " above say more)"], result.stderr  # fmt: skip
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
+def test_demo_refuses_a_missing_wav_file(tmp_path: Path) -> None:
     result = demo("--wav", "/nonexistent.wav")
     assert result.returncode == 2
     assert (
         result.stderr.strip()
         == "infomax-contingency demo: error: --wav /nonexistent.wav: no such file"
     )
+    result = demo("--wav", str(tmp_path))
+    assert result.returncode == 2
+    assert result.stderr.strip() == (f"infomax-contingency demo: error: --wav {tmp_path}: a"
+                                     " directory, not a wav file")  # fmt: skip
 
 
 def test_the_shipped_configs_find_the_partner_and_notice_they_left() -> None:

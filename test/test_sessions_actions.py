@@ -134,6 +134,60 @@ def test_a_sound_during_the_warm_up_labels_the_steps_after_it(tmp_path: Path, ca
         assert row["belief"] == pytest.approx(brute_force.belief(params, events), abs=1e-12)
 
 
+def test_a_wav_that_gives_no_step_is_undetermined_and_says_why(tmp_path: Path, capsys) -> None:
+    """Digital silence: no background window to set a threshold, no verdict made up."""
+    silent = tmp_path / "silent.wav"
+    write_wav_int16(silent, np.zeros(16000 * 20), 16000)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n5.0\n12.0\n")
+    assert main(["replay", str(silent), "--actions", str(actions)]) == 1
+    out = capsys.readouterr().out
+    assert "only 0 of its background windows were not digital silence" in out, out
+    assert "-> undetermined (no step)" in out and "no partner" not in out
+
+
+def test_a_replayed_wav_reports_clipping_and_a_dc_offset(tmp_path: Path, capsys) -> None:
+    rate = 16000
+    noise = np.random.default_rng(1).normal(0, 0.01, rate * 20)
+    noise[::50] = 1.0  # 2 % of the samples at full scale
+    faulty = tmp_path / "faulty.wav"
+    write_wav_int16(faulty, noise + 0.3, rate)  # and a DC offset
+    actions = _csv(tmp_path / "actions.csv", "time_s\n8.0\n12.0\n")
+    assert main(["replay", str(faulty), "--actions", str(actions)]) == 0
+    out = capsys.readouterr().out
+    assert "windows were clipped (samples at full scale): lower the input gain" in out, out
+    assert "windows had a DC offset (removed from the level; check the microphone)" in out
+
+
+def test_a_reference_channel_sounding_in_the_first_window_is_refused(tmp_path: Path,
+                                                                     capsys) -> None:
+    rate = 16000
+    mic = load_mono(WAV, rate)
+    reference = np.zeros_like(mic)
+    chirp = synthesize_chirp(rate, 0.2, amplitude=0.5)
+    for start_s in (0.0, *CHIRPS_S[1:]):  # the first at once: it follows no decision
+        reference[round(start_s * rate):round(start_s * rate) + chirp.size] += chirp
+    stereo = tmp_path / "early.wav"
+    write_wav_int16(stereo, np.stack([mic, reference], axis=1), rate)
+    assert main(["replay", str(stereo), "--actions", "channel:1"]) == 2
+    error = capsys.readouterr().err
+    assert "the robot's sound already plays in the first window" in error
+    assert len(error.strip().splitlines()) == 1
+
+
+def test_a_closed_pipe_ends_the_replay_quietly(tmp_path: Path) -> None:
+    """``replay X.wav --json | head``: 1,200 steps, more than a pipe's buffer (64 KiB)."""
+    import subprocess
+    import sys
+
+    long_wav = tmp_path / "ten_minutes.wav"
+    write_wav_int16(long_wav, np.random.default_rng(2).normal(0, 0.01, 600 * 8000), 8000)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n8.0\n")
+    command = (f"{sys.executable} -m infomax_contingency.cli replay {long_wav} --actions"
+               f" {actions} --json | head -n 1")  # fmt: skip
+    result = subprocess.run(command, shell=True, capture_output=True, text=True, timeout=120)
+    assert len(result.stdout.splitlines()) == 1 and result.stderr == "", result.stderr
+
+
 def test_a_reference_channel_gives_the_decisions_of_the_csv(stereo_wav: Path, tmp_path: Path,
                                                             capsys) -> None:
     actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")

@@ -66,6 +66,8 @@ def save_threshold(
         record["level"] = str(level)
     what = "energy" if level == "energy" else f"{level} level"
     path = Path(path)
+    if path.is_dir():
+        raise AudioError(f"cannot write the threshold file {path}: it is a directory")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(
@@ -73,7 +75,11 @@ def save_threshold(
         + yaml.safe_dump(record, sort_keys=False),
         encoding="utf-8",
     )
-    tmp.replace(path)
+    try:
+        tmp.replace(path)
+    except OSError as error:
+        tmp.unlink(missing_ok=True)
+        raise AudioError(f"cannot write the threshold file {path}: {error.strerror}") from None
 
 
 def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:  # noqa: C901

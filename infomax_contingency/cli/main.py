@@ -392,11 +392,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
+    except BrokenPipeError:  # e.g. `... | head` (an OSError: before USER_ERRORS)
+        devnull = os.open(os.devnull, os.O_WRONLY)  # nothing more to write at exit either
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
     except USER_ERRORS as error:
         print(f"infomax-contingency {args.command}: error: {error}", file=sys.stderr)
         return 2
-    except BrokenPipeError:  # e.g. `... | head`
-        return 0
     except KeyboardInterrupt:
         print(f"infomax-contingency {args.command}: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS

@@ -262,7 +262,7 @@ def _write_line(text: str) -> None:
 
 
 def _print_what_if(args: argparse.Namespace, records: Iterator, what: str) -> int:
-    """Stream the steps (``--json``) and print a summary line; 0."""
+    """Stream the steps (``--json``) and print a summary line; 0 (1: there was no step)."""
     summary = RunSummary()
     for record in records:
         summary.add(record)
@@ -272,7 +272,7 @@ def _print_what_if(args: argparse.Namespace, records: Iterator, what: str) -> in
     print(f"# replay {args.session}, {what}: {summary.steps} steps, {summary.vocalizations}"
           f" vocalizations; final P(S=1) = {final} -> {summary.verdict}",
           file=sys.stderr if args.json else sys.stdout)
-    return 0
+    return 0 if summary.steps else 1
 
 
 def register_analyze(subparsers: argparse._SubParsersAction) -> None:

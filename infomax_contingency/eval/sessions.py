@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from infomax_contingency.audio.background import ordinal
+from infomax_contingency.audio.background import BackgroundThreshold, ordinal
 from infomax_contingency.audio.bitsources.rules import Binarizer
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.energy import wav_energies
@@ -184,7 +184,8 @@ def replay_windows(bits: Sequence[bool | None], decisions: Sequence[bool], param
     such a window is no step, but the decision taken after it (``decisions[k]``; 0 past
     their end) still moves the timer, so a robot that spoke during the warm-up has the
     windows after its sound counted in the agent period and the background, as they were,
-    not as background. Steps count the windows with a bit, from 1; the belief keeps
+    not as background. Steps count the windows with a bit, from 1, and ``time_s`` is
+    their window's start in the recording (as an actions file's times); the belief keeps
     ``memory`` counted observations (0 = all) and starts from zero counts, the timer
     "long ago". With a bit in every window this is :func:`replay_bits` with
     :class:`~infomax_contingency.core.controllers.ReplayedDecisions`.
@@ -201,7 +202,7 @@ def replay_windows(bits: Sequence[bool | None], decisions: Sequence[bool], param
         z = tracker.statistic.z
         statistic = tracker.observe(bool(bit))
         yield StepRecord(
-            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(bool(bit)), u=u,
+            t=step, time_s=round(k * params.dt, 9), z=z, y=int(bool(bit)), u=u,
             belief=statistic.belief(params), entropy=statistic.entropy(params),
             ratio=statistic.variance_ratio(params),
         )  # fmt: skip
@@ -276,11 +277,21 @@ def wav_background_bits(
         f" windows ({rule.threshold_db:.1f} dB at the end; false alarms"
         f" {rule.false_alarm_now:.3f})"
         if rule.threshold_db is not None
-        else "sound threshold: the recording is shorter than the warm-up, no bit"
+        else f"sound threshold: none, no bit: {_why_no_threshold(rule)}"
     )
-    for problem in rule.problems():
+    for problem in source.problems():  # clipping, DC offset, and the threshold's own
         what += f"; {problem}"
     return bits, what
+
+
+def _why_no_threshold(rule: BackgroundThreshold) -> str:
+    """Why a recording's windows never set a ``background`` threshold (one clause)."""
+    heard = len(rule.background)
+    if rule.windows < rule.warmup_windows + rule.delay:
+        return (f"the recording's {rule.windows} windows are fewer than the warm-up's"
+                f" {rule.warmup_windows} background windows and {rule.delay} more")  # fmt: skip
+    return (f"only {heard} of its background windows were not digital silence, and"
+            f" {rule.warmup_windows} are needed first")
 
 
 class _EndOfRecordingError(Exception):
@@ -379,12 +390,13 @@ def decisions_from_reference(path: Path, channel: int, window_s: float,
     ``min_separation_db`` apart: a silent channel); a sounding window whose previous
     window is quiet is an onset, and an onset in window ``j`` is the decision on window
     ``j - 1`` (as :func:`decisions_from_times`). A sound already playing in the first
-    window follows no decision and is not counted; two sounds in consecutive windows
-    make one onset.
+    window follows no decision: refused, as an actions file's time in the first window
+    is (its chirp and any reply would be counted as background); two sounds in
+    consecutive windows make one onset.
 
     Raises:
         AudioError: unreadable file or missing channel.
-        ValueError: the channel holds no robot sound.
+        ValueError: the channel holds no robot sound, or sounds in the first window.
     """
     energies = wav_energies(path, window_s, channel)
     try:
@@ -393,6 +405,11 @@ def decisions_from_reference(path: Path, channel: int, window_s: float,
         raise ValueError(f"--actions channel:{channel}: the channel holds no sound of the"
                          f" robot ({error})") from None
     sounding = bits_from_energies(energies, fit.threshold_db)
+    if sounding[0]:
+        raise ValueError(f"--actions channel:{channel}: the robot's sound already plays in the"
+                         f" first window (before {window_s:g} s), before any decision could"
+                         " have been taken: start the recording before the robot's first"
+                         " sound")  # fmt: skip
     onsets = sounding[1:] & ~sounding[:-1]
     return [bool(u) for u in onsets] + [False], fit.threshold_db
 

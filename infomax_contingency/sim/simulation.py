@@ -169,6 +169,10 @@ class RunSummary:
 
     @property
     def verdict(self) -> str:
-        """``partner present`` if the last belief is above 1/2, else ``no partner``."""
-        present = self.final_belief is not None and self.final_belief > 0.5
-        return "partner present" if present else "no partner"
+        """``partner present`` if the last belief is above 1/2, else ``no partner``.
+
+        ``undetermined (no step)`` before the first record.
+        """
+        if self.final_belief is None:
+            return "undetermined (no step)"
+        return "partner present" if self.final_belief > 0.5 else "no partner"
