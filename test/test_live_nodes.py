@@ -212,9 +212,9 @@ def heard_from(probe: Live, *nodes: NodeProcess, names: tuple[str, ...]) -> None
 def final_status(probe: Live, node: str, windows: int) -> dict[str, Any]:
     """The diagnostics a mic node publishes when it stops after ``windows`` bits."""
     probe.wait_for(
-        lambda: any(s.get("windows") == str(windows) for s in probe.statuses(node)), node
+        lambda: any(s.get("bits_published") == str(windows) for s in probe.statuses(node)), node
     )
-    return next(s for s in probe.statuses(node) if s.get("windows") == str(windows))
+    return next(s for s in probe.statuses(node) if s.get("bits_published") == str(windows))
 
 
 @pytest.mark.slow

@@ -33,7 +33,7 @@ from infomax_contingency.nodes import speaker_node
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
-from infomax_contingency.nodes.graph_node import WAITING_NOTICE_S, WARN
+from infomax_contingency.nodes.graph_node import ERROR, OK, WAITING_NOTICE_S, WARN
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
@@ -69,6 +69,22 @@ def set_remotely(
     future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
     executor.run_until(future.done, f"the answer of {node}/set_parameters")
     return list(future.result().results)
+
+
+def test_posture_node_names_a_second_publisher_on_belief(graph: Callable) -> None:
+    """A plain Float64 names no sender: a forged belief moves the robot, so it is flagged."""
+    node, probe, executor = graph(PostureNode)
+    rightful, forger = probe.talk("belief", Float64), probe.talk("belief", Float64)
+    executor.connected(rightful)
+    executor.connected(forger)
+    executor.run_until(lambda: node.count_publishers("belief") == 2, "two publishers")
+    node.publish_diagnostics()
+    level, message, _ = node.diagnostic_status()
+    assert level == ERROR and message.startswith("another publisher on 'belief'"), message
+    probe.destroy_publisher(forger)
+    executor.run_until(lambda: node.count_publishers("belief") == 1, "the forger gone")
+    node.publish_diagnostics()
+    assert node.diagnostic_status()[0] == OK
 
 
 def test_a_live_posture_threshold_changes_the_posture_at_once(graph: Callable) -> None:
@@ -310,6 +326,33 @@ def test_mic_withholds_the_bits_right_after_a_recalibration(graph: Callable) -> 
     withheld = [m.data[4] for m in steps]
     assert withheld == [0] * 4 + [1] * 5 + [0] * 3, withheld  # ta2 + 1 = 5 (robot)
     assert node.diagnostic_status()[2]["bits_withheld_after_gap"] == 5
+
+
+def test_mic_takes_steps_a_controller_never_answered_as_lost_and_goes_on(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A restarted controller never gets the steps out before it joined: no deadlock.
+
+    Here a controller answers step 1, then falls silent (its publisher stays, as a new
+    controller's would be). mic_node may have 2 steps out unanswered; after
+    listener_timeout_s without an answer it takes them as lost and publishes on.
+    """
+    node, probe, executor, play = _live_mic(graph, max_steps_ahead=2, listener_timeout_s=0.5)
+    steps = probe.listen("sound_step", Int64MultiArray)
+    controller = probe.talk("vocalize_step", Int64MultiArray)
+    executor.connected(controller)
+    executor.run_until(lambda: node._decisions_sub.get_publisher_count() == 1, "the controller")
+    assert play([-20.0], 1) == [True]
+    executor.run_until(lambda: steps, "step 1")
+    controller.publish(decision_message(StepDecision(node.stream_id, 1, False, 5)))
+    executor.run_until(lambda: node.outbox.last_answered == 1, "the answer to step 1")
+    assert play([-20.0, -60.0], 2) == [True, False]  # steps 2, 3: out, unanswered (the most)
+    executor.run_until(lambda: node.outbox.answers_overdue(node.now_s()), "0.5 s, no answer")
+    assert play([-20.0], 1) == [True]  # the next window finds them overdue: it goes out
+    assert node.outbox.answers_given_up == 2
+    executor.run_until(lambda: len(steps) == 4, "step 4")
+    assert [m.data[1] for m in steps] == [1, 2, 3, 4]
+    assert "no decision on steps 2..3 for 0.5 s" in capfd.readouterr().err
 
 
 def test_mic_recalibrate_in_fixed_mode_keeps_the_live_threshold(graph: Callable) -> None:

@@ -18,7 +18,11 @@ from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.audio.wav import write_wav_int16
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.model import NAMED_PARAMS
-from infomax_contingency.eval.sessions import decisions_from_times, load_session
+from infomax_contingency.eval.sessions import (
+    decisions_from_times,
+    load_session,
+    write_offline_session,
+)
 from infomax_contingency.resources import resource_path
 
 DATA = Path(__file__).parent / "data"
@@ -77,8 +81,6 @@ def test_another_controller_on_the_recorded_bits_is_a_what_if(capsys) -> None:
 def test_a_what_if_on_a_session_with_withheld_steps_leaves_them_uncounted(
     tmp_path: Path, capsys
 ) -> None:
-    from infomax_contingency.eval.sessions import write_offline_session
-
     bits = [k % 3 == 0 for k in range(24)]
     withheld = [k in (4, 5, 6, 13) for k in range(24)]  # the robot's sound, a gap
     bag = write_offline_session(tmp_path / "bag", bits, [False] * 24, [0.01] * 24, 0.5,
@@ -92,6 +94,41 @@ def test_a_what_if_on_a_session_with_withheld_steps_leaves_them_uncounted(
         if not withheld[k]:
             events.append((brute_force.period(params, row["z"]), row["y"]))
         assert row["belief"] == pytest.approx(brute_force.belief(params, events), abs=1e-12)
+
+
+def test_a_forged_step_in_a_bag_is_left_out_as_the_live_nodes_leave_it(
+    tmp_path: Path, capsys
+) -> None:
+    """``ros2 topic pub`` of a far-ahead step during a recording: named, not replayed."""
+    from infomax_contingency.audio.bag import BagWriter, encode
+    from infomax_contingency.eval.sessions import OFFLINE_STREAM, replay_recorded
+
+    params = NAMED_PARAMS["robot"]
+    bits = [k % 4 == 1 for k in range(30)]
+    decisions = [k % 6 == 0 for k in range(30)]
+    clean = write_offline_session(tmp_path / "clean", bits, decisions, [0.5] * 30, 0.5)
+    beliefs = [r.belief for r in replay_recorded(load_session(clean), params)]
+    writer = BagWriter(tmp_path / "forged")
+    qos = [{"history": 1, "depth": 1000, "reliability": 1, "durability": 2}]
+    for topic, kind in (("/sound_step", "std_msgs/msg/Int64MultiArray"),
+                        ("/vocalize_step", "std_msgs/msg/Int64MultiArray"),
+                        ("/belief", "std_msgs/msg/Float64")):  # fmt: skip
+        writer.add_topic(topic, kind, qos)
+    for t in range(30):
+        now = round(t * 0.5e9)
+        writer.write("/sound_step", encode("std_msgs/msg/Int64MultiArray",
+                     data=[OFFLINE_STREAM, t + 1, int(bits[t]), 500000, 0]), now)  # fmt: skip
+        if t == 10:  # the forgery, with the true stream id
+            writer.write("/sound_step", encode("std_msgs/msg/Int64MultiArray",
+                         data=[OFFLINE_STREAM, 50000, 1, 500000, 0]), now + 5)  # fmt: skip
+        writer.write("/vocalize_step", encode("std_msgs/msg/Int64MultiArray",
+                     data=[OFFLINE_STREAM, t + 1, int(decisions[t]), 2]), now + 1)  # fmt: skip
+        writer.write("/belief", encode("std_msgs/msg/Float64", data=beliefs[t]), now + 2)
+    writer.close()
+    assert main(["replay", str(tmp_path / "forged")]) == 0
+    captured = capsys.readouterr()
+    assert "replayed belief equals the recorded belief at all 30 steps" in captured.out
+    assert "the recorded bit for step 50000 ignored: it jumps ahead of step 11" in captured.err
 
 
 def test_a_wav_with_an_actions_csv_puts_each_sound_on_the_step_before_its_window(

@@ -184,6 +184,23 @@ def test_outbox_releases_at_most_max_ahead_unanswered_steps() -> None:
     assert outbox.release(paced=False) == [(6, "f"), (7, "g")]
 
 
+def test_outbox_takes_steps_no_decision_came_for_as_lost_and_goes_on() -> None:
+    """A restarted controller gets none of the steps out before it joined: no deadlock."""
+    outbox = StepOutbox(max_ahead=3, max_backlog=100, listener_timeout_s=5.0)
+    for window in range(10):
+        outbox.push(window)
+    assert [s for s, _ in outbox.release(paced=True, now=0.0)] == [1, 2, 3]
+    outbox.answered(1, now=1.0)  # then the controller dies
+    assert not outbox.answers_overdue(now=5.9)  # 5 s from the last answer, not the first step
+    assert outbox.answers_overdue(now=6.0)
+    assert outbox.give_up_answers() == (2, 3) and outbox.answers_given_up == 2
+    assert not outbox.answers_overdue(now=100.0)  # nothing out
+    assert [s for s, _ in outbox.release(paced=True, now=100.0)] == [4, 5, 6]
+    assert not outbox.answers_overdue(now=104.9) and outbox.answers_overdue(now=105.0)
+    outbox.answered(6, now=104.0)  # the new controller answers: nothing overdue
+    assert not outbox.answers_overdue(now=1000.0)
+
+
 def test_outbox_waits_for_a_listener_that_keeps_up_and_lets_a_stalled_one_go() -> None:
     outbox = StepOutbox(max_ahead=2, max_backlog=100, listener_timeout_s=5.0)
     for window in range(20):

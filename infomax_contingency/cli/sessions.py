@@ -242,10 +242,13 @@ def run_replay(args: argparse.Namespace) -> int:
         (i for i, (a, b) in enumerate(zip(replayed, session.beliefs, strict=False)) if a != b),
         min(len(replayed), len(session.beliefs)),
     )
+    extra = len(session.beliefs) - len(replayed)
+    why = (f"; {extra} more beliefs than steps were recorded: a second publisher on /belief"
+           " (a forged message?) or a restarted belief_node" if extra > 0 else "")  # fmt: skip
     verdict = (
         f"replayed belief equals the recorded belief at all {len(replayed)} steps" if same else
-        f"replayed belief DIFFERS from the recorded one from step {first_difference + 1}"
-        f" ({len(replayed)} steps replayed, {len(session.beliefs)} beliefs recorded)"
+        f"replayed belief DIFFERS from the recorded one from belief {first_difference + 1}"
+        f" ({len(replayed)} steps replayed, {len(session.beliefs)} beliefs recorded{why})"
     )
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1

@@ -33,6 +33,11 @@ class StepListener:
     """True while the outbox waits for it (it has not stalled)."""
 
 
+SOURCE_TIMEOUT_S = 3.0
+"""The nodes' default ``source_timeout_s``: a followed source silent this long is replaced,
+and a run of steps from a jump that lasts this long is taken (messages were lost)."""
+
+
 class Listening(Enum):
     """What :meth:`StepOutbox.acknowledged` made of an acknowledgment."""
 
@@ -98,6 +103,9 @@ class StepOutbox:
         """Times a waited-for listener stalled and was no longer waited for."""
         self.refused_acknowledgments = 0
         """Acknowledgments of steps never handed out."""
+        self.answers_given_up = 0
+        """Steps taken as answered, their decisions lost (:meth:`give_up_answers`)."""
+        self._unanswered_since: float | None = None  # no answer came since then
 
     @property
     def backlog(self) -> int:
@@ -122,10 +130,30 @@ class StepOutbox:
             self._waiting.popleft()
             self.dropped += 1
 
-    def answered(self, step: int) -> None:
-        """A decision on ``step`` came back (duplicates and old steps change nothing)."""
+    def answered(self, step: int, now: float = 0.0) -> None:
+        """A decision on ``step`` came back at ``now`` (duplicates and old steps change nothing)."""
         if self.last_answered < step <= self.last_step:
             self.last_answered = step
+            self._unanswered_since = None if step == self.last_step else now
+
+    def answers_overdue(self, now: float) -> bool:
+        """True if steps are out and no decision came for ``listener_timeout_s``."""
+        since = self._unanswered_since
+        return since is not None and now - since >= self.listener_timeout_s
+
+    def give_up_answers(self) -> tuple[int, int]:
+        """Take every step out as answered, its decision lost; ``(first, last)`` of them.
+
+        For a controller that answers nothing (killed; or restarted, and DDS gives a
+        late joiner none of the steps already published, so it waits for the next one
+        while the outbox waits for its answers): without this the stream would stall
+        for good. Call it when :meth:`answers_overdue` says so.
+        """
+        first, last = self.last_answered + 1, self.last_step
+        self.last_answered = last
+        self._unanswered_since = None
+        self.answers_given_up += last - first + 1
+        return first, last
 
     def acknowledged(self, listener: int, step: int, now: float) -> Listening:
         """Listener ``listener`` took ``step`` (and every step before it) at ``now``."""
@@ -170,6 +198,8 @@ class StepOutbox:
                 for listener in self.listeners.values():
                     if listener.taken >= self.last_step:
                         listener.busy_since = now
+            if self._unanswered_since is None:
+                self._unanswered_since = now  # the first step out since all were answered
             self.last_step += 1
             out.append((self.last_step, self._waiting.popleft()))
         return out

@@ -34,9 +34,10 @@ from infomax_contingency.audio.threshold import (
 )
 from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
 from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
 from infomax_contingency.core.selfsound import GapWithholding, recorded_observation
-from infomax_contingency.core.stepclock import StepJoiner
+from infomax_contingency.core.stepclock import Pace, StepJoiner, StepPace
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import StepRecord, step_record
 
@@ -82,11 +83,39 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
         raise ValueError(f"the session {directory} holds no sound_step messages: nothing to"
                          " replay (was mic_node running while it was recorded?)")
     stream = steps[0][0]
-    bits = [(int(s[1]), recorded_observation(s)) for s in steps if s[0] == stream]
-    decisions = [(int(d[1]), bool(d[2])) for d in (list(m.data) for _, m in
-                 topics["/vocalize_step"]) if d[0] == stream]
+    rate_hz = 1e6 / steps[0][3] if len(steps[0]) > 3 and steps[0][3] > 0 else 2.0
+    bit_messages = [(t, list(m.data)) for t, m in topics["/sound_step"]]
+    bits = [(int(s[1]), recorded_observation(s))
+            for s in _on_pace(bit_messages, stream, rate_hz, "bit", warn)]
+    decision_messages = [(t, list(m.data)) for t, m in topics["/vocalize_step"]]
+    decisions = [(int(d[1]), bool(d[2]))
+                 for d in _on_pace(decision_messages, stream, rate_hz, "decision", warn)]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
     return RecordedSession(bits, decisions, beliefs, _belief_memory(topics["/diagnostics"]))
+
+
+def _on_pace(messages: list[tuple[int, list]], stream: int, rate_hz: float, what: str,
+             warn: Callable[[str], None] | None) -> list[list]:
+    """The step messages of ``stream`` the live nodes take: a forged jump ahead is left out.
+
+    The same rule as belief_node's and controller_node's
+    (:class:`~infomax_contingency.core.stepclock.StepPace`, confirmed after
+    ``SOURCE_TIMEOUT_S``), on the times the recorder received them (``messages``:
+    ``(ns, data)``). ``warn`` is told of each message left out.
+    """
+    pace = StepPace(rate_hz, SOURCE_TIMEOUT_S)
+    taken = []
+    for received_ns, data in messages:
+        if data[0] != stream:
+            continue
+        verdict = pace.check(int(data[1]), received_ns / 1e9, data)
+        if verdict is Pace.ON_PACE:
+            taken.append(data)
+        elif verdict is Pace.CONFIRMED:
+            taken.extend(pace.take_confirmed())
+        elif warn is not None:
+            warn(pace.jump_message(f"the recorded {what} for step {data[1]}"))
+    return taken
 
 
 def _belief_memory(diagnostics: list) -> int:

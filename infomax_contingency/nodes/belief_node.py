@@ -69,6 +69,7 @@ from typing import Any
 from std_msgs.msg import Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
 from infomax_contingency.core.model import MAX_MEMORY_STEPS, StatisticTracker, Withheld
 from infomax_contingency.core.stepclock import (
     Arrival,
@@ -131,7 +132,7 @@ class BeliefNode(GraphNode):
             MAX_MEMORY_STEPS,
         )
         timeout_s = read.number(
-            "source_timeout_s", 3.0,
+            "source_timeout_s", SOURCE_TIMEOUT_S,
             "A followed mic_node stream or controller silent this long is replaced by the"
             " next one heard", 0.1, 3600.0, "s",
         )

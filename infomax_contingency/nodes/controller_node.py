@@ -53,9 +53,15 @@ from infomax_contingency.core.controllers import (
     ReplayedDecisions,
     make_controller,
 )
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace, WriterSequence
+from infomax_contingency.core.stepclock import (
+    Arrival,
+    SourceLock,
+    StepPace,
+    WriterSequence,
+)
 from infomax_contingency.nodes.graph_node import (
     ERROR,
     OK,
@@ -136,7 +142,7 @@ class ControllerNode(GraphNode):
             f" package's policies/ directory; empty = {DEFAULT_TABLE[1]}",
         )
         timeout_s = read.number(
-            "source_timeout_s", 3.0,
+            "source_timeout_s", SOURCE_TIMEOUT_S,
             "A followed mic_node stream silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         )

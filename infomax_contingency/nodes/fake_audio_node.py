@@ -65,6 +65,7 @@ from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from std_msgs.msg import Bool, Float32MultiArray, Int64MultiArray
 
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import (
     Arrival,
@@ -212,7 +213,7 @@ def _read_pacing(read: ParameterReader) -> dict[str, Any]:
             "start_delay_s", 0.5, "Extra wait after the listeners are there", 0.0, 60.0, "s"
         ),
         "source_timeout_s": read.number(
-            "source_timeout_s", 3.0,
+            "source_timeout_s", SOURCE_TIMEOUT_S,
             "A followed controller silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         ),

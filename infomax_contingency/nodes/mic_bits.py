@@ -14,7 +14,7 @@ decisions on the bits before them are in (:meth:`BitSourceControls.decidable`).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from std_msgs.msg import Int64MultiArray
@@ -24,6 +24,7 @@ from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import BitSource, SettingError
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.windows import SourceWindow, WindowSource
+from infomax_contingency.core.flowcontrol import StepOutbox
 from infomax_contingency.core.selfsound import GapWithholding
 from infomax_contingency.nodes import mic_config
 from infomax_contingency.nodes.graph_node import GraphNode
@@ -31,6 +32,7 @@ from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STREAM_QOS
 from infomax_contingency.nodes.step_topics import (
     NO_STEP,
+    STEP_APPLIED,
     VOCALIZE_STEP,
     NoStep,
     no_step_message,
@@ -232,19 +234,44 @@ class BitSourceControls:
     def _learns_from_decisions(self) -> bool:
         return self.bits.needs_decisions and not self.recorded_bits
 
-    def decided(self, last_answered: int, step: int, vocalize: bool) -> None:
+    def decided(self, last_answered: int, step: int, vocalize: bool | None) -> None:
         """The decision on ``step`` came (the last answered before it: ``last_answered``).
 
         A source that labels windows by the decisions (``background``) gets each one in
         step order, and so does the withholding after gaps; a step skipped between the two
-        lost its decision (None).
+        lost its decision (None), as every one does with ``vocalize`` None (given up).
         """
         for answered in range(last_answered + 1, step + 1):
-            u = int(vocalize) if answered == step else None
+            u = None if vocalize is None or answered != step else int(vocalize)
             self.gap.decided(answered, u)
             if self._learns_from_decisions:
                 self.bits.note_decision(u, answered in self.withheld_steps)
                 self.withheld_steps.discard(answered)
+
+    def give_up(self, outbox: StepOutbox, now: float, controllers: Callable[[], int]) -> None:
+        """Stop waiting for listeners that took nothing, and for answers that never come.
+
+        A listener on ``step_applied`` that took nothing for ``listener_timeout_s`` is no
+        longer waited for. Steps out that no decision came for in as long, while a
+        controller publishes (``controllers()``: its count), are taken as answered with
+        their decisions lost: a restarted controller never gets the steps published
+        before it joined, and would otherwise wait for the next one while mic_node waits
+        for its answers.
+        """
+        for listener in outbox.give_up_stalled(now):
+            self.node.stalled_listeners.note(now)
+            self.node.get_logger().warning(
+                f"listener {listener} on '{STEP_APPLIED}' took no step for"
+                f" {outbox.listener_timeout_s:g} s (after step {outbox.listeners[listener].taken}):"
+                " no longer waited for (killed or hung?)"
+            )
+        if outbox.answers_overdue(now) and controllers() > 0:
+            first, last = outbox.give_up_answers()
+            self.decided(first - 1, last, None)
+            self.node.get_logger().warning(
+                f"no decision on steps {first}..{last} for {outbox.listener_timeout_s:g} s"
+                " (a controller killed or restarted?): taken as lost, the stream goes on"
+            )
 
     def dropped(self, windows: int) -> None:
         """``windows`` dropped from the outbox: they never get a decision (a gap)."""

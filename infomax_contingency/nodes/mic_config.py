@@ -142,7 +142,8 @@ def _read_step_clock(read: ParameterReader) -> dict[str, Any]:
         "listener_timeout_s": read.number(
             "listener_timeout_s", 5.0,
             "A listener on 'step_applied' (belief_node) that takes nothing this long is no"
-            " longer waited for (killed, hung) until it keeps up again",
+            " longer waited for (killed, hung) until it keeps up again; steps no decision"
+            " came for in as long are taken as lost (a controller restarted)",
             0.1, 3600.0, "s",
         ),
         "max_backlog_s": read.number(

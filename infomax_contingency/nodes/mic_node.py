@@ -204,7 +204,7 @@ class MicNode(GraphNode):
         self.ended = True
         if self._pace_timer is not None:
             self._pace_timer.cancel()
-        self.get_logger().info(f"end of {self.replay.describe()} after {self.windows} windows")
+        self.get_logger().info(f"end of {self.replay.describe()} after {self.windows} bits")
         if self.config.exit_at_end:
             self._finish_publishing()
 
@@ -267,7 +267,7 @@ class MicNode(GraphNode):
         if decision is None or decision.stream != self.stream_id:
             return
         before = self.outbox.last_answered
-        self.outbox.answered(decision.step)
+        self.outbox.answered(decision.step, self.now_s())
         if self.outbox.last_answered == before:
             return  # a repeated answer (a second controller): it releases nothing
         self.controls.decided(before, decision.step, decision.vocalize)
@@ -300,13 +300,7 @@ class MicNode(GraphNode):
             return
         outbox = self.outbox
         now = self.now_s()
-        for listener in outbox.give_up_stalled(now):
-            self.stalled_listeners.note(now)
-            self.get_logger().warning(
-                f"listener {listener} on '{STEP_APPLIED}' took no step for"
-                f" {outbox.listener_timeout_s:g} s (after step {outbox.listeners[listener].taken}):"
-                " no longer waited for (killed or hung?)"
-            )
+        self.controls.give_up(outbox, now, self._decisions_sub.get_publisher_count)
         # Pacing matters only when more would go out than may be unanswered: only then ask
         # the graph whether a controller answers (one query per window is measurable).
         paced = (
@@ -339,7 +333,7 @@ class MicNode(GraphNode):
         values: dict[str, Any] = {
             "source": self.config.source,
             "stream": self.stream_id,
-            "windows": self.windows,
+            "bits_published": self.windows,
             **self.controls.values(),
             "steps_answered": self.outbox.last_answered,
             "steps_waiting": self.outbox.backlog,
@@ -347,6 +341,7 @@ class MicNode(GraphNode):
             "steps_taken": self.outbox.last_taken,
             "listeners_waited_for": sum(x.waited_for for x in self.outbox.listeners.values()),
             "listeners_given_up": self.outbox.given_up,
+            "answers_given_up": self.outbox.answers_given_up,
             "bit_source": self.config.bit_source,
             "last_energy_db": self.last_energy_db,
             **bits.diagnostic_values(),
@@ -375,7 +370,7 @@ class MicNode(GraphNode):
             problem = problem or ("audio lost, lockstep timeouts, or 'self_sound' ranges refused"
                                   " or late lately (counts in the values)")  # fmt: skip
             return WARN, problem, values
-        return OK, f"{self.windows} windows", values
+        return OK, f"{self.windows} bits published", values
 
 
 def _on_applied(node: MicNode, msg: Int64MultiArray, stamp: int) -> None:

@@ -15,7 +15,9 @@ whose microphone hears its motors; not against the simulated room, whose lockste
 runs faster than the clock (and which has no motors).
 
 Subscribes ``belief`` (Float64); publishes ``posture``, ``joint_targets``,
-``self_sound`` (Int64MultiArray, with ``declare_motion_sound``), ``/diagnostics``.
+``self_sound`` (Int64MultiArray, with ``declare_motion_sound``), ``/diagnostics`` (ERROR,
+and a WARN, while ``belief`` has a second publisher: a plain Float64 names no sender, so
+its beliefs move the robot too).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from std_msgs.msg import Float64, Int64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from infomax_contingency.core.posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
-from infomax_contingency.nodes.graph_node import OK, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import LATCHED_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
@@ -44,6 +46,7 @@ class PostureNode(GraphNode):
     """Posture: attentive or bored, from the belief with hysteresis."""
 
     NODE_NAME = "posture_node"
+    WATCHED_TOPICS = ("belief",)
 
     def configure(self) -> None:
         """Declare and check the parameters; the state they set."""
@@ -187,10 +190,15 @@ class PostureNode(GraphNode):
         self.posture_pub.publish(String(data=posture))
 
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
-        """Posture, last belief, number of changes."""
+        """Posture, last belief, number of changes; ERROR while 'belief' has two publishers.
+
+        A plain Float64 carries no identity: a second publisher's belief (``ros2 topic
+        pub``) moves the robot like belief_node's, so it is named (and a WARN logged).
+        """
         return (
-            OK,
-            self.hysteresis.posture,
+            ERROR if self.intruders else OK,
+            "another publisher on 'belief': its beliefs move the robot too" if self.intruders
+            else self.hysteresis.posture,
             {"posture": self.hysteresis.posture, "belief": self.belief, "changes": self.changes,
              "motions_declared": self.motions_declared},
         )

@@ -47,7 +47,13 @@ from std_msgs.msg import Int64MultiArray
 from infomax_contingency.audio.devices import CONNECTED, AudioDeviceError
 from infomax_contingency.audio.playback import OVERLAP_POLICIES, SpeakerOutput
 from infomax_contingency.audio.wav import read_wav
-from infomax_contingency.core.stepclock import Arrival, SourceLock, StepPace, WriterSequence
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
+from infomax_contingency.core.stepclock import (
+    Arrival,
+    SourceLock,
+    StepPace,
+    WriterSequence,
+)
 from infomax_contingency.nodes.graph_node import (
     ERROR,
     OK,
@@ -97,7 +103,7 @@ class SpeakerNode(GraphNode):
             OVERLAP_POLICIES,
         )
         timeout_s = read.number(
-            "source_timeout_s", 3.0,
+            "source_timeout_s", SOURCE_TIMEOUT_S,
             "A followed controller silent this long is replaced by the next one heard",
             0.1, 3600.0, "s",
         )
