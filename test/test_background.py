@@ -150,13 +150,27 @@ def test_bad_levels_give_no_bit_and_a_clear_diagnostic() -> None:
     with pytest.raises(AudioError, match="must be a number of dB"):
         rule.push("loud")  # type: ignore[arg-type]
     assert rule.windows == 0 and rule.problems() == []
-    for _ in range(5):  # digital silence: bit 0 and not the room's level
+    for _ in range(10):  # digital silence: bit 0, the room's level (a noise gate closed)
         bit = rule.push(-120.0)
         if bit is not None:
             assert bit is False
             rule.note_decision(0)
-    assert len(rule.background) == 0 and rule.calibrating
+    assert set(rule.background) == {-120.0} and not rule.calibrating
     assert any("digital silence" in line for line in rule.problems())
+    assert rule.push(-50.0) is True  # the gate lets a sound through: above the silence
+
+
+def test_a_noise_gated_room_gets_a_threshold_from_its_silence() -> None:
+    """All zeros between sounds: any sound the gate lets through is active, silence not."""
+    rule = BackgroundThreshold(TS1, TS2, TA2, 0.05, history=40, warmup_windows=8)
+    bits = []
+    for k in range(60):
+        level = -45.0 if k % 25 == 24 else -120.0  # the gate opens 1 window in 25
+        bits.append(rule.push(level))
+        if bits[-1] is not None:
+            rule.note_decision(0)
+    assert [k for k, bit in enumerate(bits) if bit] == [24, 49]
+    assert all(bit is False for bit in bits[14:] if bit is not True)  # silence: 0
 
 
 def test_a_background_threshold_outside_the_parameters_range_gives_no_bits() -> None:

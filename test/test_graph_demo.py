@@ -136,9 +136,9 @@ def test_demo_says_in_one_line_why_a_recording_gave_no_step(tmp_path: Path) -> N
     assert result.returncode == 1, result.stdout + result.stderr
     errors = [line for line in result.stderr.splitlines() if "demo: error" in line]
     assert errors == [f"infomax-contingency demo: error: {short} gave no step: its 6 windows"
-                      " all went by without a bit (the bit source hears about 6 s of"
-                      " background that is not digital silence first; mic_node's lines"
-                      " above say more)"], result.stderr  # fmt: skip
+                      " all went by without a bit (the bit source hears about 6 s of the"
+                      " room's background first; mic_node's lines above say more)"
+                      ], result.stderr  # fmt: skip
     assert "Traceback" not in result.stderr
 
 

@@ -172,14 +172,28 @@ def test_a_sound_during_the_warm_up_labels_the_steps_after_it(tmp_path: Path, ca
 
 
 def test_a_wav_that_gives_no_step_is_undetermined_and_says_why(tmp_path: Path, capsys) -> None:
-    """Digital silence: no background window to set a threshold, no verdict made up."""
-    silent = tmp_path / "silent.wav"
-    write_wav_int16(silent, np.zeros(16000 * 20), 16000)
-    actions = _csv(tmp_path / "actions.csv", "time_s\n5.0\n12.0\n")
-    assert main(["replay", str(silent), "--actions", str(actions)]) == 1
+    """Shorter than the warm-up: no threshold, no verdict made up."""
+    short = tmp_path / "short.wav"
+    write_wav_int16(short, np.random.default_rng(3).normal(0, 0.01, 16000 * 4), 16000)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n1.0\n3.0\n")
+    assert main(["replay", str(short), "--actions", str(actions)]) == 1
     out = capsys.readouterr().out
-    assert "only 0 of its background windows were not digital silence" in out, out
+    assert "the recording's 8 windows are fewer than the warm-up's 8 background windows" in out
     assert "-> undetermined (no step)" in out and "no partner" not in out
+
+
+def test_a_noise_gated_recording_replays_with_the_defaults(tmp_path: Path, capsys) -> None:
+    """All zeros between sounds (a noise gate): the silence is the room's background."""
+    rate = 16000
+    mic = load_mono(WAV, rate)
+    mic[np.abs(mic) < 0.02] = 0.0  # the gate: quiet samples become digital silence
+    gated = tmp_path / "gated.wav"
+    write_wav_int16(gated, mic, rate)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
+    assert main(["replay", str(gated), "--actions", str(actions)]) == 0
+    out = capsys.readouterr().out
+    assert "were digital silence" in out and "steps" in out, out
+    assert " 0 steps" not in out
 
 
 def test_a_replayed_wav_reports_clipping_and_a_dc_offset(tmp_path: Path, capsys) -> None:

@@ -35,8 +35,10 @@ Self-feedback windows (``ts1 <= z <= ts2``) and agent-period windows never set t
 threshold; self-feedback windows are watched for one diagnostic (below).
 
 Diagnostics (:meth:`BackgroundThreshold.problems`: one line each; the bits are never
-made up): digital silence (a window of level <= :data:`SILENCE_DB`: bit 0, and it does
-not set the threshold, so a muted microphone does not drag it down); a room as loud as
+made up): digital silence (a window of level <= :data:`SILENCE_DB`: bit 0; as a background
+window it counts at its level, so a noise-gated microphone, all zeros between sounds,
+gets a threshold: while more than a ``false_alarm`` share of the room is silence, any
+sound the gate lets through is active); a room as loud as
 the robot's own sound (the robot's self-feedback windows exceed the threshold in less
 than half of the last ones: its chirps are not heard above the room, detection will be
 slow or impossible); decisions that never came. A level that is NaN or infinite is
@@ -420,13 +422,13 @@ class BackgroundThreshold:
             self.labelled["unknown"] += 1
         elif z > self.ta2:
             self.labelled["background"] += 1
-            if level > SILENCE_DB and index not in self._withheld:
+            if index not in self._withheld:
                 self._labelled_background.append((index, level))
             self._withheld.discard(index)
         elif self.ts1 <= z <= self.ts2:
             self.labelled["self"] += 1
             threshold = self.threshold_db
-            if threshold is not None:
+            if threshold is not None and level > SILENCE_DB:  # silence tells nothing of it
                 self._self_exceeded.append(level > threshold)
         else:
             self.labelled["agent"] += 1
@@ -439,8 +441,7 @@ class BackgroundThreshold:
         if self.silent_windows:
             out.append(
                 f"{self.silent_windows} of {self.windows} windows were digital silence (all"
-                " zeros: a muted or unplugged microphone?); they gave bit 0 and did not set"
-                " the threshold"
+                " zeros: a muted or unplugged microphone, or a noise gate?); they gave bit 0"
             )
         watched = len(self._self_exceeded)
         if watched == SELF_WINDOWS_WATCHED and sum(self._self_exceeded) < watched / 2:

@@ -301,8 +301,8 @@ def run_demo(args: argparse.Namespace) -> int:
     if not steps:
         print(f"infomax-contingency demo: error: {args.wav or 'the room'} gave no step: its"
               f" {len(recorder.no_step)} windows all went by without a bit (the bit source"
-              " hears about 6 s of background that is not digital silence first; mic_node's"
-              " lines above say more)", file=sys.stderr)  # fmt: skip
+              " hears about 6 s of the room's background first; mic_node's lines above say"
+              " more)", file=sys.stderr)  # fmt: skip
         return 1
     _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
     print_released(clock, released)

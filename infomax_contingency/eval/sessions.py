@@ -319,8 +319,8 @@ def _why_no_threshold(rule: BackgroundThreshold) -> str:
     if rule.windows < rule.warmup_windows + rule.delay:
         return (f"the recording's {rule.windows} windows are fewer than the warm-up's"
                 f" {rule.warmup_windows} background windows and {rule.delay} more")  # fmt: skip
-    return (f"only {heard} of its background windows were not digital silence, and"
-            f" {rule.warmup_windows} are needed first")
+    return (f"only {heard} of its windows were background (timer past the agent period),"
+            f" and {rule.warmup_windows} are needed first")
 
 
 class _EndOfRecordingError(Exception):
