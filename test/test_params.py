@@ -33,7 +33,7 @@ from infomax_contingency.nodes import speaker_node
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
-from infomax_contingency.nodes.graph_node import ERROR, OK, WAITING_NOTICE_S, WARN
+from infomax_contingency.nodes.graph_node import ERROR, WAITING_NOTICE_S, WARN
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
@@ -71,20 +71,26 @@ def set_remotely(
     return list(future.result().results)
 
 
-def test_posture_node_names_a_second_publisher_on_belief(graph: Callable) -> None:
-    """A plain Float64 names no sender: a forged belief moves the robot, so it is flagged."""
+def test_posture_node_holds_while_a_second_publisher_is_on_belief(graph: Callable) -> None:
+    """A plain Float64 names no sender: a forged belief must not move the robot.
+
+    As ``ros2 topic pub --once``: a publisher that appears, sends one belief, and goes.
+    """
     node, probe, executor = graph(PostureNode)
-    rightful, forger = probe.talk("belief", Float64), probe.talk("belief", Float64)
+    rightful = probe.talk("belief", Float64)
     executor.connected(rightful)
+    forger = probe.talk("belief", Float64)
     executor.connected(forger)
-    executor.run_until(lambda: node.count_publishers("belief") == 2, "two publishers")
-    node.publish_diagnostics()
-    level, message, _ = node.diagnostic_status()
-    assert level == ERROR and message.startswith("another publisher on 'belief'"), message
+    forger.publish(Float64(data=0.99))
+    executor.run_until(lambda: node.beliefs_ignored == 1, "the forged belief, ignored")
+    assert node.hysteresis.posture == "bored" and node.changes == 0
+    level, message, values = node.diagnostic_status()
+    assert level == ERROR and "1 beliefs ignored, the posture held" in message, message
     probe.destroy_publisher(forger)
     executor.run_until(lambda: node.count_publishers("belief") == 1, "the forger gone")
-    node.publish_diagnostics()
-    assert node.diagnostic_status()[0] == OK
+    rightful.publish(Float64(data=0.95))
+    executor.run_until(lambda: node.changes == 1, "the rightful belief, acted on")
+    assert node.hysteresis.posture == "attentive" and values["beliefs_ignored"] == 1
 
 
 def test_a_live_posture_threshold_changes_the_posture_at_once(graph: Callable) -> None:

@@ -15,9 +15,9 @@ whose microphone hears its motors; not against the simulated room, whose lockste
 runs faster than the clock (and which has no motors).
 
 Subscribes ``belief`` (Float64); publishes ``posture``, ``joint_targets``,
-``self_sound`` (Int64MultiArray, with ``declare_motion_sound``), ``/diagnostics`` (ERROR,
-and a WARN, while ``belief`` has a second publisher: a plain Float64 names no sender, so
-its beliefs move the robot too).
+``self_sound`` (Int64MultiArray, with ``declare_motion_sound``), ``/diagnostics``. While
+``belief`` has a second publisher (a plain Float64 names no sender) no belief is acted on:
+the posture holds, a WARN and an ERROR status say so.
 """
 
 from __future__ import annotations
@@ -102,6 +102,9 @@ class PostureNode(GraphNode):
         self.changes = 0
         self.belief = float("nan")
         self._initial = initial
+        self.beliefs_ignored = 0
+        """Beliefs that came while 'belief' had more than one publisher: not acted on."""
+        self.ignored = self.recent_events()
 
     def activate(self) -> None:
         """Publishers, subscriptions, services and timers."""
@@ -162,6 +165,14 @@ class PostureNode(GraphNode):
             self.self_sound_pub = None
 
     def _on_belief(self, msg: Float64, stamp: int) -> None:
+        publishers = self.count_publishers("belief")
+        if publishers > 1:  # a plain Float64 names no sender: this one may be forged
+            self.beliefs_ignored += 1
+            self.ignored.note(self.now_s())
+            self.warn_intrusion(f"belief {msg.data:.3f} ignored: {publishers} publishers on"
+                                " 'belief' (a forged message?); the posture holds",
+                                "publishers belief")  # fmt: skip
+            return
         self.belief = msg.data
         try:
             changed = self.hysteresis.update(msg.data)
@@ -192,15 +203,17 @@ class PostureNode(GraphNode):
     def diagnostic_status(self) -> tuple[bytes, str, dict[str, Any]]:
         """Posture, last belief, number of changes; ERROR while 'belief' has two publishers.
 
-        A plain Float64 carries no identity: a second publisher's belief (``ros2 topic
-        pub``) moves the robot like belief_node's, so it is named (and a WARN logged).
+        A plain Float64 carries no identity: while a second publisher is there (``ros2
+        topic pub``), every belief might be its, so none is acted on (the posture holds,
+        a WARN says so) and the status is ERROR, also for a while after.
         """
+        intruded = self.intruders or self.ignored.recent(self.now_s())
         return (
-            ERROR if self.intruders else OK,
-            "another publisher on 'belief': its beliefs move the robot too" if self.intruders
-            else self.hysteresis.posture,
+            ERROR if intruded else OK,
+            f"another publisher on 'belief': {self.beliefs_ignored} beliefs ignored, the"
+            " posture held" if intruded else self.hysteresis.posture,
             {"posture": self.hysteresis.posture, "belief": self.belief, "changes": self.changes,
-             "motions_declared": self.motions_declared},
+             "motions_declared": self.motions_declared, "beliefs_ignored": self.beliefs_ignored},
         )
 
 
