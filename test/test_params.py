@@ -356,6 +356,9 @@ def test_mic_takes_steps_a_controller_never_answered_as_lost_and_goes_on(
     executor.run_until(lambda: node.outbox.answers_overdue(node.now_s()), "0.5 s, no answer")
     assert play([-20.0], 1) == [True]  # the next window finds them overdue: it goes out
     assert node.outbox.answers_given_up == 2
+    level, message, values = node.diagnostic_status()
+    assert level == WARN and "or the controller stalled" in message, message
+    assert values["answers_given_up"] == 2
     executor.run_until(lambda: len(steps) == 4, "step 4")
     assert [m.data[1] for m in steps] == [1, 2, 3, 4]
     assert "no decision on steps 2..3 for 0.5 s" in capfd.readouterr().err

@@ -122,6 +122,8 @@ class BitSourceControls:
         self._forced = 0  # held windows at the front to be decided without waiting
         self.decided_without_wait = 0
         """Held windows decided before the decisions on the bits before them came."""
+        self.answers_lost = node.recent_events()
+        """When steps were last taken as answered, their decisions lost (:meth:`give_up`)."""
         self.gap = GapWithholding(config.params.ta2 + 1)
         """Bits withheld right after a gap (:meth:`gap_before`, :meth:`released`)."""
         self._gap_next = False  # windows gave no step since the last window with a bit
@@ -267,6 +269,7 @@ class BitSourceControls:
             )
         if outbox.answers_overdue(now) and controllers() > 0:
             first, last = outbox.give_up_answers()
+            self.answers_lost.note(now)
             self.decided(first - 1, last, None)
             self.node.get_logger().warning(
                 f"no decision on steps {first}..{last} for {outbox.listener_timeout_s:g} s"

@@ -362,8 +362,8 @@ class MicNode(GraphNode):
             return (ERROR if bits.state == UNSEPARATED else WARN), bits.problem, values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
-        if self.stalled_listeners.recent(now):
-            return WARN, f"a listener on '{STEP_APPLIED}' stalled (not waited for)", values
+        if self.stalled_listeners.recent(now) or self.controls.answers_lost.recent(now):
+            return WARN, f"a listener on '{STEP_APPLIED}' or the controller stalled", values
         problem = self.contract.problem()  # the 'audio' contract broken lately
         if problem or self.losses.recent(now) or self.timeouts.recent(now) or (
                 self.self_sound.faults.recent(now)):  # fmt: skip
