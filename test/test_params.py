@@ -91,6 +91,17 @@ def test_posture_node_holds_while_a_second_publisher_is_on_belief(graph: Callabl
     rightful.publish(Float64(data=0.95))
     executor.run_until(lambda: node.changes == 1, "the rightful belief, acted on")
     assert node.hysteresis.posture == "attentive" and values["beliefs_ignored"] == 1
+    # a forger gone from the graph before its message is handled: numbered 1 by DDS,
+    # below belief_node's numbers, it is still another writer's
+    for belief in (0.97, 0.98):
+        rightful.publish(Float64(data=belief))
+    executor.run_until(lambda: node.belief == 0.98, "belief_node's next beliefs")
+    late = probe.talk("belief", Float64)
+    executor.connected(late)
+    node.count_publishers = lambda topic: 1  # type: ignore[method-assign]  # it left
+    late.publish(Float64(data=0.0))
+    executor.run_until(lambda: node.beliefs_ignored == 2, "the late forgery, ignored")
+    assert node.hysteresis.posture == "attentive" and node.changes == 1
 
 
 def test_a_live_posture_threshold_changes_the_posture_at_once(graph: Callable) -> None:

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from infomax_contingency.core.flowcontrol import Listening, StepOutbox
+from infomax_contingency.core.flowcontrol import Listening, StepOutbox, WriterFollower
 from infomax_contingency.core.model import (
     AGENT,
     BACKGROUND,
@@ -182,6 +182,19 @@ def test_outbox_releases_at_most_max_ahead_unanswered_steps() -> None:
     outbox.answered(99)  # a step never handed out
     assert outbox.last_answered == 2
     assert outbox.release(paced=False) == [(6, "f"), (7, "g")]
+
+
+def test_a_writer_follower_refuses_another_writers_numbers_and_follows_a_restart() -> None:
+    follower = WriterFollower(switch_s=3.0)
+    assert all(follower.take(n, now=n * 0.5) for n in range(1, 11))  # belief_node: 1 .. 10
+    assert not follower.take(1, now=5.1)  # `ros2 topic pub --once`: numbered from 1
+    assert follower.take(11, now=5.5) and follower.refused == 1
+    assert follower.take(None, now=5.6) and follower.take(0, now=5.6)  # no numbers: taken
+    # belief_node restarted: numbers from 1 again, refused until 3 s without the old one
+    assert not follower.take(1, now=6.0) and not follower.take(2, now=8.4)
+    assert follower.take(3, now=8.5) and follower.take(4, now=9.0)
+    with pytest.raises(ValueError, match="switch_s"):
+        WriterFollower(0.0)
 
 
 def test_outbox_takes_steps_no_decision_came_for_as_lost_and_goes_on() -> None:

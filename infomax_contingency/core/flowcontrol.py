@@ -38,6 +38,38 @@ SOURCE_TIMEOUT_S = 3.0
 and a run of steps from a jump that lasts this long is taken (messages were lost)."""
 
 
+class WriterFollower:
+    """Whether a message of a topic without identity comes from the writer followed.
+
+    DDS numbers each writer's messages 1, 2, 3, ... (``publication_sequence_number``).
+    The writer followed numbers its next message above its last; a message numbered at
+    or below that comes from another writer (``ros2 topic pub`` numbers from 1) and is
+    refused. When nothing from the followed writer came for ``switch_s`` while others
+    did (it was restarted: it numbers from 1 again), the next message's writer is
+    followed. A message without a number (0, None: the middleware gives none) is taken.
+    """
+
+    def __init__(self, switch_s: float) -> None:
+        if not switch_s > 0:
+            raise ValueError(f"switch_s must be > 0 seconds, got {switch_s}")
+        self.switch_s = switch_s
+        self.last: int | None = None
+        """The number of the followed writer's last message."""
+        self.last_taken_s = -math.inf
+        self.refused = 0
+        """Messages refused as another writer's."""
+
+    def take(self, sequence: int | None, now: float) -> bool:
+        """True if the message numbered ``sequence``, arriving at ``now`` (s), is taken."""
+        if not sequence:
+            return True
+        if self.last is None or sequence > self.last or now - self.last_taken_s >= self.switch_s:
+            self.last, self.last_taken_s = sequence, now
+            return True
+        self.refused += 1
+        return False
+
+
 class Listening(Enum):
     """What :meth:`StepOutbox.acknowledged` made of an acknowledgment."""
 

@@ -30,6 +30,7 @@ from rclpy.publisher import Publisher
 from std_msgs.msg import Float64, Int64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S, WriterFollower
 from infomax_contingency.core.posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
 from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
@@ -103,8 +104,11 @@ class PostureNode(GraphNode):
         self.belief = float("nan")
         self._initial = initial
         self.beliefs_ignored = 0
-        """Beliefs that came while 'belief' had more than one publisher: not acted on."""
+        """Beliefs not acted on: 'belief' had a second publisher, or another writer sent it."""
         self.ignored = self.recent_events()
+        self.writer = WriterFollower(SOURCE_TIMEOUT_S)
+        """belief_node's DDS numbering: a short-lived forger's message, gone from the
+        graph before its callback runs, still shows as another writer's."""
 
     def activate(self) -> None:
         """Publishers, subscriptions, services and timers."""
@@ -165,13 +169,16 @@ class PostureNode(GraphNode):
             self.self_sound_pub = None
 
     def _on_belief(self, msg: Float64, stamp: int) -> None:
-        publishers = self.count_publishers("belief")
-        if publishers > 1:  # a plain Float64 names no sender: this one may be forged
+        publishers, now = self.count_publishers("belief"), self.now_s()
+        # a plain Float64 names no sender: while another publisher is there any belief may
+        # be its, and one numbered out of belief_node's order is another writer's
+        if publishers > 1 or not self.writer.take(self.sequence, now):
             self.beliefs_ignored += 1
-            self.ignored.note(self.now_s())
-            self.warn_intrusion(f"belief {msg.data:.3f} ignored: {publishers} publishers on"
-                                " 'belief' (a forged message?); the posture holds",
-                                "publishers belief")  # fmt: skip
+            self.ignored.note(now)
+            why = (f"{publishers} publishers on 'belief'" if publishers > 1
+                   else "it comes from another writer than belief_node's")  # fmt: skip
+            self.warn_intrusion(f"belief {msg.data:.3f} ignored: {why} (a forged message?);"
+                                " the posture holds", "publishers belief")  # fmt: skip
             return
         self.belief = msg.data
         try:
