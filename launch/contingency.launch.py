@@ -206,8 +206,8 @@ class _ExitWatch:
             failed_too = f"; {self.failure} (its error is above)" if self.failure else ""
             actions.append(LogInfo(msg=f"launch interrupted ({self.interrupted}):"
                                        f" {self.started} nodes stopped{failed_too}"))  # fmt: skip
-        elif self.failure:
-            actions.append(LogInfo(msg=f"launch stopped: {self.failure} (its error is above)"))
+        elif self.failure:  # an exception: launch logs it and exits with status 1
+            raise RuntimeError(f"launch stopped: {self.failure} (its error is above)")
         return actions
 
 
@@ -228,10 +228,7 @@ def _graph(context: LaunchContext) -> list:
         path = LaunchConfiguration(argument).perform(context)
         if not os.path.isfile(path):
             reason = f"{argument}:={path} is not a file: give a ROS parameter file (YAML)"
-            return [
-                LogInfo(msg=f"launch stopped: {reason}"),
-                EmitEvent(event=Shutdown(reason=reason)),
-            ]
+            raise RuntimeError(f"launch stopped: {reason}")  # launch exits with status 1
 
     namespace_text = namespace.perform(context)
     level = log_level.perform(context)

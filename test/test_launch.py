@@ -243,16 +243,17 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
     (tmp_path / "old_session").mkdir()
     recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
-    assert graph.wait(60) is not None
+    assert graph.wait(60) == 1, graph.output()[-2000:]  # a failure: not the status of a run
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
     assert lines[-1].endswith(
         "launch stopped: mic_node-1 exited with status 2 (its error is above)"
     )
-    assert missing.wait(60) is not None
+    assert missing.wait(60) == 1
     assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in missing.output()
+    assert "Traceback" not in missing.output()
     # a recorder refuses a directory that exists: the launch ends, naming it
-    assert recorded.wait(60) is not None
+    assert recorded.wait(60) == 1
     assert "old_session' exists already" in recorded.output(), recorded.output()[-3000:]
     assert recorded.output().strip().splitlines()[-1].endswith(
         "launch stopped: recorder_node-6 exited with status 2 (its error is above)"
