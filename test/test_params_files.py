@@ -20,6 +20,7 @@ from infomax_contingency.nodes.parameters import (
     parameter_sections,
     params_files,
     section_matches,
+    undeclared_command_line_parameters,
     undeclared_parameters,
 )
 from processes import read_until
@@ -105,6 +106,26 @@ def test_undeclared_keys_and_sections_that_match_no_node_are_named(tmp_path: Pat
     belief = DeclaredNode("/belief_node", "memory_steps")
     assert [m for _, m in undeclared_parameters([str(file)], [mic, belief])
             if "'memory_steps'" in m] == []  # fmt: skip
+
+
+def test_command_line_parameters_a_node_does_not_take_are_named() -> None:
+    """``-p`` values rcl ignores: a typo, another bit source's setting; another node's not."""
+
+    class Mic(DeclaredNode):
+        parameters = type("Reader", (), {"known": {"threshold_db"}})()
+
+        def get_name(self) -> str:
+            return "mic_node"
+
+    mic = Mic("/robot1/mic_node", "source", "bit_source")
+    args = ["mic_node", "--ros-args", "-p", "mic_node:threshold_db:=-35.0", "-p",
+            "sorce:=wav", "--param", "posture_node:attentive_above:=0.5", "-p",
+            "source:=topic", "-p", "use_sim_time:=true", "--", "-p", "x:=1"]  # fmt: skip
+    assert [m for _, m in undeclared_command_line_parameters(args, [mic])] == [
+        "-p threshold_db is a setting of another bit source than /robot1/mic_node's"
+        " (bit_source): ignored",
+        "-p sorce is not a parameter of /robot1/mic_node: ignored",
+    ]
 
 
 def test_the_shipped_configs_give_every_node_only_shared_keys_for_all() -> None:

@@ -124,7 +124,8 @@ def _belief_memory(diagnostics: list) -> int:
     for _, array in diagnostics:
         for status in array.status:
             for pair in status.values:
-                if pair.key == "memory_steps" and status.name.startswith("belief_node"):
+                node = status.name.split(":", 1)[0].rsplit("/", 1)[-1]  # robot1/belief_node
+                if pair.key == "memory_steps" and node == "belief_node":
                     memory = int(pair.value)
     return memory
 

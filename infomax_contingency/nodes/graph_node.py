@@ -390,7 +390,9 @@ class GraphNode(Node):
             message = f"{message}; {self.waiting_for}"
         status = DiagnosticStatus(
             level=level,
-            name=f"{self.get_name()}: {type(self).__doc__.splitlines()[0].rstrip('.')}",
+            # unique across robots: robot1/belief_node (the root namespace: belief_node)
+            name=f"{self.get_fully_qualified_name().lstrip('/')}:"
+            f" {type(self).__doc__.splitlines()[0].rstrip('.')}",
             message=message,
             hardware_id=self.get_fully_qualified_name(),
             values=[KeyValue(key=key, value=_format_value(value)) for key, value in values.items()],

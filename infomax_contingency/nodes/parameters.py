@@ -424,6 +424,45 @@ def params_files(args: Sequence[str]) -> list[str]:
     return files
 
 
+def command_line_parameters(args: Sequence[str]) -> list[tuple[str, str]]:
+    """``(node name or "", parameter)`` of each ``-p [NODE:]NAME:=VALUE`` in ``--ros-args``."""
+    found, inside = [], False
+    for index, token in enumerate(args):
+        if token == "--ros-args":
+            inside = True
+        elif token == "--":
+            inside = False
+        elif inside and token in ("-p", "--param") and index + 1 < len(args):
+            name = args[index + 1].split(":=", 1)[0]
+            node, _, key = name.rpartition(":")
+            found.append((node, key))
+    return found
+
+
+def undeclared_command_line_parameters(args: Sequence[str], nodes: Sequence[DeclaringNode]
+                                       ) -> list[tuple[DeclaringNode, str]]:  # fmt: skip
+    """``-p`` parameters of ``args`` that their node does not take: ``(node, message)``.
+
+    rcl ignores them silently. A setting of another bit source (mic_node's
+    ``threshold_db`` while ``bit_source`` is ``background``) is named as such: a file may
+    carry every source's settings, but a ``-p`` is meant for this run.
+    """
+    found = []
+    for target, key in command_line_parameters(args):
+        for node in nodes:
+            if (target and target != node.get_name()) or node.has_parameter(key):
+                continue
+            if key in CHECKED_UNDECLARED or key in SHARED_PARAMETERS:
+                continue
+            reader = getattr(node, "parameters", None)
+            name = node.get_fully_qualified_name()
+            found.append((node, f"-p {key} is a setting of another bit source than"
+                                f" {name}'s (bit_source): ignored"
+                          if key in getattr(reader, "known", ())
+                          else f"-p {key} is not a parameter of {name}: ignored"))  # fmt: skip
+    return found
+
+
 def parameter_sections(document: Any) -> Iterator[tuple[str, list[str]]]:
     """``(node pattern, parameter names)`` of each section of a ROS parameter file.
 

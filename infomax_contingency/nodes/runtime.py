@@ -33,7 +33,11 @@ from infomax_contingency.lifetime import (
     signal_when_parent_dies,
     stop_came_while_starting,
 )
-from infomax_contingency.nodes.parameters import params_files, undeclared_parameters
+from infomax_contingency.nodes.parameters import (
+    params_files,
+    undeclared_command_line_parameters,
+    undeclared_parameters,
+)
 
 SPIN_TIMEOUT_S = 0.1
 """Seconds one executor wait may block, so that a finished node is noticed."""
@@ -312,7 +316,7 @@ def await_acknowledgments(nodes: Sequence[Node], budget_s: float = ACK_BUDGET_S)
 
 def warn_undeclared_parameters(nodes: Sequence[Node], program: str, args: Sequence[str]
                                ) -> None:  # fmt: skip
-    """Warn about the keys of the ``--params-file`` files in ``args`` that no node takes.
+    """Warn about the keys of the ``--params-file`` files and ``-p`` in ``args`` no node takes.
 
     rcl ignores them silently (a misspelled key or node section): each is named once, by
     the node it was meant for, or by ``program`` for a section that matches no node.
@@ -320,6 +324,8 @@ def warn_undeclared_parameters(nodes: Sequence[Node], program: str, args: Sequen
     for node, message in undeclared_parameters(params_files(args), nodes):
         logger = node.get_logger() if node is not None else rclpy.logging.get_logger(program)
         logger.warning(message)
+    for node, message in undeclared_command_line_parameters(args, nodes):
+        node.get_logger().warning(message)
 
 
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,  # noqa: C901
