@@ -126,6 +126,15 @@ def test_command_line_parameters_a_node_does_not_take_are_named() -> None:
         " (bit_source): ignored",
         "-p sorce is not a parameter of /robot1/mic_node: ignored",
     ]
+    # several nodes in one process (bringup): a -p without a node name is every node's,
+    # so one node that takes it is enough; one that none takes is named once
+    posture = DeclaredNode("/robot1/posture_node", "attentive_above")
+    posture.get_name = lambda: "posture_node"  # type: ignore[attr-defined]
+    args = ["x", "--ros-args", "-p", "attentive_above:=0.8", "-p", "atentive_above:=0.8"]
+    assert undeclared_command_line_parameters(args, [mic, posture]) == [
+        (mic, "-p atentive_above is not a parameter of /robot1/mic_node,"
+              " /robot1/posture_node: ignored"),
+    ]  # fmt: skip
 
 
 def test_the_shipped_configs_give_every_node_only_shared_keys_for_all() -> None:

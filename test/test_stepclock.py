@@ -203,6 +203,7 @@ def test_outbox_takes_steps_no_decision_came_for_as_lost_and_goes_on() -> None:
     for window in range(10):
         outbox.push(window)
     assert [s for s, _ in outbox.release(paced=True, now=0.0)] == [1, 2, 3]
+    assert not outbox.answers_overdue(now=60.0)  # never before a first answer (start-up)
     outbox.answered(1, now=1.0)  # then the controller dies
     assert not outbox.answers_overdue(now=5.9)  # 5 s from the last answer, not the first step
     assert outbox.answers_overdue(now=6.0)

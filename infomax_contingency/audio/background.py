@@ -37,8 +37,9 @@ threshold; self-feedback windows are watched for one diagnostic (below).
 Diagnostics (:meth:`BackgroundThreshold.problems`: one line each; the bits are never
 made up): digital silence (a window of level <= :data:`SILENCE_DB`: bit 0; as a background
 window it counts at its level, so a noise-gated microphone, all zeros between sounds,
-gets a threshold: while more than a ``false_alarm`` share of the room is silence, any
-sound the gate lets through is active); a room as loud as
+gets a threshold: while fewer than a ``false_alarm`` share of the background windows hold
+sound, any sound the gate lets through is active; else the threshold is their loudest
+share's level, as in any room); a room as loud as
 the robot's own sound (the robot's self-feedback windows exceed the threshold in less
 than half of the last ones: its chirps are not heard above the room, detection will be
 slow or impossible); decisions that never came. A level that is NaN or infinite is

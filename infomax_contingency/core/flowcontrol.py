@@ -38,6 +38,10 @@ SOURCE_TIMEOUT_S = 3.0
 and a run of steps from a jump that lasts this long is taken (messages were lost)."""
 
 
+UNNUMBERED = 2**63
+"""DDS numbers at or above this mean "no number" (rmw_cyclonedds gives UINT64_MAX)."""
+
+
 class WriterFollower:
     """Whether a message of a topic without identity comes from the writer followed.
 
@@ -61,7 +65,7 @@ class WriterFollower:
 
     def take(self, sequence: int | None, now: float) -> bool:
         """True if the message numbered ``sequence``, arriving at ``now`` (s), is taken."""
-        if not sequence:
+        if not sequence or sequence >= UNNUMBERED:
             return True
         if self.last is None or sequence > self.last or now - self.last_taken_s >= self.switch_s:
             self.last, self.last_taken_s = sequence, now
@@ -169,9 +173,14 @@ class StepOutbox:
             self._unanswered_since = None if step == self.last_step else now
 
     def answers_overdue(self, now: float) -> bool:
-        """True if steps are out and no decision came for ``listener_timeout_s``."""
+        """True if steps are out and no decision came for ``listener_timeout_s``.
+
+        Never before the first answer: a controller waits for its listeners before it
+        answers at all, and a replay in lockstep is paced by that first answer.
+        """
         since = self._unanswered_since
-        return since is not None and now - since >= self.listener_timeout_s
+        return (self.last_answered > 0 and since is not None
+                and now - since >= self.listener_timeout_s)  # fmt: skip
 
     def give_up_answers(self) -> tuple[int, int]:
         """Take every step out as answered, its decision lost; ``(first, last)`` of them.

@@ -504,7 +504,7 @@ class WriterSequence:
         A step not ahead of the last one is not judged (the caller ignores a repeated or
         older step anyway); its number is kept if it is newer (the writer repeated it).
         """
-        if not sequence:
+        if not sequence or sequence >= 2**63:  # none given (rmw_cyclonedds: UINT64_MAX)
             return True
         if self.last is not None and step <= self.last[0]:
             self.last = (self.last[0], max(sequence, self.last[1]))

@@ -404,6 +404,9 @@ SHARED_PARAMETERS = frozenset({"params", "fault_hold_s", "diagnostics_period_s",
 """Parameters a ``/**`` section may give every node although some nodes do not declare
 them (``config/robot.yaml``: the model, the diagnostics' timing)."""
 
+WARNED_ELSEWHERE = frozenset({"threshold_file"})
+"""Keys a node names itself when it does not use them (mic_node: a threshold file unread)."""
+
 CHECKED_UNDECLARED = frozenset({"window_s"})
 """Keys no node declares that the nodes read themselves: ``window_s``, no parameter any
 more, which a file may still set to the model's dt (:meth:`ParameterReader.model`)."""
@@ -449,16 +452,16 @@ def undeclared_command_line_parameters(args: Sequence[str], nodes: Sequence[Decl
     """
     found = []
     for target, key in command_line_parameters(args):
-        for node in nodes:
-            if (target and target != node.get_name()) or node.has_parameter(key):
-                continue
-            if key in CHECKED_UNDECLARED or key in SHARED_PARAMETERS:
-                continue
-            reader = getattr(node, "parameters", None)
-            name = node.get_fully_qualified_name()
+        meant = [node for node in nodes if not target or target == node.get_name()]
+        if any(node.has_parameter(key) for node in meant):
+            continue  # without a node name it is every node's: one that takes it is enough
+        if key in CHECKED_UNDECLARED or key in SHARED_PARAMETERS or key in WARNED_ELSEWHERE:
+            continue
+        knowing = [n for n in meant if key in getattr(getattr(n, "parameters", None), "known", ())]
+        for node in knowing or meant[:1]:  # one line, by the node it was likely meant for
+            name = ", ".join(n.get_fully_qualified_name() for n in ([node] if knowing else meant))
             found.append((node, f"-p {key} is a setting of another bit source than"
-                                f" {name}'s (bit_source): ignored"
-                          if key in getattr(reader, "known", ())
+                                f" {name}'s (bit_source): ignored" if knowing
                           else f"-p {key} is not a parameter of {name}: ignored"))  # fmt: skip
     return found
 

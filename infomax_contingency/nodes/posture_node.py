@@ -175,10 +175,11 @@ class PostureNode(GraphNode):
         if publishers > 1 or not self.writer.take(self.sequence, now):
             self.beliefs_ignored += 1
             self.ignored.note(now)
-            why = (f"{publishers} publishers on 'belief'" if publishers > 1
+            why = (f"{publishers} publishers on 'belief' (a forgery, or a belief_node that"
+                   " crashed and is not gone from the graph yet)" if publishers > 1
                    else "it comes from another writer than belief_node's")  # fmt: skip
-            self.warn_intrusion(f"belief {msg.data:.3f} ignored: {why} (a forged message?);"
-                                " the posture holds", "publishers belief")  # fmt: skip
+            self.warn_intrusion(f"belief {msg.data:.3f} ignored: {why}; the posture holds",
+                                "publishers belief")  # fmt: skip
             return
         self.belief = msg.data
         try:
