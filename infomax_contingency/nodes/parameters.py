@@ -414,31 +414,30 @@ more, which a file may still set to the model's dt (:meth:`ParameterReader.model
 _PARAMETERS_KEY = "ros__parameters"
 
 
-def params_files(args: Sequence[str]) -> list[str]:
-    """The files named by ``--params-file`` in the ``--ros-args`` parts of ``args``."""
-    files, inside = [], False
+def _ros_arguments(args: Sequence[str], flags: tuple[str, ...]) -> list[str]:
+    """The value after each of ``flags`` in the ``--ros-args`` parts of ``args``."""
+    values, inside = [], False
     for index, token in enumerate(args):
         if token == "--ros-args":
             inside = True
         elif token == "--":
             inside = False
-        elif inside and token == "--params-file" and index + 1 < len(args):
-            files.append(args[index + 1])
-    return files
+        elif inside and token in flags and index + 1 < len(args):
+            values.append(args[index + 1])
+    return values
+
+
+def params_files(args: Sequence[str]) -> list[str]:
+    """The files named by ``--params-file`` in the ``--ros-args`` parts of ``args``."""
+    return _ros_arguments(args, ("--params-file",))
 
 
 def command_line_parameters(args: Sequence[str]) -> list[tuple[str, str]]:
     """``(node name or "", parameter)`` of each ``-p [NODE:]NAME:=VALUE`` in ``--ros-args``."""
-    found, inside = [], False
-    for index, token in enumerate(args):
-        if token == "--ros-args":
-            inside = True
-        elif token == "--":
-            inside = False
-        elif inside and token in ("-p", "--param") and index + 1 < len(args):
-            name = args[index + 1].split(":=", 1)[0]
-            node, _, key = name.rpartition(":")
-            found.append((node, key))
+    found = []
+    for value in _ros_arguments(args, ("-p", "--param")):
+        node, _, key = value.split(":=", 1)[0].rpartition(":")
+        found.append((node, key))
     return found
 
 
