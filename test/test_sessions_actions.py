@@ -209,6 +209,19 @@ def test_a_replayed_wav_reports_clipping_and_a_dc_offset(tmp_path: Path, capsys)
     assert "windows had a DC offset (removed from the level; check the microphone)" in out
 
 
+def test_a_kmeans_refusal_names_a_dc_offset(tmp_path: Path, capsys) -> None:
+    """The energy rule counts a DC offset as sound; the refusal says so, in one line."""
+    rate = 16000
+    speechy = load_mono(WAV, rate)
+    offset = tmp_path / "offset.wav"
+    write_wav_int16(offset, speechy * 0.3 + 0.5, rate)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
+    assert main(["replay", str(offset), "--actions", str(actions), "--calibrate"]) == 2
+    error = capsys.readouterr().err
+    assert "windows have a DC offset, which the energy counts as sound" in error, error
+    assert len(error.strip().splitlines()) == 1
+
+
 def test_a_reference_channel_sounding_in_the_first_window_is_refused(tmp_path: Path,
                                                                      capsys) -> None:
     rate = 16000

@@ -15,11 +15,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from infomax_contingency.audio.background import level_and_faults
 from infomax_contingency.audio.bitsources import WindowLevels
 from infomax_contingency.audio.capture import MicrophoneStream
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, check_positive
 from infomax_contingency.audio.devices import AudioBackend, AudioDeviceError, LogFunction
 from infomax_contingency.audio.energy import iter_wav_windows
+from infomax_contingency.audio.windows import WavReplay
 
 
 def energies_from_wav(
@@ -171,3 +173,21 @@ def energy_histogram(
         bar = "#" * math.ceil(width * c / peak) if c else ""
         lines.append(f"  {edges[i]:6.1f} .. {edges[i + 1]:6.1f} dB | {bar} {c}")
     return "\n".join(lines)
+
+
+def dc_offset_note(path: Path, window_s: float, channel: int | None) -> str:
+    """``"; N of M windows have a DC offset ..."`` for a k-means refusal, or ``""``.
+
+    The energy rule counts a DC offset as sound: a recording whose windows carry one
+    looks as loud when quiet as with sound. The default bit source removes it.
+    """
+    replay = WavReplay(path, window_s, channel, samples=True)
+    windows = offset = 0
+    while (window := replay.next_window()) is not None:
+        windows += 1
+        offset += level_and_faults(window)[1].dc_offset
+    if not offset:
+        return ""
+    return (f"; {offset} of {windows} windows have a DC offset, which the energy counts as"
+            " sound: remove it (check the microphone), or use the default bit source"
+            " (background), which removes it")

@@ -19,6 +19,7 @@ import numpy as np
 from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.audio.bitsources.level import LevelSource
 from infomax_contingency.audio.calibration import (
+    dc_offset_note,
     energies_from_wav,
     energy_histogram,
     record_energies,
@@ -159,6 +160,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     try:
         require_separation(fit, args.min_separation_db)
     except UnseparatedError as exc:
+        if args.wav is not None:
+            exc = f"{exc}{dc_offset_note(Path(args.wav), args.window_s, args.channel)}"
         if not args.force:
             print(
                 f"infomax-contingency calibrate: error: {exc}; {args.out} not written"

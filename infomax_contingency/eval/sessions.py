@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 from infomax_contingency.audio.background import BackgroundThreshold, ordinal
 from infomax_contingency.audio.bitsources.rules import Binarizer
+from infomax_contingency.audio.calibration import dc_offset_note
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
 from infomax_contingency.audio.energy import wav_energies
 from infomax_contingency.audio.threshold import (
@@ -262,7 +263,10 @@ def wav_bits(path: Path, window_s: float, channel: int | None, threshold_db: flo
     replay = WavReplay(path, window_s, channel)
     binarizer = Binarizer(threshold_db)
     if threshold_db is None:
-        binarizer.calibrate(replay.calibration_energies(calibration_s, window_s))
+        try:
+            binarizer.calibrate(replay.calibration_energies(calibration_s, window_s))
+        except AudioError as error:
+            raise AudioError(f"{error}{dc_offset_note(path, window_s, channel)}") from None
     bits = []
     while (energy := replay.next_energy()) is not None:
         bits.append(bool(binarizer.push(energy)))
