@@ -118,7 +118,8 @@ def test_windows_wait_for_late_decisions_and_a_lost_one_hides_the_timer() -> Non
     for _ in range(8):
         rule.push(-50.0)
         rule.note_decision(0)
-    assert rule.labelled["unknown"] == 9 and len(rule.background) == 3
+    # unknown until TA2 + 1 silent decisions put a lost vocalization past the agent period
+    assert rule.labelled["unknown"] == TA2 + 1 and len(rule.background) == 3 + 9 - (TA2 + 1)
     rule.push(-50.0)
     rule.note_decision(1)  # a vocalization: the timer is known again
     for _ in range(6):
@@ -339,3 +340,28 @@ def test_a_window_withheld_for_the_robots_own_sound_never_sets_the_threshold() -
     rule.note_decision(0, withheld=True)
     rule.note_decision(0)
     assert list(rule.background) == [-60.0, -58.0, -59.0]
+
+
+def test_a_lost_decision_leaves_the_timer_unknown_until_ta2_plus_1_silent_ones() -> None:
+    """Then any vocalization it may have been is past the agent period: background again.
+
+    A rule made anew in a session (a recalibration) starts the same way: a sound decided
+    on the old rule's last bit may still be followed by a reply.
+    """
+
+    def labels(rule: BackgroundThreshold, lost_at: int | None, windows: int) -> list[str]:
+        out = []
+        for k in range(windows):
+            before = dict(rule.labelled)
+            if rule.push(-50.0 + (k % 3)) is not None:
+                rule.note_decision(None if k == lost_at else 0)
+            out.append(next(key for key in rule.labelled if rule.labelled[key] > before[key]))
+        return out
+
+    anew = BackgroundThreshold(TS1, TS2, TA2, 0.1, history=40, warmup_windows=2,
+                               timer_known=False)  # fmt: skip
+    assert labels(anew, None, 12) == ["unknown"] * (TA2 + 1) + ["background"] * (11 - TA2)
+    rule = BackgroundThreshold(TS1, TS2, TA2, 0.1, history=40, warmup_windows=2)
+    found = labels(rule, 10, 20)  # bits from window 7 on (warm-up and delay)
+    assert found == (["background"] * 11 + ["unknown"] * (TA2 + 1)
+                     + ["background"] * (20 - 11 - TA2 - 1))  # fmt: skip

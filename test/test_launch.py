@@ -222,11 +222,14 @@ def test_ctrl_c_as_the_nodes_start_and_a_bad_choice_end_the_launch_in_one_clear_
     assert "Traceback" not in output, output[-3000:]
     # A node whose `env` had not blocked the signals yet (its first millisecond) is ended
     # by the signal itself (-2): nothing of it ran. Any other status would be a failure.
+    # asyncio may lose the status of a child that ends that early ("Unknown child process
+    # pid N, will report returncode 255"): then the launch reports 255 for it, unknowing.
+    lost = "will report returncode 255" in output
     statuses = re.findall(r"exit code (-?\d+)", output)
-    assert set(statuses) <= {"-2"}, output[-3000:]
-    assert output.strip().splitlines()[-1].endswith(
-        "launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped"
-    ), output[-3000:]
+    assert set(statuses) <= ({"-2", "255"} if lost else {"-2"}), output[-3000:]
+    last = output.strip().splitlines()[-1]
+    assert "launch interrupted (ctrl-c (SIGINT)): 6 nodes stopped" in last, output[-3000:]
+    assert lost or last.endswith("6 nodes stopped"), output[-3000:]
     assert maybe.wait(60) != 0
     refusal = """provided value "maybe" is not valid. Valid options are: ['true', 'false']"""
     assert refusal in maybe.output(), maybe.output()

@@ -30,7 +30,9 @@ before it is known, so its label never depends on a guess: in the lockstep loop 
 offline loop, a wav or bag replay, the fake room) the decision on window t arrives
 before window t + 1, and a window is labelled when it comes; live, a late decision only
 delays the labels of the windows after it. A lost decision (``None``) leaves the timer
-unknown until the next vocalization; windows of unknown timer are never used.
+unknown until the next vocalization, or until ``ta2 + 1`` silent decisions put any
+vocalization before them past the agent period; windows of unknown timer are never used.
+A rule made anew in a session (:meth:`BackgroundSource.recalibrate`) starts so too.
 Self-feedback windows (``ts1 <= z <= ts2``) and agent-period windows never set the
 threshold; self-feedback windows are watched for one diagnostic (below).
 
@@ -187,6 +189,8 @@ class BackgroundThreshold:
         least_rank: ``k`` is at least this (2: the loudest background window alone, a
             door slam, never sets the threshold; the false-alarm share is then
             ``2 / (n + 1)`` until ``n + 1 >= 2 / false_alarm``).
+        timer_known: False for a rule made in a session (a recalibration): the timer is
+            unknown until a vocalization or ``ta2 + 1`` silent decisions.
 
     It has the attributes of :class:`~infomax_contingency.audio.binarizer.Binarizer` a
     node reports (``threshold_db``, ``state``, ``calibrating``, ``calibration_problem``,
@@ -209,6 +213,7 @@ class BackgroundThreshold:
         reference_margin_db: float = 0.0,
         least_rank: int = 1,
         on_problem: Callable[[str], None] | None = None,
+        timer_known: bool = True,
     ) -> None:
         _check_settings(false_alarm, history, warmup_windows, max_undecided)
         _check_margin("margin_db", margin_db)
@@ -237,15 +242,14 @@ class BackgroundThreshold:
         self._labelled_background: deque[tuple[int, float]] = deque(maxlen=history + delay)
         self._index = 0  # index of the next window pushed
         self._first_waiting = 0  # index of the first window not yet done with
-        self._z: int | None = ta2 + 1  # timer of the first window not yet labelled
+        self._z: int | None = ta2 + 1 if timer_known else None  # the next label's timer
+        self._silent_since_unknown = 0
         # (level, awaits a decision, labelled, the decision if given with the window)
         self._waiting: deque[tuple[float, bool, bool, int | None]] = deque()
         self._decisions: deque[int | None] = deque()
         self._withheld: set[int] = set()  # windows of the robot's own sound, not yet labelled
         self._self_exceeded: deque[bool] = deque(maxlen=SELF_WINDOWS_WATCHED)
-        self.windows = 0
-        self.silent_windows = 0
-        self.decisions_lost = 0
+        self.windows = self.silent_windows = self.decisions_lost = 0
         self.labelled = {"background": 0, "agent": 0, "self": 0, "unknown": 0}
         """Windows labelled so far, by what their timer said."""
         self.range_guard = ThresholdRangeGuard("background threshold", on_problem)
@@ -413,9 +417,13 @@ class BackgroundThreshold:
             if u == 1:
                 self._z = 0
             elif u is None:
-                self._z = None
+                self._z, self._silent_since_unknown = None, 0
             elif self._z is not None:
                 self._z = min(self._z + 1, self.ta2 + 1)
+            else:  # silent while unknown: ta2 + 1 of them put any vocalization past the agent
+                self._silent_since_unknown += 1
+                if self._silent_since_unknown > self.ta2:
+                    self._z = self.ta2 + 1
 
     def _file(self, level: float, z: int | None, index: int) -> None:
         """Use a labelled window: background sets the threshold; self-feedback is watched."""

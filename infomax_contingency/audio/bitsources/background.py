@@ -124,7 +124,7 @@ class BackgroundSource(BitSource):
             raise SettingError("warmup_s", f"= {settings.warmup_s:g} s: must not exceed"
                                f" background_window_s ({history:g} s)")  # fmt: skip
 
-    def _new_rule(self) -> BackgroundThreshold:
+    def _new_rule(self, timer_known: bool = True) -> BackgroundThreshold:
         s, window_s = self.settings, self.window_s
         ts1, ts2, ta1, ta2 = self.periods
         return BackgroundThreshold(
@@ -136,6 +136,7 @@ class BackgroundSource(BitSource):
             reference_margin_db=s.reference_margin_db,
             least_rank=LEAST_RANK,
             on_problem=self.on_problem,
+            timer_known=timer_known,
         )  # fmt: skip
 
     def follow_model(self, params: ModelParams) -> None:
@@ -226,7 +227,7 @@ class BackgroundSource(BitSource):
     def recalibrate(self) -> str:
         """Forget the room: a new warm-up on the next windows."""
         self._stale_decisions += self.rule.awaited_decisions
-        self.rule = self._new_rule()
+        self.rule = self._new_rule(timer_known=False)  # a sound decided before may follow
         return (f"hearing the room again: no bits for the next {self.rule.warmup_windows}"
                 " background windows (and the threshold's delay)")  # fmt: skip
 
