@@ -308,7 +308,8 @@ class GapWithholding:
     robot's own sound); from then on the steps' timer is the windows' again.
 
     Call :meth:`bit` for each step in order (``gap_before``: a gap came right before its
-    window) and :meth:`decided` with each decision when it is known. With the decisions
+    window; or :meth:`no_step` for each window without a step, where windows are handled
+    in their order) and :meth:`decided` with each decision when it is known. With the decisions
     on every step before the gap known, exactly the steps whose timer could lag are
     withheld (none if no vocalization came in the last ``steps`` steps); otherwise
     ``steps`` bits. A vocalization decided on a step after the gap ends the withholding
@@ -334,12 +335,19 @@ class GapWithholding:
         self._decided = 0  # the highest step whose decision came
         self._vocalized: int | None = None  # the last step decided with a vocalization
         self._lost: int | None = None  # the last step whose decision was lost
+        self._no_step = False  # a window gave no step since the last bit
+
+    def no_step(self) -> None:
+        """A window gave no step: a gap before the next bit."""
+        self._no_step = True
 
     def bit(self, gap_before: bool = False) -> bool:
         """The next step's bit; True if it is withheld.
 
-        ``gap_before``: windows gave no step, were lost or dropped right before its window.
+        ``gap_before``: windows gave no step, were lost or dropped right before its window
+        (also true after :meth:`no_step`).
         """
+        gap_before, self._no_step = gap_before or self._no_step, False
         if gap_before and self.bits:
             self.gaps += 1
             self._first_after_gap = self.bits + 1

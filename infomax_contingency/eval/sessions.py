@@ -40,7 +40,7 @@ from infomax_contingency.core.model import ModelParams, StatisticTracker, Withhe
 from infomax_contingency.core.selfsound import GapWithholding, recorded_observation
 from infomax_contingency.core.stepclock import Pace, StepJoiner, StepPace
 from infomax_contingency.sim.loop import run_loop
-from infomax_contingency.sim.simulation import StepRecord, step_record
+from infomax_contingency.sim.simulation import StepRecord, statistic_record, step_record
 
 SESSION_TOPICS = ("/sound_step", "/vocalize_step", "/belief", "/diagnostics")
 """Topics a replay with recorded actions reads."""
@@ -146,11 +146,8 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
         z = tracker.statistic.z
         statistic = tracker.observe_window(y)  # a withheld or missing bit is not counted
         heard = y.bit if isinstance(y, Withheld) else bool(y)
-        out.append(StepRecord(
-            t=step, time_s=round((step - 1) * params.dt, 9), z=z, y=int(heard),
-            u=int(bool(u)), belief=statistic.belief(params),
-            entropy=statistic.entropy(params), ratio=statistic.variance_ratio(params),
-        ))
+        out.append(statistic_record(params, step, (step - 1) * params.dt, z, int(heard),
+                                    int(bool(u)), statistic))  # fmt: skip
         if u is None:
             tracker.act_unknown()
         else:
@@ -232,11 +229,7 @@ def replay_windows(bits: Sequence[bool | None], decisions: Sequence[bool], param
         step += 1
         z = tracker.statistic.z
         statistic = tracker.observe(bool(bit))
-        yield StepRecord(
-            t=step, time_s=round(k * params.dt, 9), z=z, y=int(bool(bit)), u=u,
-            belief=statistic.belief(params), entropy=statistic.entropy(params),
-            ratio=statistic.variance_ratio(params),
-        )  # fmt: skip
+        yield statistic_record(params, step, k * params.dt, z, int(bool(bit)), u, statistic)
         tracker.act(u)
 
 
@@ -349,7 +342,6 @@ class _WavLevels:
         self.source = make_bit_source("background", PROCESSING_RATE_HZ, params.dt, **options)
         self.source.follow_model(params)
         self.gap = GapWithholding(params.ta2 + 1)
-        self._gap_next = False
         self._withheld = False
 
     def observe(self) -> _RecordedBit | None:
@@ -358,10 +350,9 @@ class _WavLevels:
             raise _EndOfRecordingError
         bit = self.source.push_window(window)
         if bit is None:
-            self._gap_next = True
+            self.gap.no_step()
             return None
-        self._withheld = self.gap.bit(gap_before=self._gap_next)
-        self._gap_next = False
+        self._withheld = self.gap.bit()
         return _RecordedBit(int(bit), withheld=self._withheld)
 
     def act(self, u: int) -> None:

@@ -881,7 +881,6 @@ class AudioWorld:
         self.declare_self_sound = declare_self_sound
         self.gap = GapWithholding(gap_steps)
         """Bits withheld right after windows without a step, as mic_node withholds them."""
-        self._gap_next = False  # windows gave no step since the last bit
         self._withheld = False  # the last observed window's, for the decision on it
 
     def observe(self) -> AudioObservation | None:
@@ -890,10 +889,9 @@ class AudioWorld:
         y = self.binarizer.push_window(as_transmitted(window.samples).astype(np.float64))
         energy = self.binarizer.last_energy_db
         if y is None:
-            self._gap_next = True
+            self.gap.no_step()
             return None
-        after_gap = self.gap.bit(gap_before=self._gap_next)
-        self._gap_next = False
+        after_gap = self.gap.bit()
         withheld = (self.declare_self_sound and window.robot_sound) or after_gap
         self._withheld = withheld
         return AudioObservation(int(y), energy, window.partner_present, withheld)

@@ -15,7 +15,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from infomax_contingency.core.controllers import Controller
-from infomax_contingency.core.model import ModelParams, advance_timer
+from infomax_contingency.core.model import ModelParams, Statistic, advance_timer
 from infomax_contingency.sim.loop import LoopStep, run_loop
 
 
@@ -117,15 +117,22 @@ def iter_simulate(
 
 def step_record(params: ModelParams, step: LoopStep) -> StepRecord:
     """The :class:`StepRecord` of one step of :func:`~infomax_contingency.sim.loop.run_loop`."""
+    return statistic_record(params, step.t, (step.t - 1) * params.dt, step.z,
+                            int(step.observation.y), step.u, step.statistic)  # fmt: skip
+
+
+def statistic_record(params: ModelParams, t: int, time_s: float, z: int, y: int, u: int,
+                     statistic: Statistic) -> StepRecord:  # fmt: skip
+    """The :class:`StepRecord` of step ``t`` (timer ``z`` before it) and the statistic after."""
     return StepRecord(
-        t=step.t,
-        time_s=round((step.t - 1) * params.dt, 9),
-        z=step.z,
-        y=int(step.observation.y),
-        u=step.u,
-        belief=step.statistic.belief(params),
-        entropy=step.statistic.entropy(params),
-        ratio=step.statistic.variance_ratio(params),
+        t=t,
+        time_s=round(time_s, 9),
+        z=z,
+        y=int(y),
+        u=int(u),
+        belief=statistic.belief(params),
+        entropy=statistic.entropy(params),
+        ratio=statistic.variance_ratio(params),
     )
 
 
