@@ -181,13 +181,14 @@ def test_a_background_threshold_outside_the_parameters_range_gives_no_bits() -> 
     rng = np.random.default_rng(5)
     bits = []
     for _ in range(60):
-        bit = source.push_window(rng.normal(0.0, 1000.0, N))  # +60 dB: a float wav unscaled
+        bit = source.push_window(rng.normal(0.0, 1000.0, N))  # +56 dB in the speech band
         bits.append(bit)
         if bit is not None:
             source.note_decision(0)
     assert bits == [None] * 60
     assert source.state == OUT_OF_RANGE and source.calibrating
-    assert "threshold_db 60" in source.problem and "is not allowed: -150 .. 0 dB" in source.problem
+    assert "threshold_db 55.9" in source.problem
+    assert "is not allowed: -150 .. 0 dB" in source.problem
     assert said == [source.problem]
     assert any("gave no bit" in line for line in source.problems())
     assert source.rule.range_guard.windows_out_of_range > 40
@@ -244,6 +245,11 @@ def test_bad_settings_are_refused_by_name() -> None:
             BackgroundThreshold(TS1, TS2, TA2, **kwargs)
     with pytest.raises(AudioError, match="'warmup_s' = 40 s: must not exceed"):
         make_bit_source("background", RATE, WINDOW_S, warmup_s=40.0)
+    with pytest.raises(AudioError, match="'level_band' = speech needs audio above 6800 Hz"):
+        make_bit_source("background", 6000, WINDOW_S)
+    assert make_bit_source("background", 6000, WINDOW_S, level_band="full").samples_per_window
+    with pytest.raises(AudioError, match="level_band = 'low' is not allowed: one of speech, full"):
+        make_bit_source("background", RATE, WINDOW_S, level_band="low")
 
 
 def test_the_binarizer_grammar_names_it() -> None:
@@ -252,6 +258,7 @@ def test_the_binarizer_grammar_names_it() -> None:
         "background",
         {"false_alarm": 0.05, "reference_margin_db": 6.0},
     )
+    assert binarizer_options("background:0.05:3:full")[1]["level_band"] == "full"
     source = make_binarizer("background:0.2", WINDOW_S)
     assert source.needs_decisions and source.rule.false_alarm == 0.2
     assert source.rule.history == 60 and source.rule.warmup_windows == 8
@@ -365,3 +372,45 @@ def test_a_lost_decision_leaves_the_timer_unknown_until_ta2_plus_1_silent_ones()
     found = labels(rule, 10, 20)  # bits from window 7 on (warm-up and delay)
     assert found == (["background"] * 11 + ["unknown"] * (TA2 + 1)
                      + ["background"] * (20 - 11 - TA2 - 1))  # fmt: skip
+
+
+def tone(hz: float, level_db: float, rng: np.random.Generator) -> np.ndarray:
+    """A window of a sine at ``hz`` of RMS ``level_db`` over a white floor at -70 dB."""
+    t = np.arange(N) / RATE
+    amplitude = math.sqrt(2.0) * 10 ** (level_db / 20)
+    return amplitude * np.sin(2 * np.pi * hz * t + rng.uniform(0, 2 * np.pi)) + rng.normal(
+        0.0, 10 ** (-70 / 20), N
+    )
+
+
+@pytest.mark.parametrize("level_band", ["speech", "full"])
+def test_a_rumble_outside_the_speech_band_does_not_hide_a_voice(level_band: str) -> None:
+    """A room whose loud 80-Hz rumble comes and goes; a 1-kHz reply 15 dB under it.
+
+    The speech band's level hears the reply over the rumble; the whole window's level
+    (``full``) sets its threshold at the rumble and misses it.
+    """
+    rng = np.random.default_rng(3)
+    source = make_bit_source("background", RATE, WINDOW_S, level_band=level_band)
+    bits = []
+    for k in range(80):  # background: the rumble in every other window
+        bits.append(source.push_recorded(tone(80.0, -20.0 if k % 2 else -45.0, rng), 0))
+    assert source.threshold_db is not None
+    reply = source.push_recorded(tone(1000.0, -35.0, rng), 0)
+    assert reply is (level_band == "speech")
+    active = [b for b in bits[-40:] if b is not None]
+    assert sum(active) <= 0.1 * len(active)
+    assert source.rule.silent_windows == 0  # the rumble's windows hold sound, not silence
+
+
+def test_a_window_with_sound_only_outside_the_band_is_not_digital_silence() -> None:
+    rng = np.random.default_rng(4)
+    source = make_bit_source("background", RATE, WINDOW_S)
+    t = np.arange(N) / RATE
+    hum = 0.1 * np.sin(2 * np.pi * 20.0 * t)  # far below the band: next to nothing in it
+    for _ in range(20):
+        source.push_recorded(hum + 1e-9 * rng.normal(size=N), 0)
+    assert source.rule.silent_windows == 0
+    assert not any("digital silence" in line for line in source.problems())
+    source.push_recorded(np.zeros(N), 0)
+    assert source.rule.silent_windows == 1

@@ -16,9 +16,12 @@ of a recording its recorded actions. It needs the
 model's periods (:meth:`follow_model`), which mic_node, the offline loop and ``replay``
 give it from their ``params``.
 
-The level is the window's energy with its mean removed (a DC offset neither raises the
-level nor hides a sound; it is reported). The first ``warmup_s`` seconds of background
-(plus the threshold's delay, ``ta2 + 1`` windows) yield no bit.
+The level is the energy of the window's speech band, 300-3400 Hz (``level_band``
+``speech``, the default: where a partner's voice is, while a room's rumble of traffic,
+engines and air conditioning and its hiss lie mostly outside it), or of the whole window
+with its mean removed (``full``); a DC offset neither raises the level nor hides a sound
+(it is reported). The first ``warmup_s`` seconds of background (plus the threshold's
+delay, ``ta2 + 1`` windows) yield no bit.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from infomax_contingency.audio.background import (
+    SILENCE_DB,
     BackgroundThreshold,
     level_and_faults,
     ordinal,
@@ -45,12 +49,17 @@ from infomax_contingency.audio.bitsources.base import (
     setting,
     window_energy_db,
 )
+from infomax_contingency.audio.bitsources.level import SPEECH_BAND_HZ, SpeechBandLevel
 from infomax_contingency.audio.common import AudioError, as_mono
 from infomax_contingency.core.model import ModelParams
 
 LEAST_RANK = 2
 """The threshold is at least the 2nd loudest background window: one loud event (a door
 slam) does not raise it above a partner's voice for the whole history."""
+
+QUIETEST_SOUND_DB = 0.5
+"""A window with sound but (almost) none in the speech band is this far above
+:data:`~infomax_contingency.audio.background.SILENCE_DB`: quiet, not digital silence."""
 
 ROBOT_PERIODS = (0, 1, 2, 4)
 """``(ts1, ts2, ta1, ta2)`` used until :meth:`BackgroundSource.follow_model` (the robot's)."""
@@ -81,6 +90,12 @@ class BackgroundSettings:
         "A window must also be this much louder than the window the robot's last sound"
         " followed (background windows: as far back)", low=0.0, high=60.0, unit="dB",
     )
+    level_band: str = setting(
+        "speech",
+        "The band of the window level: speech (300-3400 Hz, where a voice is; most of a"
+        " room's rumble and hiss lie outside it) or full (the whole window, the paper's energy)",
+        choices=("speech", "full"),
+    )
 
 
 class BackgroundSource(BitSource):
@@ -97,6 +112,7 @@ class BackgroundSource(BitSource):
         "": (
             NameArgument("false_alarm", "FALSE_ALARM"),
             NameArgument("reference_margin_db", "MARGIN_DB"),
+            NameArgument("level_band", "BAND"),
         )
     }
 
@@ -110,6 +126,7 @@ class BackgroundSource(BitSource):
         super().__init__(settings, rate_hz, window_s, on_problem)
         self.periods = ROBOT_PERIODS
         self.rule = self._new_rule()
+        self._band = SpeechBandLevel(rate_hz) if settings.level_band == "speech" else None
         self._stale_decisions = 0  # decisions still due on bits of a rule replaced
         self.last_level_db = float("nan")
         """The level the last bit was decided on (energy without the mean), dB."""
@@ -118,7 +135,11 @@ class BackgroundSource(BitSource):
 
     @classmethod
     def check_settings(cls, settings: BackgroundSettings, rate_hz: int, window_s: float) -> None:
-        """The warm-up fits in the threshold's history."""
+        """The warm-up fits in the threshold's history; the speech band fits the rate."""
+        if settings.level_band == "speech" and not rate_hz > 2 * SPEECH_BAND_HZ[1]:
+            raise SettingError("level_band", f"= speech needs audio above {2 * SPEECH_BAND_HZ[1]:g}"
+                               f" Hz (twice the band's upper edge), got {rate_hz} Hz: use"
+                               " level_band full")  # fmt: skip
         if settings.warmup_s > settings.background_window_s:
             history = settings.background_window_s
             raise SettingError("warmup_s", f"= {settings.warmup_s:g} s: must not exceed"
@@ -185,11 +206,18 @@ class BackgroundSource(BitSource):
         return self.rule.push(self._level(x), decision=decision)
 
     def _level(self, x: NDArray[np.float64]) -> float:
-        """The window's level without its mean, dB; counts clipping and DC offset."""
-        self.last_level_db, faults = level_and_faults(x)
+        """The window's level (``level_band``), dB; counts clipping and DC offset.
+
+        A window that holds sound is never as quiet as digital silence, whatever its band.
+        """
+        level, faults = level_and_faults(x)
+        if self._band is not None:
+            band_db = self._band.level_db(x)  # every window: the filter's state runs on
+            level = level if faults.silent else max(band_db, SILENCE_DB + QUIETEST_SOUND_DB)
+        self.last_level_db = level
         self.clipped_windows += faults.clipped
         self.dc_offset_windows += faults.dc_offset
-        return self.last_level_db
+        return level
 
     # ------------------------------------------------------------------ state
 
