@@ -1,7 +1,7 @@
 """The default sound-to-bit path (bit source ``background``): cost per window, printed.
 
 Per 0.5 s window at 16 kHz: the window checked, its faults (clipping, DC offset), its
-level without the mean, the threshold (the k-th loudest of the last background windows),
+level (the energy of its 300-3400 Hz band), the threshold (the k-th loudest of the last background windows),
 the bit and, after it, the decision that labels the windows (``note_decision``): what
 mic_node and the offline loop spend per window. Best of ``--repeats`` passes over
 ``--windows`` windows of the ``office+partner`` room, a vocalization every 6 windows.
