@@ -1,10 +1,11 @@
 """The default sound-to-bit path (bit source ``background``): cost per window, printed.
 
 Per 0.5 s window at 16 kHz: the window checked, its faults (clipping, DC offset), its
-level (the energy of its 300-3400 Hz band), the threshold (the k-th loudest of the last background windows),
-the bit and, after it, the decision that labels the windows (``note_decision``): what
-mic_node and the offline loop spend per window. Best of ``--repeats`` passes over
-``--windows`` windows of the ``office+partner`` room, a vocalization every 6 windows.
+level (the energy of its 300-3400 Hz band), the threshold (the k-th loudest of the last
+background windows), the bit and, after it, the decision that labels the windows
+(``note_decision``): what mic_node and the offline loop spend per window. Best of
+``--repeats`` passes over ``--windows`` windows of the ``office+partner`` room, a
+vocalization every 6 windows.
 It must stay far below the 500 000 us of the window itself. For comparison, the
 ``energy`` source at a fixed threshold on the same windows.
 
