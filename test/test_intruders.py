@@ -279,3 +279,16 @@ def test_audio_in_any_chunking_gives_the_offline_bits_decisions_and_beliefs() ->
         assert_offline_run(rec, samples)
         mic = values(watch.wait_status("mic_node", DiagnosticStatus.OK))
         assert mic["windows_dropped"] == "0" and mic["dropped_chunks"] == "0", mic
+
+
+def test_an_intruder_seen_before_its_node_is_named_as_such() -> None:
+    """The middleware names an endpoint whose node it has not discovered ``_NODE_NAME_UNKNOWN_``."""
+    from types import SimpleNamespace
+
+    from infomax_contingency.nodes.graph_node import UNDISCOVERED_NODE, publisher_name
+
+    known = SimpleNamespace(node_name="mic_node", node_namespace="/robot1")
+    assert publisher_name(known) == "/robot1/mic_node"
+    assert publisher_name(SimpleNamespace(node_name="talker", node_namespace="/")) == "/talker"
+    early = SimpleNamespace(node_name=UNDISCOVERED_NODE, node_namespace="_NODE_NAMESPACE_UNKNOWN_")
+    assert publisher_name(early) == "(a node not discovered yet)"

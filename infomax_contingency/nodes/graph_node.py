@@ -323,9 +323,7 @@ class GraphNode(Node):
             name = self.resolve_topic_name(topic)
             infos = self.get_publishers_info_by_topic(name)
             if len(infos) > 1:
-                found[topic] = sorted(
-                    f"{info.node_namespace.rstrip('/')}/{info.node_name}" for info in infos
-                )
+                found[topic] = sorted(publisher_name(info) for info in infos)
         return found
 
     def warn_intrusion(self, message: str, kind: str = "intrusion") -> None:
@@ -466,6 +464,21 @@ def _announced_start(logger: Any, waiting_for: str, start: Callable[[], None]
         start()
 
     return announced
+
+
+UNDISCOVERED_NODE = "_NODE_NAME_UNKNOWN_"
+"""The node name the middleware gives an endpoint whose node it has not discovered yet."""
+
+
+def publisher_name(info: Any) -> str:
+    """The fully qualified name of an endpoint's node (``TopicEndpointInfo``), for a log line.
+
+    An endpoint seen before its node (a ``ros2 topic pub`` just started, or one already
+    gone) is "a node not discovered yet", not the middleware's placeholder.
+    """
+    if info.node_name == UNDISCOVERED_NODE:
+        return "(a node not discovered yet)"
+    return f"{info.node_namespace.rstrip('/')}/{info.node_name}"
 
 
 def _format_value(value: Any) -> str:
