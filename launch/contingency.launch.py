@@ -33,7 +33,9 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   ``infomax-contingency analyze`` (``calibration-session`` does it in one command).
 
 ``use_fake_room``, ``realtime`` and ``record`` take ``true`` or ``false``;
-any other value ends the launch before a node starts, naming the valid values.
+any other value ends the launch before a node starts, naming the valid values. An argument
+of a mode not chosen (``room_seed`` or ``realtime:=false`` without ``use_fake_room:=true``,
+``record_dir`` without ``record:=true``) is ignored, with a WARNING line naming it.
 
 A node that exits with an error ends the whole launch with a final line naming it; a
 Ctrl-C ends it with ``launch interrupted (ctrl-c (SIGINT)): ...``. The nodes start with
@@ -60,6 +62,7 @@ import signal
 import subprocess
 import time
 
+import launch.logging
 from launch.actions import (
     DeclareLaunchArgument,
     EmitEvent,
@@ -214,6 +217,24 @@ class _ExitWatch:
 _WATCH = _ExitWatch()
 
 
+def _arguments_of_other_modes(context: LaunchContext, fake_room: bool, record: bool) -> list[str]:
+    """One line per argument given that the chosen mode does not use (it is ignored)."""
+    given = {name: LaunchConfiguration(name).perform(context).strip()
+             for name in ("room_seed", "realtime", "record_dir")}  # fmt: skip
+    out = []
+    if not fake_room:
+        if given["room_seed"]:
+            out.append(f"room_seed:={given['room_seed']}")
+        if given["realtime"] == "false":
+            out.append("realtime:=false")
+    if not record and given["record_dir"]:
+        out.append(f"record_dir:={given['record_dir']}")
+    needs = {"room_seed": "use_fake_room:=true", "realtime": "use_fake_room:=true",
+             "record_dir": "record:=true"}  # fmt: skip
+    return [f"{argument} is ignored: it is for {needs[argument.split(':=')[0]]}"
+            for argument in out]
+
+
 def _graph(context: LaunchContext) -> list:
     """The nodes, chosen by the launch arguments (evaluated once the arguments are known)."""
     params_file = LaunchConfiguration("params_file")
@@ -254,6 +275,8 @@ def _graph(context: LaunchContext) -> list:
         )
 
     record = _is_true(context, "record")
+    for line in _arguments_of_other_modes(context, fake_room, record):
+        launch.logging.get_logger("launch").warning(line)
     # Recording: the recorder is a third listener of the bits (controller, belief,
     # recorder) and the room's truth listener, so the first step is not sent before it.
     mic = {"wait_for_listeners": 3} if record else {}

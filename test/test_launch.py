@@ -242,13 +242,14 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
 ) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
-    graph = launch(f"contingency.launch.py params_file:={bad}")
+    graph = launch(f"contingency.launch.py params_file:={bad} room_seed:=7")
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
     (tmp_path / "old_session").mkdir()
     recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
     assert graph.wait(60) == 1, graph.output()[-2000:]  # a failure: not the status of a run
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
+    assert "room_seed:=7 is ignored: it is for use_fake_room:=true" in graph.output()
     assert lines[-1].endswith(
         "launch stopped: mic_node-1 exited with status 2 (its error is above)"
     )
@@ -313,10 +314,13 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
     params = robot_params(tmp_path, "short.yaml", mic_node={"max_windows": 8})
     graph = launch(
         f"contingency.launch.py use_fake_room:=true realtime:=false params_file:={params}"
+        f" record_dir:={tmp_path / 'unused'}"
     )
     assert graph.wait(120) == 0, graph.output()[-3000:]
     output = graph.output()
     assert "[mic_node]: 8 bits published (max_windows): stopping" in output
+    assert "record_dir:=" in output and "is ignored: it is for record:=true" in output
+    assert not (tmp_path / "unused").exists()
     assert "mic_node-1 finished by itself (max_windows or exit_at_end): stopping" in output
     for node in ("fake_audio_node-2", "controller_node-3", "belief_node-4"):
         assert f"[{node}]: process has finished cleanly" in output
