@@ -217,6 +217,20 @@ class _ExitWatch:
 _WATCH = _ExitWatch()
 
 
+def _check_namespace(namespace: str) -> None:
+    """RuntimeError (one line, the launch ends with status 1) unless ``namespace`` is valid."""
+    if not namespace:
+        return
+    from rclpy.validate_namespace import InvalidNamespaceException, validate_namespace
+
+    try:
+        validate_namespace(namespace if namespace.startswith("/") else f"/{namespace}")
+    except InvalidNamespaceException as error:
+        reason = str(error).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")
+        raise RuntimeError(f"launch stopped: namespace:={namespace} is not a ROS namespace:"
+                           f" {reason}") from None  # fmt: skip
+
+
 def _arguments_of_other_modes(context: LaunchContext, fake_room: bool, record: bool) -> list[str]:
     """One line per argument given that the chosen mode does not use (it is ignored)."""
     given = {name: LaunchConfiguration(name).perform(context).strip()
@@ -252,6 +266,7 @@ def _graph(context: LaunchContext) -> list:
             raise RuntimeError(f"launch stopped: {reason}")  # launch exits with status 1
 
     namespace_text = namespace.perform(context)
+    _check_namespace(namespace_text)
     level = log_level.perform(context)
 
     def node(executable: str, parameters: list) -> Node:

@@ -244,6 +244,7 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
     graph = launch(f"contingency.launch.py params_file:={bad} room_seed:=7")
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
+    dashed = launch("contingency.launch.py namespace:=robot-1")
     (tmp_path / "old_session").mkdir()
     recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
     assert graph.wait(60) == 1, graph.output()[-2000:]  # a failure: not the status of a run
@@ -256,6 +257,10 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     assert missing.wait(60) == 1
     assert "launch stopped: params_file:=/nonexistent.yaml is not a file" in missing.output()
     assert "Traceback" not in missing.output()
+    assert dashed.wait(60) == 1
+    assert ("launch stopped: namespace:=robot-1 is not a ROS namespace: namespace must not"
+            " contain characters other than alphanumerics, '_', or '/'") in dashed.output()
+    assert "Traceback" not in dashed.output()
     # a recorder refuses a directory that exists: the launch ends, naming it
     assert recorded.wait(60) == 1
     assert "old_session' exists already" in recorded.output(), recorded.output()[-3000:]
