@@ -245,7 +245,8 @@ def test_bad_settings_are_refused_by_name() -> None:
             BackgroundThreshold(TS1, TS2, TA2, **kwargs)
     with pytest.raises(AudioError, match="'warmup_s' = 40 s: must not exceed"):
         make_bit_source("background", RATE, WINDOW_S, warmup_s=40.0)
-    with pytest.raises(AudioError, match="'level_band' = speech needs audio above 6800 Hz"):
+    with pytest.raises(AudioError, match="'rate_hz' = 6000: bit_source background with level_band"
+                       " speech needs audio above 6800 Hz .* or set level_band: full"):
         make_bit_source("background", 6000, WINDOW_S)
     assert make_bit_source("background", 6000, WINDOW_S, level_band="full").samples_per_window
     with pytest.raises(AudioError, match="level_band = 'low' is not allowed: one of speech, full"):
@@ -259,6 +260,8 @@ def test_the_binarizer_grammar_names_it() -> None:
         {"false_alarm": 0.05, "reference_margin_db": 6.0},
     )
     assert binarizer_options("background:0.05:3:full")[1]["level_band"] == "full"
+    with pytest.raises(ValueError, match="background takes at most FALSE_ALARM and MARGIN_DB and"):
+        binarizer_options("background:0.05:3:full:x")
     source = make_binarizer("background:0.2", WINDOW_S)
     assert source.needs_decisions and source.rule.false_alarm == 0.2
     assert source.rule.history == 60 and source.rule.warmup_windows == 8
@@ -414,3 +417,40 @@ def test_a_window_with_sound_only_outside_the_band_is_not_digital_silence() -> N
     assert not any("digital silence" in line for line in source.problems())
     source.push_recorded(np.zeros(N), 0)
     assert source.rule.silent_windows == 1
+
+
+@pytest.mark.parametrize("level_band", ["speech", "full"])
+def test_a_dead_input_holding_a_dc_value_is_digital_silence_in_either_band(level_band: str) -> None:
+    source = make_bit_source("background", RATE, WINDOW_S, level_band=level_band)
+    for _ in range(12):
+        source.push_recorded(np.full(N, 0.01), 0)  # a constant: nothing but DC
+    assert source.rule.silent_windows == 12
+    assert any("digital silence" in line for line in source.problems())
+    assert any("DC offset" in line for line in source.problems())
+
+
+def test_a_nan_window_is_refused_and_spoils_no_later_window() -> None:
+    rng = np.random.default_rng(6)
+    source = make_bit_source("background", RATE, WINDOW_S)
+    for _ in range(20):
+        source.push_recorded(rng.normal(0.0, 0.01, N), 0)
+    bad = rng.normal(0.0, 0.01, N)
+    bad[100] = np.nan
+    with pytest.raises(AudioError, match="finite"):
+        source.push_recorded(bad, 0)
+    for _ in range(5):
+        source.push_recorded(rng.normal(0.0, 0.01, N), 0)
+        assert math.isfinite(source.last_level_db)
+    assert -46.0 < source.last_level_db < -42.0  # white noise at -40 dB: its speech band's share
+
+
+def test_the_band_is_said_where_the_threshold_is() -> None:
+    rng = np.random.default_rng(7)
+    for level_band, words in (("speech", "speech-band"), ("full", "whole-window")):
+        source = make_bit_source("background", RATE, WINDOW_S, level_band=level_band)
+        for _ in range(12):
+            source.push_recorded(rng.normal(0.0, 0.01, N), 0)
+        assert source.threshold_db is not None
+        assert f"({words} level)" in source.ready_message()
+        assert f"background windows' {words} levels" in source.threshold_origin()
+        assert source.diagnostic_values()["level_band"] == level_band

@@ -142,13 +142,15 @@ def test_speech_band_passes_voice_frequencies_and_rejects_hum_and_hiss() -> None
 
 
 def test_speech_band_carries_its_filter_state_across_windows() -> None:
-    from scipy.signal import sosfilt  # here: scipy.signal takes ~0.5 s to load
+    from scipy.signal import sosfilt, sosfilt_zi  # here: scipy.signal takes ~0.5 s to load
 
-    x = np.random.default_rng(4).normal(0, 0.1, 6 * N)
+    x = np.random.default_rng(4).normal(0, 0.1, 6 * N) + 0.3  # with a DC offset
     band = SpeechBandLevel(RATE)
     levels = [band.level_db(w) for w in windows_of(x)]
-    whole = sosfilt(band._sos, x)  # one pass over the whole signal
+    # one pass over the whole signal, started as if its first sample had always been there
+    whole, _ = sosfilt(band._sos, x, zi=sosfilt_zi(band._sos) * x[0])
     assert np.allclose(levels, window_energies_db(whole, RATE, WINDOW_S), atol=1e-9)
+    assert abs(levels[0] - levels[1]) < 1.0  # no step from the offset into the first window
 
 
 def test_speech_band_calibrates_ahead_like_a_stream() -> None:

@@ -93,6 +93,9 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--false-alarm", type=float, default=0.05,
                         help="wav: the share of background windows above the self-calibrating"
                         " threshold (mic_node's false_alarm; default 0.05)")
+    parser.add_argument("--level-band", choices=("speech", "full"), default="speech",
+                        help="wav: the band of the self-calibrating threshold's level"
+                        " (mic_node's level_band; default speech, 300-3400 Hz)")
     parser.add_argument("--json", action="store_true", help="one JSON object per step")
     parser.set_defaults(run=run_replay)
 
@@ -179,7 +182,7 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
                             path: Path, mic: int | None, reference: int | None, memory: int
                             ) -> tuple[Iterator, str]:
     """A wav file's steps with mic_node's default threshold (``background``)."""
-    options = {"false_alarm": args.false_alarm}
+    options = {"false_alarm": args.false_alarm, "level_band": args.level_band}
     if kind == "controller":
         WavReplay(path, params.dt, mic)  # the file and its channel first (one-line errors)
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),

@@ -300,8 +300,8 @@ def wav_background_bits(
         bits.append(source.push_recorded(window, decision))
     what = (
         f"sound threshold: the {ordinal(rule.rank)} loudest of the last {len(rule.background)}"
-        " background"
-        f" windows ({rule.threshold_db:.1f} dB at the end; false alarms"
+        f" background windows' {source.band_name} levels ({rule.threshold_db:.1f} dB at the"
+        " end; false alarms"
         f" {rule.false_alarm_now:.3f})"
         if rule.threshold_db is not None
         else f"sound threshold: none, no bit: {_why_no_threshold(rule)}"

@@ -103,8 +103,8 @@ class BackgroundSource(BitSource):
 
     name = "background"
     summary = (
-        "window level above the room's background windows (a share false_alarm of them),"
-        " the model's own calibration"
+        "window level (of the speech band: level_band) above the room's background windows"
+        " (a share false_alarm of them), the model's own calibration"
     )
     Settings = BackgroundSettings
     needs_decisions = True
@@ -129,7 +129,7 @@ class BackgroundSource(BitSource):
         self._band = SpeechBandLevel(rate_hz) if settings.level_band == "speech" else None
         self._stale_decisions = 0  # decisions still due on bits of a rule replaced
         self.last_level_db = float("nan")
-        """The level the last bit was decided on (energy without the mean), dB."""
+        """The level the last bit was decided on (``level_band``'s energy), dB."""
         self.clipped_windows = 0
         self.dc_offset_windows = 0
 
@@ -137,9 +137,10 @@ class BackgroundSource(BitSource):
     def check_settings(cls, settings: BackgroundSettings, rate_hz: int, window_s: float) -> None:
         """The warm-up fits in the threshold's history; the speech band fits the rate."""
         if settings.level_band == "speech" and not rate_hz > 2 * SPEECH_BAND_HZ[1]:
-            raise SettingError("level_band", f"= speech needs audio above {2 * SPEECH_BAND_HZ[1]:g}"
-                               f" Hz (twice the band's upper edge), got {rate_hz} Hz: use"
-                               " level_band full")  # fmt: skip
+            raise SettingError("rate_hz", f"= {rate_hz}: bit_source background with level_band"
+                               f" speech needs audio above {2 * SPEECH_BAND_HZ[1]:g} Hz (twice"
+                               " the band's upper edge); give such audio, or set level_band:"
+                               " full")  # fmt: skip
         if settings.warmup_s > settings.background_window_s:
             history = settings.background_window_s
             raise SettingError("warmup_s", f"= {settings.warmup_s:g} s: must not exceed"
@@ -208,12 +209,14 @@ class BackgroundSource(BitSource):
     def _level(self, x: NDArray[np.float64]) -> float:
         """The window's level (``level_band``), dB; counts clipping and DC offset.
 
-        A window that holds sound is never as quiet as digital silence, whatever its band.
+        A window is digital silence in both bands alike: all zeros, or nothing but a DC
+        offset (a dead input); a window with sound is never as quiet as that, whatever its band.
         """
         level, faults = level_and_faults(x)
         if self._band is not None:
             band_db = self._band.level_db(x)  # every window: the filter's state runs on
-            level = level if faults.silent else max(band_db, SILENCE_DB + QUIETEST_SOUND_DB)
+            if level > SILENCE_DB:  # else digital silence, or nothing but DC: as full
+                level = max(band_db, SILENCE_DB + QUIETEST_SOUND_DB)
         self.last_level_db = level
         self.clipped_windows += faults.clipped
         self.dc_offset_windows += faults.dc_offset
@@ -239,7 +242,13 @@ class BackgroundSource(BitSource):
         """The rank, the background windows it was taken over and the false alarms it gives."""
         rule = self.rule
         return (f"room: the {ordinal(rule.rank)} loudest of {len(rule.background)} background"
-                f" windows, false alarms {rule.false_alarm_now:.3f}")  # fmt: skip
+                f" windows' {self.band_name} levels, false alarms"
+                f" {rule.false_alarm_now:.3f}")  # fmt: skip
+
+    @property
+    def band_name(self) -> str:
+        """What the level is taken over, in words (``level_band``)."""
+        return "speech-band" if self._band is not None else "whole-window"
 
     def problems(self) -> list[str]:
         """One line per problem seen in the input (clipping, DC offset, the rule's)."""
@@ -262,8 +271,9 @@ class BackgroundSource(BitSource):
     def ready_message(self) -> str:
         rule = self.rule
         return (
-            f"threshold {rule.threshold_db:.2f} dB from {len(rule.background)} background"
-            f" windows ({ordinal(rule.rank)} loudest: false alarms {rule.false_alarm_now:.3f},"
+            f"threshold {rule.threshold_db:.2f} dB ({self.band_name} level) from"
+            f" {len(rule.background)} background windows ({ordinal(rule.rank)} loudest: false"
+            f" alarms {rule.false_alarm_now:.3f},"
             f" target {rule.false_alarm:g})"
         )
 
@@ -273,4 +283,5 @@ class BackgroundSource(BitSource):
         values["dc_offset_windows"] = self.dc_offset_windows
         values["problems"] = "; ".join(self.problems()) or "none"
         values["last_level_db"] = self.last_level_db
+        values["level_band"] = self.settings.level_band
         return values

@@ -113,19 +113,31 @@ class SpeechBandLevel:
                 f"speech band up to {high:g} Hz needs a sample rate above {2 * high:g} Hz,"
                 f" got {rate_hz} Hz"
             )
-        from scipy.signal import butter, sosfilt  # lazy: ~1 s of CPU to load
+        from scipy.signal import butter, sosfilt, sosfilt_zi  # lazy: ~1 s of CPU to load
 
         self._sosfilt = sosfilt
         self.rate_hz = rate_hz
         self.band_hz = (float(low), float(high))
         self._sos = butter(SPEECH_BAND_ORDER, self.band_hz, btype="bandpass", fs=rate_hz,
                            output="sos")  # fmt: skip
-        self._state = np.zeros((self._sos.shape[0], 2))
+        self._steady_state = sosfilt_zi(self._sos)  # per unit of a constant input
+        self._state: NDArray[np.float64] | None = None
 
     def level_db(self, x: NDArray[np.float64]) -> float:
-        """Band energy of the next window (mono samples), dB."""
-        y, self._state = self._sosfilt(self._sos, x, zi=self._state)
-        return window_energy_db(y)
+        """Band energy of the next window (mono samples), dB.
+
+        The filter starts as if the first sample had always been there (a DC offset gives
+        no step into the first window); a window whose band energy is not finite (NaN or
+        infinite samples) starts it again on the next window, so it spoils no other.
+        """
+        if x.size == 0:
+            return window_energy_db(x)
+        state = self._steady_state * x[0] if self._state is None else self._state
+        y, self._state = self._sosfilt(self._sos, x, zi=state)
+        level = window_energy_db(y)
+        if not np.isfinite(level) or not np.all(np.isfinite(self._state)):
+            self._state = None
+        return level
 
 
 ThresholdRule = Binarizer | NoiseFloorBinarizer

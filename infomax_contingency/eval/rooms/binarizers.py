@@ -133,7 +133,9 @@ def binarizer_options(spec: str) -> tuple[str, dict[str, Any]]:
     arguments = source.name_modes[mode]
     declared = {s.name: s for s in source.specs()}
     last = len(arguments) - 1
-    if 0 <= last < len(words) - 1 and isinstance(declared[arguments[-1].setting].default, str):
+    final = declared[arguments[-1].setting] if arguments else None
+    free_text = final is not None and isinstance(final.default, str) and final.choices is None
+    if 0 <= last < len(words) - 1 and free_text:
         words = [*words[:last], ":".join(words[last:])]  # a path may hold ':'
     if len(words) > len(arguments):
         takes = " and ".join(a.placeholder for a in arguments) or "no argument"
