@@ -203,10 +203,11 @@ def test_a_replayed_wav_reports_clipping_and_a_dc_offset(tmp_path: Path, capsys)
     faulty = tmp_path / "faulty.wav"
     write_wav_int16(faulty, noise + 0.3, rate)  # and a DC offset
     actions = _csv(tmp_path / "actions.csv", "time_s\n8.0\n12.0\n")
-    assert main(["replay", str(faulty), "--actions", str(actions)]) == 0
-    out = capsys.readouterr().out
-    assert "windows were clipped (samples at full scale): lower the input gain" in out, out
-    assert "windows had a DC offset (removed from the level; check the microphone)" in out
+    for how in (str(actions), "random:0.1"):  # recorded actions, and a what-if
+        assert main(["replay", str(faulty), "--actions", how]) == 0
+        out = capsys.readouterr().out
+        assert "windows were clipped (samples at full scale): lower the input gain" in out, out
+        assert "windows had a DC offset (removed from the level; check the microphone)" in out
 
 
 def test_a_kmeans_refusal_names_a_dc_offset(tmp_path: Path, capsys) -> None:

@@ -20,7 +20,7 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -139,9 +139,12 @@ def _reference_channel(text: str) -> int:
     return int(number)
 
 
-def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams) -> tuple[Iterator,
-                                                                                   str]:
-    """The replayed steps of a wav file and a description of where its actions came from."""
+def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams
+                 ) -> tuple[Iterator, str, list[str]]:
+    """A wav file's replayed steps, where its actions came from, and its bit source's problems.
+
+    The problems of a what-if are filled in once its steps are done.
+    """
     path = Path(args.session)
     mic = args.mic_channel
     reference = _reference_channel(args.actions) if kind == "channel" else None
@@ -175,21 +178,22 @@ def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams) -> tu
             decisions, level = decisions_from_reference(path, reference, params.dt)
             what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
         controller = ReplayedDecisions(params, decisions)
-    return replay_bits(bits, controller, memory), f"{what}; sound threshold {threshold:.1f} dB"
+    return replay_bits(bits, controller, memory), f"{what}; sound threshold {threshold:.1f} dB", []
 
 
 def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelParams,
                             path: Path, mic: int | None, reference: int | None, memory: int
-                            ) -> tuple[Iterator, str]:
+                            ) -> tuple[Iterator, str, list[str]]:
     """A wav file's steps with mic_node's default threshold (``background``)."""
     options = {"false_alarm": args.false_alarm, "level_band": args.level_band}
     if kind == "controller":
         WavReplay(path, params.dt, mic)  # the file and its channel first (one-line errors)
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
                                      memory=memory)
-        records = wav_background_loop(path, params, mic, controller, memory, **options)
+        problems: list[str] = []
+        records = wav_background_loop(path, params, mic, controller, memory, problems, **options)
         return records, (f"controller {controller.name} deciding on the recorded bits (what-if);"
-                         " self-calibrating sound threshold")
+                         " self-calibrating sound threshold"), problems
     windows = wav_window_count(open_wav_info(path), params.dt)
     if kind == "csv":
         decisions = decisions_from_times(read_actions_csv(Path(args.actions)), windows,
@@ -204,7 +208,7 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
     later = sum(bit is None for bit in bits[first:])
     more = f", {later} later windows gave no step either" if later else ""
     return records, (f"{what}; {threshold}; the first {first} windows heard the room (no step)"
-                     f"{more}")  # fmt: skip
+                     f"{more}"), []  # fmt: skip
 
 
 def run_replay(args: argparse.Namespace) -> int:
@@ -213,8 +217,8 @@ def run_replay(args: argparse.Namespace) -> int:
     kind = _check_replay(args, is_wav)
     params = ModelParams.load(args.params)
     if is_wav:
-        records, what = _wav_records(args, kind, params)
-        return _print_what_if(args, records, what)
+        records, what, problems = _wav_records(args, kind, params)
+        return _print_what_if(args, records, what, problems)
     cut: list[str] = []
 
     def warn_cut(message: str) -> None:
@@ -267,14 +271,19 @@ def _write_line(text: str) -> None:
     sys.stdout.flush()
 
 
-def _print_what_if(args: argparse.Namespace, records: Iterator, what: str) -> int:
-    """Stream the steps (``--json``) and print a summary line; 0 (1: there was no step)."""
+def _print_what_if(args: argparse.Namespace, records: Iterator, what: str,
+                   problems: Sequence[str] = ()) -> int:
+    """Stream the steps (``--json``) and print a summary line; 0 (1: there was no step).
+
+    ``problems``: lines the summary adds once the steps are done (they fill it).
+    """
     summary = RunSummary()
     for record in records:
         summary.add(record)
         if args.json:
             _write_line(json.dumps(record.__dict__))
     final = "-" if summary.final_belief is None else f"{summary.final_belief:.6f}"
+    what += "".join(f"; {problem}" for problem in problems)
     print(f"# replay {args.session}, {what}: {summary.steps} steps, {summary.vocalizations}"
           f" vocalizations; final P(S=1) = {final} -> {summary.verdict}",
           file=sys.stderr if args.json else sys.stdout)

@@ -361,19 +361,22 @@ class _WavLevels:
 
 
 def wav_background_loop(path: Path, params: ModelParams, channel: int | None,
-                        controller: Controller, memory: int = 0, **options: object
+                        controller: Controller, memory: int = 0,
+                        problems: list[str] | None = None, **options: object
                         ) -> Iterator[StepRecord]:
     """``controller`` deciding on a wav file's bits of the ``background`` threshold (what-if).
 
     The controller's decisions label the windows, as they would live; the recording does
-    not answer them (see :func:`replay_bits`).
+    not answer them (see :func:`replay_bits`). ``problems``: at the end of the recording,
+    the bit source's lines (clipping, DC offset, the threshold's own) are added to it.
     """
     world = _WavLevels(path, params, channel, **options)
     try:
         for step in run_loop(world, controller, None, memory=memory):
             yield step_record(controller.params, step)
     except _EndOfRecordingError:
-        return
+        if problems is not None:
+            problems.extend(world.source.problems())
 
 
 def decisions_from_times(times: Sequence[float], windows: int, dt: float, what: str
