@@ -472,6 +472,12 @@ def test_float_wav_with_nan(tmp_path) -> None:
     wavfile.write(path, 16000, np.array([0.0, np.nan], dtype=np.float32))
     with pytest.raises(AudioError, match="NaN"):
         read_wav(path)
+    huge = tmp_path / "huge.wav"
+    wavfile.write(huge, 16000, np.array([0.0, 1e300, -2.0], dtype=np.float64))
+    with pytest.raises(AudioError, match="holds a float sample of 1e[+]300: not audio"):
+        read_wav(huge)
+    wavfile.write(huge, 16000, np.array([0.0, 32767.0, -2.0], dtype=np.float32))
+    assert read_wav(huge)[0].max() == 32767.0  # unscaled, but audio: the bit sources say so
 
 
 # --------------------------------------------------------------------------- threshold file

@@ -299,6 +299,10 @@ def test_bad_windows_are_refused_in_one_line(name: str) -> None:
         window[100] = value
         with pytest.raises(AudioError, match="contain NaN or infinite values"):
             source.push_window(window)
+    window = np.zeros(N)
+    window[7] = 1e200
+    with pytest.raises(AudioError, match="a sample of 1e[+]200 is not audio"):
+        source.push_window(window)
     with pytest.raises(AudioError, match="a window must hold 8000 samples, got 7999"):
         source.push_window(np.zeros(N - 1))
     with pytest.raises(AudioError, match="must be mono"):

@@ -48,6 +48,11 @@ def check_positive(value: float, name: str) -> float:
     return float(value)
 
 
+MAX_SAMPLE_MAGNITUDE = 1e100
+"""Float samples beyond this are refused: far past any unscaled audio (a float wav written
+with int16 values reaches 32768), and an energy would overflow."""
+
+
 def float_samples(samples: ArrayLike, name: str) -> NDArray[np.float64]:
     """Return finite float64 samples, or raise AudioError (integer PCM arrays are refused)."""
     if isinstance(samples, np.ndarray) and samples.dtype.kind in "iu":
@@ -58,6 +63,9 @@ def float_samples(samples: ArrayLike, name: str) -> NDArray[np.float64]:
     x = np.asarray(samples, dtype=np.float64)
     if not np.isfinite(x).all():
         raise AudioError(f"{name} contain NaN or infinite values")
+    if x.size and (peak := float(np.abs(x).max())) > MAX_SAMPLE_MAGNITUDE:
+        raise AudioError(f"{name}: a sample of {peak:.3g} is not audio (samples belong in"
+                         " [-1, 1]; its square would overflow)")  # fmt: skip
     return x
 
 

@@ -25,7 +25,12 @@ from typing import BinaryIO
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from infomax_contingency.audio.common import AudioError, check_rate, float_samples
+from infomax_contingency.audio.common import (
+    MAX_SAMPLE_MAGNITUDE,
+    AudioError,
+    check_rate,
+    float_samples,
+)
 from infomax_contingency.limits import refuse_over_budget
 
 _WAV_MAGICS = (b"RIFF", b"RIFX", b"RF64")
@@ -200,6 +205,9 @@ def _decode(raw: bytes, info: WavInfo) -> NDArray[np.float64]:
         x = np.frombuffer(raw, dtype=f"{order}f{b}").astype(np.float64)
         if not np.isfinite(x).all():
             raise AudioError(f"{info.path} holds NaN or infinite float samples")
+        if x.size and (peak := float(np.abs(x).max())) > MAX_SAMPLE_MAGNITUDE:
+            raise AudioError(f"{info.path} holds a float sample of {peak:.3g}: not audio"
+                             " (samples belong in [-1, 1])")  # fmt: skip
     elif info.encoding == "uint":
         x = (np.frombuffer(raw, dtype=np.uint8).astype(np.float64) - 128.0) / 128.0
     elif b in (2, 4, 8):
