@@ -221,10 +221,11 @@ def _check_namespace(namespace: str) -> None:
     """RuntimeError (one line, the launch ends with status 1) unless ``namespace`` is valid."""
     if not namespace:
         return
+    from launch_ros.utilities import make_namespace_absolute, prefix_namespace
     from rclpy.validate_namespace import InvalidNamespaceException, validate_namespace
 
-    try:
-        validate_namespace(namespace if namespace.startswith("/") else f"/{namespace}")
+    try:  # as launch_ros's Node makes it ("robot1/" is "/robot1")
+        validate_namespace(make_namespace_absolute(prefix_namespace(None, namespace)))
     except InvalidNamespaceException as error:
         reason = str(error).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")
         raise RuntimeError(f"launch stopped: namespace:={namespace} is not a ROS namespace:"

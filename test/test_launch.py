@@ -161,7 +161,8 @@ def test_a_robot_in_a_namespace_with_live_parameters_and_ctrl_c(
     fake_room = tmp_path / "fake_room_energy.yaml"
     fake_room.write_text(yaml.safe_dump(room_config))
     # log_level sets the nodes' loggers only: rcl's debug lines (thousands) stay out.
-    graph = launch("contingency.launch.py namespace:=robot7 use_fake_room:=true log_level:=debug"
+    # "robot7/" is the namespace /robot7, as launch_ros makes it: the launch's check agrees
+    graph = launch("contingency.launch.py namespace:=robot7/ use_fake_room:=true log_level:=debug"
                    f" fake_room_file:={fake_room}")  # fmt: skip
     graph.wait_for("[robot7.mic_node]: listeners connected: starting the step clock")
     # realtime:=true is the default: the room runs at the speed of the room, not lockstep.

@@ -48,7 +48,13 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES
-from infomax_contingency.cli.demo_checks import check_arguments, finite_number, recording_failure
+from infomax_contingency.cli.demo_checks import (
+    check_arguments,
+    finite_number,
+    no_step,
+    node_failure,
+    recording_failure,
+)
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
@@ -355,7 +361,7 @@ def _run_graph(
                 try:
                     start_graph(processes, recorder, nodes, clock, CONNECT_TIMEOUT_S)
                 except GraphError as error:
-                    return _node_failure(processes) or str(error).splitlines()[0]
+                    return node_failure(processes) or str(error).splitlines()[0]
                 print(f"# demo: the graph is up; running ({clock} sets the pace)", flush=True)
                 steps, failure = _wait_for_run(args, processes, recorder, clock)
                 if failure:
@@ -368,18 +374,9 @@ def _run_graph(
             _stop_graph(processes, recorder)
         lost = args.record and recording_failure(Path(args.record), processes.log("recorder_node"))
         if not lost and not outcome[1]:
-            return _no_step(args, len(recorder.no_step), processes.log("mic_node"))
+            return no_step(args.wav or "the room", len(recorder.no_step),
+                           processes.log("mic_node"))
         return lost or outcome
-
-
-def _no_step(args: argparse.Namespace, windows: int, mic_log: str) -> str:
-    """Why a run gave no step, in one line: mic_node's last warning, if it gave one."""
-    warnings = [line.split("]: ", 1)[-1].strip() for line in mic_log.splitlines()
-                if "[WARN]" in line or "[ERROR]" in line]  # fmt: skip
-    why = (f"mic_node said: {warnings[-1]}" if warnings
-           else "the bit source hears about 6 s of the room's background first")
-    return (f"{args.wav or 'the room'} gave no step: its {windows} windows all went by without"
-            f" a bit ({why})")
 
 
 def _stop_graph(processes: Any, recorder: Any) -> None:
@@ -447,7 +444,7 @@ def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,
             f"the demo's monitor lost messages {lost} (its own fault: it read too slowly;"
             " the graph itself may be fine)"
         )
-    failure = _node_failure(processes)
+    failure = node_failure(processes)
     if failure:
         return steps, failure
     return steps, (
@@ -479,19 +476,6 @@ def _wait_with_watchdog(
             return condition()
         time.sleep(poll_s)
     return True
-
-
-def _node_failure(processes: Any) -> str | None:
-    """One line for the first node that exited on its own: its status and error line."""
-    for name, status in processes.dead().items():
-        lines = [line.strip() for line in processes.log(name).splitlines() if line.strip()]
-        errors = [line for line in lines if "[ERROR]" in line] or [
-            line for line in lines if "Error" in line or "error:" in line
-        ]
-        last = (errors or lines or ["(no output)"])[-1]
-        message = last.split("]: ", 1)[-1] if "]: " in last else last
-        return f"{name} exited with status {status}: {message}"
-    return None
 
 
 def _wait_for_postures(recorder: Any, steps: int, poll_s: float = 0.02) -> None:

@@ -1,8 +1,9 @@
-"""What ``infomax-contingency demo`` refuses: arguments it cannot run, a recording it lost.
+"""What ``infomax-contingency demo`` refuses or reports: bad arguments, a failed run.
 
+Arguments it cannot run, a recording it lost, a node that failed, a run without a step.
 The checks run before any node starts (one line, status 2) and, for ``--record``, after
 the run (the recorder keeps the graph running when it cannot write, so the demo looks at
-what it left).
+what it left); a failed node and a run without a step are told from the nodes' logs.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import contextlib
 import math
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from infomax_contingency.core.model import MAX_MEMORY_STEPS
 
@@ -100,3 +102,25 @@ def recording_failure(directory: Path, recorder_log: str) -> str:
     errors = [line.split("]: ", 1)[-1].strip() for line in lines if "[ERROR]" in line]
     reason = errors[0] if errors else "it wrote no metadata.yaml"
     return f"--record {directory}: the session was not recorded whole: {reason}"
+
+
+def node_failure(processes: Any) -> str | None:
+    """One line for the first node that exited on its own: its status and error line."""
+    for name, status in processes.dead().items():
+        lines = [line.strip() for line in processes.log(name).splitlines() if line.strip()]
+        errors = [line for line in lines if "[ERROR]" in line] or [
+            line for line in lines if "Error" in line or "error:" in line
+        ]
+        last = (errors or lines or ["(no output)"])[-1]
+        message = last.split("]: ", 1)[-1] if "]: " in last else last
+        return f"{name} exited with status {status}: {message}"
+    return None
+
+
+def no_step(source: str, windows: int, mic_log: str) -> str:
+    """Why a run gave no step, in one line: mic_node's last warning, if it gave one."""
+    warnings = [line.split("]: ", 1)[-1].strip() for line in mic_log.splitlines()
+                if "[WARN]" in line or "[ERROR]" in line]  # fmt: skip
+    why = (f"mic_node said: {warnings[-1]}" if warnings
+           else "the bit source hears about 6 s of the room's background first")
+    return f"{source} gave no step: its {windows} windows all went by without a bit ({why})"
