@@ -147,10 +147,23 @@ def test_speech_band_carries_its_filter_state_across_windows() -> None:
     x = np.random.default_rng(4).normal(0, 0.1, 6 * N) + 0.3  # with a DC offset
     band = SpeechBandLevel(RATE)
     levels = [band.level_db(w) for w in windows_of(x)]
-    # one pass over the whole signal, started as if its first sample had always been there
-    whole, _ = sosfilt(band._sos, x, zi=sosfilt_zi(band._sos) * x[0])
+    # one pass over the whole signal, started as if the first window's mean had always been
+    whole, _ = sosfilt(band._sos, x, zi=sosfilt_zi(band._sos) * x[:N].mean())
     assert np.allclose(levels, window_energies_db(whole, RATE, WINDOW_S), atol=1e-9)
     assert abs(levels[0] - levels[1]) < 1.0  # no step from the offset into the first window
+
+
+def test_a_nan_window_does_not_spoil_the_speech_band_filter() -> None:
+    x = np.random.default_rng(8).normal(0, 0.1, 3 * N)
+    band = SpeechBandLevel(RATE)
+    first, bad, last = windows_of(x)
+    bad = bad.copy()
+    bad[10] = np.nan
+    band.level_db(first)
+    assert not np.isfinite(band.level_db(bad))
+    after = band.level_db(last)  # started again: as a fresh filter on this window
+    assert np.isfinite(after)
+    assert after == pytest.approx(SpeechBandLevel(RATE).level_db(last), abs=1e-9)
 
 
 def test_speech_band_calibrates_ahead_like_a_stream() -> None:

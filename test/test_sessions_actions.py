@@ -196,6 +196,34 @@ def test_a_noise_gated_recording_replays_with_the_defaults(tmp_path: Path, capsy
     assert " 0 steps" not in out
 
 
+def test_a_replayed_wav_takes_the_level_band_of_mic_node(tmp_path: Path, capsys) -> None:
+    """--level-band as mic_node's level_band; refused where no self-calibrating threshold is."""
+    rate = 16000
+    room = np.random.default_rng(2).normal(0, 0.01, rate * 20)
+    t = np.arange(room.size) / rate
+    room += 0.3 * np.sin(2 * np.pi * 60.0 * t) * (np.sin(2 * np.pi * 0.1 * t) > 0)  # a hum
+    wav = tmp_path / "hum.wav"
+    write_wav_int16(wav, room, rate)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n8.0\n12.0\n")
+    thresholds = {}
+    for band, words in (("speech", "speech-band"), ("full", "whole-window")):
+        options = [] if band == "speech" else ["--level-band", band]
+        assert main(["replay", str(wav), "--actions", str(actions), *options]) == 0
+        out = capsys.readouterr().out
+        assert f"background windows' {words} levels (" in out, out
+        thresholds[band] = float(out.split(f"{words} levels (")[1].split(" dB")[0])
+        assert main(["replay", str(wav), "--actions", "random:0.1", *options]) == 0
+        assert f"self-calibrating sound threshold ({words} levels)" in capsys.readouterr().out
+    assert thresholds["full"] > thresholds["speech"] + 10.0  # the hum counts in full only
+    with pytest.raises(SystemExit):
+        main(["replay", str(wav), "--actions", str(actions), "--level-band", "low"])
+    capsys.readouterr()
+    assert main(["replay", str(wav), "--actions", str(actions), "--level-band", "full",
+                 "--threshold-db", "-30"]) == 2  # fmt: skip
+    assert ("--level-band sets a wav file's self-calibrating threshold: not with a recorded"
+            " session, --threshold-db or --calibrate") in capsys.readouterr().err
+
+
 def test_a_replayed_wav_reports_clipping_and_a_dc_offset(tmp_path: Path, capsys) -> None:
     rate = 16000
     noise = np.random.default_rng(1).normal(0, 0.01, rate * 20)

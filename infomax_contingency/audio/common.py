@@ -65,7 +65,7 @@ def float_samples(samples: ArrayLike, name: str) -> NDArray[np.float64]:
         raise AudioError(f"{name} contain NaN or infinite values")
     if x.size and (peak := float(np.abs(x).max())) > MAX_SAMPLE_MAGNITUDE:
         raise AudioError(f"{name}: a sample of {peak:.3g} is not audio (samples belong in"
-                         " [-1, 1]; its square would overflow)")  # fmt: skip
+                         " [-1, 1]; this is far beyond any scaling of them)")  # fmt: skip
     return x
 
 

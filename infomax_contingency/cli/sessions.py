@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from infomax_contingency.audio.bitsources.background import BackgroundSettings, band_name
 from infomax_contingency.audio.energy import wav_window_count
 from infomax_contingency.audio.wav import open_wav_info
 from infomax_contingency.audio.windows import WavReplay
@@ -90,10 +91,10 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--calibration-s", type=float, default=10.0,
                         help="wav: seconds at its start to calibrate the threshold on"
                         " (--calibrate; default 10)")
-    parser.add_argument("--false-alarm", type=float, default=0.05,
+    parser.add_argument("--false-alarm", type=float,
                         help="wav: the share of background windows above the self-calibrating"
                         " threshold (mic_node's false_alarm; default 0.05)")
-    parser.add_argument("--level-band", choices=("speech", "full"), default="speech",
+    parser.add_argument("--level-band", choices=("speech", "full"),
                         help="wav: the band of the self-calibrating threshold's level"
                         " (mic_node's level_band; default speech, 300-3400 Hz)")
     parser.add_argument("--json", action="store_true", help="one JSON object per step")
@@ -110,6 +111,11 @@ def _check_replay(args: argparse.Namespace, is_wav: bool) -> str:  # noqa: C901
         raise ValueError(f"--threshold-db must lie in -150 .. 0 dB, got {args.threshold_db}")
     if args.mic_channel is not None and args.mic_channel < 0:
         raise ValueError(f"--mic-channel must be >= 0, got {args.mic_channel}")
+    given = [option for option, value in (("--false-alarm", args.false_alarm),
+                                          ("--level-band", args.level_band)) if value is not None]
+    if given and (not is_wav or args.threshold_db is not None or args.calibrate):
+        raise ValueError(f"{given[0]} sets a wav file's self-calibrating threshold: not with a"
+                         " recorded session, --threshold-db or --calibrate")  # fmt: skip
     actions = args.actions or ("recorded" if not is_wav else "")
     if actions.startswith("channel:"):
         kind = "channel"
@@ -185,7 +191,9 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
                             path: Path, mic: int | None, reference: int | None, memory: int
                             ) -> tuple[Iterator, str, list[str]]:
     """A wav file's steps with mic_node's default threshold (``background``)."""
-    options = {"false_alarm": args.false_alarm, "level_band": args.level_band}
+    given = (("false_alarm", args.false_alarm), ("level_band", args.level_band))
+    options = {name: value for name, value in given if value is not None}
+    levels = band_name(args.level_band or BackgroundSettings.level_band)
     if kind == "controller":
         WavReplay(path, params.dt, mic)  # the file and its channel first (one-line errors)
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
@@ -193,7 +201,7 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
         problems: list[str] = []
         records = wav_background_loop(path, params, mic, controller, memory, problems, **options)
         return records, (f"controller {controller.name} deciding on the recorded bits (what-if);"
-                         " self-calibrating sound threshold"), problems
+                         f" self-calibrating sound threshold ({levels} levels)"), problems
     windows = wav_window_count(open_wav_info(path), params.dt)
     if kind == "csv":
         decisions = decisions_from_times(read_actions_csv(Path(args.actions)), windows,

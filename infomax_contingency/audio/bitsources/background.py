@@ -65,6 +65,11 @@ ROBOT_PERIODS = (0, 1, 2, 4)
 """``(ts1, ts2, ta1, ta2)`` used until :meth:`BackgroundSource.follow_model` (the robot's)."""
 
 
+def band_name(level_band: str) -> str:
+    """What a ``level_band`` takes the level over, in words (``speech-band``, ``whole-window``)."""
+    return "speech-band" if level_band == "speech" else "whole-window"
+
+
 @dataclasses.dataclass(frozen=True)
 class BackgroundSettings:
     """Settings of ``background`` (mic_node parameters of the same names)."""
@@ -247,8 +252,8 @@ class BackgroundSource(BitSource):
 
     @property
     def band_name(self) -> str:
-        """What the level is taken over, in words (``level_band``)."""
-        return "speech-band" if self._band is not None else "whole-window"
+        """What the level is taken over, in words (:func:`band_name`)."""
+        return band_name(self.settings.level_band)
 
     def problems(self) -> list[str]:
         """One line per problem seen in the input (clipping, DC offset, the rule's)."""

@@ -126,13 +126,13 @@ class SpeechBandLevel:
     def level_db(self, x: NDArray[np.float64]) -> float:
         """Band energy of the next window (mono samples), dB.
 
-        The filter starts as if the first sample had always been there (a DC offset gives
-        no step into the first window); a window whose band energy is not finite (NaN or
-        infinite samples) starts it again on the next window, so it spoils no other.
+        The filter starts as if the first window's mean had always been there (a DC offset
+        gives no step into the first window); a window whose band energy is not finite (NaN
+        or infinite samples) starts it again on the next window, so it spoils no other.
         """
         if x.size == 0:
             return window_energy_db(x)
-        state = self._steady_state * x[0] if self._state is None else self._state
+        state = self._steady_state * float(np.mean(x)) if self._state is None else self._state
         y, self._state = self._sosfilt(self._sos, x, zi=state)
         level = window_energy_db(y)
         if not np.isfinite(level) or not np.all(np.isfinite(self._state)):
