@@ -8,16 +8,23 @@ times 2.5-6 s apart, its
 own schedule (not the optimal table); a partner who answers 90 % of the chirps 0.9-1.3 s
 later with one of six espeak-ng words at -26 dB, or nobody. ``announcements`` adds a
 public-address voice 4 dB above the babble for two 11.7-s stretches (12 s and 41 s in):
-a room loud for 40 % of the time.
+a room loud for 40 % of the time. ``--scene roadside`` replaces the hall by a terrace beside
+a road, built here too: cars passing (brown noise low-passed 700 Hz under a 3-8 s
+raised-cosine swell, peaking at ``--babble-db`` + 4 dB, one every 4-10 s), two espeak-ng
+passers-by 10 dB under it, a car horn (a 0.5-s 420 + 510 Hz chord at the peak level) now and
+then, over a floor 16 dB under it; ``announcements`` is then a bus idling beside the terrace
+(low-passed brown noise, 8 dB over the floor) for the same two stretches.
 
 Each recording goes through ``infomax-contingency replay FILE.wav --actions FILE.csv``
-with the defaults, with ``--calibrate`` (k-means) and with fixed thresholds; printed per
+with the defaults, the default source over the whole window (``--level-band full``), with
+``--calibrate`` (k-means) and with fixed thresholds; printed per
 hall and partner state: the final P(S=1) over the seeds (median) and the share of
 recordings it puts above 0.9 (partner) or leaves below 0.5 (nobody). Needs espeak-ng
 (``make`` installs it).
 
 Run:
     .venv/bin/python bench/probe_hall_recording.py [--seeds 10] [--babble-db -32]
+        [--scene hall|roadside]
 """
 
 from __future__ import annotations
@@ -69,11 +76,57 @@ def at_db(x: np.ndarray, level_db: float) -> np.ndarray:
     return x * 10 ** (level_db / 20) / np.sqrt(np.mean(sounding**2))
 
 
+def brown_noise(rng: np.random.Generator, n: int, cutoff_hz: float | None = None
+                ) -> np.ndarray:  # fmt: skip
+    """Brown noise (integrated white, its drift below 20 Hz removed), low-passed if asked."""
+    brown = np.cumsum(rng.standard_normal(n))
+    brown -= sosfilt(butter(2, 20, fs=RATE_HZ, output="sos"), brown)
+    if cutoff_hz is None:
+        return brown
+    return sosfilt(butter(2, cutoff_hz, fs=RATE_HZ, output="sos"), brown)
+
+
+def roadside(rng: np.random.Generator, idling_bus: bool, peak_db: float,
+             sounds: dict[str, list[np.ndarray]]) -> np.ndarray:  # fmt: skip
+    """The roadside terrace's sound without the robot (see the module docstring)."""
+    n = int(SECONDS * RATE_HZ)
+    floor_db = peak_db - 16.0
+    room = at_db(brown_noise(rng, n, 4000.0), floor_db)
+    start = -rng.uniform(0, 4)
+    while start < SECONDS:
+        length = rng.uniform(3.0, 8.0)
+        a, b = max(int(start * RATE_HZ), 0), min(int((start + length) * RATE_HZ), n)
+        if b > a:
+            swell = np.sin(np.pi * (np.arange(a, b) / RATE_HZ - start) / length) ** 2
+            car = at_db(brown_noise(rng, b - a, 700.0), peak_db) * swell
+            room[a:b] += car * rng.uniform(0.5, 1.0)
+        start += rng.uniform(4.0, 10.0)
+    for talker in range(2):
+        talk = at_db(sounds["talk"][talker], peak_db - 10)
+        a = int(rng.uniform(0, SECONDS - 10) * RATE_HZ)
+        room[a : a + talk.size] += talk[: n - a]
+    t = np.arange(int(0.5 * RATE_HZ)) / RATE_HZ
+    horn = at_db(np.sin(2 * np.pi * 420 * t) + np.sin(2 * np.pi * 510 * t), peak_db)
+    for _ in range(rng.integers(0, 3)):
+        a = int(rng.uniform(0, SECONDS - 1) * RATE_HZ)
+        room[a : a + horn.size] += horn
+    if idling_bus:
+        bus = at_db(brown_noise(rng, int(11.7 * RATE_HZ), 300.0), floor_db + 8)
+        for start_s in ANNOUNCEMENTS_S:
+            a = int(start_s * RATE_HZ)
+            room[a : a + bus.size] += bus[: n - a]
+    return room
+
+
 def hall(seed: int, partner: bool, announcements: bool, babble_db: float,
-         sounds: dict[str, list[np.ndarray]]) -> tuple[np.ndarray, list[float]]:  # fmt: skip
+         sounds: dict[str, list[np.ndarray]], scene: str = "hall",
+         ) -> tuple[np.ndarray, list[float]]:  # fmt: skip
     """One recording's samples and the robot's chirp times, s."""
     rng = np.random.default_rng(seed)
     n = int(SECONDS * RATE_HZ)
+    if scene == "roadside":
+        return with_robot(rng, roadside(rng, announcements, babble_db + 4, sounds), partner,
+                          sounds)  # fmt: skip
     babble = np.zeros(n)
     for talker in range(16):
         talk = sounds["talk"][talker % 2] * rng.uniform(0.5, 1.0)
@@ -83,14 +136,19 @@ def hall(seed: int, partner: bool, announcements: bool, babble_db: float,
             babble[a:b] += talk[a - start : b - start]
             start += len(talk) + int(rng.uniform(0, 2) * RATE_HZ)
     babble = sosfilt(butter(4, 1800, fs=RATE_HZ, output="sos"), babble)
-    brown = np.cumsum(rng.standard_normal(n))
-    brown -= sosfilt(butter(2, 20, fs=RATE_HZ, output="sos"), brown)
-    room = at_db(babble, babble_db) + at_db(brown, babble_db - 6)
+    room = at_db(babble, babble_db) + at_db(brown_noise(rng, n), babble_db - 6)
     if announcements:
         voice = at_db(sounds["talk"][0], babble_db + 4)
         for start_s in ANNOUNCEMENTS_S:
             a = int(start_s * RATE_HZ)
             room[a : a + len(voice)] += voice[: n - a]
+    return with_robot(rng, room, partner, sounds)
+
+
+def with_robot(rng: np.random.Generator, room: np.ndarray, partner: bool,
+               sounds: dict[str, list[np.ndarray]]) -> tuple[np.ndarray, list[float]]:  # fmt: skip
+    """``room`` with the robot's chirps and the partner's replies; the chirp times, s."""
+    n = room.size
     t = np.arange(int(0.4 * RATE_HZ)) / RATE_HZ
     chirp = at_db(np.sin(2 * np.pi * (900 + 1200 * t) * t) * np.hanning(t.size), -20.0)
     times: list[float] = []
@@ -145,12 +203,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=10, help="recordings per hall and state")
     parser.add_argument("--babble-db", type=float, default=-32.0, help="the babble's RMS, dB")
+    parser.add_argument("--scene", choices=("hall", "roadside"), default="hall",
+                        help="the hall (babble) or the roadside terrace (passing cars)")
     args = parser.parse_args()
     if args.seeds < 1:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
     if shutil.which("espeak-ng") is None:
         raise SystemExit("probe_hall_recording: espeak-ng is not installed (make installs it)")
-    methods = {"default": [], "calibrate": ["--calibrate"]}
+    methods = {"default": [], "whole window": ["--level-band", "full"],
+               "calibrate": ["--calibrate"]}
     methods.update({f"fixed {db:g}": ["--threshold-db", f"{db:g}"] for db in THRESHOLDS_DB})
     with tempfile.TemporaryDirectory() as folder_name:
         folder = Path(folder_name)
@@ -166,11 +227,13 @@ def main() -> None:
             for partner in (True, False):
                 beliefs: dict[str, list[float]] = {m: [] for m in methods}
                 for seed in range(args.seeds):
-                    samples, times = hall(seed, partner, announcements, args.babble_db, sounds)
+                    samples, times = hall(seed, partner, announcements, args.babble_db, sounds,
+                                          args.scene)
                     wav, actions = write_recording(folder, samples, times)
                     for method, options in methods.items():
                         beliefs[method].append(final_belief(wav, actions, options))
-                name = "announcements" if announcements else "steady"
+                name = ("announcements" if announcements else "steady") if args.scene == "hall" \
+                    else ("idling bus" if announcements else "traffic")
                 print(f"{name:<14} {'yes' if partner else 'no':<8} "
                       + "".join(f"{cell(b, partner):>22}" for b in beliefs.values()))  # fmt: skip
                 sys.stdout.flush()
