@@ -98,20 +98,27 @@ def recording_failure(directory: Path, recorder_log: str) -> str:
     """
     if (directory / "metadata.yaml").is_file():
         return ""
-    lines = recorder_log.splitlines()
-    errors = [line.split("]: ", 1)[-1].strip() for line in lines if "[ERROR]" in line]
+    errors = log_messages(recorder_log, "ERROR")
     reason = errors[0] if errors else "it wrote no metadata.yaml"
     return f"--record {directory}: the session was not recorded whole: {reason}"
+
+
+def log_messages(log: str, *levels: str) -> list[str]:
+    """The messages of a node's log lines at ``levels`` (``WARN``, ``ERROR``), in order."""
+    return [line.split("]: ", 1)[-1].strip() for line in log.splitlines()
+            if any(f"[{level}]" in line for level in levels)]  # fmt: skip
 
 
 def node_failure(processes: Any) -> str | None:
     """One line for the first node that exited on its own: its status and error line."""
     for name, status in processes.dead().items():
-        lines = [line.strip() for line in processes.log(name).splitlines() if line.strip()]
-        errors = [line for line in lines if "[ERROR]" in line] or [
-            line for line in lines if "Error" in line or "error:" in line
-        ]
-        last = (errors or lines or ["(no output)"])[-1]
+        log = processes.log(name)
+        lines = [line.strip() for line in log.splitlines() if line.strip()]
+        errors = log_messages(log, "ERROR")
+        if errors:
+            return f"{name} exited with status {status}: {errors[-1]}"
+        last = ([line for line in lines if "Error" in line or "error:" in line]
+                or lines or ["(no output)"])[-1]  # fmt: skip
         message = last.split("]: ", 1)[-1] if "]: " in last else last
         return f"{name} exited with status {status}: {message}"
     return None
@@ -119,8 +126,7 @@ def node_failure(processes: Any) -> str | None:
 
 def no_step(source: str, windows: int, mic_log: str) -> str:
     """Why a run gave no step, in one line: mic_node's last warning, if it gave one."""
-    warnings = [line.split("]: ", 1)[-1].strip() for line in mic_log.splitlines()
-                if "[WARN]" in line or "[ERROR]" in line]  # fmt: skip
+    warnings = log_messages(mic_log, "WARN", "ERROR")
     why = (f"mic_node said: {warnings[-1]}" if warnings
            else "the bit source hears about 6 s of the room's background first")
     return f"{source} gave no step: its {windows} windows all went by without a bit ({why})"
