@@ -175,6 +175,27 @@ def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
     assert not result.successful and "read-only" in result.reason
 
 
+def test_a_name_no_node_declares_is_refused_naming_it(graph: Callable) -> None:
+    """rclpy's own answer to an undeclared name names no parameter; the node's names it.
+
+    The set is refused whole and changes nothing, in one request with a declared name too.
+    """
+    node, probe, executor = graph(PostureNode)
+    [result] = set_remotely(probe, executor, "posture_node", attentive_abve=0.6)
+    assert not result.successful
+    assert result.reason == ("parameter 'attentive_abve' is not a parameter of /posture_node"
+                             " (`ros2 param list /posture_node` lists them)")  # fmt: skip
+    assert not node.has_parameter("attentive_abve")
+    client = AsyncParameterClient(probe, "posture_node")
+    future = client.set_parameters_atomically(
+        [Parameter("attentive_above", value=0.6), Parameter("vad_frame_ms", value=20)]
+    )
+    executor.run_until(future.done, "the answer of posture_node/set_parameters_atomically")
+    result = future.result().result
+    assert not result.successful and "'vad_frame_ms' is not a parameter" in result.reason
+    assert node.get_parameter("attentive_above").value == 0.9 and node.hysteresis.attentive_above == 0.9
+
+
 def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:
     node, probe, executor = graph(MicNode, bit_source="energy", threshold_mode="calibrate")
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
@@ -467,6 +488,10 @@ def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
     node, probe, executor = graph(MicNode, bit_source="vad", threshold_mode="fixed")
     [result] = set_remotely(probe, executor, "mic_node", threshold_db=-5.0)
     assert not result.successful
+    assert result.reason == (
+        "parameter 'threshold_db' is a setting of bit_source energy or speech_band, and"
+        " /mic_node runs bit_source vad: start it with bit_source energy to set it"
+    )
     assert node.bits.threshold_db is None and node.bits.name == "vad"
     for name in ("threshold_db", "threshold_mode", "noise_margin_db"):
         assert not node.has_parameter(name), f"{name}: not a setting of vad"

@@ -35,7 +35,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from infomax_contingency.audio.bitsources import all_setting_specs
+from infomax_contingency.audio.bitsources import all_setting_specs, sources_with_setting
 from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.nodes.entry import NODES as PACKAGE_NODES
@@ -91,12 +91,18 @@ class ParameterReader:
         start-up (an integer for a floating-point parameter is accepted); a value the
         start-up rule refuses is replaced by the parameter's current value (which passes
         the descriptor) and the refusal is kept, to be returned by :meth:`_on_set`, so the
-        set fails with the start-up message and nothing changes. Read-only and foreign
-        parameters pass unchanged (rclpy refuses a read-only one, naming it).
+        set fails with the start-up message and nothing changes. A name the node does not
+        declare is refused so too (:meth:`_undeclared_reason`; rclpy's own answer names
+        no parameter). Read-only and foreign parameters pass unchanged (rclpy refuses a
+        read-only one, naming it).
         """
         self._refusal = ""
         checked = []
         for parameter in parameters:
+            if not self._node.has_parameter(parameter.name):
+                self._refusal = self._refusal or self._undeclared_reason(parameter.name)
+                checked.append(self._stand_in())
+                continue
             coerce = self._coercers.get(parameter.name)
             if coerce is None or parameter.name not in self._appliers:
                 checked.append(parameter)
@@ -110,6 +116,28 @@ class ParameterReader:
                 continue
             checked.append(Parameter(parameter.name, value=value))
         return checked
+
+    def _undeclared_reason(self, name: str) -> str:
+        """Why ``name`` cannot be set: another bit source's setting, or no parameter at all."""
+        node = self._node.get_fully_qualified_name()
+        owners = sources_with_setting(name) if name in self.known else ()
+        if not owners:
+            return (f"parameter '{name}' is not a parameter of {node} (`ros2 param list"
+                    f" {node}` lists them)")  # fmt: skip
+        running = self._node.get_parameter("bit_source").value
+        return (f"parameter '{name}' is a setting of bit_source {' or '.join(owners)}, and"
+                f" {node} runs bit_source {running}: start it with bit_source {owners[0]} to"
+                " set it")  # fmt: skip
+
+    def _stand_in(self) -> Parameter:
+        """``use_sim_time`` (every node's, never read-only) at its value: holds a name's place.
+
+        rclpy refuses a set that holds an undeclared name before any set callback, with
+        an answer that names no parameter; with this in its place the set reaches
+        :meth:`_on_set` (the set callback rclpy calls first), which refuses it with
+        :meth:`_undeclared_reason`'s line.
+        """
+        return self._node.get_parameter("use_sim_time")
 
     def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
         """Check every parameter of a set by its start-up rule; apply and log them all."""

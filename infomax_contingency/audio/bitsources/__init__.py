@@ -68,6 +68,13 @@ def all_setting_specs() -> tuple[SettingSpec, ...]:
     return tuple(specs.values())
 
 
+def sources_with_setting(name: str) -> tuple[str, ...]:
+    """The registered sources that take the setting ``name`` (none: no source's)."""
+    return tuple(
+        source for source, kind in BIT_SOURCES.items() if any(s.name == name for s in kind.specs())
+    )
+
+
 def make_bit_source(
     name: str,
     rate_hz: int,
