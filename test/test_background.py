@@ -151,27 +151,58 @@ def test_bad_levels_give_no_bit_and_a_clear_diagnostic() -> None:
     with pytest.raises(AudioError, match="must be a number of dB"):
         rule.push("loud")  # type: ignore[arg-type]
     assert rule.windows == 0 and rule.problems() == []
-    for _ in range(10):  # digital silence: bit 0, the room's level (a noise gate closed)
-        bit = rule.push(-120.0)
-        if bit is not None:
-            assert bit is False
+    for _ in range(10):  # digital silence from the start (a dead input): not the room
+        assert rule.push(-120.0) is None
+    assert rule.background == [] and rule.calibrating
+    [line] = rule.problems()
+    assert "10 of 10 windows were digital silence" in line and "no window held sound" in line
+    for level in (-50.0, -52.0, -120.0, -120.0, -51.0) * 2:  # then sound: heard from it on
+        if rule.push(level) is not None:
             rule.note_decision(0)
-    assert set(rule.background) == {-120.0} and not rule.calibrating
-    assert any("digital silence" in line for line in rule.problems())
-    assert rule.push(-50.0) is True  # the gate lets a sound through: above the silence
+    assert set(rule.background) == {-50.0, -51.0, -52.0, -120.0} and not rule.calibrating
+    assert rule.push(-120.0) is False  # digital silence among the room's sound: bit 0
+    rule.note_decision(0)
+    assert rule.push(-40.0) is True
+    assert "those before the first window with sound gave no bit, the others bit 0" in (
+        rule.problems()[0]
+    )
+
+
+def test_digital_silence_before_the_first_sound_changes_no_bit() -> None:
+    """A recording that starts with zeros gives, after them, the bits of the sound alone."""
+    rng = np.random.default_rng(8)
+    sound = list(rng.normal(-50.0, 3.0, 200))
+
+    def bits_of(levels: list[float]) -> list[bool | None]:
+        rule = BackgroundThreshold(TS1, TS2, TA2, 0.05, history=60, warmup_windows=8,
+                                   reference_margin_db=3.0, least_rank=2)  # fmt: skip
+        out: list[bool | None] = []
+        for level in levels:
+            out.append(rule.push(level))
+            if out[-1] is not None:  # a vocalization on every 7th bit
+                rule.note_decision(int(sum(bit is not None for bit in out) % 7 == 0))
+        return out
+
+    alone = bits_of(sound)
+    after_zeros = bits_of([-120.0] * 21 + sound)  # 21: the reference's 3 lags cycle alike
+    assert after_zeros[:21] == [None] * 21
+    assert after_zeros[21:] == alone
+    assert sum(bit is True for bit in alone[:40]) <= 4  # a warm-up, not a burst of 1s
 
 
 def test_a_noise_gated_room_gets_a_threshold_from_its_silence() -> None:
     """All zeros between sounds: any sound the gate lets through is active, silence not."""
     rule = BackgroundThreshold(TS1, TS2, TA2, 0.05, history=40, warmup_windows=8)
     bits = []
-    for k in range(60):
+    for k in range(100):
         level = -45.0 if k % 25 == 24 else -120.0  # the gate opens 1 window in 25
         bits.append(rule.push(level))
         if bits[-1] is not None:
             rule.note_decision(0)
-    assert [k for k, bit in enumerate(bits) if bit] == [24, 49]
-    assert all(bit is False for bit in bits[14:] if bit is not True)  # silence: 0
+    # heard from the first sound on (window 24): 8 background windows, 5 windows old; at
+    # 49 the threshold is the loudest of 21 (the sound at 24), from 74 the 2nd of 40
+    assert bits[:36] == [None] * 36 and [k for k, bit in enumerate(bits) if bit] == [74, 99]
+    assert all(bit is False for bit in bits[36:] if bit is not True)  # silence: 0
 
 
 def test_a_background_threshold_outside_the_parameters_range_gives_no_bits() -> None:

@@ -176,7 +176,7 @@ def test_mic_threshold_is_live_in_fixed_mode_only(graph: Callable) -> None:
 
 
 def test_a_name_no_node_declares_is_refused_naming_it(graph: Callable) -> None:
-    """rclpy's own answer to an undeclared name names no parameter; the node's names it.
+    """The node names a parameter it does not declare; rclpy's own answer names none.
 
     The set is refused whole and changes nothing, in one request with a declared name too.
     """
@@ -193,7 +193,8 @@ def test_a_name_no_node_declares_is_refused_naming_it(graph: Callable) -> None:
     executor.run_until(future.done, "the answer of posture_node/set_parameters_atomically")
     result = future.result().result
     assert not result.successful and "'vad_frame_ms' is not a parameter" in result.reason
-    assert node.get_parameter("attentive_above").value == 0.9 and node.hysteresis.attentive_above == 0.9
+    assert node.get_parameter("attentive_above").value == 0.9
+    assert node.hysteresis.attentive_above == 0.9
 
 
 def test_mic_threshold_is_refused_while_calibrating(graph: Callable) -> None:

@@ -41,7 +41,10 @@ made up): digital silence (a window of level <= :data:`SILENCE_DB`: bit 0; as a 
 window it counts at its level, so a noise-gated microphone, all zeros between sounds,
 gets a threshold: while fewer than a ``false_alarm`` share of the background windows hold
 sound, any sound the gate lets through is active; else the threshold is their loudest
-share's level, as in any room); a room as loud as
+share's level, as in any room. Before the first window with sound it is not the room: a
+recording that starts with zeros, an input not yet live; those windows never set the
+threshold, so the warm-up is heard on sound, and an input that is dead from the start
+gives no bit at all); a room as loud as
 the robot's own sound (the robot's self-feedback windows exceed the threshold in less
 than half of the last ones: its chirps are not heard above the room, detection will be
 slow or impossible); decisions that never came. A level that is NaN or infinite is
@@ -249,6 +252,7 @@ class BackgroundThreshold:
         self._decisions: deque[int | None] = deque()
         self._withheld: set[int] = set()  # windows of the robot's own sound, not yet labelled
         self._self_exceeded: deque[bool] = deque(maxlen=SELF_WINDOWS_WATCHED)
+        self._first_sound: int | None = None  # index of the first window above SILENCE_DB
         self.windows = self.silent_windows = self.decisions_lost = 0
         self.labelled = {"background": 0, "agent": 0, "self": 0, "unknown": 0}
         """Windows labelled so far, by what their timer said."""
@@ -328,6 +332,8 @@ class BackgroundThreshold:
         threshold = self.threshold_db
         silent = level <= SILENCE_DB
         self.silent_windows += silent
+        if not silent and self._first_sound is None:
+            self._first_sound = self._index
         if threshold is not None and not self.range_guard.allows(threshold):
             threshold = None  # no bit rather than one decided on an impossible threshold
         bit = None if threshold is None else (False if silent else level > threshold)
@@ -431,7 +437,8 @@ class BackgroundThreshold:
             self.labelled["unknown"] += 1
         elif z > self.ta2:
             self.labelled["background"] += 1
-            if index not in self._withheld:
+            before_any_sound = self._first_sound is None or index < self._first_sound
+            if index not in self._withheld and not (level <= SILENCE_DB and before_any_sound):
                 self._labelled_background.append((index, level))
             self._withheld.discard(index)
         elif self.ts1 <= z <= self.ts2:
@@ -448,9 +455,14 @@ class BackgroundThreshold:
         """One line per problem seen in the input (empty: none)."""
         out = []
         if self.silent_windows:
+            gave = (
+                "no window held sound yet: no threshold, no bit" if self._first_sound is None
+                else "those before the first window with sound gave no bit, the others bit 0"
+                if self._first_sound else "they gave bit 0"
+            )  # fmt: skip
             out.append(
                 f"{self.silent_windows} of {self.windows} windows were digital silence (all"
-                " zeros: a muted or unplugged microphone, or a noise gate?); they gave bit 0"
+                f" zeros: a muted or unplugged microphone, or a noise gate?); {gave}"
             )
         watched = len(self._self_exceeded)
         if watched == SELF_WINDOWS_WATCHED and sum(self._self_exceeded) < watched / 2:
