@@ -193,6 +193,12 @@ def test_a_name_no_node_declares_is_refused_naming_it(graph: Callable) -> None:
     executor.run_until(future.done, "the answer of posture_node/set_parameters_atomically")
     result = future.result().result
     assert not result.successful and "'vad_frame_ms' is not a parameter" in result.reason
+    future = client.set_parameters_atomically(
+        [Parameter("bored_blow", value=0.1), Parameter("attentive_abve", value=0.6)]
+    )
+    executor.run_until(future.done, "the answer of posture_node/set_parameters_atomically")
+    reason = future.result().result.reason
+    assert "'bored_blow' is not" in reason and "; parameter 'attentive_abve' is not" in reason
     assert node.get_parameter("attentive_above").value == 0.9
     assert node.hysteresis.attentive_above == 0.9
 
@@ -491,7 +497,8 @@ def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
     assert not result.successful
     assert result.reason == (
         "parameter 'threshold_db' is a setting of bit_source energy or speech_band, and"
-        " /mic_node runs bit_source vad: start it with bit_source energy to set it"
+        " /mic_node runs bit_source vad: not a parameter of it (start the node with"
+        " -p bit_source:=energy -p threshold_db:=... to use it)"
     )
     assert node.bits.threshold_db is None and node.bits.name == "vad"
     for name in ("threshold_db", "threshold_mode", "noise_margin_db"):

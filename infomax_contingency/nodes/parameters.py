@@ -98,9 +98,11 @@ class ParameterReader:
         """
         self._refusal = ""
         checked = []
+        undeclared = [p.name for p in parameters if not self._node.has_parameter(p.name)]
+        if undeclared:
+            self._refusal = "; ".join(self._undeclared_reason(name) for name in undeclared)
         for parameter in parameters:
-            if not self._node.has_parameter(parameter.name):
-                self._refusal = self._refusal or self._undeclared_reason(parameter.name)
+            if parameter.name in undeclared:
                 checked.append(self._stand_in())
                 continue
             coerce = self._coercers.get(parameter.name)
@@ -126,8 +128,8 @@ class ParameterReader:
                     f" {node}` lists them)")  # fmt: skip
         running = self._node.get_parameter("bit_source").value
         return (f"parameter '{name}' is a setting of bit_source {' or '.join(owners)}, and"
-                f" {node} runs bit_source {running}: start it with bit_source {owners[0]} to"
-                " set it")  # fmt: skip
+                f" {node} runs bit_source {running}: not a parameter of it (start the node with"
+                f" -p bit_source:={owners[0]} -p {name}:=... to use it)")  # fmt: skip
 
     def _stand_in(self) -> Parameter:
         """``use_sim_time`` (every node's, never read-only) at its value: holds a name's place.
