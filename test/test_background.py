@@ -11,6 +11,7 @@ import pytest
 from infomax_contingency.audio.background import (
     SELF_WINDOWS_WATCHED,
     BackgroundThreshold,
+    DigitalSilenceWatch,
     rank_for,
     window_faults,
 )
@@ -163,9 +164,9 @@ def test_bad_levels_give_no_bit_and_a_clear_diagnostic() -> None:
     assert rule.push(-120.0) is False  # digital silence among the room's sound: bit 0
     rule.note_decision(0)
     assert rule.push(-40.0) is True
-    assert "those before the first window with sound gave no bit, the others bit 0" in (
-        rule.problems()[0]
-    )
+    assert rule.problems()[0].startswith("15 of 22 windows were digital silence")
+    assert rule.problems()[0].endswith("; the first 10, before any sound, were not taken as the"
+                                       " room")  # fmt: skip
 
 
 def test_digital_silence_before_the_first_sound_changes_no_bit() -> None:
@@ -188,6 +189,18 @@ def test_digital_silence_before_the_first_sound_changes_no_bit() -> None:
     assert after_zeros[:21] == [None] * 21
     assert after_zeros[21:] == alone
     assert sum(bit is True for bit in alone[:40]) <= 4  # a warm-up, not a burst of 1s
+
+
+def test_the_silence_watch_says_a_dead_input_once_and_when_sound_is_back() -> None:
+    watch = DigitalSilenceWatch(0.5, after_s=2.0)  # 4 windows
+    quiet = np.random.default_rng(2).normal(0.0, 1e-4, N)  # -80 dB: sound, however faint
+    said = [watch.push(x, 0.0) for x in [quiet, np.zeros(N), np.full(N, 0.3)] + [np.zeros(N)] * 3]
+    assert said[:4] == [None] * 4 and watch.dead  # zeros, a constant: no sound
+    assert said[4].startswith("the input has been digital silence for 2 s") and said[5] is None
+    assert watch.message().startswith("the input has been digital silence for 2.5 s")
+    assert watch.push(quiet, 0.0) == "sound again after 2.5 s of digital silence"
+    assert not watch.dead and watch.push(None, -200.0) is None  # an energy only: of zeros
+    assert watch.silent_run == 1 and watch.push(None, -80.0) is None and watch.silent_run == 0
 
 
 def test_a_noise_gated_room_gets_a_threshold_from_its_silence() -> None:

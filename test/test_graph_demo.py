@@ -122,6 +122,7 @@ def test_demo_replays_a_wav_file() -> None:
     # of its threshold's delay
     assert len(steps) == 36 - 12
     assert result.stdout.splitlines()[-1].startswith("# verdict: the robot thinks:")
+    assert "mic_node warned" not in result.stdout
 
 
 @NODE_GRAPHS
@@ -154,6 +155,21 @@ def test_demo_says_in_one_line_why_a_recording_gave_no_step(tmp_path: Path) -> N
     ), result.stderr
     assert "(audio not scaled to [-1, 1]?))" in errors[0]
     assert "Traceback" not in result.stderr
+    # a dead input: digital silence from the start is no room; mic_node says what it is
+    dead = tmp_path / "dead.wav"
+    write_wav_int16(dead, np.zeros(12 * 16000), 16000)
+    result = demo("--wav", str(dead))
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert (f"{dead} gave no step: its 24 windows all went by without a bit (mic_node said: the"
+            " input has been digital silence for 10 s (every sample zero or one constant"
+            " value)") in result.stderr  # fmt: skip
+    # one click, then dead: steps (the silence after a sound is the room's), and the warning
+    click = np.zeros(16 * 16000)
+    click[800:880] = 0.5
+    write_wav_int16(dead, click, 16000)
+    result = demo("--wav", str(dead))
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "# mic_node warned: the input has been digital silence for 10 s" in result.stdout
 
 
 @pytest.mark.slow

@@ -311,6 +311,27 @@ def test_a_computed_threshold_outside_the_range_is_a_warn_and_gives_no_bits(
     assert play([-40.0] * 4 + [-10.0], 4) == [False, False, False, True]
 
 
+def test_a_dead_input_turns_the_mic_status_to_warn_and_sound_back_says_so(
+    graph: Callable, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """10 s of digital silence: a WARN line and status, once; sound back: an INFO line."""
+    node, probe, executor, play = _live_mic(graph)
+    assert play([-30.0, -60.0], 2) == [True, False]
+    [audio] = [p for p in probe.publishers if p.topic_name == "/audio"]
+    before = len(node.diagnostic_status()[2])
+    audio.publish(_audio(np.zeros(8000 * 20)))
+    executor.run_until(lambda: node.windows == 22, "10 s of digital silence")
+    level, message, values = node.diagnostic_status()
+    assert level == WARN and message.startswith("the input has been digital silence for 10 s")
+    assert values["digital_silence_s"] == 10.0 and len(values) == before
+    assert play([-60.0], 1) == [False]  # any sound: the input lives
+    level, message, values = node.diagnostic_status()
+    assert level != WARN and values["digital_silence_s"] == 0.0, message
+    err = capfd.readouterr().err
+    assert err.count("the input has been digital silence") == 1
+    assert "sound again after 10 s of digital silence" in err
+
+
 def recalibrate(probe: Probe, executor: SteppedExecutor) -> Trigger.Response:
     """Call mic_node's ~/recalibrate; its answer."""
     client = probe.create_client(Trigger, "/mic_node/recalibrate")

@@ -70,7 +70,7 @@ from infomax_contingency.audio.energy import ENERGY_FLOOR, ENERGY_FLOOR_DB
 from infomax_contingency.audio.threshold import ThresholdRangeGuard
 
 SILENCE_DB = ENERGY_FLOOR_DB + 1.0
-"""Window levels at or below this are digital silence (all-zero samples), dB."""
+"""Window levels at or below this are digital silence (all samples zero, or one constant), dB."""
 
 CLIPPED_SAMPLE = 0.999
 """A sample at or beyond this magnitude (full scale 1) counts as clipped."""
@@ -128,6 +128,53 @@ def level_and_faults(samples: NDArray[np.float64]) -> tuple[float, WindowFaults]
         bool(clipped), mean_square > 0 and mean * mean > DC_SHARE * mean_square, mean_square == 0
     )
     return 10.0 * math.log10(alternating + ENERGY_FLOOR), faults
+
+
+DEAD_INPUT_S = 10.0
+"""Digital silence this long (s) is said: a muted or unplugged microphone, a dead stream."""
+
+
+class DigitalSilenceWatch:
+    """Says when the input turns to digital silence for a while, and when sound comes back.
+
+    Digital silence: a window whose level without its mean is at most :data:`SILENCE_DB`
+    (every sample zero, or one constant value). A noise gate closed that long is said too.
+
+    Args:
+        window_s: window length, s.
+        after_s: consecutive seconds of digital silence that make the input dead.
+    """
+
+    def __init__(self, window_s: float, after_s: float = DEAD_INPUT_S) -> None:
+        self.window_s = window_s
+        self.after_windows = max(1, round(after_s / window_s))
+        self.silent_run = 0
+        """Consecutive windows of digital silence up to the last one."""
+
+    @property
+    def dead(self) -> bool:
+        """True while the last :attr:`after_windows` windows or more were digital silence."""
+        return self.silent_run >= self.after_windows
+
+    def message(self) -> str:
+        """What the silence means, in one line (while :attr:`dead`)."""
+        return (f"the input has been digital silence for {self.silent_run * self.window_s:g} s"
+                " (every sample zero or one constant value): a muted or unplugged microphone,"
+                " a dead audio stream, or a noise gate closed")  # fmt: skip
+
+    def push(self, samples: NDArray[np.float64] | None, energy_db: float) -> str | None:
+        """Watch a window (its samples, or only its energy in dB when they are not kept).
+
+        Returns a line when the input just turned dead (:meth:`message`) or sound came
+        back after it had; else None.
+        """
+        level = energy_db if samples is None else level_and_faults(samples)[0]
+        if level <= SILENCE_DB:
+            self.silent_run += 1
+            return self.message() if self.silent_run == self.after_windows else None
+        silence_s, was_dead = self.silent_run * self.window_s, self.dead
+        self.silent_run = 0
+        return f"sound again after {silence_s:g} s of digital silence" if was_dead else None
 
 
 def _check_settings(false_alarm: float, history: int, warmup_windows: int, max_undecided: int
@@ -455,14 +502,16 @@ class BackgroundThreshold:
         """One line per problem seen in the input (empty: none)."""
         out = []
         if self.silent_windows:
-            gave = (
-                "no window held sound yet: no threshold, no bit" if self._first_sound is None
-                else "those before the first window with sound gave no bit, the others bit 0"
-                if self._first_sound else "they gave bit 0"
+            first = self._first_sound
+            before = (
+                "; no window held sound yet: no threshold, no bit" if first is None
+                else f"; the first {first}, before any sound, were not taken as the room"
+                if first else ""
             )  # fmt: skip
             out.append(
-                f"{self.silent_windows} of {self.windows} windows were digital silence (all"
-                f" zeros: a muted or unplugged microphone, or a noise gate?); {gave}"
+                f"{self.silent_windows} of {self.windows} windows were digital silence (every"
+                " sample zero or one constant value: a muted or unplugged microphone, or a noise"
+                f" gate?){before}"
             )
         watched = len(self._self_exceeded)
         if watched == SELF_WINDOWS_WATCHED and sum(self._self_exceeded) < watched / 2:

@@ -51,6 +51,7 @@ from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.cli.demo_checks import (
     check_arguments,
     finite_number,
+    log_messages,
     no_step,
     node_failure,
     recording_failure,
@@ -303,9 +304,11 @@ def run_demo(args: argparse.Namespace) -> int:
     if isinstance(outcome, str):
         print(f"infomax-contingency demo: error: {outcome}", file=sys.stderr)
         return 1
-    recorder, steps, elapsed, released = outcome
+    recorder, steps, elapsed, released, mic_warnings = outcome
     _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
     print_released(clock, released)
+    for warning in dict.fromkeys(mic_warnings):  # each once, in order: a dead input, ...
+        print(f"# mic_node warned: {warning}")
     _print_verdict(recorder, steps, WINDOW_S, args, elapsed)
     return 0
 
@@ -325,11 +328,11 @@ def print_released(clock: str, released: int) -> None:
 
 def _run_graph(
     args: argparse.Namespace, nodes: dict[str, dict[str, Any]], clock: str
-) -> tuple[Any, int, float, int] | str:
+) -> tuple[Any, int, float, int, list[str]] | str:
     """Start the graph, wait for the run, stop every node; or why not.
 
     Returns (recorder, steps, seconds from the first start to the last step, windows the
-    clock node released without their decision).
+    clock node released without their decision, mic_node's WARN lines).
 
     The nodes are stopped whatever happens (an error, :class:`Interrupted`).
     """
@@ -369,9 +372,11 @@ def _run_graph(
                 elapsed = time.monotonic() - start
                 _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
                 _wait_for_postures(recorder, steps)
-            outcome = recorder, steps, elapsed, processes.log(clock).count(RELEASED_WINDOW)
+            released = processes.log(clock).count(RELEASED_WINDOW)
         finally:
             _stop_graph(processes, recorder)
+        mic_warnings = log_messages(processes.log("mic_node"), "WARN")
+        outcome = recorder, steps, elapsed, released, mic_warnings
         lost = args.record and recording_failure(Path(args.record), processes.log("recorder_node"))
         if not lost and not outcome[1]:
             return no_step(args.wav or "the room", len(recorder.no_step),

@@ -20,6 +20,7 @@ from typing import Any
 from std_msgs.msg import Int64MultiArray
 from std_srvs.srv import Trigger
 
+from infomax_contingency.audio.background import DigitalSilenceWatch
 from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.base import BitSource, SettingError
 from infomax_contingency.audio.common import AudioError
@@ -124,6 +125,8 @@ class BitSourceControls:
         """Held windows decided before the decisions on the bits before them came."""
         self.answers_lost = node.recent_events()
         """When steps were last taken as answered, their decisions lost (:meth:`give_up`)."""
+        self.silence = DigitalSilenceWatch(config.window_s)
+        """Says when the input is digital silence (a dead microphone), and when it is not."""
         self.gap = GapWithholding(config.params.ta2 + 1)
         """Bits withheld right after a gap (:meth:`gap_before`, :meth:`released`)."""
         self._gap_next = False  # windows gave no step since the last window with a bit
@@ -144,6 +147,11 @@ class BitSourceControls:
         self.windows += 1
         if window.recorded_bit is not None:
             return window.recorded_bit, window.energy_db
+        if said := self.silence.push(window.samples, window.energy_db):
+            if self.silence.dead:  # rclpy wants one severity per call site
+                self.node.get_logger().warning(said)
+            else:
+                self.node.get_logger().info(said)
         was_calibrating = self.bits.calibrating
         bit = self.bits.bit_of(window.energy_db, window.samples)
         self.threshold_log.after_window(self.bits, was_calibrating)
@@ -189,9 +197,10 @@ class BitSourceControls:
                                 f" the decisions on the bits before it ({why}): its bit may"
                                 " differ from the offline loop's")  # fmt: skip
 
-    def values(self) -> dict[str, int]:
-        """Diagnostic values: windows without a step, held, decided without waiting."""
-        return {"windows_without_step": self.windows_without_step,
+    def values(self) -> dict[str, float]:
+        """Diagnostic values: digital silence (s), windows without a step, held, decided early."""
+        return {"digital_silence_s": self.silence.silent_run * self.silence.window_s,
+                "windows_without_step": self.windows_without_step,
                 "bits_withheld_after_gap": self.gap.withheld,
                 "windows_held": len(self.held),
                 "windows_decided_early": self.decided_without_wait}  # fmt: skip

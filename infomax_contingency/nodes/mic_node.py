@@ -360,6 +360,8 @@ class MicNode(GraphNode):
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
         if bits.state in (UNSEPARATED, OUT_OF_RANGE):  # no bits; out of range: until it is back
             return (ERROR if bits.state == UNSEPARATED else WARN), bits.problem, values
+        if self.controls.silence.dead:
+            return WARN, self.controls.silence.message(), values
         if bits.calibrating:
             return OK, "calibrating the threshold", values
         if self.stalled_listeners.recent(now) or self.controls.answers_lost.recent(now):
