@@ -71,6 +71,7 @@ from infomax_contingency.audio.windows import (
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.stepclock import MAX_STEP_JUMP
 from infomax_contingency.nodes.parameters import ConfigError, ParameterReader, device_parameter
+from infomax_contingency.nodes.step_topics import SOUND_STEP, VOCALIZE_STEP
 
 SOURCES = ("wav", "topic", "sounddevice", "bag")
 """Where mic_node's audio comes from (parameter ``source``)."""
@@ -311,3 +312,13 @@ def _microphone(config: MicConfig, channel: int | None, log: LogFunction) -> Mic
                 f" step clock, windows of {config.window_s} s in real time")  # fmt: skip
     return MicrophoneStream(device, window_s=config.window_s, channel=channel,
                             queue_s=config.queue_s, log=log)  # fmt: skip
+
+
+def start_gate_text(config: MicConfig, lockstep: bool) -> str:
+    """What mic_node's step clock waits for before it starts (its start gate), in words."""
+    awaited = [f"{config.wait_for_listeners} listeners on '{SOUND_STEP}'"] * bool(
+        config.wait_for_listeners
+    )
+    if lockstep:
+        awaited.append(f"a controller on '{VOCALIZE_STEP}' (lockstep)")
+    return " and ".join(awaited) or "nothing"

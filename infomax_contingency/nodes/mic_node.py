@@ -137,6 +137,8 @@ class MicNode(GraphNode):
         self.create_service(Trigger, "~/recalibrate", self.controls.on_recalibrate)
         self.controls.activate(self.stream_id)
         self._pace_timer = None
+        self.awaited = mic_config.start_gate_text(self.config, lockstep=self.pacer is not None)
+        """What the step clock waits for before it starts (the start gate), in words."""
         self.start_when_ready(
             self._listeners_ready,
             self.config.start_delay_s,
@@ -144,7 +146,7 @@ class MicNode(GraphNode):
             self.pacer,
             self._on_timeout,
             "is controller_node running?",
-            f"{self.config.wait_for_listeners} listeners on '{SOUND_STEP}'",
+            self.awaited,
         )
         self.get_logger().info(f"stream id {self.stream_id}")
         self.threshold_log(self.bits)
@@ -354,8 +356,7 @@ class MicNode(GraphNode):
         if self.intruders:
             return ERROR, "another publisher on 'sound' or 'sound_step'", values
         if not self.started:
-            wanted = self.config.wait_for_listeners
-            return WARN, f"waiting for {wanted} listeners on '{SOUND_STEP}'", values
+            return WARN, f"waiting for {self.awaited}", values
         if values.get("state") == DISCONNECTED:
             return ERROR, f"microphone disconnected, retrying: {values['last_error']}", values
         if bits.state in (UNSEPARATED, OUT_OF_RANGE):  # no bits; out of range: until it is back
