@@ -379,3 +379,16 @@ def test_a_noisy_recording_replays_with_the_defaults_where_kmeans_refuses(
     assert "the first 12 windows heard the room" in out  # 8 of warm-up, 4 of delay
     assert main(["replay", str(wav), "--actions", str(actions), "--calibrate"]) == 2
     assert "clusters lie only 6.9 dB apart" in capsys.readouterr().err
+
+
+def test_a_what_if_on_a_wav_times_its_steps_by_the_files_windows(capsys, tmp_path: Path
+                                                                 ) -> None:  # fmt: skip
+    """As with recorded actions: a step's time_s is its window's start in the file."""
+    assert main(["replay", str(WAV), "--actions", f"policy:{ROBOT_TABLE}", "--json"]) == 0
+    rows = _rows(capsys)
+    assert rows[0]["time_s"] == 6.0  # the warm-up: 8 background windows, then 4 more
+    assert [row["time_s"] for row in rows] == [6.0 + 0.5 * k for k in range(len(rows))]
+    late = tmp_path / "late.wav"  # 4 s of zeros first: no room, no step
+    write_wav_int16(late, np.concatenate([np.zeros(4 * 16000), load_mono(WAV, 16000)]), 16000)
+    assert main(["replay", str(late), "--actions", f"policy:{ROBOT_TABLE}", "--json"]) == 0
+    assert [row["time_s"] for row in _rows(capsys)] == [row["time_s"] + 4.0 for row in rows]

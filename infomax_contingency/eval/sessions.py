@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -343,11 +343,14 @@ class _WavLevels:
         self.source.follow_model(params)
         self.gap = GapWithholding(params.ta2 + 1)
         self._withheld = False
+        self.windows = 0
+        """Windows read from the file so far (the last one's start: ``(windows - 1) dt``)."""
 
     def observe(self) -> _RecordedBit | None:
         window = self.replay.next_window()
         if window is None:
             raise _EndOfRecordingError
+        self.windows += 1
         bit = self.source.push_window(window)
         if bit is None:
             self.gap.no_step()
@@ -369,11 +372,14 @@ def wav_background_loop(path: Path, params: ModelParams, channel: int | None,
     The controller's decisions label the windows, as they would live; the recording does
     not answer them (see :func:`replay_bits`). ``problems``: at the end of the recording,
     the bit source's lines (clipping, DC offset, the threshold's own) are added to it.
+    A step's ``time_s`` is its window's start in the file (the warm-up's windows have no
+    step), as with recorded actions.
     """
     world = _WavLevels(path, params, channel, **options)
     try:
         for step in run_loop(world, controller, None, memory=memory):
-            yield step_record(controller.params, step)
+            record = step_record(controller.params, step)
+            yield replace(record, time_s=round((world.windows - 1) * params.dt, 9))
     except _EndOfRecordingError:
         if problems is not None:
             problems.extend(world.source.problems())
