@@ -129,8 +129,8 @@ def run_calibration_session(args: argparse.Namespace) -> int:
     if isinstance(outcome, str):
         print(f"infomax-contingency calibration-session: error: {outcome}", file=sys.stderr)
         return 1
-    monitor, steps_run, elapsed, released = outcome
-    demo.print_released(clock, released)
+    monitor, steps_run, elapsed, released, mic_warnings = outcome
+    demo.print_notes(clock, released, mic_warnings)
     print(f"# recorded {steps_run} steps, {sum(monitor.vocalize[:steps_run])} sounds, in"
           f" {elapsed:.1f} s; next: infomax-contingency analyze {args.out} --out params.yaml")
     return 0

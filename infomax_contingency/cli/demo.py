@@ -306,9 +306,7 @@ def run_demo(args: argparse.Namespace) -> int:
         return 1
     recorder, steps, elapsed, released, mic_warnings = outcome
     _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
-    print_released(clock, released)
-    for warning in dict.fromkeys(mic_warnings):  # each once, in order: a dead input, ...
-        print(f"# mic_node warned: {warning}")
+    print_notes(clock, released, mic_warnings)
     _print_verdict(recorder, steps, WINDOW_S, args, elapsed)
     return 0
 
@@ -317,13 +315,19 @@ WINDOW_S = 0.5
 """Window length of config/robot.yaml, seconds."""
 
 
-def print_released(clock: str, released: int) -> None:
-    """A ``# note:`` line when the clock node released windows without their decision."""
+def print_notes(clock: str, released: int, mic_warnings: list[str]) -> None:
+    """Print what the run's verdict rests on besides the steps.
+
+    A ``# note:`` line when the clock node released windows without their decision, and a
+    line for each of mic_node's warnings (once each, in order: a dead input, ...).
+    """
     if released:
         print(
             f"# note: {clock} released {released} window(s) without their decision after"
             f" {LOCKSTEP_TIMEOUT_S:g} s (a node was that slow): not the reproducible run"
         )
+    for warning in dict.fromkeys(mic_warnings):
+        print(f"# mic_node warned: {warning}")
 
 
 def _run_graph(
