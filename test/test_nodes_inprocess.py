@@ -316,6 +316,36 @@ def test_belief_follows_one_stream_and_one_controller(run: Callable) -> None:
     assert level == ERROR and "second stream or controller" in message
 
 
+def test_belief_stays_on_its_stream_against_bits_and_decisions_forged_for_another(
+    run: Callable,
+) -> None:
+    """A forger's bit and decision (the controller's id) on a new stream, again and again.
+
+    The followed stream still publishes: the controller would not have moved (it moves
+    only after ``source_timeout_s`` of silence), so the decision is not its own.
+    """
+    node, probe, graph, sound, vocalize, beliefs = _belief_graph(run)
+    rng = np.random.default_rng(4)
+    bits, decisions = rng.random(30) < 0.5, rng.random(30) < 0.3
+    true_bits, true_decisions = bits_of(STREAM, bits), decisions_of(STREAM, decisions)
+    forged_sound = probe.talk("sound_step", Int64MultiArray)
+    forged_vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(forged_sound)
+    graph.connected(forged_vocalize)
+    for step in range(30):
+        sound.publish(true_bits[step])
+        vocalize.publish(true_decisions[step])
+        graph.run_until(lambda step=step: len(beliefs) == step + 1, f"belief {step + 1}")
+        if step % 10 == 5:  # a new stream each time: bit first, then the decision
+            forged_sound.publish(bits_of(STREAM + step, [1])[0])
+            graph.run_for_callbacks(5)
+            forged_vocalize.publish(decisions_of(STREAM + step, [1])[0])
+            graph.run_for_callbacks(5)
+    assert [m.data for m in beliefs] == offline_beliefs(bits, decisions)[0]
+    assert node.stream == STREAM and node.stream_changes == 0
+    assert node.foreign.count >= 6  # each forged bit, each forged decision
+
+
 def test_belief_never_guesses_a_missing_decision(run: Callable) -> None:
     node, _, graph, sound, vocalize, beliefs = _belief_graph(run)
     bits = [1, 0, 1, 1, 0, 1, 1, 1, 0, 1, 1, 0]

@@ -16,7 +16,9 @@ that stream (a restarted mic_node). The controller is taken to move only to a st
 bits this node hears too: its decisions on a stream none of whose bits came are kept
 until they come, and named and ignored once it answers the followed stream again (one
 decision forged with the controller's id and a new stream id cannot move the node off
-its stream). The fake room hears the same decisions.
+its stream), and only once the followed stream has been silent for ``source_timeout_s``,
+as the controller's own rule has it (bits and decisions forged for a new stream cannot
+either). The fake room hears the same decisions.
 
 A withheld bit (heard while the robot declared its own sound on ``self_sound``, or
 right after windows without a step) is not counted: the belief is still published for
@@ -300,8 +302,25 @@ class BeliefNode(GraphNode):
         self._take_decision(decision, sent, self.sequence)
 
     def _take_decision(self, decision: StepDecision, sent: float, sequence: int | None) -> None:
-        """Apply a decision of the followed controller (following its stream)."""
+        """Apply a decision of the followed controller (following its stream).
+
+        The controller moves to another stream only once the one it answers has been
+        silent for ``source_timeout_s`` (its own rule): a decision on another stream while
+        the followed one still published bits that recently is not its own (forged with
+        its id, with bits forged for that stream too), and is named and ignored.
+        """
         if decision.stream != self.stream:
+            if self.stream is not None and (
+                quiet_s := sent - self._bit_times.newest_until(sent)
+            ) < self.controllers.silence_s:
+                self.foreign.note(self.now_s())
+                self.warn_intrusion(
+                    f"ignoring a decision for step {decision.step} of stream {decision.stream}"
+                    f" with the id of controller {decision.controller}: stream {self.stream}"
+                    f" published a bit {max(quiet_s, 0.0):.1f} s before it, and a controller"
+                    f" moves only after {self.controllers.silence_s:g} s of silence (forged?)"
+                )
+                return
             self._follow(decision.stream, decision.step)
             self.decision_pace.restart()
             self.decision_writer.restart()
