@@ -14,7 +14,13 @@ from infomax_contingency.audio.windows import SourceWindow, TopicWindows
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.selfsound import NS_PER_S, ChunkClock, SelfSoundGate
+from infomax_contingency.core.selfsound import (
+    NS_PER_S,
+    ChunkClock,
+    SelfSoundGate,
+    Verdict,
+    describe,
+)
 from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
@@ -132,6 +138,20 @@ def test_gate_withholds_the_windows_a_range_overlaps() -> None:
     assert gate.declare(NOW + 4 * half - 1, NOW + 9 * half, NOW).accepted  # last ns of window 3
     assert gate.release(NOW + 10 * half, holding=True) == [(2, False), (3, True)]
     assert gate.withheld == 2 and gate.late == 0
+
+
+def test_a_long_range_is_applied_and_said() -> None:
+    """30 s or less: said nothing; longer: applied, and one line says what it withholds."""
+    gate: SelfSoundGate[int] = SelfSoundGate(hold_s=0.1)
+    assert gate.declare(NOW, NOW + 30 * NS_PER_S, NOW) == Verdict(True)
+    verdict = gate.declare(NOW, NOW + 590 * NS_PER_S, NOW)
+    assert verdict.accepted and gate.long == 1 and "\n" not in verdict.problem
+    assert "declares 590.0 s of the robot's own sound: every window in it is withheld" in (
+        verdict.problem
+    )
+    gate.push(NOW + 300 * NS_PER_S, NOW + 301 * NS_PER_S, 0)
+    assert gate.release(NOW + 302 * NS_PER_S, holding=True) == [(0, True)]
+    assert describe(gate)["self_sound_long"] == 1
 
 
 def test_gate_without_declarers_releases_at_once() -> None:

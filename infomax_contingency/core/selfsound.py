@@ -43,6 +43,10 @@ NS_PER_S = 1_000_000_000
 MAX_RANGE_S = 600.0
 """A declared range may last at most this long (seconds): longer is taken for nonsense."""
 
+LONG_RANGE_S = 30.0
+"""A declared range longer than this (seconds) is accepted but said (WARN): every window in
+it is withheld, so a wrong publisher on ``self_sound`` would silence the evidence."""
+
 CLOCK_TOLERANCE_S = 120.0
 """A range that ends this long before, or starts this long after, the receiver's clock
 (seconds) is taken as stamped on another clock (a steady clock, sim time)."""
@@ -133,6 +137,8 @@ class SelfSoundGate(Generic[ItemT]):
         self.declared = 0
         self.refused = 0
         self.late = 0
+        self.long = 0
+        """Ranges accepted that last longer than :data:`LONG_RANGE_S` (each said)."""
         self.withheld = 0
         self.problems: deque[str] = deque(maxlen=16)
 
@@ -161,6 +167,15 @@ class SelfSoundGate(Generic[ItemT]):
         self.declared += 1
         self._ranges.append((start_ns, end_ns))
         late = sum(1 for ws, we in self._released if start_ns < we and ws <= end_ns)
+        if not late and end_ns - start_ns > LONG_RANGE_S * NS_PER_S:
+            self.long += 1
+            self.problems.append(
+                f"self-sound [{start_ns}, {end_ns}] ns declares"
+                f" {(end_ns - start_ns) / NS_PER_S:.1f} s of the robot's own sound: every"
+                " window in it is withheld, counted by no one (if that is not the robot's"
+                " sound, a publisher on 'self_sound' is wrong)"
+            )
+            return Verdict(True, self.problems[-1])
         if not late:
             return Verdict(True)
         self.late += 1
@@ -289,7 +304,8 @@ def recorded_observation(fields: Sequence[int]) -> bool | Withheld:
 def describe(gate: SelfSoundGate[Any]) -> dict[str, Any]:
     """The gate's counts (and its latest problem, if any) for diagnostics."""
     values = {"self_sound_declared": gate.declared, "self_sound_refused": gate.refused,
-              "self_sound_late": gate.late, "withheld_windows": gate.withheld,
+              "self_sound_late": gate.late, "self_sound_long": gate.long,
+              "withheld_windows": gate.withheld,
               "windows_held": gate.waiting}  # fmt: skip
     if gate.problems:
         values["self_sound_last_problem"] = gate.problems[-1]

@@ -370,8 +370,8 @@ class MicNode(GraphNode):
         problem = self.contract.problem()  # the 'audio' contract broken lately
         if problem or self.losses.recent(now) or self.timeouts.recent(now) or (
                 self.self_sound.faults.recent(now)):  # fmt: skip
-            problem = problem or ("audio lost, lockstep timeouts, or 'self_sound' ranges refused"
-                                  " or late lately (counts in the values)")  # fmt: skip
+            problem = problem or ("audio lost, lockstep timeouts, or 'self_sound' ranges refused,"
+                                  " late or long lately (counts in the values)")  # fmt: skip
             return WARN, problem, values
         return OK, f"{self.windows} bits published", values
 
