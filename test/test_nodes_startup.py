@@ -316,3 +316,22 @@ def test_a_node_module_loads_no_heavy_library_it_may_not_need(executable: str) -
                           ",".join(HEAVY_MODULES)],
                          capture_output=True, text=True, check=True)  # fmt: skip
     assert json.loads(out.stdout) == (["rosbags"] if executable in NEEDS_ROSBAGS else [])
+
+
+def test_a_node_out_of_memory_at_start_up_says_so_in_one_line() -> None:
+    """A size no check foresaw (MemoryError): one ERROR line naming the node, status 2."""
+    script = (
+        "import sys\n"
+        "from infomax_contingency.nodes.runtime import run_nodes\n"
+        "def factory():\n"
+        "    raise MemoryError\n"
+        "sys.exit(run_nodes([('belief_node', factory)], 'belief_node', []))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            timeout=60)  # fmt: skip
+    out = result.stdout + result.stderr
+    assert result.returncode == 2, out
+    assert "Traceback" not in out
+    errors = [line for line in out.splitlines() if "[ERROR]" in line]
+    assert len(errors) == 1 and "[belief_node]" in errors[0], out
+    assert "out of memory" in errors[0]

@@ -375,6 +375,12 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
             return 0
         rclpy.logging.get_logger(current).error(str(error))
         return 2
+    except MemoryError:  # a size no cost check foresaw: one line, not a traceback
+        rclpy.logging.get_logger(current).error(
+            "out of memory: an input (a file, a parameter) needs more memory than this"
+            " process may use (docs/LIMITS.md)"
+        )
+        return 2
     except Exception:
         if stop.requested or not rclpy.ok():  # a signal in the middle of the set-up
             return 0
