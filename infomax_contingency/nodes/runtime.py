@@ -328,6 +328,23 @@ def warn_undeclared_parameters(nodes: Sequence[Node], program: str, args: Sequen
         node.get_logger().warning(message)
 
 
+def first_to_finish(nodes: Sequence[Node]) -> Future:
+    """A future done with the exit status of the first of ``nodes`` that finishes."""
+    any_finished = Future()
+    for node in nodes:
+        finished = getattr(node, "finished", None)
+        if finished is not None:
+            finished.add_done_callback(
+                lambda f: any_finished.done() or any_finished.set_result(f.result())
+            )
+    return any_finished
+
+
+OUT_OF_MEMORY = ("out of memory: an input (a file, a parameter) needs more memory than this"
+                 " process may use (docs/LIMITS.md)")
+"""A node's error line for a MemoryError (one line, not a traceback)."""
+
+
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,  # noqa: C901
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
@@ -355,13 +372,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
             executor.add_node(nodes[-1])
         current = program
         warn_undeclared_parameters(nodes, program, sys.argv if args is None else args)
-        any_finished = Future()
-        for node in nodes:
-            finished = getattr(node, "finished", None)
-            if finished is not None:
-                finished.add_done_callback(
-                    lambda f: any_finished.done() or any_finished.set_result(f.result())
-                )
+        any_finished = first_to_finish(nodes)
         spin_until_done(executor, any_finished, stop)
         stop.start_deadline()
         stop_by = time.monotonic() + STOP_BUDGET_S
@@ -370,15 +381,11 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
         return int(any_finished.result()) if any_finished.done() else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
-    except USER_ERRORS as error:
+    except (*USER_ERRORS, MemoryError) as error:  # MemoryError: a size no check foresaw
         if stop.requested or not rclpy.ok():  # a signal while a node was being set up
             return 0
-        rclpy.logging.get_logger(current).error(str(error))
-        return 2
-    except MemoryError:  # a size no cost check foresaw: one line, not a traceback
         rclpy.logging.get_logger(current).error(
-            "out of memory: an input (a file, a parameter) needs more memory than this"
-            " process may use (docs/LIMITS.md)"
+            OUT_OF_MEMORY if isinstance(error, MemoryError) else str(error)
         )
         return 2
     except Exception:
