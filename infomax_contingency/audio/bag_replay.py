@@ -37,7 +37,7 @@ from infomax_contingency.audio.energy import WindowAssembler, frame_energies_db
 from infomax_contingency.audio.threshold import calibration_window_count
 from infomax_contingency.audio.windows import SourceWindow, WindowSource
 from infomax_contingency.core.model import Withheld
-from infomax_contingency.core.selfsound import recorded_observation
+from infomax_contingency.core.stepfields import StepBit, bit_of, decision_of, valid_messages
 
 BAG_TOPICS = ("/audio", "/sound_step", "/sound_energy", "/vocalize_step")
 """Topics a bag replay reads (their types: :data:`~infomax_contingency.audio.bag.SESSION_TYPES`)."""
@@ -48,28 +48,48 @@ def recorded_decisions(directory: Path, warn: Callable[[str], None] | None = Non
     """The robot's recorded decision for each step (from 1) of the session's first stream.
 
     ``decisions[t - 1]`` answers step ``t``; a step without a recorded decision is False.
-    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk).
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk) and of
+    malformed step messages (skipped, as the live nodes ignore them).
 
     Raises:
         BagReadError: the bag cannot be read, is damaged, or is not a session (no
             ``sound_step``, or topics of other types).
-        AudioError: it holds no ``sound_step`` message (no stream to follow).
+        AudioError: it holds no valid ``sound_step`` message (no stream to follow).
     """
     topics = read_topics(directory, ("/sound_step", "/vocalize_step"),
                          required=("/sound_step", "/vocalize_step"), warn=warn)
-    stream, steps = _first_stream(directory, topics["/sound_step"])
-    decided = {int(d[1]): bool(d[2]) for d in (list(m.data) for _, m in topics["/vocalize_step"])
-               if d[0] == stream}
+    bits = _valid_bits(directory, topics["/sound_step"], warn)
+    stream, steps = _first_stream(directory, bits)
+    decisions = valid_messages(((t, m.data) for t, m in topics["/vocalize_step"]), decision_of,
+                               "/vocalize_step", warn)
+    decided = {d.step: d.vocalize for _, d in decisions if d.stream == stream}
     return [decided.get(step, False) for step in range(1, steps + 1)]
 
 
-def _first_stream(directory: Path, sound_steps: list) -> tuple[int, int]:
+def _valid_bits(directory: Path, sound_steps: list, warn: Callable[[str], None] | None
+                ) -> list[StepBit]:
+    """The well-formed recorded bits, in order (the malformed ones skipped, ``warn`` told).
+
+    Raises:
+        AudioError: there is none (no stream to follow).
+    """
+    bits = [bit for _, bit in valid_messages(((t, m.data) for t, m in sound_steps), bit_of,
+                                             "/sound_step", warn)]
+    if not bits:
+        raise _no_stream(directory)
+    return bits
+
+
+def _no_stream(directory: Path) -> AudioError:
+    """The error of a session without a valid recorded bit (no stream to follow)."""
+    return AudioError(f"the session {directory} holds no valid sound_step messages: nothing to"
+                      " replay")
+
+
+def _first_stream(directory: Path, bits: list[StepBit]) -> tuple[int, int]:
     """(stream id, last step) of the first mic stream recorded."""
-    if not sound_steps:
-        raise AudioError(f"the session {directory} holds no sound_step messages: nothing to"
-                         " replay")
-    stream = int(sound_steps[0][1].data[0])
-    return stream, max(int(m.data[1]) for _, m in sound_steps if int(m.data[0]) == stream)
+    stream = bits[0].stream
+    return stream, max(bit.step for bit in bits if bit.stream == stream)
 
 
 class BagReplay(WindowSource):
@@ -83,12 +103,13 @@ class BagReplay(WindowSource):
             audio has none to keep).
 
     A bag cut by a killed recorder is replayed up to its last complete chunk; what was
-    cut is in :attr:`warnings` (to be logged by the caller).
+    cut, and how many malformed step messages were skipped (as the live nodes ignore
+    them), are in :attr:`warnings` (to be logged by the caller).
 
     Raises:
         BagReadError: the bag cannot be read, is damaged, or holds neither audio nor
             bits (topics of other types, or another robot's: named in the message).
-        AudioError: it holds no complete window.
+        AudioError: it holds no complete window, or no audio and no valid bit.
     """
 
     def __init__(
@@ -96,17 +117,21 @@ class BagReplay(WindowSource):
     ) -> None:
         self.directory = Path(directory)
         self.warnings: list[str] = []
-        """What the replay lacks (a bag cut by a killed recorder), one line each."""
+        """What the replay lacks (a bag cut by a killed recorder, malformed step messages
+        skipped), one line each."""
         topics = read_topics(self.directory, BAG_TOPICS, required=[("/audio", "/sound_step")],
                              warn=self.warnings.append)
         self.has_audio = bool(topics["/audio"])
         self.windows: list[tuple[float, bool | None]]
         self.window_samples: np.ndarray | None = None
         """The windows' samples, one per row (``samples=True`` and audio), else None."""
-        stream, _ = _first_stream(self.directory, topics["/sound_step"]) if topics[
-            "/sound_step"] else (None, 0)
-        recorded = sorted((int(m.data[1]), recorded_observation(list(m.data)))
-                          for _, m in topics["/sound_step"] if int(m.data[0]) == stream)
+        bits = [bit for _, bit in valid_messages(
+            ((t, m.data) for t, m in topics["/sound_step"]), bit_of, "/sound_step",
+            self.warnings.append)]
+        if not bits and not self.has_audio:
+            raise _no_stream(self.directory)
+        stream = bits[0].stream if bits else None
+        recorded = sorted((bit.step, bit.observation) for bit in bits if bit.stream == stream)
         if self.has_audio:
             assembler = WindowAssembler(audio_rate_hz, window_s)
             energies: list[float] = []
@@ -123,9 +148,6 @@ class BagReplay(WindowSource):
                 energies = list(frame_energies_db(self.window_samples))
             self.windows = [(float(e), None) for e in energies]
         else:
-            if stream is None:
-                raise AudioError(f"the session {directory} holds no sound_step messages:"
-                                 " nothing to replay")
             # Calibration windows (energy, no bit) come first: the last energies are the
             # steps' (an energy not recorded is nan).
             energies = [float(m.data) for _, m in topics["/sound_energy"]][-len(recorded):]

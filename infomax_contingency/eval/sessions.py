@@ -21,7 +21,7 @@ import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 from infomax_contingency.audio.background import BackgroundThreshold, ordinal
 from infomax_contingency.audio.bitsources.rules import Binarizer
@@ -37,10 +37,19 @@ from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
 from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
-from infomax_contingency.core.selfsound import GapWithholding, recorded_observation
+from infomax_contingency.core.selfsound import GapWithholding
 from infomax_contingency.core.stepclock import Pace, StepJoiner, StepPace
+from infomax_contingency.core.stepfields import (
+    StepBit,
+    StepDecision,
+    bit_of,
+    decision_of,
+    valid_messages,
+)
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import StepRecord, statistic_record, step_record
+
+StepT = TypeVar("StepT", StepBit, StepDecision)
 
 SESSION_TOPICS = ("/sound_step", "/vocalize_step", "/belief", "/diagnostics")
 """Topics a replay with recorded actions reads."""
@@ -55,67 +64,80 @@ class RecordedSession:
         decisions: ``(step, vocalize)`` for that stream, in arrival order.
         beliefs: the recorded ``belief`` values, in arrival order.
         memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
+        cut: the bag was cut by a killed recorder (read up to its last chunk).
     """
 
     bits: list[tuple[int, bool | Withheld]]
     decisions: list[tuple[int, bool]]
     beliefs: list[float]
     memory_steps: int
+    cut: bool = False
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
                  ) -> RecordedSession:
     """Read the steps of the first mic stream of a session bag.
 
-    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk).
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk), of
+    malformed step messages (skipped, as the live nodes ignore them: one line per topic)
+    and of forged jumps ahead (left out).
 
     Raises:
         BagReadError: the bag cannot be read, is damaged, or is not a session (no
             ``sound_step`` and ``vocalize_step``, or topics of other types).
-        ValueError: it holds no ``sound_step`` message (nothing to replay).
+        ValueError: it holds no valid ``sound_step`` message (nothing to replay).
     """
     # Imported here: sessions need the optional rosbags; the other commands start without it.
     from infomax_contingency.audio.bag import read_topics
 
+    cut: list[str] = []
+
+    def warn_cut(message: str) -> None:
+        cut.append(message)
+        if warn is not None:
+            warn(message)
+
     topics = read_topics(directory, SESSION_TOPICS,
-                         required=("/sound_step", "/vocalize_step"), warn=warn)
-    steps = [list(m.data) for _, m in topics["/sound_step"]]
-    if not steps:
-        raise ValueError(f"the session {directory} holds no sound_step messages: nothing to"
-                         " replay (was mic_node running while it was recorded?)")
-    stream = steps[0][0]
-    rate_hz = 1e6 / steps[0][3] if len(steps[0]) > 3 and steps[0][3] > 0 else 2.0
-    bit_messages = [(t, list(m.data)) for t, m in topics["/sound_step"]]
-    bits = [(int(s[1]), recorded_observation(s))
-            for s in _on_pace(bit_messages, stream, rate_hz, "bit", warn)]
-    decision_messages = [(t, list(m.data)) for t, m in topics["/vocalize_step"]]
-    decisions = [(int(d[1]), bool(d[2]))
+                         required=("/sound_step", "/vocalize_step"), warn=warn_cut)
+    bit_messages = valid_messages(((t, m.data) for t, m in topics["/sound_step"]), bit_of,
+                                  "/sound_step", warn)
+    if not bit_messages:
+        raise ValueError(f"the session {directory} holds no valid sound_step messages: nothing"
+                         " to replay (was mic_node running while it was recorded?)")
+    first = bit_messages[0][1]
+    stream, rate_hz = first.stream, 1e6 / first.window_us
+    bits = [(bit.step, bit.observation)
+            for bit in _on_pace(bit_messages, stream, rate_hz, "bit", warn)]
+    decision_messages = valid_messages(((t, m.data) for t, m in topics["/vocalize_step"]),
+                                       decision_of, "/vocalize_step", warn)
+    decisions = [(d.step, d.vocalize)
                  for d in _on_pace(decision_messages, stream, rate_hz, "decision", warn)]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
-    return RecordedSession(bits, decisions, beliefs, _belief_memory(topics["/diagnostics"]))
+    return RecordedSession(bits, decisions, beliefs, _belief_memory(topics["/diagnostics"]),
+                           cut=bool(cut))
 
 
-def _on_pace(messages: list[tuple[int, list]], stream: int, rate_hz: float, what: str,
-             warn: Callable[[str], None] | None) -> list[list]:
+def _on_pace(messages: list[tuple[int, StepT]], stream: int, rate_hz: float, what: str,
+             warn: Callable[[str], None] | None) -> list[StepT]:
     """The step messages of ``stream`` the live nodes take: a forged jump ahead is left out.
 
     The same rule as belief_node's and controller_node's
     (:class:`~infomax_contingency.core.stepclock.StepPace`, confirmed after
     ``SOURCE_TIMEOUT_S``), on the times the recorder received them (``messages``:
-    ``(ns, data)``). ``warn`` is told of each message left out.
+    ``(ns, parsed message)``). ``warn`` is told of each message left out.
     """
     pace = StepPace(rate_hz, SOURCE_TIMEOUT_S)
-    taken = []
+    taken: list[StepT] = []
     for received_ns, data in messages:
-        if data[0] != stream:
+        if data.stream != stream:
             continue
-        verdict = pace.check(int(data[1]), received_ns / 1e9, data)
+        verdict = pace.check(data.step, received_ns / 1e9, data)
         if verdict is Pace.ON_PACE:
             taken.append(data)
         elif verdict is Pace.CONFIRMED:
             taken.extend(pace.take_confirmed())
         elif warn is not None:
-            warn(pace.jump_message(f"the recorded {what} for step {data[1]}"))
+            warn(pace.jump_message(f"the recorded {what} for step {data.step}"))
     return taken
 
 

@@ -34,7 +34,9 @@ from typing import NamedTuple
 
 from std_msgs.msg import Int64MultiArray, MultiArrayDimension
 
-from infomax_contingency.core.model import Withheld
+from infomax_contingency.core.stepfields import SOUND_FIELDS as _SOUND_FIELDS
+from infomax_contingency.core.stepfields import VOCALIZE_FIELDS as _VOCALIZE_FIELDS
+from infomax_contingency.core.stepfields import StepBit, StepDecision, bit_of, decision_of
 
 SOUND_STEP = "sound_step"
 VOCALIZE_STEP = "vocalize_step"
@@ -44,26 +46,9 @@ SELF_SOUND = "self_sound"
 """The topic on which any node declares the robot's own sound (see
 :mod:`~infomax_contingency.core.selfsound`)."""
 
-_SOUND_FIELDS = ("stream", "step", "bit", "window_us", "withheld")
 _SELF_SOUND_FIELDS = ("start_ns", "end_ns")
-_VOCALIZE_FIELDS = ("stream", "step", "vocalize", "controller")
 _APPLIED_FIELDS = ("stream", "step", "listener")
 _NO_STEP_FIELDS = ("stream", "window")
-
-
-class StepBit(NamedTuple):
-    """A bit with its identity; ``withheld``: the robot's own sound, or right after a gap."""
-
-    stream: int
-    step: int
-    bit: bool
-    window_us: int
-    withheld: bool = False
-
-    @property
-    def observation(self) -> bool | Withheld:
-        """What a statistic takes: the bit, or the bit :class:`Withheld`."""
-        return Withheld(self.bit) if self.withheld else self.bit
 
 
 class StepApplied(NamedTuple):
@@ -79,15 +64,6 @@ class NoStep(NamedTuple):
 
     stream: int
     window: int
-
-
-class StepDecision(NamedTuple):
-    """A decision with the identity of the bit it answers."""
-
-    stream: int
-    step: int
-    vocalize: bool
-    controller: int
 
 
 def new_source_id() -> int:
@@ -150,22 +126,13 @@ def parse_applied(message: Int64MultiArray) -> StepApplied | None:
     return StepApplied(*data)
 
 
-def _fields(message: Int64MultiArray, *sizes: int) -> list[int] | None:
-    data = list(message.data)
-    if len(data) not in sizes or data[0] <= 0 or data[1] <= 0 or data[2] not in (0, 1):
-        return None
-    return data
-
-
 def parse_bit(message: Int64MultiArray) -> StepBit | None:
     """The bit in a ``sound_step`` message, or None if the message is malformed.
 
-    Four fields (a recording made before ``withheld``) are a window not withheld.
+    Four fields (a recording made before ``withheld``) are a window not withheld
+    (the rules: :func:`~infomax_contingency.core.stepfields.bit_of`).
     """
-    data = _fields(message, len(_SOUND_FIELDS) - 1, len(_SOUND_FIELDS))
-    if data is None or data[3] <= 0 or data[4:] not in ([], [0], [1]):
-        return None
-    return StepBit(data[0], data[1], bool(data[2]), data[3], bool(data[4:] == [1]))
+    return bit_of(message.data)
 
 
 def self_sound_message(start_ns: int, end_ns: int) -> Int64MultiArray:
@@ -184,10 +151,7 @@ def parse_self_sound(message: Int64MultiArray) -> tuple[int, int] | None:
 
 def parse_decision(message: Int64MultiArray) -> StepDecision | None:
     """The decision in a ``vocalize_step`` message, or None if the message is malformed."""
-    data = _fields(message, len(_VOCALIZE_FIELDS))
-    if data is None or data[3] <= 0:
-        return None
-    return StepDecision(data[0], data[1], bool(data[2]), data[3])
+    return decision_of(message.data)
 
 
 def window_us(window_s: float) -> int:

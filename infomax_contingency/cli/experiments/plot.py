@@ -44,6 +44,9 @@ def _run_plot(args: argparse.Namespace) -> int:
         session = load_session(Path(args.session), warn=warn)
         memory = memory or session.memory_steps
         records = [record.__dict__ for record in replay_recorded(session, params, memory)]
+        if not records:
+            raise ValueError(f"the session {args.session} has no step to plot: no recorded"
+                             " bit was answered by a recorded decision")
         title = args.title or f"recorded session {Path(args.session).name}"
     elif args.session:
         records = plots.read_session(args.session)
