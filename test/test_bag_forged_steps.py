@@ -1,9 +1,10 @@
-"""Session bags with malformed step messages.
+"""Session bags with malformed step messages, a late recorder, or nothing to compare.
 
 A malformed ``sound_step`` or ``vocalize_step`` (fewer fields than the contract, as
 ``ros2 topic pub --once /sound_step std_msgs/Int64MultiArray "{data: [5]}"`` leaves in a
 recording) is skipped by every reader, as the live nodes ignore it, with one warning
-line per topic.
+line per topic; a recorder that joined after mic_node's first steps is named in the
+replay's verdict; a replay that compared nothing is no success.
 """
 
 from __future__ import annotations
@@ -101,6 +102,47 @@ def test_the_core_rules_are_the_live_nodes(tmp_path: Path) -> None:
     assert bit_of([1, 2, 1, 500000]).withheld is False
     assert bit_of([1, 2, 1, 500000, 1]).observation.bit is True
     assert decision_of([1, 2, 1, 0]) is None and decision_of([1, 2, 1, 7]).vocalize
+
+
+@pytest.mark.parametrize("beliefs_of_missing", [True, False])
+def test_a_late_recorder_is_named_and_compared_from_its_first_step(
+        tmp_path: Path, beliefs_of_missing: bool, capsys) -> None:
+    """Steps 1-3 not recorded: the replay lacks their history, and says so."""
+    beliefs = _beliefs(tmp_path)
+    recorded = beliefs if beliefs_of_missing else beliefs[3:]
+    bag = _bag(tmp_path / "late", range(4, STEPS + 1), recorded)
+    assert main(["replay", str(bag)]) == 1
+    out = capsys.readouterr().out
+    assert "the recorder joined late: the bag's first bit is step 4 of its stream" in out
+    assert "compared from step 4" in out and "second publisher" not in out
+    assert ("after the 3 beliefs of the steps not recorded" in out) == beliefs_of_missing
+    assert f"{len(recorded)} beliefs recorded, 27 compared" in out
+
+
+def test_a_late_recorder_after_steps_that_changed_nothing_replays_equal(tmp_path: Path,
+                                                                       capsys) -> None:
+    """Steps 1-3 withheld and not answered leave the belief as it starts: exact equality."""
+    bits, withheld = [True] * STEPS, (True, True, True) + (False,) * (STEPS - 3)
+    beliefs = _beliefs(tmp_path, bits, withheld)
+    bag = _bag(tmp_path / "late", range(4, STEPS + 1), beliefs, bits=bits, withheld=withheld)
+    assert main(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "equals the recorded belief at all 27 steps compared" in out
+    assert "joined late" in out
+
+
+def test_a_bag_whose_only_later_step_jumps_ahead_compares_nothing_and_fails(tmp_path: Path,
+                                                                           capsys) -> None:
+    writer = BagWriter(tmp_path / "gap")
+    for topic in ("/sound_step", "/vocalize_step"):
+        writer.add_topic(topic, ARRAY, QOS)
+    for k, step in enumerate((1, 10**9)):
+        writer.write("/sound_step", encode(ARRAY, data=[7, step, 1, 500000, 0]), 10**18 + k)
+        writer.write("/vocalize_step", encode(ARRAY, data=[7, step, k, 9]), 10**18 + k)
+    writer.close()
+    assert main(["replay", str(tmp_path / "gap")]) == 1
+    out = capsys.readouterr().out
+    assert "nothing was compared: no belief was recorded" in out and "equals" not in out
 
 
 def test_plotting_a_session_without_an_answered_step_is_one_line(tmp_path: Path, capsys

@@ -34,6 +34,7 @@ from infomax_contingency.core.controllers import ReplayedDecisions, make_control
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
 from infomax_contingency.eval.sessions import (
+    RecordedSession,
     decisions_from_reference,
     decisions_from_times,
     load_session,
@@ -227,13 +228,7 @@ def run_replay(args: argparse.Namespace) -> int:
     if is_wav:
         records, what, problems = _wav_records(args, kind, params)
         return _print_what_if(args, records, what, problems)
-    cut: list[str] = []
-
-    def warn_cut(message: str) -> None:
-        cut.append(message)
-        warn(message)
-
-    session = load_session(Path(args.session), warn=warn_cut)
+    session = load_session(Path(args.session), warn=warn)
     if kind == "controller":
         memory = session.memory_steps if args.memory is None else args.memory
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
@@ -243,30 +238,75 @@ def run_replay(args: argparse.Namespace) -> int:
                               " recorded bits (what-if)")
     replayed = []
     for record in replay_recorded(session, params, args.memory):
-        replayed.append(record.belief)
+        replayed.append((record.t, record.belief))
         if args.json:
             _write_line(json.dumps(record.__dict__))
-    if cut and len(replayed) > len(session.beliefs):
-        # the cut took the last beliefs while their steps' bits and decisions were kept
-        print(f"# the last {len(replayed) - len(session.beliefs)} replayed steps have no"
-              " recorded belief (cut): compared up to the last one recorded",
-              file=sys.stderr if args.json else sys.stdout)
-        replayed = replayed[:len(session.beliefs)]
-    same = replayed == session.beliefs
-    first_difference = next(
-        (i for i, (a, b) in enumerate(zip(replayed, session.beliefs, strict=False)) if a != b),
-        min(len(replayed), len(session.beliefs)),
-    )
-    extra = len(session.beliefs) - len(replayed)
-    why = (f"; {extra} more beliefs than steps were recorded: a second publisher on /belief"
-           " (a forged message?) or a restarted belief_node" if extra > 0 else "")  # fmt: skip
-    verdict = (
-        f"replayed belief equals the recorded belief at all {len(replayed)} steps" if same else
-        f"replayed belief DIFFERS from the recorded one from belief {first_difference + 1}"
-        f" ({len(replayed)} steps replayed, {len(session.beliefs)} beliefs recorded{why})"
-    )
+    same, verdict = belief_verdict(session, replayed)
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def _aligned_beliefs(session: RecordedSession, replayed: list[tuple[int, float]]
+                     ) -> tuple[list[float] | None, list[str]]:
+    """The recorded belief of each replayed step (None: they cannot be matched), and notes.
+
+    Beliefs carry no step: a bag whose first bit is step ``s > 1`` of its stream (the
+    recorder joined late) is matched when its beliefs are those of the last steps, from
+    step ``s`` or earlier (the recorder heard belief_node before mic_node).
+    """
+    beliefs, count = session.beliefs, len(replayed)
+    first = min(step for step, _ in session.bits)
+    if first == 1:
+        if session.cut and count > len(beliefs):  # the cut took the last beliefs
+            return beliefs, [f"the last {count - len(beliefs)} replayed steps have no"
+                             " recorded belief (cut): compared up to the last one recorded"]
+        if count > len(beliefs):
+            return beliefs, [f"{count - len(beliefs)} replayed steps have no recorded belief"
+                             " (the recorder missed belief_node's first beliefs or its last):"
+                             f" compared the first {len(beliefs)}, from step 1"]
+        return beliefs, []
+    late = (f"the recorder joined late: the bag's first bit is step {first} of its stream"
+            f" (steps 1-{first - 1} not recorded: the replay starts without their history)")
+    offset = replayed[-1][0] - len(beliefs) if replayed else -1  # beliefs: steps offset+1..
+    if session.cut or not 0 <= offset <= first - 1:
+        return None, [f"{late}; its {len(beliefs)} recorded beliefs cannot be matched to the"
+                      f" {count} replayed steps"]
+    matched = [beliefs[step - 1 - offset] for step, _ in replayed]
+    skipped = f", after the {first - 1 - offset} beliefs of the steps not recorded" if (
+        first - 1 > offset) else ""
+    return matched, [f"{late}; compared from step {first}{skipped}"]
+
+
+def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]]
+                   ) -> tuple[bool, str]:
+    """Do the replayed ``(step, belief)`` equal the recorded beliefs, and the verdict line.
+
+    True only when at least one step was compared and every one compared is equal.
+    """
+    recorded, notes = _aligned_beliefs(session, replayed)
+    values = [belief for _, belief in replayed]
+    counts = f"{len(values)} steps replayed, {len(session.beliefs)} beliefs recorded"
+    if not values or not session.beliefs:
+        what = "no step was replayed" if not values else "no belief was recorded"
+        return False, f"nothing was compared: {what} ({counts})"
+    if recorded is None:
+        return False, f"nothing was compared ({counts}; {'; '.join(notes)})"
+    compared = min(len(values), len(recorded))
+    first_difference = next((i for i in range(compared) if values[i] != recorded[i]), None)
+    extra = len(recorded) - len(values)
+    if extra > 0:
+        notes.append(f"{extra} more beliefs than steps were recorded: a second publisher on"
+                     " /belief (a forged message?) or a restarted belief_node")
+    detail = "".join(f"; {note}" for note in notes)
+    if first_difference is None and extra <= 0:
+        return True, (f"replayed belief equals the recorded belief at all {compared} steps"
+                      f" compared ({counts}{detail})")
+    if first_difference is None:
+        where, equal = f"after step {replayed[-1][0]}: more beliefs were recorded", compared
+    else:
+        where, equal = f"at step {replayed[first_difference][0]}", first_difference
+    return False, (f"replayed belief DIFFERS from the recorded one {where} ({counts},"
+                   f" {compared} compared, the first {equal} equal{detail})")
 
 
 def warn(message: str) -> None:
