@@ -19,7 +19,7 @@ from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable
-from infomax_contingency.core.selfsound import recorded_observation
+from infomax_contingency.core.stepfields import bit_of
 from infomax_contingency.resources import resource_path
 from infomax_contingency.testing.graph import StepRecorder
 
@@ -40,7 +40,7 @@ def step_pairs(recorder: StepRecorder, stream: int, controllers: set[int], first
     Decisions count only from ``controllers``; a rogue's are left out. Fails if a step
     has two bits, or two decisions of those controllers.
     """
-    bit_steps = [(fields[1], recorded_observation(fields))
+    bit_steps = [(fields[1], bit_of(fields).observation)  # type: ignore[union-attr]
                  for fields in recorder.sound_step if fields[0] == stream]
     decision_steps = [(s, bool(u)) for st, s, u, c in recorder.vocalize_step
                       if st == stream and c in controllers]  # fmt: skip

@@ -291,16 +291,6 @@ class ChunkClock:
         return self.time_ns(first_sample), self.time_ns(first_sample + samples)
 
 
-def recorded_observation(fields: Sequence[int]) -> bool | Withheld:
-    """The observation of a ``sound_step`` message's fields, as recorded.
-
-    ``[stream, step, bit, window_us, withheld]``; a message of the first four fields
-    (recorded before ``withheld`` existed) is a window not withheld.
-    """
-    bit = bool(fields[2])
-    return Withheld(bit) if len(fields) > 4 and fields[4] == 1 else bit
-
-
 def describe(gate: SelfSoundGate[Any]) -> dict[str, Any]:
     """The gate's counts (and its latest problem, if any) for diagnostics."""
     values = {"self_sound_declared": gate.declared, "self_sound_refused": gate.refused,
