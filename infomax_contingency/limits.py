@@ -15,16 +15,21 @@ or a machine that swaps. The budget is the smallest of
 Estimates are Python integers (no overflow whatever the request); :func:`format_bytes`,
 :func:`format_number` and :func:`as_float` print them without an OverflowError.
 
-:func:`load_yaml` reads a YAML file after bounding its size and its nesting depth (a
-100,000-deep file would otherwise end the parser in a RecursionError), as the policy
-tables' metadata JSON is bounded.
+:func:`load_yaml` reads a YAML file after bounding its size (a regular file only: a
+device or FIFO has no size to check), its nesting depth (a 100,000-deep file would
+otherwise end the parser in a RecursionError) and what its aliases expand to, as the
+policy tables' metadata JSON is bounded; :func:`read_text_capped` is its bounded read,
+for other small text files, and :func:`short_repr` quotes a value in a message.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import reprlib
 import resource
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +37,10 @@ MAX_YAML_BYTES = 1 << 16
 """Largest YAML file read, bytes (model parameters, threshold files: well under 1 KB)."""
 MAX_YAML_DEPTH = 8
 """Deepest nesting of mappings and sequences in a YAML file read (real files: 2)."""
+MAX_YAML_NODES = 1 << 17
+"""Most values (mappings, sequences, keys, scalars) a YAML file may expand to, aliases
+followed: more than a file of :data:`MAX_YAML_BYTES` can hold written out (an alias
+bomb of 454 bytes expands to 10^7)."""
 NO_LIMIT = 1 << 60
 """A limit at or above this (1 EiB) is no limit (cgroup v1 writes 2^63 - 4096 for none)."""
 
@@ -220,27 +229,112 @@ def yaml_depth(text: str) -> int:
     return deepest
 
 
-def load_yaml(path: str | Path, what: str, max_depth: int = MAX_YAML_DEPTH) -> Any:
-    """``yaml.safe_load`` of a file, its size and nesting bounded first.
+def _file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, for a message (``"a device"``)."""
+    kinds = ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+             (stat.S_ISSOCK, "a socket"))
+    return next((name for test, name in kinds if test(mode)), "not a regular file")
+
+
+def read_bytes_capped(path: str | Path, what: str, max_bytes: int = MAX_YAML_BYTES) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` bytes.
+
+    Symlinks are followed; a directory, device, FIFO or socket is refused without being
+    read (a FIFO is opened non-blocking, so it cannot hang), and at most ``max_bytes`` + 1
+    bytes are read, so a file that grows while it is read cannot exceed the cap.
 
     Raises:
         FileNotFoundError: the file does not exist (the caller names it).
-        ValueError: unreadable, not UTF-8, too large, nested deeper than ``max_depth``,
-            or not YAML — one line, starting with ``what`` and the path.
+        ValueError: not a regular file, unreadable, or larger than ``max_bytes`` — one
+            line, starting with ``what`` and the path.
+    """
+    path = Path(path)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise
+    except OSError as error:
+        raise ValueError(f"cannot read {what} {path}: {error.strerror or error}") from None
+    try:
+        mode, size = os.fstat(fd).st_mode, os.fstat(fd).st_size
+        if not stat.S_ISREG(mode):
+            raise ValueError(f"{what} {path} is refused: it is {_file_kind(mode)}, not a"
+                             " regular file; give the path of a file")
+        if size > max_bytes:
+            raise ValueError(f"{what} {path} is refused: it holds {size:,} bytes"
+                             f" (at most {max_bytes:,})")
+        with os.fdopen(fd, "rb", closefd=False) as stream:
+            data = stream.read(max_bytes + 1)
+    except OSError as error:
+        raise ValueError(f"cannot read {what} {path}: {error.strerror or error}") from None
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise ValueError(f"{what} {path} is refused: it holds more than {max_bytes:,} bytes"
+                         " (it grew while it was read)")
+    return data
+
+
+def read_text_capped(path: str | Path, what: str, max_bytes: int = MAX_YAML_BYTES) -> str:
+    """:func:`read_bytes_capped` decoded as UTF-8 (a byte that is not: one line, ValueError)."""
+    data = read_bytes_capped(path, what, max_bytes)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"cannot read {what} {path}: it is not UTF-8 text (byte"
+                         f" {error.start:,} is 0x{data[error.start]:02x})") from None
+
+
+def short_repr(value: Any, limit: int = 80) -> str:
+    """``repr`` of ``value`` cut to about ``limit`` characters, in bounded time.
+
+    Nested and aliased YAML values would otherwise print gigabytes: :mod:`reprlib` shows
+    only the first few items of each level and a few levels.
+    """
+    shortener = reprlib.Repr()
+    shortener.maxlevel, shortener.maxstring, shortener.maxother = 3, limit, limit
+    shortener.maxlist = shortener.maxdict = shortener.maxtuple = shortener.maxset = 6
+    text = shortener.repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def yaml_nodes(value: Any, cap: int = MAX_YAML_NODES) -> int:
+    """Nodes of a loaded YAML value, aliases followed (a shared list counts each time).
+
+    Stops counting past ``cap`` (the result is then ``cap + 1``), so an alias bomb or a
+    recursive value costs at most ``cap`` steps.
+    """
+    count, stack = 0, [value]
+    while stack and count <= cap:
+        item = stack.pop()
+        count += 1
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple, set)):
+            stack.extend(item)
+    return min(count, cap + 1)
+
+
+def load_yaml(path: str | Path, what: str, max_depth: int = MAX_YAML_DEPTH,
+              max_bytes: int = MAX_YAML_BYTES) -> Any:
+    """``yaml.safe_load`` of a file, its size, nesting and expansion bounded.
+
+    The file must be a regular file of at most ``max_bytes`` (:func:`read_text_capped`),
+    nested at most ``max_depth`` deep (checked before the parser runs), and its value,
+    aliases followed, at most :data:`MAX_YAML_NODES` nodes (:func:`yaml_nodes`).
+
+    Raises:
+        FileNotFoundError: the file does not exist (the caller names it).
+        ValueError: not a regular file, unreadable, not UTF-8, too large, nested deeper
+            than ``max_depth``, expanding past the node cap, or not YAML — one line,
+            starting with ``what`` and the path.
     """
     import yaml
 
     path = Path(path)
-    try:
-        size = path.stat().st_size
-        if size > MAX_YAML_BYTES:
-            raise ValueError(f"{what} {path} is refused: it holds {size:,} bytes"
-                             f" (at most {MAX_YAML_BYTES:,})")
-        text = path.read_text()
-    except FileNotFoundError:
-        raise
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"cannot read {what} {path}: {error}") from None
+    text = read_text_capped(path, what, max_bytes)
     try:
         depth = bracket_depth(text)
         if depth <= max_depth:
@@ -248,7 +342,12 @@ def load_yaml(path: str | Path, what: str, max_depth: int = MAX_YAML_DEPTH) -> A
         if depth > max_depth:
             raise ValueError(f"{what} {path} is refused: it is nested {depth} deep"
                              f" (at most {max_depth})")
-        return yaml.safe_load(text)
+        value = yaml.safe_load(text)
     except (yaml.YAMLError, RecursionError) as error:
-        detail = " ".join(str(error).split())
+        detail = " ".join(str(error).split())[:300]
         raise ValueError(f"cannot read {what} {path}: not valid YAML: {detail}") from None
+    if yaml_nodes(value) > MAX_YAML_NODES:
+        raise ValueError(f"{what} {path} is refused: its aliases expand to more than"
+                         f" {MAX_YAML_NODES:,} values (write the values out, without"
+                         " aliases)")
+    return value

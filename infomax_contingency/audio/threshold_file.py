@@ -16,7 +16,7 @@ import yaml
 
 from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
 from infomax_contingency.audio.threshold import ThresholdFit, check_threshold_db
-from infomax_contingency.limits import load_yaml
+from infomax_contingency.limits import load_yaml, short_repr
 
 THRESHOLD_FORMAT_VERSION = 1
 """Version of the threshold file layout written by :func:`save_threshold`."""
@@ -96,14 +96,13 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
             not a finite number, or it applies to another level.
     """
     path = Path(path)
-    if not path.is_file():
-        what = "is a directory" if path.is_dir() else "does not exist"
-        raise AudioError(
-            f"threshold file {path} {what}; create it by calibrating on audio that "
-            "contains both quiet and sound"
-        )
     try:
         record = load_yaml(path, "threshold file")
+    except FileNotFoundError:
+        raise AudioError(
+            f"threshold file {path} does not exist; create it by calibrating on audio that "
+            "contains both quiet and sound"
+        ) from None
     except ValueError as exc:
         raise AudioError(str(exc)) from None
     if not isinstance(record, dict):
@@ -117,18 +116,22 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
     version = record["format_version"]
     if isinstance(version, bool) or version != THRESHOLD_FORMAT_VERSION:
         raise AudioError(
-            f"threshold file {path} has format_version {version!r}; this package reads "
+            f"threshold file {path} has format_version {short_repr(version)}; this package"
+            " reads "
             f"format_version {THRESHOLD_FORMAT_VERSION}. Recalibrate to rewrite it."
         )
     file_level = record.get("level", "energy")
     if file_level != level:
+        shown_level = file_level[:40] if isinstance(file_level, str) else short_repr(file_level)
         raise AudioError(
-            f"threshold file {path} holds a threshold of the {file_level} level, not of the"
+            f"threshold file {path} holds a threshold of the {shown_level} level, not of the"
             f" {level} level: calibrate again with --bit-source {level}"
         )
     value = record["threshold_db"]
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise AudioError(f"threshold file {path}: threshold_db must be a number, got {value!r}")
+        raise AudioError(f"threshold file {path}: threshold_db must be a number,"
+                         f" got {short_repr(value)}")
     if not math.isfinite(value):
-        raise AudioError(f"threshold file {path}: threshold_db must be finite, got {value!r}")
+        raise AudioError(f"threshold file {path}: threshold_db must be finite,"
+                         f" got {short_repr(value)}")
     return check_threshold_db(value, f"threshold file {path}")

@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from infomax_contingency.core.selfsound import Withheld
-from infomax_contingency.limits import load_yaml
+from infomax_contingency.limits import load_yaml, short_repr
 
 
 @functools.cache
@@ -111,14 +111,15 @@ class ModelParams:
                 if isinstance(value, float) and value.is_integer():
                     object.__setattr__(self, name, int(value))
                 else:
-                    raise ParameterError(f"{name} must be a whole number of steps, got {value!r}")
+                    raise ParameterError(f"{name} must be a whole number of steps,"
+                                         f" got {short_repr(value)}")
             object.__setattr__(self, name, int(getattr(self, name)))
         for name in ("dt", "pi", *BETA_FIELDS):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
-                raise ParameterError(f"{name} must be a number, got {value!r}")
+                raise ParameterError(f"{name} must be a number, got {short_repr(value)}")
             if not math.isfinite(float(value)):
-                raise ParameterError(f"{name} must be finite, got {value!r}")
+                raise ParameterError(f"{name} must be finite, got {short_repr(value)}")
             object.__setattr__(self, name, float(value))
         if self.dt <= 0:
             raise ParameterError(f"dt must be > 0 seconds, got {self.dt}")

@@ -21,10 +21,8 @@ import array
 import math
 import re
 from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
 from typing import Any, Protocol
 
-import yaml
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -38,6 +36,7 @@ from rclpy.parameter import Parameter
 from infomax_contingency.audio.bitsources import all_setting_specs, sources_with_setting
 from infomax_contingency.audio.bitsources.base import SettingSpec
 from infomax_contingency.core.model import ModelParams, ParameterError
+from infomax_contingency.limits import load_yaml
 from infomax_contingency.nodes.entry import NODES as PACKAGE_NODES
 
 
@@ -557,8 +556,8 @@ def undeclared_parameters(files: Sequence[str], nodes: Sequence[DeclaringNode]
     found: list[tuple[DeclaringNode | None, str]] = []
     for file in files:
         try:
-            sections = list(parameter_sections(yaml.safe_load(Path(file).read_text())))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError):
+            sections = list(parameter_sections(load_yaml(file, "parameter file")))
+        except (OSError, ValueError):
             continue  # rcl read it, this check cannot: it says nothing rather than fail
         for pattern, keys in sections:
             found += [(node, f"parameter file {file}: {message}")

@@ -55,6 +55,7 @@ from std_msgs.msg import Bool, Float32, Float64, Int64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory
 
 from infomax_contingency.audio.bag import BagWriteError, BagWriter
+from infomax_contingency.limits import read_text_capped
 from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import (
@@ -127,13 +128,24 @@ def ros_type_name(kind: type) -> str:
 
 
 def session_description(files: list[str]) -> str:
-    """YAML text naming the session's files with their contents (unreadable: the reason)."""
+    """YAML text naming the session's files with their contents (missing: the reason).
+
+    Each file is read by :func:`~infomax_contingency.limits.read_text_capped` (a regular
+    UTF-8 file of at most ``MAX_YAML_BYTES``, 64 KiB: parameter and threshold files).
+
+    Raises:
+        ConfigError: a file that is a directory, a device or a FIFO, larger than the cap,
+            unreadable or not UTF-8 text — one line naming ``session_files`` and the file.
+    """
     contents: dict[str, str] = {}
     for name in files:
         try:
-            contents[name] = Path(name).read_text()
-        except OSError as error:
+            contents[name] = read_text_capped(name, "session file")
+        except FileNotFoundError as error:
             contents[name] = f"<unreadable: {error.strerror or error}>"
+        except ValueError as error:
+            raise ConfigError(f"parameter 'session_files': {error} (it names the parameter"
+                              " and threshold files to store)") from None
     return yaml.safe_dump({"recorded_at_ns": time.time_ns(), "files": contents})
 
 

@@ -12,10 +12,13 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable
-from pathlib import Path
+
+from infomax_contingency.limits import read_text_capped
 
 HEADER = "time_s"
 """The column's name (the file's first line)."""
+MAX_ACTIONS_BYTES = 16 << 20
+"""Largest actions file read, bytes: a day of a vocalization every 0.1 s takes 11 MB."""
 
 
 def write_actions_csv(path: str | os.PathLike[str], times_s: Iterable[float]) -> None:
@@ -38,14 +41,15 @@ def read_actions_csv(path: str | os.PathLike[str]) -> list[float]:
     Blank lines are skipped; a byte-order mark before the header is allowed.
 
     Raises:
-        ValueError: unreadable file, a header other than ``time_s``, a value that is not
-            a finite number >= 0, or times that do not increase; the message names the
-            file and the line.
+        ValueError: a missing or unreadable file, one that is not a regular file (a
+            device, a FIFO) or holds more than :data:`MAX_ACTIONS_BYTES`, a header other
+            than ``time_s``, a value that is not a finite number >= 0, or times that do
+            not increase; the message names the file and the line.
     """
     try:
-        lines = Path(path).read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"actions file {path}: cannot read it ({error})") from None
+        lines = read_text_capped(path, "actions file", MAX_ACTIONS_BYTES).splitlines()
+    except FileNotFoundError:
+        raise ValueError(f"actions file {path} does not exist") from None
     rows = [(number, line.strip()) for number, line in enumerate(lines, 1) if line.strip()]
     if not rows or rows[0][1].lstrip("\ufeff") != HEADER:
         found = rows[0][1][:40] if rows else "an empty file"

@@ -1,0 +1,115 @@
+"""Small input files are regular files of bounded size and bounded expansion.
+
+A device, a FIFO or a directory has no size to check (``st_size`` 0): it is refused
+before it is read (a FIFO would hang, ``/dev/zero`` would fill the memory); a YAML file
+whose aliases expand to millions of values is refused, and a value quoted in a message is
+cut short.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.threshold_file import load_threshold
+from infomax_contingency.core.model import ModelParams, ParameterError
+from infomax_contingency.limits import (
+    MAX_YAML_NODES,
+    load_yaml,
+    read_bytes_capped,
+    short_repr,
+    yaml_nodes,
+)
+from infomax_contingency.sim.actions import read_actions_csv
+
+
+def _not_regular(tmp_path: Path, name: str) -> list[tuple[Path, str]]:
+    """A symlink to /dev/zero, a FIFO and a directory, all named ``name`` + a suffix."""
+    zero = tmp_path / f"zero{name}"
+    zero.symlink_to("/dev/zero")
+    fifo = tmp_path / f"fifo{name}"
+    os.mkfifo(fifo)
+    folder = tmp_path / f"dir{name}"
+    folder.mkdir()
+    return [(zero, "a character device"), (fifo, "a FIFO"), (folder, "a directory")]
+
+
+def _bomb(levels: int = 6, width: int = 10) -> str:
+    """A flow sequence of nested aliases expanding to about ``width ** levels`` values."""
+    text = "[" + ", ".join(["xxxxxxxx"] * width) + "]"
+    for level in range(levels):
+        text = f"[&a{level} {text}" + f", *a{level}" * (width - 1) + "]"
+    return text
+
+
+def test_devices_fifos_and_directories_are_refused_before_they_are_read(tmp_path):
+    for path, kind in _not_regular(tmp_path, ".yaml"):
+        with pytest.raises(ParameterError, match=f"is refused: it is {kind}, not a regular"):
+            ModelParams.load(path)
+        with pytest.raises(AudioError, match=f"it is {kind}"):
+            load_threshold(path)
+    for path, kind in _not_regular(tmp_path, ".csv"):
+        with pytest.raises(ValueError, match=f"actions file .* is refused: it is {kind}"):
+            read_actions_csv(path)
+    with pytest.raises(ValueError, match="does not exist"):
+        read_actions_csv(tmp_path / "none.csv")
+
+
+def test_a_file_larger_than_its_size_says_is_read_only_up_to_the_cap():
+    # /proc files are regular files of st_size 0: the read itself is bounded
+    with pytest.raises(ValueError, match="holds more than 100 bytes"):
+        read_bytes_capped("/proc/self/status", "status file", max_bytes=100)
+
+
+def test_a_yaml_alias_bomb_is_refused_in_one_short_line(tmp_path):
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text(f"ts1: {_bomb()}\ndt: 0.5\nts2: 1\nta1: 2\nta2: 4\npi: 0.01\n")
+    assert bomb.stat().st_size < 1000
+    with pytest.raises(ParameterError, match="aliases expand to more than") as caught:
+        ModelParams.load(bomb)
+    assert len(str(caught.value)) < 300
+    recursive = tmp_path / "loop.yaml"
+    recursive.write_text("a: &x [1, *x]\n")
+    with pytest.raises(ValueError, match="aliases expand"):
+        load_yaml(recursive, "file")
+    assert yaml_nodes({"a": [1, 2]}) == 5  # the mapping, its key, the list, two items
+    assert yaml_nodes(list(range(10**6)), cap=10) == 11
+
+
+def test_values_quoted_in_messages_are_cut_short(tmp_path):
+    wide = tmp_path / "wide.yaml"
+    wide.write_text("ts1: 1\nts2: 1\nta1: 2\nta2: 4\npi: 0.01\ndt: ["
+                    + ", ".join(["[" + ", ".join(["word"] * 50) + "]"] * 200) + "]\n")
+    with pytest.raises(ParameterError, match="dt must be a number, got") as caught:
+        ModelParams.load(wide)
+    assert len(str(caught.value)) < 200
+    threshold = tmp_path / "threshold.yaml"
+    threshold.write_text("format_version: 1\nthreshold_db: [" + "1, " * 5000 + "1]\n")
+    with pytest.raises(AudioError, match="must be a number") as caught:
+        load_threshold(threshold)
+    assert len(str(caught.value)) < 250
+    assert len(short_repr("x" * 10_000)) <= 80
+    assert MAX_YAML_NODES > (1 << 16)  # more than a 64 KiB file can hold written out
+
+
+def test_session_files_are_regular_text_files_or_refused(tmp_path):
+    from infomax_contingency.nodes.parameters import ConfigError, undeclared_parameters
+    from infomax_contingency.nodes.recorder_node import session_description
+
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    refused = [*_not_regular(tmp_path, ".yaml"), (binary, "is not UTF-8 text")]
+    for path, kind in refused:
+        with pytest.raises(ConfigError, match=f"'session_files': .*{path.name}.*{kind}"):
+            session_description([str(path)])
+    text = tmp_path / "params.yaml"
+    text.write_text("dt: 0.5\n")
+    described = yaml.safe_load(session_description([str(text), str(tmp_path / "none.yaml")]))
+    assert described["files"][str(text)] == "dt: 0.5\n"
+    assert described["files"][str(tmp_path / "none.yaml")].startswith("<unreadable")
+    # the check of parameter files' keys skips what it cannot read (rcl read them first)
+    assert undeclared_parameters([str(path) for path, _ in refused], []) == []
