@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from infomax_contingency.audio.bag import BagReadError, read_topics
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.threshold_file import load_threshold
 from infomax_contingency.core.model import ModelParams, ParameterError
@@ -94,6 +95,43 @@ def test_values_quoted_in_messages_are_cut_short(tmp_path):
     assert len(str(caught.value)) < 250
     assert len(short_repr("x" * 10_000)) <= 80
     assert MAX_YAML_NODES > (1 << 16)  # more than a 64 KiB file can hold written out
+
+
+def _bag(tmp_path: Path, relative_file_paths: str) -> Path:
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  storage_identifier: mcap\n"
+        f"  relative_file_paths: {relative_file_paths}\n")
+    return bag
+
+
+@pytest.mark.parametrize(("listed", "message"), [
+    ("[/dev/zero]", "lies outside the bag directory"),
+    ("['../outside.mcap']", "lies outside the bag directory"),
+    ("[link.mcap]", "lies outside the bag directory"),
+    ("[fifo.mcap]", "is not a regular file"),
+    ("[sub]", "is not a regular file"),
+    ("[[a, b]]", "is not a list of names"),
+    (_bomb(), "aliases expand"),
+], ids=["absolute", "parent", "symlink", "fifo", "directory", "nested", "bomb"])
+def test_a_bag_names_only_regular_files_inside_it(tmp_path, listed, message):
+    (tmp_path / "outside.mcap").write_bytes(b"")
+    bag = _bag(tmp_path, listed)
+    (bag / "link.mcap").symlink_to("/dev/zero")
+    os.mkfifo(bag / "fifo.mcap")
+    (bag / "sub").mkdir()
+    with pytest.raises(BagReadError, match=message) as caught:
+        read_topics(bag, ["/sound_step"])
+    assert len(str(caught.value)) < 400
+
+
+def test_a_bag_metadata_that_is_a_device_is_refused(tmp_path):
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").symlink_to("/dev/zero")
+    with pytest.raises(BagReadError, match="character device"):
+        read_topics(bag, ["/sound_step"])
 
 
 def test_session_files_are_regular_text_files_or_refused(tmp_path):

@@ -3,11 +3,10 @@
 :class:`BagWriter` takes serialized CDR bytes as they came over DDS (nothing is decoded
 here, no rclpy), with the receive time in ns since the epoch as the message time (MCAP
 ``log_time``, what ``ros2 bag`` and ``rosbags`` readers order by) and the publisher's send
-time (the DDS source timestamp) as MCAP ``publish_time``. It
-ends a chunk and flushes the file on :meth:`BagWriter.flush`, so a writer that dies
-leaves a file readable up to the last flushed chunk. Every failure of the file system
-(no such directory, not writable, disk full) is one :class:`BagWriteError` with a
-one-line reason.
+time (the DDS source timestamp) as MCAP ``publish_time``. It ends a chunk and flushes the
+file on :meth:`BagWriter.flush`, so a writer that dies leaves it readable up to there.
+Every failure of the file system (no such directory, not writable, disk full) is one
+:class:`BagWriteError` with a one-line reason.
 
 QoS profiles are given as plain dicts of rmw values (``history``, ``depth``,
 ``reliability``, ``durability``, ``liveliness``: the rmw enum integers; ``deadline_ns``,
@@ -25,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.errors import MissingPackageError
+from infomax_contingency.limits import load_yaml, short_repr
 
 try:
     from rosbags.interfaces import (
@@ -343,22 +343,47 @@ def _scan_mcap(path: Path) -> tuple[_Scan, str | None]:
     return scan, stopped
 
 
-def _bag_metadata(directory: Path) -> dict[str, Any] | None:
-    """``rosbag2_bagfile_information`` of ``metadata.yaml``; None when there is none."""
-    import yaml
+MAX_METADATA_BYTES, MAX_METADATA_DEPTH = 1 << 20, 16
+"""Largest ``metadata.yaml`` read, bytes, and its deepest nesting (a session's: 11 KB, 8)."""
 
+
+def _bag_metadata(directory: Path) -> dict[str, Any] | None:
+    """``rosbag2_bagfile_information`` of ``metadata.yaml`` (``limits.load_yaml``), or None."""
     path = directory / "metadata.yaml"
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         return None
     try:
-        info = yaml.safe_load(path.read_text()).get("rosbag2_bagfile_information")
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError, RecursionError) as error:
+        info = load_yaml(path, "metadata.yaml", MAX_METADATA_DEPTH, MAX_METADATA_BYTES)
+    except (OSError, ValueError) as error:
         raise BagReadError(f"cannot read the session {directory}: its metadata.yaml is damaged"
                            f" ({' '.join(str(error).split())[:200]})") from None
+    info = info.get("rosbag2_bagfile_information") if isinstance(info, dict) else None
     if not isinstance(info, dict):
         raise BagReadError(f"cannot read the session {directory}: its metadata.yaml holds no"
                            " rosbag2_bagfile_information")
     return info
+
+
+def _bag_files(directory: Path, info: dict[str, Any] | None) -> list[Path]:
+    """The MCAP files of a bag: ``relative_file_paths``, else its ``*.mcap`` files.
+
+    BagReadError for a path that is absolute, leaves the bag directory (symlinks
+    resolved) or names no regular file (a device, a FIFO).
+    """
+    listed = (info or {}).get("relative_file_paths") or []
+    if not isinstance(listed, list) or not all(isinstance(name, str) for name in listed):
+        raise BagReadError(f"cannot read the session {directory}: its metadata.yaml's"
+                           f" relative_file_paths is not a list of names: {short_repr(listed)}")
+    files = [directory / name for name in listed] or sorted(directory.glob("*.mcap"))
+    inside = directory.resolve()
+    for path, name in zip(files, listed or [p.name for p in files], strict=True):
+        resolved, shown = path.resolve(), f"cannot read the session {directory}: {name[:200]!r}"
+        if Path(name).is_absolute() or not resolved.is_relative_to(inside):
+            raise BagReadError(f"{shown} lies outside the bag directory (metadata.yaml must"
+                               " name its files relative to it)")
+        if resolved.exists() and not resolved.is_file():
+            raise BagReadError(f"{shown} is not a regular file (a directory, device or FIFO)")
+    return files
 
 
 def _listed_counts(info: dict[str, Any]) -> dict[str, int]:
@@ -408,8 +433,7 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
     info = _bag_metadata(directory)
     if info is not None and info.get("storage_identifier") not in (None, "mcap"):
         return _read_with_rosbags(directory, topics, required)
-    files = [directory / str(name) for name in (info or {}).get("relative_file_paths") or []]
-    files = files or sorted(directory.glob("*.mcap"))
+    files = _bag_files(directory, info)
     if not files:
         raise BagReadError(f"cannot read the session {directory}: it holds neither"
                            " metadata.yaml nor an .mcap file (not a rosbag2 bag)")
