@@ -9,6 +9,7 @@ cut short.
 from __future__ import annotations
 
 import os
+import struct
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ import yaml
 from infomax_contingency.audio.bag import BagReadError, read_topics
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.threshold_file import load_threshold
+from infomax_contingency.audio.wav import open_wav_info
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.limits import (
     MAX_YAML_NODES,
@@ -151,3 +153,33 @@ def test_session_files_are_regular_text_files_or_refused(tmp_path):
     assert described["files"][str(tmp_path / "none.yaml")].startswith("<unreadable")
     # the check of parameter files' keys skips what it cannot read (rcl read them first)
     assert undeclared_parameters([str(path) for path, _ in refused], []) == []
+
+
+def _wav_bytes(chunks: list[tuple[bytes, bytes]], riff: bytes = b"RIFF") -> bytes:
+    body = b"WAVE" + b"".join(cid + struct.pack("<I", len(data)) + data for cid, data in chunks)
+    return riff + struct.pack("<I", len(body)) + body
+
+
+FMT = struct.pack("<HHIIHH", 1, 1, 16_000, 32_000, 2, 16)
+
+
+@pytest.mark.parametrize(("chunks", "message"), [
+    ([(b"ds64", b"\0" * 4), (b"fmt ", FMT), (b"data", b"\0" * 64)], "ds64 chunk of 4 bytes"),
+    ([(b"fmt ", FMT), (b"data", b"\0" * 64)], "fmt chunk declares 4,294,967,280 bytes"),
+    ([(b"ds64", b"\0" * 28), (b"fmt ", FMT), (b"data", b"\0" * 64)],
+     "ds64 chunk declares 4,294,967,280 bytes"),
+], ids=["short-ds64", "huge-fmt", "huge-ds64"])
+def test_a_corrupt_wav_header_is_one_line_not_a_traceback(tmp_path, chunks, message):
+    data = bytearray(_wav_bytes(chunks, b"RF64" if chunks[0][0] == b"ds64" else b"RIFF"))
+    if "declares" in message:  # the first chunk's size field claims 4 GiB
+        data[16:20] = struct.pack("<I", 0xFFFFFFF0)
+    path = tmp_path / "bad.wav"
+    path.write_bytes(bytes(data) + b"\0" * 2000)
+    with pytest.raises(AudioError, match=f"corrupt or truncated WAV file .*{message}"):
+        open_wav_info(path)
+
+
+def test_a_wav_that_is_a_device_or_fifo_is_refused(tmp_path):
+    for path, _ in _not_regular(tmp_path, ".wav")[:2]:
+        with pytest.raises(AudioError, match="is not a regular file"):
+            open_wav_info(path)

@@ -91,6 +91,8 @@ def _check_file(path: Path) -> None:
         raise AudioError(f"audio file {path} does not exist")
     if path.is_dir():
         raise AudioError(f"{path} is a directory, not a WAV file")
+    if not path.is_file():  # a device or a FIFO: no header to trust, or a read that hangs
+        raise AudioError(f"{path} is not a regular file (a device or a FIFO), not a WAV file")
     try:
         with path.open("rb") as f:
             head = f.read(12)
@@ -110,6 +112,23 @@ def _read_exact(f: BinaryIO, n: int, path: Path, what: str) -> bytes:
     if len(data) != n:
         raise _corrupt(path, f"the file ends inside the {what}")
     return data
+
+
+MAX_HEADER_CHUNK_BYTES = 1 << 16
+"""Largest ``fmt `` or ``ds64`` chunk read, bytes (real ones: 16 .. 40 and 28)."""
+
+
+def _header_chunk(f: BinaryIO, size: int, file_size: int, path: Path, what: str) -> bytes:
+    """The body of a header chunk (``fmt ``, ``ds64``) of ``size`` bytes, checked first.
+
+    A size beyond the file's end or :data:`MAX_HEADER_CHUNK_BYTES` is a corrupt header
+    (a 2 KB file whose fmt chunk claimed 4 GiB ran out of memory).
+    """
+    remaining = max(0, file_size - f.tell())
+    if size > min(remaining, MAX_HEADER_CHUNK_BYTES):
+        raise _corrupt(path, f"its {what} declares {size:,} bytes: more than the"
+                             f" {remaining:,} left in the file or {MAX_HEADER_CHUNK_BYTES:,}")
+    return _read_exact(f, size, path, what)
 
 
 def _parse_fmt(body: bytes, endian: str, path: Path) -> tuple[int, int, int, str]:
@@ -156,10 +175,14 @@ def open_wav_info(path: str | os.PathLike[str]) -> WavInfo:  # noqa: C901
                 raise _corrupt(path, "no data chunk" if fmt else "no fmt chunk")
             chunk_id, size = chunk[:4], struct.unpack(endian + "I", chunk[4:])[0]
             if chunk_id == b"ds64":
-                body = _read_exact(f, size, path, "ds64 chunk")
+                body = _header_chunk(f, size, file_size, path, "ds64 chunk")
+                if len(body) < 16:
+                    raise _corrupt(path, f"ds64 chunk of {len(body)} bytes, expected at least"
+                                         " 16 (RF64 sizes)")
                 data_size_64 = struct.unpack("<Q", body[8:16])[0]
             elif chunk_id == b"fmt ":
-                fmt = _parse_fmt(_read_exact(f, size, path, "fmt chunk"), endian, path)
+                fmt = _parse_fmt(_header_chunk(f, size, file_size, path, "fmt chunk"), endian,
+                                 path)
             elif chunk_id == b"data":
                 if fmt is None:
                     raise _corrupt(path, "data chunk before the fmt chunk")
