@@ -12,6 +12,7 @@ import os
 import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -183,3 +184,24 @@ def test_a_wav_that_is_a_device_or_fifo_is_refused(tmp_path):
     for path, _ in _not_regular(tmp_path, ".wav")[:2]:
         with pytest.raises(AudioError, match="is not a regular file"):
             open_wav_info(path)
+
+
+def test_a_rate_whose_resampling_filter_is_too_long_is_refused_at_once(tmp_path, monkeypatch):
+    from infomax_contingency.audio.energy import iter_wav_windows
+    from infomax_contingency.audio.resample import StreamResampler, check_resampling
+    from infomax_contingency.audio.wav import write_wav_int16
+    from infomax_contingency.limits import MemoryBudget
+
+    prime = tmp_path / "prime.wav"
+    write_wav_int16(prime, np.zeros(2000), 999_983)
+    with pytest.raises(AudioError, match=r"prime.wav from 999,983 Hz to 16,000 Hz: .* filter"
+                       r" of 19,999,661 taps .*`sox in.wav -r 16000 out.wav`"):
+        next(iter_wav_windows(prime, 0.5))
+    with pytest.raises(AudioError, match="refusing to resample audio"):
+        StreamResampler(15_485_863, 16_000)
+    check_resampling(44_100, 48_000)
+    check_resampling(44_056, 16_000)  # an odd but real rate: 5,507 / 2,000
+    monkeypatch.setattr("infomax_contingency.limits.memory_budget",
+                        lambda: MemoryBudget(1 << 20, "ulimit -v 1024"))
+    with pytest.raises(AudioError, match="needs about .* more than 1 MiB .*sox"):
+        check_resampling(44_056, 16_000)

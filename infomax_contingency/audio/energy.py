@@ -156,7 +156,7 @@ def iter_wav_windows(
     with WavReader(path) as reader:
         info = reader.info
         to_mono(np.empty((0, info.channels)), channel)  # a missing channel fails now
-        resampler = StreamResampler(info.rate, rate)
+        resampler = StreamResampler(info.rate, rate, str(info.path))
         for block in reader.blocks(input_block_frames(block_frames, info.rate, rate)):
             windows = assembler.push_windows(resampler.push(to_mono(block, channel)))
             if windows.size:

@@ -36,9 +36,9 @@ from infomax_contingency.audio.devices import (
     negotiate_format,
     resolve_device,
 )
-from infomax_contingency.audio.resample import resample
+from infomax_contingency.audio.resample import check_resampling, resample
 from infomax_contingency.audio.synth import synthesize_chirp
-from infomax_contingency.audio.wav import read_wav, to_mono
+from infomax_contingency.audio.wav import open_wav_info, read_wav, to_mono
 
 OVERLAP_POLICIES = ("restart", "skip")
 
@@ -103,7 +103,11 @@ class SpeakerStatus:
 
 
 def load_sound(path: str | Path, rate: int) -> NDArray[np.float64]:
-    """A WAV file as mono float64 samples at ``rate`` Hz (channels averaged)."""
+    """A WAV file as mono float64 samples at ``rate`` Hz (channels averaged).
+
+    A rate whose filter is too long is refused before the samples are read.
+    """
+    check_resampling(open_wav_info(path).rate, rate, str(path))
     samples, file_rate = read_wav(path)
     return resample(to_mono(samples), file_rate, rate)
 
