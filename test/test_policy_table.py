@@ -380,3 +380,24 @@ def test_an_unreadable_file_says_so(tmp_path, tables, monkeypatch) -> None:
 
     monkeypatch.setattr(Path, "open", denied)
     assert refusal(path).endswith("cannot be read (Permission denied)")
+
+
+def test_a_table_larger_than_the_memory_budget_is_refused_before_it_is_read(
+        tmp_path, tables, monkeypatch) -> None:
+    from infomax_contingency.limits import MemoryBudget
+
+    path = tmp_path / "table.npz"
+    tables["episodic"].save(path)
+    monkeypatch.setattr("infomax_contingency.limits.memory_budget",
+                        lambda: MemoryBudget(16, "ulimit -v 0"))
+    opened: list[str] = []
+    real_open = zipfile.ZipFile.open
+
+    def spy(self, name, *args, **kwargs):
+        opened.append(name if isinstance(name, str) else name.filename)
+        return real_open(self, name, *args, **kwargs)
+
+    monkeypatch.setattr(zipfile.ZipFile, "open", spy)
+    message = refusal(path)
+    assert "refusing to load policy table" in message and "its action entry declares" in message
+    assert "more than 16 bytes (ulimit -v 0)" in message and "actions.npy" not in opened

@@ -43,6 +43,7 @@ import numpy as np
 
 from infomax_contingency.core.model import ModelParams, ParameterError, Statistic
 from infomax_contingency.core.statespace import count_index, n_count_tuples
+from infomax_contingency.limits import refuse_over_budget
 
 FORMAT_NAME = "infomax_contingency.policy_table"
 FORMAT_VERSION = 2
@@ -54,6 +55,9 @@ MAX_TABLE_BYTES = 4 * 2**30
 """Largest packed action array (bytes) a table may declare: 32 Gi statistics."""
 SIZE_MARGIN_BYTES = 64 * 2**10
 """Slack over the size a table's metadata implies (the .npy header, rounding)."""
+LOAD_COPIES = 3
+"""Copies of the action bytes a load holds at once (read, digested, kept): its memory is
+checked against :func:`~infomax_contingency.limits.memory_budget` before it reads them."""
 MAX_COMPRESSION_RATIO = 250
 """Largest uncompressed/compressed size ratio of an entry above 64 KiB (real tables: ~10)."""
 MAX_METADATA_CHARS = 16 * 2**10
@@ -447,6 +451,12 @@ class _ArchiveReader:
                 f" {actions.file_size:,} bytes, more than a {fields.mode} table of horizon"
                 f" {fields.horizon} can ({limit:,} bytes plus {SIZE_MARGIN_BYTES:,})"
             )
+        refuse_over_budget(
+            LOAD_COPIES * actions.file_size,
+            f"load policy table {self.path}: its action entry declares {actions.file_size:,}"
+            " bytes", "solve a smaller table (a shorter --horizon or --memory)",
+            PolicyTableError,
+        )
         packed = self._read_actions(archive, actions, limit)
         if metadata.get("content_sha256") != content_digest(metadata, packed.tobytes()):
             raise self.fail(f"is damaged: content digest mismatch; {self.how_to_fix}")
