@@ -205,3 +205,54 @@ def test_a_rate_whose_resampling_filter_is_too_long_is_refused_at_once(tmp_path,
                         lambda: MemoryBudget(1 << 20, "ulimit -v 1024"))
     with pytest.raises(AudioError, match="needs about .* more than 1 MiB .*sox"):
         check_resampling(44_056, 16_000)
+
+
+def _mcap_record(opcode: int, body: bytes) -> bytes:
+    return bytes([opcode]) + struct.pack("<Q", len(body)) + body
+
+
+def _mcap_string(text: str) -> bytes:
+    return struct.pack("<I", len(text)) + text.encode()
+
+
+def _zstd_session(directory: Path, messages: int) -> Path:
+    """A bag of one zstd chunk: ``messages`` /sound_step messages (compressible)."""
+    import zstandard
+
+    from infomax_contingency.audio.bag import encode
+
+    data = encode("std_msgs/msg/Int64MultiArray", data=[5, 1, 1, 500_000, 0])
+    inner = b"".join([
+        _mcap_record(3, struct.pack("<H", 1) + _mcap_string("std_msgs/msg/Int64MultiArray")
+                     + _mcap_string("ros2msg") + struct.pack("<I", 0)),
+        _mcap_record(4, struct.pack("<HH", 1, 1) + _mcap_string("/sound_step")
+                     + _mcap_string("cdr") + struct.pack("<I", 0)),
+        *[_mcap_record(5, struct.pack("<HIQQ", 1, 0, 10**18 + j, 10**18 + j) + data)
+          for j in range(messages)]])
+    packed = zstandard.ZstdCompressor().compress(inner)
+    chunk = (struct.pack("<QQQI", 0, 0, len(inner), 0) + _mcap_string("zstd")
+             + struct.pack("<Q", len(packed)) + packed)
+    directory.mkdir()
+    magic = b"\x89MCAP0\r\n"
+    (directory / "s.mcap").write_bytes(
+        magic + _mcap_record(1, _mcap_string("ros2") + _mcap_string("x"))
+        + _mcap_record(6, chunk) + _mcap_record(0x0F, struct.pack("<I", 0)) + magic)
+    return directory
+
+
+def test_a_bag_is_read_and_decoded_only_within_the_memory_budget(tmp_path, monkeypatch):
+    from infomax_contingency.limits import MemoryBudget
+
+    bag = _zstd_session(tmp_path / "bag", 2000)
+    assert len(read_topics(bag, ["/sound_step"])["/sound_step"]) == 2000
+    size = (bag / "s.mcap").stat().st_size
+    assert size < 8192  # 2000 messages of about 80 bytes: 160 KB once decompressed
+    monkeypatch.setattr("infomax_contingency.limits.memory_budget",
+                        lambda: MemoryBudget(4 * size, "ulimit -v 1"))
+    with pytest.raises(BagReadError, match="refusing to decompress a chunk of .*s.mcap that"
+                       " declares 1[0-9]{2},[0-9]{3} bytes: it needs about"):
+        read_topics(bag, ["/sound_step"])
+    monkeypatch.setattr("infomax_contingency.limits.memory_budget",
+                        lambda: MemoryBudget(1 << 20, "ulimit -v 1024"))
+    with pytest.raises(BagReadError, match="refusing to decode the session .* more than 1 MiB"):
+        read_topics(bag, ["/sound_step"])

@@ -16,15 +16,15 @@ QoS profiles are given as plain dicts of rmw values (``history``, ``depth``,
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable, Mapping, Sequence
 from io import BytesIO
 from pathlib import Path
 from typing import Any
 
+from infomax_contingency.audio.mcap_scan import BagReadError, Scan, scan_mcap
 from infomax_contingency.errors import MissingPackageError
-from infomax_contingency.limits import load_yaml, short_repr
+from infomax_contingency.limits import load_yaml, refuse_over_budget, short_repr
 
 try:
     from rosbags.interfaces import (
@@ -208,10 +208,6 @@ class BagWriter:
         self._writer.storage = None
 
 
-class BagReadError(OSError):
-    """The session cannot be read; the message says why in one line."""
-
-
 SESSION_TYPES = {
     "/audio": "std_msgs/msg/Float32MultiArray",
     "/sound": "std_msgs/msg/Bool",
@@ -230,118 +226,6 @@ SESSION_TYPES = {
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 """The types of a session's topics (recorder_node), as a bag names them."""
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-"""First (and last) 8 bytes of an MCAP file."""
-_SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _DATA_END = 0x03, 0x04, 0x05, 0x06, 0x0F
-
-
-@dataclasses.dataclass
-class _Scan:
-    """What a linear scan of an MCAP file found (:func:`_scan_mcap`)."""
-
-    schemas: dict[int, str] = dataclasses.field(default_factory=dict)
-    channels: dict[int, tuple[str, str]] = dataclasses.field(default_factory=dict)
-    """channel id -> (topic, message type)."""
-    messages: list[tuple[int, int, bytes]] = dataclasses.field(default_factory=list)
-    """(channel id, log time ns, CDR bytes), in file order."""
-    complete: bool = False
-    """The data section ended with its DataEnd record (the writer closed the file)."""
-    read_bytes: int = 0
-    """Bytes of the file read up to the last complete record."""
-
-
-class _Records:
-    """MCAP records of a byte string, bounds-checked: lengths never reach past its end."""
-
-    def __init__(self, data: bytes | memoryview, what: str) -> None:
-        self.data, self.what, self.pos = memoryview(data), what, 0
-
-    def take(self, size: int) -> memoryview:
-        if size < 0 or self.pos + size > len(self.data):
-            raise ValueError(f"{self.what} ends inside a record")
-        part = self.data[self.pos:self.pos + size]
-        self.pos += size
-        return part
-
-    def uint(self, size: int) -> int:
-        return int.from_bytes(self.take(size), "little")
-
-    def string(self) -> str:
-        return bytes(self.take(self.uint(4))).decode("utf-8")
-
-
-def _read_records(records: _Records, scan: _Scan, in_chunk: bool) -> bool:
-    """Read records into ``scan`` until the end (True) or a DataEnd record (False, top level).
-
-    Raises ValueError on a record cut short or malformed; ``scan.read_bytes`` then holds
-    the end of the last complete top-level record.
-    """
-    while records.pos < len(records.data):
-        opcode = records.uint(1)
-        body = _Records(records.take(records.uint(8)), records.what)
-        if opcode == _SCHEMA:
-            key = body.uint(2)
-            scan.schemas[key] = body.string()
-        elif opcode == _CHANNEL:
-            key, schema = body.uint(2), body.uint(2)
-            topic = body.string()
-            scan.channels[key] = (topic, scan.schemas.get(schema, "(no schema)"))
-        elif opcode == _MESSAGE:
-            channel, _, log_time = body.uint(2), body.uint(4), body.uint(8)
-            body.uint(8)  # publish time
-            scan.messages.append((channel, log_time, bytes(body.data[body.pos:])))
-        elif opcode == _CHUNK and not in_chunk:
-            before = len(scan.messages)
-            try:
-                _read_chunk(body, scan)
-            except (ValueError, UnicodeDecodeError):
-                del scan.messages[before:]  # a chunk counts whole or not at all
-                raise
-        elif opcode == _DATA_END and not in_chunk:
-            scan.read_bytes = records.pos
-            return False
-        if not in_chunk:
-            scan.read_bytes = records.pos
-    return True
-
-
-def _read_chunk(body: _Records, scan: _Scan) -> None:
-    body.uint(8), body.uint(8)  # message start and end times
-    uncompressed_size, _ = body.uint(8), body.uint(4)
-    compression = body.string()
-    data = body.take(body.uint(8))
-    if compression == "zstd":
-        import zstandard
-
-        if uncompressed_size > 16 * len(data) + 2**20 or uncompressed_size > 2**31:
-            raise ValueError(f"a chunk declares {uncompressed_size:,} bytes once uncompressed")
-        data = memoryview(zstandard.ZstdDecompressor().decompress(
-            bytes(data), max_output_size=uncompressed_size))
-    elif compression:
-        raise ValueError(f"a chunk is compressed with {compression}, which is not read here")
-    # a chunk is written whole: a message cut inside it is damage, not a cut file
-    _read_records(_Records(data, "a chunk"), scan, in_chunk=True)
-
-
-def _scan_mcap(path: Path) -> tuple[_Scan, str | None]:
-    """Every record of an MCAP file, read from its start (no summary, no index needed).
-
-    Returns the scan and, when the file stops before its data section ends, why (a file
-    cut by a killed writer; damage) — the scan then holds everything before.
-    """
-    data = path.read_bytes()
-    if not data.startswith(MCAP_MAGIC):
-        raise BagReadError(f"{path} is not an MCAP file (it starts with {data[:8]!r})")
-    scan, records = _Scan(), _Records(memoryview(data)[len(MCAP_MAGIC):], str(path))
-    try:
-        scan.complete = not _read_records(records, scan, in_chunk=False)
-        stopped = None if scan.complete else "the file ends before its data section does"
-    except (ValueError, UnicodeDecodeError) as error:
-        stopped = str(error)
-    scan.read_bytes += len(MCAP_MAGIC)
-    return scan, stopped
-
 
 MAX_METADATA_BYTES, MAX_METADATA_DEPTH = 1 << 20, 16
 """Largest ``metadata.yaml`` read, bytes, and its deepest nesting (a session's: 11 KB, 8)."""
@@ -491,10 +375,10 @@ def _without_namespace(namespace: str, topic: str) -> str:
 
 
 def _scan_file(directory: Path, path: Path, metadata: bool,
-               warn: Callable[[str], None] | None) -> _Scan:
+               warn: Callable[[str], None] | None) -> Scan:
     """One MCAP file of a bag: damage refused (with ``metadata``), a cut told to ``warn``."""
     try:
-        scan, stopped = _scan_mcap(path)
+        scan, stopped = scan_mcap(path)
     except OSError as error:
         raise BagReadError(f"cannot read the session {directory}: {_reason(error)}") from error
     if stopped is None:
@@ -510,8 +394,31 @@ def _scan_file(directory: Path, path: Path, metadata: bool,
     return scan
 
 
-def _decode_into(found: dict[str, list[tuple[int, Any]]], scan: _Scan,
+DECODED_BYTES_PER_MESSAGE = 1024
+"""Memory of a decoded message besides its data, bytes (a dataclass, a numpy array)."""
+DECODED_BYTES_PER_CDR_BYTE = {"diagnostic_msgs/msg/DiagnosticArray": 12}
+"""Memory of a decoded message per byte of its CDR data, by type (others: 2). Measured: a
+/diagnostics of 10^8 CDR bytes took 8 x as much decoded (Python objects per status)."""
+
+
+def decoded_bytes(scan: Scan, topics: Mapping[str, str]) -> int:
+    """Estimated memory of the wanted messages of ``scan`` once decoded, bytes."""
+    total = 0
+    for channel, _, data in scan.messages:
+        topic, kind = scan.channels.get(channel, ("", ""))
+        if topics.get(topic) == kind:
+            factor = DECODED_BYTES_PER_CDR_BYTE.get(kind, 2)
+            total += DECODED_BYTES_PER_MESSAGE + factor * len(data)
+    return total
+
+
+def _decode_into(found: dict[str, list[tuple[int, Any]]], scan: Scan,
                  topics: Mapping[str, str], directory: Path) -> None:
+    try:
+        refuse_over_budget(decoded_bytes(scan, topics), f"decode the session {directory}",
+                           "read it on a machine with more memory")
+    except ValueError as error:
+        raise BagReadError(str(error)) from None
     typestore = _jazzy_types()
     for channel, time_ns, data in scan.messages:
         topic, kind = scan.channels.get(channel, ("", ""))
