@@ -256,3 +256,13 @@ def test_a_bag_is_read_and_decoded_only_within_the_memory_budget(tmp_path, monke
                         lambda: MemoryBudget(1 << 20, "ulimit -v 1024"))
     with pytest.raises(BagReadError, match="refusing to decode the session .* more than 1 MiB"):
         read_topics(bag, ["/sound_step"])
+
+
+def test_a_plotted_session_file_is_a_regular_file(tmp_path, capsys):
+    from infomax_contingency.cli.main import main
+
+    for path, kind in _not_regular(tmp_path, ".jsonl")[:2]:
+        assert main(["plot", "--session", str(path), "--out", str(tmp_path / "x.png")]) == 2
+        error = capsys.readouterr().err
+        assert f"session file {path} is refused: it is {kind}" in error
+        assert error.count("\n") == 1

@@ -21,9 +21,13 @@ from typing import Any
 import numpy as np
 
 from infomax_contingency.core.model import AGENT, SELF, ModelParams, StatisticTracker, period_of
+from infomax_contingency.limits import read_text_capped
 
 SESSION_FIELDS = ("t", "time_s", "z", "y", "u", "belief", "entropy", "ratio")
 DPI = 100
+MAX_SESSION_FILE_BYTES = 64 << 20
+"""Largest JSON-lines session read, bytes: 500,000 steps of ``simulate --json`` (133 bytes
+each), more than a plot of them fits in memory (16 KiB per step)."""
 
 
 class PlotError(ValueError):
@@ -56,14 +60,18 @@ def _save(figure: Any, path: str | Path) -> Path:
 
 
 def read_session(path: str | Path) -> list[dict]:
-    """Read a JSON-lines session (``simulate --json``); errors name the line and the field."""
+    """Read a JSON-lines session (``simulate --json``); errors name the line and the field.
+
+    A regular file of at most :data:`MAX_SESSION_FILE_BYTES` (``limits.read_text_capped``:
+    a device or FIFO is refused before it is read).
+    """
     path = Path(path)
     try:
-        lines = path.read_text().splitlines()
+        lines = read_text_capped(path, "session file", MAX_SESSION_FILE_BYTES).splitlines()
     except FileNotFoundError:
         raise PlotError(f"session file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise PlotError(f"cannot read session file {path}: {error}") from None
+    except ValueError as error:
+        raise PlotError(str(error)) from None
     records = []
     for number, line in enumerate(lines, start=1):
         if not line.strip() or line.startswith("#"):
