@@ -264,6 +264,15 @@ def _belief_graph(run: Callable, **parameters: Any) -> tuple[Any, Probe, Stepped
     return node, probe, graph, sound, vocalize, beliefs
 
 
+def _second_writers(probe: Probe, graph: SteppedExecutor) -> tuple[Any, Any]:
+    """A second writer on ``sound_step`` and on ``vocalize_step`` (a rogue), connected."""
+    sound = probe.talk("sound_step", Int64MultiArray)
+    vocalize = probe.talk("vocalize_step", Int64MultiArray)
+    graph.connected(sound)
+    graph.connected(vocalize)
+    return sound, vocalize
+
+
 def test_belief_joins_bits_and_decisions_by_step_whatever_their_order(run: Callable) -> None:
     node, _, graph, sound, vocalize, beliefs = _belief_graph(run, memory_steps=5)
     rng = np.random.default_rng(2)
@@ -295,10 +304,7 @@ def test_belief_follows_one_stream_and_one_controller(run: Callable) -> None:
     stray_bits = bits_of(STREAM + 9, rng.random(30) < 0.5)
     stray_decisions = decisions_of(STREAM, ~decisions, controller=99)
     # a second mic_node and a second controller: writers of their own
-    stray_sound = probe.talk("sound_step", Int64MultiArray)
-    stray_vocalize = probe.talk("vocalize_step", Int64MultiArray)
-    graph.connected(stray_sound)
-    graph.connected(stray_vocalize)
+    stray_sound, stray_vocalize = _second_writers(probe, graph)
     for step in range(30):
         sound.publish(true_bits[step])
         stray_sound.publish(stray_bits[step])
@@ -328,10 +334,7 @@ def test_belief_stays_on_its_stream_against_bits_and_decisions_forged_for_anothe
     rng = np.random.default_rng(4)
     bits, decisions = rng.random(30) < 0.5, rng.random(30) < 0.3
     true_bits, true_decisions = bits_of(STREAM, bits), decisions_of(STREAM, decisions)
-    forged_sound = probe.talk("sound_step", Int64MultiArray)
-    forged_vocalize = probe.talk("vocalize_step", Int64MultiArray)
-    graph.connected(forged_sound)
-    graph.connected(forged_vocalize)
+    forged_sound, forged_vocalize = _second_writers(probe, graph)
     for step in range(30):
         sound.publish(true_bits[step])
         vocalize.publish(true_decisions[step])

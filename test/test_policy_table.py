@@ -283,6 +283,19 @@ def test_metadata_claiming_a_huge_table_is_too_large(tmp_path, tables) -> None:
     assert "is too large: its metadata describes" in refusal(path)
 
 
+def entries_opened(monkeypatch) -> list[str]:
+    """The names of the archive entries opened from now on, in order (zipfile spied on)."""
+    opened: list[str] = []
+    real_open = zipfile.ZipFile.open
+
+    def spy(self, name, *args, **kwargs):
+        opened.append(name if isinstance(name, str) else name.filename)
+        return real_open(self, name, *args, **kwargs)
+
+    monkeypatch.setattr(zipfile.ZipFile, "open", spy)
+    return opened
+
+
 def test_zip_bomb_is_refused_before_decompression(tmp_path, tables, monkeypatch) -> None:
     """64 MiB of zeros deflated to 64 KiB under a small table's metadata."""
     arrays = table_arrays(tables["episodic"])
@@ -295,14 +308,7 @@ def test_zip_bomb_is_refused_before_decompression(tmp_path, tables, monkeypatch)
                 entry.write(zeros)
         archive.writestr("metadata.npy", npy_bytes(arrays["metadata"]))
     assert path.stat().st_size < 2**20
-    opened: list[str] = []
-    real_open = zipfile.ZipFile.open
-
-    def spy(self, name, *args, **kwargs):
-        opened.append(name if isinstance(name, str) else name.filename)
-        return real_open(self, name, *args, **kwargs)
-
-    monkeypatch.setattr(zipfile.ZipFile, "open", spy)
+    opened = entries_opened(monkeypatch)
     tracemalloc.start()
     try:
         message = refusal(path)
@@ -390,14 +396,7 @@ def test_a_table_larger_than_the_memory_budget_is_refused_before_it_is_read(
     tables["episodic"].save(path)
     monkeypatch.setattr("infomax_contingency.limits.memory_budget",
                         lambda: MemoryBudget(16, "ulimit -v 0"))
-    opened: list[str] = []
-    real_open = zipfile.ZipFile.open
-
-    def spy(self, name, *args, **kwargs):
-        opened.append(name if isinstance(name, str) else name.filename)
-        return real_open(self, name, *args, **kwargs)
-
-    monkeypatch.setattr(zipfile.ZipFile, "open", spy)
+    opened = entries_opened(monkeypatch)
     message = refusal(path)
     assert "refusing to load policy table" in message and "its action entry declares" in message
     assert "more than 16 bytes (ulimit -v 0)" in message and "actions.npy" not in opened
