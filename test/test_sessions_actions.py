@@ -341,7 +341,7 @@ def test_bad_channels_and_combinations_are_one_line_and_status_2(stereo_wav: Pat
         ([str(WAV), "--actions", "recorded"], "has no recorded actions"),
         ([str(SESSION), "--actions", "channel:1"], "goes with a wav file"),
         ([str(SESSION), "--actions", str(tmp_path / "a.csv")], "goes with a wav file"),
-        ([str(WAV), "--actions", str(tmp_path / "none.csv")], "cannot read it"),
+        ([str(WAV), "--actions", str(tmp_path / "none.csv")], "does not exist"),
         ([str(WAV), "--actions", "policy:/nonexistent.npz"], "nonexistent.npz"),
         ([str(WAV), "--actions", "bogus"], "unknown controller"),
         ([str(WAV), "--actions", "fixed:3", "--calibration-s", "0"], "--calibration-s"),
