@@ -341,3 +341,12 @@ def test_cli_simulate_into_a_closed_pipe_ends_cleanly() -> None:
         status = run.wait()
     assert [json.loads(line)["t"] for line in lines] == [1, 2, 3]
     assert status == 0 and error == "", error
+
+
+@pytest.mark.parametrize("command", [["simulate"], ["experiment", "rooms"], ["demo"],
+                                     ["experiment", "efficiency"], ["plot"]])  # fmt: skip
+def test_a_negative_seed_is_refused_naming_the_option(command: list[str], capsys) -> None:
+    with pytest.raises(SystemExit) as stop:
+        cli.main([*command, "--seed", "-1"])
+    assert stop.value.code == 2
+    assert "argument --seed: expected a whole number >= 0, got '-1'" in capsys.readouterr().err

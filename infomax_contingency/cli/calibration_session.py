@@ -24,6 +24,7 @@ from typing import Any
 
 from infomax_contingency.cli import demo
 from infomax_contingency.cli.demo_checks import MAX_CALIBRATION_S, MAX_SEED, MAX_STEPS
+from infomax_contingency.cli.formatting import seed
 
 DEFAULT_INTERVAL_S = (3.0, 6.0)
 """Default range of the random intervals between the robot's sounds, seconds."""
@@ -48,7 +49,7 @@ def register_calibration_session(subparsers: argparse._SubParsersAction) -> None
                         f" {DEFAULT_INTERVAL_S[1]:g})")
     parser.add_argument("--fake-room", action="store_true",
                         help="against the simulated room (lockstep) instead of live audio")
-    parser.add_argument("--seed", type=int, default=1, help="fake room: its seed (default 1)")
+    parser.add_argument("--seed", type=seed, default=1, help="fake room: its seed (default 1)")
     parser.add_argument("--device", default="", help="live: the microphone (index or name)")
     parser.add_argument("--threshold-file", default="",
                         help="live: a threshold file written by calibrate (default: calibrate"

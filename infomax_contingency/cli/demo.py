@@ -56,6 +56,7 @@ from infomax_contingency.cli.demo_checks import (
     node_failure,
     recording_failure,
 )
+from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.fake_room import PRESETS
@@ -84,7 +85,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__.split("\n\n")[0] + " " + __doc__.split("\n\n")[1],
     )
     parser.add_argument("--steps", type=int, default=240, help="windows of room time (default 240)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the room (default 1)")
+    parser.add_argument("--seed", type=seed, default=1, help="seed of the room (default 1)")
     parser.add_argument(
         "--room", choices=tuple(PRESETS), default="responsive", help="room (default responsive)"
     )

@@ -1,7 +1,8 @@
-"""Small formatting helpers shared by the command lines (JSON output, numbers in tables)."""
+"""Small helpers shared by the command lines (JSON output, numbers in tables, a seed)."""
 
 from __future__ import annotations
 
+import argparse
 import math
 from pathlib import Path
 from typing import Any
@@ -25,3 +26,17 @@ def number(value: float | None, digits: int = 3) -> str:
     if isinstance(value, float) and math.isinf(value):
         return "never"
     return f"{value:.{digits}g}"
+
+
+def seed(text: str) -> int:
+    """A ``--seed`` option's value: a whole number >= 0 (numpy's generators take no other).
+
+    An option type: a bad value is argparse's one-line error, naming the option.
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value

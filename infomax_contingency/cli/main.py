@@ -24,6 +24,7 @@ from infomax_contingency.cli import INTERRUPTED_STATUS
 from infomax_contingency.cli.calibration_session import register_calibration_session
 from infomax_contingency.cli.demo import register_demo
 from infomax_contingency.cli.experiments import register_experiment, register_learn, register_plot
+from infomax_contingency.cli.formatting import seed
 from infomax_contingency.cli.live import (
     register_calibrate,
     register_devices,
@@ -298,7 +299,7 @@ def register_simulate(subparsers: argparse._SubParsersAction) -> None:
         help=f"{' | '.join(BIT_ROOM_NAMES)}, optionally NAME:key=value,... (default: responsive)",
     )
     parser.add_argument("--steps", type=int, default=40, help="number of windows (default 40)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.add_argument(
         "--memory",
         type=int,

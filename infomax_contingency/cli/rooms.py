@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.audio.wav import write_wav_int16
-from infomax_contingency.cli.formatting import json_default, number
+from infomax_contingency.cli.formatting import json_default, number, seed
 from infomax_contingency.eval import plots
 from infomax_contingency.eval import rooms as evaluation
 from infomax_contingency.eval.information import (
@@ -237,7 +237,7 @@ def add_experiment_rooms_arguments(sub: argparse.ArgumentParser) -> None:
     for option, kind, default, text in (
         ("--runs", int, d.runs, "runs per room and controller"),
         ("--seconds", float, d.seconds, "room time per run, s"),
-        ("--seed", int, d.seed, "master seed"),
+        ("--seed", seed, d.seed, "master seed"),
         ("--memory", int, d.memory, "belief memory, steps (belief_node memory_steps)"),
         ("--attentive-above", float, d.attentive_above, "posture_node's upper threshold"),
         ("--bored-below", float, d.bored_below, "posture_node's lower threshold"),
@@ -289,7 +289,7 @@ def register_room_wav(subparsers: argparse._SubParsersAction) -> None:
         "room", choices=AUDIO_ROOM_NAMES, metavar="ROOM", help=" | ".join(AUDIO_ROOM_NAMES)
     )
     parser.add_argument("--seconds", type=float, default=60.0, help="room time, s (default 60)")
-    parser.add_argument("--seed", type=int, default=0, help="the room's seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="the room's seed (default 0)")
     parser.add_argument("--out", required=True, help="wav file to write (16-bit PCM)")
     parser.add_argument(
         "--actions",

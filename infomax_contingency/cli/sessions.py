@@ -30,6 +30,7 @@ from infomax_contingency.audio.bitsources.background import BackgroundSettings, 
 from infomax_contingency.audio.energy import wav_window_count
 from infomax_contingency.audio.wav import open_wav_info
 from infomax_contingency.audio.windows import WavReplay
+from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.controllers import ReplayedDecisions, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
@@ -79,7 +80,7 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
         help="observations the belief keeps; default: belief_node's, from the bag (a wav"
         " file: all)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of a random controller")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of a random controller")
     parser.add_argument("--mic-channel", type=int, default=None, metavar="C",
                         help="wav: the microphone's channel (default: the mix of all; with"
                         " channel:N the lowest channel other than N)")

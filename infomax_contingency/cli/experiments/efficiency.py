@@ -10,7 +10,7 @@ import time
 from typing import Any
 
 from infomax_contingency.cli.experiments.options import cache_dir_of, print_json
-from infomax_contingency.cli.formatting import number
+from infomax_contingency.cli.formatting import number, seed
 from infomax_contingency.eval import plots
 from infomax_contingency.eval.experiments.efficiency import EfficiencyConfig, experiment_efficiency
 
@@ -178,5 +178,6 @@ def add_efficiency_arguments(sub: argparse.ArgumentParser) -> None:
         ("--seed", d.seed, "master seed"),
         ("--workers", d.workers, "processes"),
     ):
-        sub.add_argument(option, type=int, default=default, help=f"{text} (default {default})")
+        kind = seed if option == "--seed" else int
+        sub.add_argument(option, type=kind, default=default, help=f"{text} (default {default})")
     sub.add_argument("--plot", help="write the comparison figure to this PNG")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
 from infomax_contingency.eval import plots
@@ -96,7 +97,7 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
         help=f"room to simulate: {' | '.join(BIT_ROOM_NAMES)}[:key=value,...] (default responsive)",
     )
     parser.add_argument("--steps", type=int, default=120, help="steps to simulate (default 120)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.add_argument(
         "--memory",
         type=int,
