@@ -499,7 +499,8 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--calibration-s", "inf"], "argument --calibration-s: expected a finite number"),
         (["--calibration-s", "4000"], "--calibration-s must be in (0, 3600] seconds"),
         (["--steps", str(2**31)], "--steps must be in [1, 2147483647]"),
-        (["--seed", "-1"], "--seed must be in [0, 2147483647]"),
+        (["--seed", "-1"], "argument --seed: expected a whole number >= 0, got '-1'"),
+        (["--seed", str(2**31)], "--seed must be in [0, 2147483647]"),
         (["--memory", "1000000000000"], "--memory must be in [0, 1000000] (belief_node's"
                                         " memory_steps; 0 = all), got 1000000000000"),
         (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
