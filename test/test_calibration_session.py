@@ -58,6 +58,7 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
     (["--min-interval-s", "5", "--max-interval-s", "2"], "need 0 < min <= max"),
     (["--min-interval-s", "0"], "need 0 < min <= max"),
     (["--threshold-file", "/nonexistent.yaml"], "no such file"),
+    (["--threshold-file", "/dev/zero"], "--threshold-file /dev/zero: not a regular file"),
     (["--calibration-s", "-1"], "--calibration-s must be in (0, 3600] seconds"),
     # sizes the nodes refuse are refused before any node starts
     (["--fake-room", "--minutes", "1e12"], "--minutes must be at most 1.79e+07 (2147483647"

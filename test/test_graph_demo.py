@@ -504,6 +504,7 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--memory", "1000000000000"], "--memory must be in [0, 1000000] (belief_node's"
                                         " memory_steps; 0 = all), got 1000000000000"),
         (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
+        (["--wav", "/dev/zero"], "--wav /dev/zero: not a regular file (a device or a FIFO)"),
     ],
 )
 def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(

@@ -86,7 +86,8 @@ def _check(args: argparse.Namespace) -> int:
         raise ValueError("--threshold-file is read by live audio only: the simulated room's"
                          " mic_node uses config/fake_room.yaml's fixed threshold")
     if args.threshold_file and not Path(args.threshold_file).is_file():
-        raise ValueError(f"--threshold-file {args.threshold_file}: no such file")
+        what = "not a regular file" if Path(args.threshold_file).exists() else "no such file"
+        raise ValueError(f"--threshold-file {args.threshold_file}: {what}")
     if Path(args.out).exists():
         raise ValueError(f"--out {args.out}: exists already; name a new directory")
     return max(1, round(args.minutes * 60 / demo.WINDOW_S))

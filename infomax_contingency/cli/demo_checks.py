@@ -54,7 +54,9 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise ValueError(f"--memory must be in [0, {MAX_MEMORY_STEPS}] (belief_node's"
                          f" memory_steps; 0 = all), got {args.memory}")
     if args.wav and not Path(args.wav).is_file():
-        what = "a directory, not a wav file" if Path(args.wav).is_dir() else "no such file"
+        wav = Path(args.wav)
+        what = ("a directory, not a wav file" if wav.is_dir() else "no such file"
+                if not wav.exists() else "not a regular file (a device or a FIFO)")
         raise ValueError(f"--wav {args.wav}: {what}")
     if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
         raise ValueError(
