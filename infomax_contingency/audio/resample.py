@@ -27,6 +27,12 @@ FILTER_BYTES_PER_TAP = 48
 999,983 Hz -> 16 kHz: 2.1 * 10^7 taps, 1.0 GB)."""
 
 
+def rate_ratio(from_rate: int, to_rate: int) -> tuple[int, int]:
+    """``(up, down)``: ``to_rate / from_rate`` reduced by their gcd (rates in Hz)."""
+    g = math.gcd(int(from_rate), int(to_rate))
+    return int(to_rate) // g, int(from_rate) // g
+
+
 def check_resampling(from_rate: int, to_rate: int, what: str = "audio") -> None:
     """Refuse a resampling whose filter is too long or too large for the memory budget.
 
@@ -38,15 +44,15 @@ def check_resampling(from_rate: int, to_rate: int, what: str = "audio") -> None:
     Raises:
         AudioError: one line, saying how to convert the file first (``sox``).
     """
-    g = math.gcd(int(from_rate), int(to_rate))
-    term = max(int(to_rate) // g, int(from_rate) // g)
+    up, down = rate_ratio(from_rate, to_rate)
+    term = max(up, down)
     if term == 1:
         return
     doing = f"resample {what} from {int(from_rate):,} Hz to {int(to_rate):,} Hz"
     advice = f"convert it first, e.g. `sox in.wav -r {int(to_rate)} out.wav`"
     if term > MAX_RATIO_TERM:
         raise AudioError(f"refusing to {doing}: the ratio of the rates reduces to"
-                         f" {int(to_rate) // g:,}/{int(from_rate) // g:,}, a filter of"
+                         f" {up:,}/{down:,}, a filter of"
                          f" {20 * term + 1:,} taps (at most {20 * MAX_RATIO_TERM + 1:,});"
                          f" {advice}")
     refuse_over_budget(FILTER_BYTES_PER_TAP * (20 * term + 1), doing, advice, AudioError)
@@ -67,14 +73,12 @@ def resample(samples: ArrayLike, from_rate: int, to_rate: int) -> NDArray[np.flo
     check_resampling(from_rate, to_rate)
     from scipy.signal import resample_poly  # lazy: ~1 s of CPU to load
 
-    g = math.gcd(from_rate, to_rate)
-    return resample_poly(x, to_rate // g, from_rate // g, axis=0)
+    return resample_poly(x, *rate_ratio(from_rate, to_rate), axis=0)
 
 
 def resampled_length(frames: int, from_rate: int, to_rate: int) -> int:
     """Frames :func:`resample` outputs for ``frames`` input frames: ``ceil(frames * to / from)``."""
-    g = math.gcd(int(from_rate), int(to_rate))
-    up, down = int(to_rate) // g, int(from_rate) // g
+    up, down = rate_ratio(from_rate, to_rate)
     return -(-frames * up // down)
 
 
@@ -127,8 +131,7 @@ class StreamResampler:
 
     def __init__(self, from_rate: int, to_rate: int, what: str = "audio") -> None:
         check_resampling(from_rate, to_rate, what)
-        g = math.gcd(int(from_rate), int(to_rate))
-        self.up, self.down = int(to_rate) // g, int(from_rate) // g
+        self.up, self.down = rate_ratio(from_rate, to_rate)
         self.reset()
         if self.up == self.down:
             return
