@@ -199,6 +199,15 @@ def test_a_name_no_node_declares_is_refused_naming_it(graph: Callable) -> None:
     executor.run_until(future.done, "the answer of posture_node/set_parameters_atomically")
     reason = future.result().result.reason
     assert "'bored_blow' is not" in reason and "; parameter 'attentive_abve' is not" in reason
+    future = client.set_parameters_atomically(
+        [Parameter("initial_posture", value="bored"), Parameter("attentive_abve", value=0.6),
+         Parameter("attentive_above", value=0.6)]
+    )  # a read-only name too: both named, nothing set
+    executor.run_until(future.done, "the answer of posture_node/set_parameters_atomically")
+    reason = future.result().result.reason
+    assert reason.startswith("parameter 'attentive_abve' is not a parameter of /posture_node")
+    assert reason.endswith("; parameter 'initial_posture' is read-only while the node runs;"
+                           " restart the node to change it")  # fmt: skip
     assert node.get_parameter("attentive_above").value == 0.9
     assert node.hysteresis.attentive_above == 0.9
 

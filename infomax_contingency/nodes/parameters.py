@@ -48,6 +48,10 @@ def _range_text(low: float, high: float, unit: str) -> str:
     return f"a number in [{low:g}, {high:g}]" + (f" {unit}" if unit else "")
 
 
+READ_ONLY_REASON = "parameter '{}' is read-only while the node runs; restart the node to change it"
+"""Why a parameter the node reads once at start-up cannot be set (``.format(name)``)."""
+
+
 class ParameterReader:
     """Declares a node's parameters with descriptors and checks their values."""
 
@@ -91,17 +95,19 @@ class ParameterReader:
         start-up rule refuses is replaced by the parameter's current value (which passes
         the descriptor) and the refusal is kept, to be returned by :meth:`_on_set`, so the
         set fails with the start-up message and nothing changes. A name the node does not
-        declare is refused so too (:meth:`_undeclared_reason`; rclpy's own answer names
-        no parameter). Read-only and foreign parameters pass unchanged (rclpy refuses a
-        read-only one, naming it).
+        declare is refused so too (:meth:`_undeclared_reason`; rclpy names none), with every
+        read-only name of the set (rclpy would name one); else those pass unchanged.
         """
         self._refusal = ""
         checked = []
         undeclared = [p.name for p in parameters if not self._node.has_parameter(p.name)]
+        read_only = [p.name for p in parameters if p.name not in undeclared
+                     and self._node.describe_parameter(p.name).read_only] if undeclared else []
         if undeclared:
-            self._refusal = "; ".join(self._undeclared_reason(name) for name in undeclared)
+            self._refusal = "; ".join([self._undeclared_reason(name) for name in undeclared]
+                                      + [READ_ONLY_REASON.format(name) for name in read_only])
         for parameter in parameters:
-            if parameter.name in undeclared:
+            if parameter.name in undeclared or parameter.name in read_only:
                 checked.append(self._stand_in())
                 continue
             coerce = self._coercers.get(parameter.name)
@@ -151,11 +157,8 @@ class ParameterReader:
             if coerce is None:  # being declared, or not one of ours (use_sim_time)
                 continue
             if parameter.name not in self._appliers:
-                return SetParametersResult(
-                    successful=False,
-                    reason=f"parameter '{parameter.name}' is read-only while the node runs;"
-                    " restart the node to change it",
-                )
+                return SetParametersResult(successful=False,
+                                           reason=READ_ONLY_REASON.format(parameter.name))
             try:
                 values[parameter.name] = coerce(parameter.value)
                 self._checks.get(parameter.name, lambda _value: None)(values[parameter.name])
