@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import struct
 import subprocess
 import sys
 from collections.abc import Callable
@@ -523,6 +524,22 @@ def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(
         status = exit_.code
     assert status == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_demo_refuses_a_wav_file_mic_node_would_refuse_before_starting_a_node(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A header with a 0 Hz rate: one line and status 2 (the graph once started, then failed)."""
+    from infomax_contingency.cli.main import main
+
+    fmt = struct.pack("<HHIIHH", 1, 1, 0, 0, 2, 16)  # PCM, mono, 0 Hz, 16 bits
+    body = b"WAVE" + b"fmt " + struct.pack("<I", len(fmt)) + fmt + b"data" + struct.pack("<I", 4)
+    wav = tmp_path / "rate0.wav"
+    wav.write_bytes(b"RIFF" + struct.pack("<I", len(body) + 4) + body + bytes(4))
+    assert main(["demo", "--wav", str(wav)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith(f"infomax-contingency demo: error: --wav {wav}: ")
+    assert "0 Hz" in error and "\n" not in error
 
 
 def test_the_record_check_leaves_nothing_behind(tmp_path: Path) -> None:

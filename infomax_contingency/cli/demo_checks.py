@@ -15,6 +15,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.wav import open_wav_info
 from infomax_contingency.core.model import MAX_MEMORY_STEPS
 
 
@@ -58,6 +60,11 @@ def check_arguments(args: argparse.Namespace) -> None:
         what = ("a directory, not a wav file" if wav.is_dir() else "no such file"
                 if not wav.exists() else "not a regular file (a device or a FIFO)")
         raise ValueError(f"--wav {args.wav}: {what}")
+    if args.wav:
+        try:
+            open_wav_info(args.wav)  # its header: a file mic_node would refuse stops here
+        except AudioError as error:
+            raise ValueError(f"--wav {args.wav}: {error}") from None
     if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
         raise ValueError(
             f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
