@@ -47,6 +47,11 @@ class StepDecision(NamedTuple):
     controller: int
 
 
+def window_us(window_s: float) -> int:
+    """A window length in whole microseconds (how ``sound_step`` carries it)."""
+    return round(window_s * 1e6)
+
+
 def _fields(values: Sequence[int], *sizes: int) -> list[int] | None:
     data = [int(v) for v in values]
     if len(data) not in sizes or data[0] <= 0 or data[1] <= 0 or data[2] not in (0, 1):

@@ -36,7 +36,13 @@ from std_msgs.msg import Int64MultiArray, MultiArrayDimension
 
 from infomax_contingency.core.stepfields import SOUND_FIELDS as _SOUND_FIELDS
 from infomax_contingency.core.stepfields import VOCALIZE_FIELDS as _VOCALIZE_FIELDS
-from infomax_contingency.core.stepfields import StepBit, StepDecision, bit_of, decision_of
+from infomax_contingency.core.stepfields import (
+    StepBit,
+    StepDecision,
+    bit_of,
+    decision_of,
+    window_us,  # noqa: F401 - the nodes take it from here
+)
 
 SOUND_STEP = "sound_step"
 VOCALIZE_STEP = "vocalize_step"
@@ -152,8 +158,3 @@ def parse_self_sound(message: Int64MultiArray) -> tuple[int, int] | None:
 def parse_decision(message: Int64MultiArray) -> StepDecision | None:
     """The decision in a ``vocalize_step`` message, or None if the message is malformed."""
     return decision_of(message.data)
-
-
-def window_us(window_s: float) -> int:
-    """A window length in whole microseconds (how ``sound_step`` carries it)."""
-    return round(window_s * 1e6)
