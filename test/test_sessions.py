@@ -94,3 +94,12 @@ def test_analyze_draws_the_figure(tmp_path: Path) -> None:
     figure = tmp_path / "fig4.png"
     main(["analyze", str(SESSION), "--plot", str(figure)])
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_analyze_refuses_a_session_given_twice(tmp_path: Path, capsys) -> None:
+    """The same bag twice (however named) would count its evidence twice."""
+    (tmp_path / "link").symlink_to(SESSION.resolve())
+    for again in (str(SESSION), str(tmp_path / "link")):
+        assert main(["analyze", str(SESSION), again]) == 2
+        error = capsys.readouterr().err
+        assert "is given twice" in error and len(error.strip().splitlines()) == 1

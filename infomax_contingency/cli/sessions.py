@@ -370,12 +370,25 @@ def _rate_text(rate: Rate | None) -> str:
     return f"{rate.value:.3f} [{low:.3f}, {high:.3f}] ({rate.active}/{rate.total})"
 
 
+def _refuse_twice(sessions: Sequence[str]) -> None:
+    """Refuse a session given twice (the same directory, however named): its evidence once."""
+    seen: dict[Path, str] = {}
+    for name in sessions:
+        resolved = Path(name).resolve()
+        if resolved in seen:
+            same = "" if seen[resolved] == name else f" (as {seen[resolved]} and {name})"
+            raise ValueError(f"the session {resolved} is given twice{same}: each session's"
+                             " evidence counts once, give it once")
+        seen[resolved] = name
+
+
 def run_analyze(args: argparse.Namespace) -> int:
     """Print the study; write ``--out`` when both peaks are found. 0, or 1 if data lack."""
     for option, value in (("--max-lag-s", args.max_lag_s),
                           ("--background-from-s", args.background_from_s)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{option} must be a number of seconds > 0, got {value}")
+    _refuse_twice(args.sessions)
     params = ModelParams.load(args.params)
     runs = []
     for directory in args.sessions:
