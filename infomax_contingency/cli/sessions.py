@@ -36,6 +36,8 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
 from infomax_contingency.eval.sessions import (
     RecordedSession,
+    check_same_windows,
+    check_window,
     decisions_from_reference,
     decisions_from_times,
     load_session,
@@ -230,6 +232,7 @@ def run_replay(args: argparse.Namespace) -> int:
         records, what, problems = _wav_records(args, kind, params)
         return _print_what_if(args, records, what, problems)
     session = load_session(Path(args.session), warn=warn)
+    check_window(session, params, args.params, args.session)
     if kind == "controller":
         memory = session.memory_steps if args.memory is None else args.memory
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
@@ -390,9 +393,12 @@ def run_analyze(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be a number of seconds > 0, got {value}")
     _refuse_twice(args.sessions)
     params = ModelParams.load(args.params)
+    sessions = [(name, load_session(Path(name), warn=warn)) for name in args.sessions]
+    check_same_windows(sessions)
+    check_window(sessions[0][1], params, args.params, sessions[0][0])
     runs = []
-    for directory in args.sessions:
-        records = list(replay_recorded(load_session(Path(directory), warn=warn), params))
+    for _, session in sessions:
+        records = list(replay_recorded(session, params))
         runs.append(([bool(r.y) for r in records], [bool(r.u) for r in records]))
     # no lag can be longer than the longest session: the table stops there
     longest = max(len(bits) for bits, _ in runs)

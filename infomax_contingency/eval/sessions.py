@@ -36,7 +36,7 @@ from infomax_contingency.audio.threshold import (
 from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import Controller
 from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
-from infomax_contingency.core.model import ModelParams, StatisticTracker, Withheld
+from infomax_contingency.core.model import NAMED_PARAMS, ModelParams, StatisticTracker, Withheld
 from infomax_contingency.core.selfsound import GapWithholding
 from infomax_contingency.core.stepclock import Pace, StepJoiner, StepPace
 from infomax_contingency.core.stepfields import (
@@ -45,6 +45,7 @@ from infomax_contingency.core.stepfields import (
     bit_of,
     decision_of,
     valid_messages,
+    window_us,
 )
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import StepRecord, statistic_record, step_record
@@ -65,6 +66,7 @@ class RecordedSession:
         beliefs: the recorded ``belief`` values, in arrival order.
         memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
         cut: the bag was cut by a killed recorder (read up to its last chunk).
+        window_us: the length of the stream's windows (its steps), microseconds.
     """
 
     bits: list[tuple[int, bool | Withheld]]
@@ -72,6 +74,7 @@ class RecordedSession:
     beliefs: list[float]
     memory_steps: int
     cut: bool = False
+    window_us: int = 0
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -114,7 +117,41 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                  for d in _on_pace(decision_messages, stream, rate_hz, "decision", warn)]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
     return RecordedSession(bits, decisions, beliefs, _belief_memory(topics["/diagnostics"]),
-                           cut=bool(cut))
+                           cut=bool(cut), window_us=first.window_us)
+
+
+def check_window(session: RecordedSession, params: ModelParams, params_name: str,
+                 directory: object) -> None:
+    """Refuse ``params`` whose dt (s) is not the session's window length.
+
+    A step of the session is one of its windows; the model's periods count windows of
+    ``params.dt``: other windows would give other periods and times, and belief_node
+    itself ignores bits of windows other than its dt.
+
+    Raises:
+        ValueError: one line naming both lengths and the parameters to give.
+    """
+    if session.window_us == window_us(params.dt):
+        return
+    window_s = session.window_us / 1e6
+    named = [name for name, p in NAMED_PARAMS.items() if window_us(p.dt) == session.window_us]
+    which = f" ({', '.join(named)})" if named else ""
+    raise ValueError(f"the session {directory} has windows of {window_s:g} s; --params"
+                     f" {params_name} has windows of {params.dt:g} s: give --params with dt"
+                     f" {window_s:g}{which}")
+
+
+def check_same_windows(sessions: Sequence[tuple[object, RecordedSession]]) -> None:
+    """Refuse sessions (``(name, session)``) whose windows differ: their lags are not pooled.
+
+    Raises:
+        ValueError: one line naming a session of each length (seconds).
+    """
+    lengths = {session.window_us: name for name, session in reversed(sessions)}
+    if len(lengths) > 1:
+        named = ", ".join(f"{name}: {us / 1e6:g} s" for us, name in sorted(lengths.items()))
+        raise ValueError(f"the sessions have windows of different lengths ({named}): a lag"
+                         " counts windows, so analyze sessions of one window length together")
 
 
 def _on_pace(messages: list[tuple[int, StepT]], stream: int, rate_hz: float, what: str,

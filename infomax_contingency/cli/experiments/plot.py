@@ -40,9 +40,10 @@ def _run_plot(args: argparse.Namespace) -> int:
     memory = args.memory
     if args.session and Path(args.session).is_dir():  # a recorded session (bag)
         from infomax_contingency.cli.sessions import warn
-        from infomax_contingency.eval.sessions import load_session, replay_recorded
+        from infomax_contingency.eval.sessions import check_window, load_session, replay_recorded
 
         session = load_session(Path(args.session), warn=warn)
+        check_window(session, params, args.params, args.session)
         memory = memory or session.memory_steps
         records = [record.__dict__ for record in replay_recorded(session, params, memory)]
         if not records:
