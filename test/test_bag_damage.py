@@ -159,24 +159,43 @@ def test_controller_node_on_a_cut_bag_says_it_was_cut(tmp_path, capfd):
     assert "was cut (no metadata.yaml: was its recorder killed?)" in capfd.readouterr().err
 
 
-def _copy_under_namespaces(tmp_path: Path, namespaces: tuple[str, ...]) -> Path:
-    """The demo session again, every topic but /diagnostics under each of ``namespaces``."""
-    from rosbags.rosbag2 import Reader
+def _copy_under_namespaces(tmp_path: Path, namespaces: tuple[str, ...],
+                           diagnostics: tuple[tuple[str, str | None], ...] | None = None
+                           ) -> Path:
+    """The demo session again, every topic but /diagnostics under each of ``namespaces``.
 
+    ``/diagnostics`` holds, for each ``(namespace, memory)`` of ``diagnostics`` (default:
+    each of ``namespaces`` with its memory as recorded), the statuses of that namespace's
+    nodes, named as a namespaced graph names them (``robot1/belief_node``), belief_node's
+    ``memory_steps`` set to ``memory`` unless None: the robots of one domain.
+    """
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    types = get_typestore(Stores.ROS2_JAZZY)
+    kind = "diagnostic_msgs/msg/DiagnosticArray"
     bag = tmp_path / "namespaced"
     writer = BagWriter(bag)
     with Reader(SESSION) as reader:
-        names = {}
         for connection in reader.connections:
             for namespace in namespaces:
                 name = (connection.topic if connection.topic == "/diagnostics"
                         else namespace + connection.topic)
                 if name not in writer.topics:
                     writer.add_topic(name, connection.msgtype, [])
-                names.setdefault(connection.topic, set()).add(name)
         for connection, time_ns, data in reader.messages():
-            for name in sorted(names[connection.topic]):
-                writer.write(name, data, time_ns)
+            if connection.topic != "/diagnostics":
+                for namespace in namespaces:
+                    writer.write(namespace + connection.topic, data, time_ns)
+                continue
+            for namespace, memory in diagnostics or [(n, None) for n in namespaces]:
+                array = types.deserialize_cdr(data, kind)
+                for status in array.status:
+                    status.name = namespace.strip("/") + "/" + status.name
+                    for pair in status.values:
+                        if pair.key == "memory_steps" and memory is not None:
+                            pair.value = memory
+                writer.write("/diagnostics", bytes(types.serialize_cdr(array, kind)), time_ns)
     writer.close()
     return bag
 
@@ -190,6 +209,36 @@ def test_a_session_recorded_under_a_namespace_is_read_by_its_plain_topic_names(t
     assert main(["replay", str(bag)]) == 0
     assert "equals the recorded belief" in capsys.readouterr().out
     assert len(recorded_decisions(bag)) == len(recorded_decisions(SESSION))
+
+
+def test_a_namespaced_session_replays_with_its_own_belief_nodes_memory(tmp_path, capsys):
+    """Two robots on one domain: robot1's bag holds robot2's diagnostics too.
+
+    robot2's belief_node kept another memory: the replay of robot1's session takes
+    robot1's (60), not that of the last belief_node that reported.
+    """
+    bag = _copy_under_namespaces(tmp_path, ("/robot1",),
+                                 diagnostics=(("/robot1", None), ("/robot2", "20")))
+    assert load_session(bag).memory_steps == 60
+    assert main(["replay", str(bag)]) == 0
+    assert "equals the recorded belief at all 120 steps" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("diagnostics, problem", [
+    ((("/robot2", "20"),), "no memory_steps of this session's robot1/belief_node, only of"
+                           " robot2/belief_node"),
+    ((("/robot1", None), ("/robot1", "20")), "robot1/belief_node report memory_steps 20 and 60"),
+])
+def test_a_belief_node_memory_that_cannot_be_told_is_one_line(tmp_path, capsys, diagnostics,
+                                                              problem):
+    """Only another robot's memory, or two of one name that differ: said, not guessed."""
+    bag = _copy_under_namespaces(tmp_path, ("/robot1",), diagnostics)
+    for command in (["replay", str(bag)], ["replay", str(bag), "--actions", "rule"],
+                    ["plot", "--session", str(bag), "--out", str(tmp_path / "p.png")]):
+        error = _one_line_error(capsys, *command)
+        assert problem in error and "give --memory N" in error
+    assert main(["replay", str(bag), "--memory", "60"]) == 0
+    assert "equals the recorded belief" in capsys.readouterr().out
 
 
 def test_a_bag_of_two_namespaced_robots_is_refused_naming_both(tmp_path, capsys):

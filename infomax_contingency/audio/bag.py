@@ -285,9 +285,16 @@ def _type_list(types: Mapping[str, str]) -> str:
     return ", ".join(f"{topic} ({kind})" for topic, kind in sorted(types.items())) or "nothing"
 
 
+class SessionTopics(dict[str, list[tuple[int, Any]]]):
+    """``topic -> [(receive time ns, decoded message), ...]``, and the session's namespace."""
+
+    namespace: str = ""
+    """The namespace its topics were recorded under (``/robot1``), "" for none."""
+
+
 def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
                 required: Sequence[str | tuple[str, ...]] = (),
-                warn: Callable[[str], None] | None = None) -> dict[str, list[tuple[int, Any]]]:
+                warn: Callable[[str], None] | None = None) -> SessionTopics:
     """``topic -> [(receive time ns, decoded message), ...]`` of a bag, in time order.
 
     ``topics`` maps each topic wanted to the type it must have (``std_msgs/msg/Bool``; a
@@ -302,7 +309,7 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
     * a bag whose file holds fewer messages of a wanted topic than its ``metadata.yaml``
       lists, or a message that does not decode, is damaged: refused, naming what is missing;
     * a session recorded under a namespace (``/robot1/sound_step``) is read by the plain
-      names (:func:`_session_namespace`).
+      names (:func:`_session_namespace`), the namespace kept in the result's ``namespace``.
 
     Raises:
         BagReadError: not a rosbag2 directory, unreadable, damaged, a wanted topic of
@@ -321,13 +328,13 @@ def read_topics(directory: Path, topics: Mapping[str, str] | Sequence[str],
     if not files:
         raise BagReadError(f"cannot read the session {directory}: it holds neither"
                            " metadata.yaml nor an .mcap file (not a rosbag2 bag)")
-    found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
+    found = SessionTopics({topic: [] for topic in topics})
     scans = [_scan_file(directory, path, metadata=info is not None, warn=warn)
              for path in files]
     held: dict[str, str] = {}
     for scan in scans:
         held.update(scan.channels.values())
-    namespace = _session_namespace(directory, held, topics)
+    namespace = found.namespace = _session_namespace(directory, held, topics)
     strip = functools.partial(_without_namespace, namespace)
     held = {strip(topic): kind for topic, kind in held.items()}
     for scan in scans:
@@ -461,11 +468,11 @@ def _check_counts(directory: Path, found: Mapping[str, list], listed: Mapping[st
 
 def _read_with_rosbags(directory: Path, topics: Mapping[str, str],
                        required: Sequence[str | tuple[str, ...]]
-                       ) -> dict[str, list[tuple[int, Any]]]:
+                       ) -> SessionTopics:
     """A bag of another storage (sqlite3) through ``rosbags``; any failure is one line."""
     from rosbags.rosbag2 import Reader
 
-    found: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in topics}
+    found = SessionTopics({topic: [] for topic in topics})
     typestore = _jazzy_types()
     try:
         with Reader(directory) as reader:

@@ -45,6 +45,7 @@ from infomax_contingency.eval.sessions import (
     replay_bits,
     replay_recorded,
     replay_windows,
+    session_memory,
     wav_background_bits,
     wav_background_loop,
     wav_bits,
@@ -234,7 +235,7 @@ def run_replay(args: argparse.Namespace) -> int:
     session = load_session(Path(args.session), warn=warn)
     check_window(session, params, args.params, args.session)
     if kind == "controller":
-        memory = session.memory_steps if args.memory is None else args.memory
+        memory = session_memory(session, args.memory)
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
                                      memory=memory)
         records = replay_bits(recorded_bits(session), controller, memory)
@@ -398,7 +399,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     check_window(sessions[0][1], params, args.params, sessions[0][0])
     runs = []
     for _, session in sessions:
-        records = list(replay_recorded(session, params))
+        records = list(replay_recorded(session, params, memory=0))  # bits and decisions
         runs.append(([bool(r.y) for r in records], [bool(r.u) for r in records]))
     # no lag can be longer than the longest session: the table stops there
     longest = max(len(bits) for bits, _ in runs)

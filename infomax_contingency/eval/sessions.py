@@ -65,6 +65,8 @@ class RecordedSession:
         decisions: ``(step, vocalize)`` for that stream, in arrival order.
         beliefs: the recorded ``belief`` values, in arrival order.
         memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
+        memory_problem: why the diagnostics do not tell belief_node's memory ("": they
+            do, or hold none of any belief_node: the whole history).
         cut: the bag was cut by a killed recorder (read up to its last chunk).
         window_us: the length of the stream's windows (its steps), microseconds.
     """
@@ -75,6 +77,7 @@ class RecordedSession:
     memory_steps: int
     cut: bool = False
     window_us: int = 0
+    memory_problem: str = ""
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -116,8 +119,9 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
     decisions = [(d.step, d.vocalize)
                  for d in _on_pace(decision_messages, stream, rate_hz, "decision", warn)]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
-    return RecordedSession(bits, decisions, beliefs, _belief_memory(topics["/diagnostics"]),
-                           cut=bool(cut), window_us=first.window_us)
+    memory, problem = _belief_memory(topics["/diagnostics"], topics.namespace)
+    return RecordedSession(bits, decisions, beliefs, memory, cut=bool(cut),
+                           window_us=first.window_us, memory_problem=problem)
 
 
 def check_window(session: RecordedSession, params: ModelParams, params_name: str,
@@ -178,16 +182,45 @@ def _on_pace(messages: list[tuple[int, StepT]], stream: int, rate_hz: float, wha
     return taken
 
 
-def _belief_memory(diagnostics: list) -> int:
-    """belief_node's ``memory_steps`` from its last diagnostics (0 if never reported)."""
-    memory = 0
+def _belief_memory(diagnostics: list, namespace: str) -> tuple[int, str]:
+    """The session's belief_node's ``memory_steps``, and why it is not known ("" if it is).
+
+    The session's own node is the belief_node of its ``namespace`` (``/robot1``:
+    ``robot1/belief_node``, as its diagnostics name it): ``/diagnostics`` holds those of
+    every robot on the domain. None of any belief_node: 0 (the whole history).
+    """
+    own = f"{namespace.strip('/')}/belief_node".lstrip("/")
+    reported: dict[str, set[int]] = {}
     for _, array in diagnostics:
         for status in array.status:
+            node = status.name.split(":", 1)[0]  # robot1/belief_node: P(S=1) = ...
             for pair in status.values:
-                node = status.name.split(":", 1)[0].rsplit("/", 1)[-1]  # robot1/belief_node
-                if pair.key == "memory_steps" and node == "belief_node":
-                    memory = int(pair.value)
-    return memory
+                if pair.key == "memory_steps" and node.rsplit("/", 1)[-1] == "belief_node":
+                    reported.setdefault(node, set()).add(int(pair.value))
+    values = sorted(reported.get(own, ()))
+    if len(values) == 1:
+        return values[0], ""
+    if len(values) > 1:
+        return 0, (f"the diagnostics of {own} report memory_steps"
+                   f" {' and '.join(map(str, values))} (two belief_nodes of one name on the"
+                   " domain?): its memory cannot be told")
+    if reported:
+        return 0, (f"the diagnostics hold no memory_steps of this session's {own}, only of"
+                   f" {', '.join(sorted(reported))}: its memory cannot be told")
+    return 0, ""
+
+
+def session_memory(session: RecordedSession, memory: int | None) -> int:
+    """The memory a replay keeps (steps): ``memory`` if given, else belief_node's.
+
+    Raises:
+        ValueError: not given, and the session's diagnostics do not tell it (one line).
+    """
+    if memory is not None:
+        return memory
+    if session.memory_problem:
+        raise ValueError(f"{session.memory_problem}: give --memory N")
+    return session.memory_steps
 
 
 def replay_recorded(session: RecordedSession, params: ModelParams,
@@ -195,10 +228,9 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
     """The steps of ``session`` with its recorded actions, as ``simulate --json`` rows.
 
     The bits and decisions are fed in the order they were recorded (a decision arrives
-    after its step's bit); ``memory`` defaults to the session's.
+    after its step's bit); ``memory`` defaults to the session's (:func:`session_memory`).
     """
-    tracker = StatisticTracker(params, memory=session.memory_steps if memory is None else
-                               memory)
+    tracker = StatisticTracker(params, memory=session_memory(session, memory))
     out: list[StepRecord] = []
 
     def apply(step: int, y: bool | Withheld | None, u: bool | None) -> None:

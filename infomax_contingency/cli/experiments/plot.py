@@ -40,11 +40,16 @@ def _run_plot(args: argparse.Namespace) -> int:
     memory = args.memory
     if args.session and Path(args.session).is_dir():  # a recorded session (bag)
         from infomax_contingency.cli.sessions import warn
-        from infomax_contingency.eval.sessions import check_window, load_session, replay_recorded
+        from infomax_contingency.eval.sessions import (
+            check_window,
+            load_session,
+            replay_recorded,
+            session_memory,
+        )
 
         session = load_session(Path(args.session), warn=warn)
         check_window(session, params, args.params, args.session)
-        memory = memory or session.memory_steps
+        memory = session_memory(session, memory or None)  # 0: belief_node's, from the bag
         records = [record.__dict__ for record in replay_recorded(session, params, memory)]
         if not records:
             raise ValueError(f"the session {args.session} has no step to plot: no recorded"
