@@ -9,12 +9,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from exact_beliefs import MEMORY, offline_beliefs
+from infomax_contingency.audio.bag import BagWriter, encode
 from infomax_contingency.cli.main import main
 from infomax_contingency.eval.sessions import write_offline_session
 
 STEPS = 30
 BITS = [k % 4 == 1 for k in range(STEPS)]
 DECISIONS = [k % 6 == 4 for k in range(STEPS)]
+ARRAY = "std_msgs/msg/Int64MultiArray"
+DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
 
 
 def _one_line_error(capsys, *arguments: str) -> str:
@@ -39,3 +43,62 @@ def test_windows_other_than_the_params_dt_are_refused_naming_both(tmp_path: Path
     assert "windows of 0.8 s" in capsys.readouterr().out
     error = _one_line_error(capsys, "analyze", str(paper), str(robot), "--params", "paper")
     assert (f"windows of different lengths ({robot}: 0.5 s, {paper}: 0.8 s)" in error)
+
+
+def _session(directory: Path, bits: list[list[int]], decisions: list[list[int]],
+             beliefs: list[float], resets: int = 0) -> Path:
+    """A session bag: ``sound_step`` and ``vocalize_step`` fields in the order given.
+
+    Message ``k`` of each topic is received at ``k`` x 0.5 s (a bit, then its decision,
+    then a belief); /diagnostics of belief_node: memory 60 (the yardstick's) and ``resets``.
+    """
+    from rosbags.typesys import Stores, get_typestore
+
+    types = get_typestore(Stores.ROS2_JAZZY)
+    writer = BagWriter(directory)
+    for topic, kind in (("/sound_step", ARRAY), ("/vocalize_step", ARRAY),
+                        ("/belief", "std_msgs/msg/Float64"), ("/diagnostics", DIAGNOSTICS)):
+        writer.add_topic(topic, kind, [])
+    start = 10**18
+    for topic, messages in (("/sound_step", bits), ("/vocalize_step", decisions)):
+        for k, data in enumerate(messages):
+            writer.write(topic, encode(ARRAY, data=data), start + k * 500_000_000 + 1)
+    for k, belief in enumerate(beliefs):
+        writer.write("/belief", encode("std_msgs/msg/Float64", data=belief),
+                     start + k * 500_000_000 + 2)
+    pairs = [types.types["diagnostic_msgs/msg/KeyValue"](key=key, value=value)
+             for key, value in (("memory_steps", str(MEMORY)), ("resets", str(resets)))]
+    status = types.types["diagnostic_msgs/msg/DiagnosticStatus"](
+        level=0, name="belief_node: P(S=1)", message="", hardware_id="/belief_node",
+        values=pairs)
+    header = types.types["std_msgs/msg/Header"](
+        stamp=types.types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="")
+    array = types.types[DIAGNOSTICS](header=header, status=[status])
+    writer.write("/diagnostics", bytes(types.serialize_cdr(array, DIAGNOSTICS)),
+                 start + len(bits) * 500_000_000)
+    writer.close()
+    return directory
+
+
+def _fields(stream: int, steps: range, bits: list[bool] = BITS) -> tuple[list, list]:
+    """``sound_step`` and ``vocalize_step`` fields of ``steps`` of ``stream`` (controller 2)."""
+    return ([[stream, s, int(bits[(s - 1) % STEPS]), 500000, 0] for s in steps],
+            [[stream, s, int(DECISIONS[(s - 1) % STEPS]), 2] for s in steps])
+
+
+def test_a_step_recorded_twice_is_named_as_a_second_writer(tmp_path: Path, capsys) -> None:
+    """A forged bit for step 11 (the true stream's id) before the true one.
+
+    The live nodes told it by its writer's DDS numbers and ignored it; the bag holds no
+    writer: the replay names the step and what it cannot tell, not a bare difference.
+    """
+    bits, decisions = _fields(7, range(1, STEPS + 1))
+    pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
+    beliefs = offline_beliefs([(pairs, "start")])
+    forged = [7, 11, 1 - bits[10][2], 500000, 0]
+    bag = _session(tmp_path / "forged", [*bits[:10], forged, *bits[10:]], decisions, beliefs)
+    assert main(["replay", str(bag)]) == 1
+    out = capsys.readouterr().out
+    assert "DIFFERS from the recorded one at step 11" in out
+    assert ("the bit of step 11 recorded twice: a second writer (forged?); the live nodes"
+            " ignored its messages") in out and "cannot tell which" in out

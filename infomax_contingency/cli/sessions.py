@@ -310,8 +310,20 @@ def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]]
         where, equal = f"after step {replayed[-1][0]}: more beliefs were recorded", compared
     else:
         where, equal = f"at step {replayed[first_difference][0]}", first_difference
+        detail += "".join(f"; {note}" for note in
+                          _second_writer(session, replayed[first_difference][0]))
     return False, (f"replayed belief DIFFERS from the recorded one {where} ({counts},"
                    f" {compared} compared, the first {equal} equal{detail})")
+
+
+def _second_writer(session: RecordedSession, step: int) -> list[str]:
+    """The note on steps recorded twice or out of order up to ``step`` (none: [])."""
+    doubtful = [what for at, what in session.doubtful if at <= step]
+    if not doubtful:
+        return []
+    return [f"{', '.join(doubtful)}: a second writer (forged?); the live nodes ignored its"
+            " messages by their DDS numbers, which the bag does not hold: the replay"
+            " cannot tell which was the true one"]
 
 
 def warn(message: str) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NamedTuple, TypeVar
 
@@ -67,6 +67,9 @@ class RecordedSession:
         memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
         memory_problem: why the diagnostics do not tell belief_node's memory ("": they
             do, or hold none of any belief_node: the whole history).
+        doubtful: ``(step, what)`` of the steps whose bit or decision was recorded twice
+            or out of order (a second writer: the live nodes tell it by its DDS numbers,
+            which a bag does not hold), in arrival order.
         cut: the bag was cut by a killed recorder (read up to its last chunk).
         window_us: the length of the stream's windows (its steps), microseconds.
     """
@@ -78,6 +81,7 @@ class RecordedSession:
     cut: bool = False
     window_us: int = 0
     memory_problem: str = ""
+    doubtful: list[tuple[int, str]] = field(default_factory=list)
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -120,8 +124,31 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                  for d in _on_pace(decision_messages, stream, rate_hz, "decision", warn)]
     beliefs = [float(m.data) for _, m in topics["/belief"]]
     memory, problem = _belief_memory(topics["/diagnostics"], topics.namespace)
+    doubtful = sorted(_out_of_sequence([step for step, _ in bits], "bit")
+                      + _out_of_sequence([step for step, _ in decisions], "decision"))
     return RecordedSession(bits, decisions, beliefs, memory, cut=bool(cut),
-                           window_us=first.window_us, memory_problem=problem)
+                           window_us=first.window_us, memory_problem=problem,
+                           doubtful=doubtful)
+
+
+def _out_of_sequence(steps: list[int], what: str) -> list[tuple[int, str]]:
+    """``(step, what happened)`` of the steps recorded twice or out of order.
+
+    One source publishes each step once, in order: a step that repeats or goes back
+    (``steps`` in arrival order) was published by a second writer too.
+    """
+    found: list[tuple[int, str]] = []
+    seen: set[int] = set()
+    newest = 0
+    for step in steps:
+        if step in seen:
+            found.append((step, f"the {what} of step {step} recorded twice"))
+        elif step < newest:
+            found.append((step, f"the {what} of step {step} recorded out of order (after"
+                                f" step {newest})"))
+        seen.add(step)
+        newest = max(newest, step)
+    return found
 
 
 def check_window(session: RecordedSession, params: ModelParams, params_name: str,
