@@ -102,3 +102,24 @@ def test_a_step_recorded_twice_is_named_as_a_second_writer(tmp_path: Path, capsy
     assert "DIFFERS from the recorded one at step 11" in out
     assert ("the bit of step 11 recorded twice: a second writer (forged?); the live nodes"
             " ignored its messages") in out and "cannot tell which" in out
+
+
+def test_a_restarted_mic_node_is_named_and_its_first_stream_compared(tmp_path: Path,
+                                                                    capsys) -> None:
+    """mic_node restarted after step 20: a new stream, which belief_node follows on.
+
+    The replay compares the first stream's steps and says so; the beliefs of the new
+    stream are no second publisher's.
+    """
+    first_bits, first_decisions = _fields(7, range(1, 21))
+    later_bits, later_decisions = _fields(8, range(1, 11))
+    segments = [([(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)], how)
+                for bits, decisions, how in ((first_bits, first_decisions, "start"),
+                                             (later_bits, later_decisions, "new stream"))]
+    bag = _session(tmp_path / "restart", first_bits + later_bits,
+                   first_decisions + later_decisions, offline_beliefs(segments))
+    assert main(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "equals the recorded belief at all 20 steps compared" in out
+    assert "mic_node restarted (stream 8 after step 20): compared the first stream's 20" in out
+    assert "second publisher" not in out

@@ -70,6 +70,8 @@ class RecordedSession:
         doubtful: ``(step, what)`` of the steps whose bit or decision was recorded twice
             or out of order (a second writer: the live nodes tell it by its DDS numbers,
             which a bag does not hold), in arrival order.
+        restart: ``(stream, step)``: a later stream the controller answered too (a
+            restarted mic_node), first heard after ``step`` of this one; None if none.
         cut: the bag was cut by a killed recorder (read up to its last chunk).
         window_us: the length of the stream's windows (its steps), microseconds.
     """
@@ -82,6 +84,7 @@ class RecordedSession:
     window_us: int = 0
     memory_problem: str = ""
     doubtful: list[tuple[int, str]] = field(default_factory=list)
+    restart: tuple[int, int] | None = None
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -128,7 +131,25 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                       + _out_of_sequence([step for step, _ in decisions], "decision"))
     return RecordedSession(bits, decisions, beliefs, memory, cut=bool(cut),
                            window_us=first.window_us, memory_problem=problem,
-                           doubtful=doubtful)
+                           doubtful=doubtful, restart=_restart(bit_messages, decision_messages))
+
+
+def _restart(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]]
+             ) -> tuple[int, int] | None:
+    """``(stream, step)``: the first later stream that decisions answer, after that step.
+
+    A stream the controller answers besides the first is a restarted mic_node's (a
+    second microphone's bits are not answered); ``step``: the first stream's newest step
+    when the new stream's first bit was recorded.
+    """
+    answered = {decision.stream for _, decision in decisions}
+    first, newest = bits[0][1].stream, 0
+    for _, bit in bits:
+        if bit.stream == first:
+            newest = max(newest, bit.step)
+        elif bit.stream in answered:
+            return bit.stream, newest
+    return None
 
 
 def _out_of_sequence(steps: list[int], what: str) -> list[tuple[int, str]]:
