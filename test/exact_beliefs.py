@@ -57,7 +57,8 @@ def offline_beliefs(segments: list[tuple[list, str]]) -> list[float]:
 
     ``how`` is ``"start"`` (a stream's first step), ``"joined"`` (in the middle of a
     stream: the timer unknown until the next vocalization) or ``"new stream"`` (counts
-    kept across a gap of unknown length, the timer uncertain). The statistic starts from
+    kept across a gap of unknown length, the timer uncertain) or ``"reset"`` (the history
+    forgotten, as by belief_node's ``~/reset``). The statistic starts from
     zero counts at the first segment; a "joined" later on keeps the counts.
     """
     tracker = StatisticTracker(ROBOT, memory=MEMORY)
@@ -67,6 +68,8 @@ def offline_beliefs(segments: list[tuple[list, str]]) -> list[float]:
             tracker.forget_timer_completely()
         elif how == "new stream":
             tracker.forget_timer()
+        elif how == "reset":  # belief_node's ~/reset between two steps
+            tracker.reset()
         for y, u in pairs:
             tracker.observe_window(y)  # a bit; None (missing) or Withheld: not counted
             beliefs.append(tracker.statistic.belief(ROBOT))

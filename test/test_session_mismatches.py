@@ -123,3 +123,25 @@ def test_a_restarted_mic_node_is_named_and_its_first_stream_compared(tmp_path: P
     assert "equals the recorded belief at all 20 steps compared" in out
     assert "mic_node restarted (stream 8 after step 20): compared the first stream's 20" in out
     assert "second publisher" not in out
+
+
+def test_a_reset_belief_node_is_replayed_with_its_reset(tmp_path: Path, capsys) -> None:
+    """belief_node's ~/reset between steps 15 and 16 (its diagnostics count one reset)."""
+    bits, decisions = _fields(7, range(1, STEPS + 1))
+    pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
+    beliefs = offline_beliefs([(pairs[:15], "start"), (pairs[15:], "reset")])
+    bag = _session(tmp_path / "reset", bits, decisions, beliefs, resets=1)
+    assert main(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "equals the recorded belief at all 30 steps compared" in out
+    assert ("belief_node was reset during the session (diagnostics: resets 1): replayed with"
+            " the history forgotten before step(s) 16") in out
+    twice = _session(tmp_path / "twice", bits, decisions, beliefs, resets=2)
+    assert main(["replay", str(twice)]) == 0  # the second left no trace: equal, and said
+    assert "(diagnostics: resets 2): replayed" in capsys.readouterr().out
+    beliefs[20] += 0.125  # a difference no reset explains
+    other = _session(tmp_path / "other", bits, decisions, beliefs, resets=2)
+    assert main(["replay", str(other)]) == 1
+    out = capsys.readouterr().out
+    assert "DIFFERS from the recorded one at step 21" in out
+    assert "1 reset(s) not located: compared up to step 21" in out

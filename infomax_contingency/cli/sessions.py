@@ -51,7 +51,7 @@ from infomax_contingency.eval.sessions import (
     wav_bits,
 )
 from infomax_contingency.sim.actions import read_actions_csv
-from infomax_contingency.sim.simulation import RunSummary
+from infomax_contingency.sim.simulation import RunSummary, StepRecord
 
 ACTION_KINDS = ("recorded", "policy:FILE", "rule[:C]", "FILE.csv", "channel:N")
 """The ``--actions`` values: recorded (a bag's own), a controller (policy:FILE, or any
@@ -241,14 +241,45 @@ def run_replay(args: argparse.Namespace) -> int:
         records = replay_bits(recorded_bits(session), controller, memory)
         return _print_what_if(args, records, f"controller {controller.name} deciding on the"
                               " recorded bits (what-if)")
-    replayed = []
-    for record in replay_recorded(session, params, args.memory):
-        replayed.append((record.t, record.belief))
-        if args.json:
-            _write_line(json.dumps(record.__dict__))
-    same, verdict = belief_verdict(session, replayed)
+    records, resets = _replay_locating_resets(session, params, args.memory)
+    for record in records if args.json else ():
+        _write_line(json.dumps(record.__dict__))
+    same, verdict = belief_verdict(session, [(r.t, r.belief) for r in records], resets)
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def _replay_locating_resets(session: RecordedSession, params: ModelParams,
+                            memory: int | None) -> tuple[list[StepRecord], list[int]]:
+    """The replayed steps, with belief_node's resets where the recorded beliefs show them.
+
+    A reset (``~/reset``, counted in the diagnostics) falls between two steps: the first
+    step whose recorded belief differs is taken as the one after it when the replay with
+    the history forgotten there agrees further on. Returns the steps and the resets
+    located (indices of the steps after them, from 0).
+    """
+    resets: list[int] = []
+    records = list(replay_recorded(session, params, memory))
+    while len(resets) < session.resets:
+        at = _first_difference(session, records)
+        if at is None:
+            break
+        trial = list(replay_recorded(session, params, memory, [*resets, at]))
+        later = _first_difference(session, trial)
+        if later is not None and later <= at:
+            break
+        resets.append(at)
+        records = trial
+    return records, resets
+
+
+def _first_difference(session: RecordedSession, records: list[StepRecord]) -> int | None:
+    """The index of the first replayed step whose belief differs from the recorded one."""
+    recorded, _ = _aligned_beliefs(session, [(r.t, r.belief) for r in records])
+    if recorded is None:
+        return None
+    return next((i for i, (r, b) in enumerate(zip(records, recorded, strict=False))
+                 if r.belief != b), None)
 
 
 def _aligned_beliefs(session: RecordedSession, replayed: list[tuple[int, float]]
@@ -282,13 +313,20 @@ def _aligned_beliefs(session: RecordedSession, replayed: list[tuple[int, float]]
     return matched, [f"{late}; compared from step {first}{skipped}"]
 
 
-def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]]
-                   ) -> tuple[bool, str]:
+def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]],
+                   resets: Sequence[int] = ()) -> tuple[bool, str]:
     """Do the replayed ``(step, belief)`` equal the recorded beliefs, and the verdict line.
 
     True only when at least one step was compared and every one compared is equal.
+    ``resets``: the indices of the steps before which belief_node's resets were applied.
     """
     recorded, notes = _aligned_beliefs(session, replayed)
+    if session.resets:
+        located = ", ".join(str(replayed[i][0]) for i in resets)
+        notes.append(f"belief_node was reset during the session (diagnostics: resets"
+                     f" {session.resets})" + (f": replayed with the history forgotten before"
+                                              f" step(s) {located}, where the recorded"
+                                              " belief shows it" if located else ""))
     values = [belief for _, belief in replayed]
     counts = f"{len(values)} steps replayed, {len(session.beliefs)} beliefs recorded"
     if not values or not session.beliefs:
@@ -316,6 +354,9 @@ def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]]
         where, equal = f"after step {replayed[-1][0]}: more beliefs were recorded", compared
     else:
         where, equal = f"at step {replayed[first_difference][0]}", first_difference
+        if len(resets) < session.resets:
+            detail += (f"; {session.resets - len(resets)} reset(s) not located: compared up"
+                       f" to step {replayed[first_difference][0]}")
         detail += "".join(f"; {note}" for note in
                           _second_writer(session, replayed[first_difference][0]))
     return False, (f"replayed belief DIFFERS from the recorded one {where} ({counts},"

@@ -1,0 +1,263 @@
+"""A recorded session's steps as belief_node took them, read from its bag (no rclpy).
+
+:func:`load_session` reads the first mic stream of a recorder_node bag with the live
+nodes' rules (malformed messages skipped, forged jumps ahead left out) and what the bag
+says of how to replay it: the windows' length, belief_node's memory and resets (from the
+diagnostics of the session's own namespace), steps recorded twice or out of order (a
+second writer) and a restarted mic_node. :mod:`infomax_contingency.eval.sessions`
+replays it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TypeVar
+
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S
+from infomax_contingency.core.model import NAMED_PARAMS, ModelParams, Withheld
+from infomax_contingency.core.stepclock import Pace, StepPace
+from infomax_contingency.core.stepfields import (
+    StepBit,
+    StepDecision,
+    bit_of,
+    decision_of,
+    valid_messages,
+    window_us,
+)
+
+StepT = TypeVar("StepT", StepBit, StepDecision)
+
+SESSION_TOPICS = ("/sound_step", "/vocalize_step", "/belief", "/diagnostics")
+"""Topics a replay with recorded actions reads."""
+
+
+@dataclass
+class RecordedSession:
+    """The steps of one recorded mic stream.
+
+    Attributes:
+        bits: ``(step, bit)`` of the first stream heard, in arrival order.
+        decisions: ``(step, vocalize)`` for that stream, in arrival order.
+        beliefs: the recorded ``belief`` values, in arrival order.
+        memory_steps: belief_node's memory (from its diagnostics; 0 = whole history).
+        memory_problem: why the diagnostics do not tell belief_node's memory ("": they
+            do, or hold none of any belief_node: the whole history).
+        doubtful: ``(step, what)`` of the steps whose bit or decision was recorded twice
+            or out of order (a second writer: the live nodes tell it by its DDS numbers,
+            which a bag does not hold), in arrival order.
+        resets: how often belief_node's ``~/reset`` was called (its diagnostics' count).
+        restart: ``(stream, step)``: a later stream the controller answered too (a
+            restarted mic_node), first heard after ``step`` of this one; None if none.
+        cut: the bag was cut by a killed recorder (read up to its last chunk).
+        window_us: the length of the stream's windows (its steps), microseconds.
+    """
+
+    bits: list[tuple[int, bool | Withheld]]
+    decisions: list[tuple[int, bool]]
+    beliefs: list[float]
+    memory_steps: int
+    cut: bool = False
+    window_us: int = 0
+    memory_problem: str = ""
+    doubtful: list[tuple[int, str]] = field(default_factory=list)
+    restart: tuple[int, int] | None = None
+    resets: int = 0
+
+
+def load_session(directory: Path, warn: Callable[[str], None] | None = None
+                 ) -> RecordedSession:
+    """Read the steps of the first mic stream of a session bag.
+
+    ``warn`` is told of a bag cut by a killed recorder (read up to its last chunk), of
+    malformed step messages (skipped, as the live nodes ignore them: one line per topic)
+    and of forged jumps ahead (left out).
+
+    Raises:
+        BagReadError: the bag cannot be read, is damaged, or is not a session (no
+            ``sound_step`` and ``vocalize_step``, or topics of other types).
+        ValueError: it holds no valid ``sound_step`` message (nothing to replay).
+    """
+    # Imported here: sessions need the optional rosbags; the other commands start without it.
+    from infomax_contingency.audio.bag import read_topics
+
+    cut: list[str] = []
+
+    def warn_cut(message: str) -> None:
+        cut.append(message)
+        if warn is not None:
+            warn(message)
+
+    topics = read_topics(directory, SESSION_TOPICS,
+                         required=("/sound_step", "/vocalize_step"), warn=warn_cut)
+    bit_messages = valid_messages(((t, m.data) for t, m in topics["/sound_step"]), bit_of,
+                                  "/sound_step", warn)
+    if not bit_messages:
+        raise ValueError(f"the session {directory} holds no valid sound_step messages: nothing"
+                         " to replay (was mic_node running while it was recorded?)")
+    first = bit_messages[0][1]
+    stream, rate_hz = first.stream, 1e6 / first.window_us
+    bits = [(bit.step, bit.observation)
+            for bit in _on_pace(bit_messages, stream, rate_hz, "bit", warn)]
+    decision_messages = valid_messages(((t, m.data) for t, m in topics["/vocalize_step"]),
+                                       decision_of, "/vocalize_step", warn)
+    decisions = [(d.step, d.vocalize)
+                 for d in _on_pace(decision_messages, stream, rate_hz, "decision", warn)]
+    beliefs = [float(m.data) for _, m in topics["/belief"]]
+    memory, problem = _belief_memory(topics["/diagnostics"], topics.namespace)
+    doubtful = sorted(_out_of_sequence([step for step, _ in bits], "bit")
+                      + _out_of_sequence([step for step, _ in decisions], "decision"))
+    return RecordedSession(bits, decisions, beliefs, memory, cut=bool(cut),
+                           window_us=first.window_us, memory_problem=problem,
+                           doubtful=doubtful, restart=_restart(bit_messages, decision_messages),
+                           resets=max(_own_values(topics["/diagnostics"], topics.namespace,
+                                                  "resets")[1], default=0))
+
+
+def _restart(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]]
+             ) -> tuple[int, int] | None:
+    """``(stream, step)``: the first later stream that decisions answer, after that step.
+
+    A stream the controller answers besides the first is a restarted mic_node's (a
+    second microphone's bits are not answered); ``step``: the first stream's newest step
+    when the new stream's first bit was recorded.
+    """
+    answered = {decision.stream for _, decision in decisions}
+    first, newest = bits[0][1].stream, 0
+    for _, bit in bits:
+        if bit.stream == first:
+            newest = max(newest, bit.step)
+        elif bit.stream in answered:
+            return bit.stream, newest
+    return None
+
+
+def _out_of_sequence(steps: list[int], what: str) -> list[tuple[int, str]]:
+    """``(step, what happened)`` of the steps recorded twice or out of order.
+
+    One source publishes each step once, in order: a step that repeats or goes back
+    (``steps`` in arrival order) was published by a second writer too.
+    """
+    found: list[tuple[int, str]] = []
+    seen: set[int] = set()
+    newest = 0
+    for step in steps:
+        if step in seen:
+            found.append((step, f"the {what} of step {step} recorded twice"))
+        elif step < newest:
+            found.append((step, f"the {what} of step {step} recorded out of order (after"
+                                f" step {newest})"))
+        seen.add(step)
+        newest = max(newest, step)
+    return found
+
+
+def check_window(session: RecordedSession, params: ModelParams, params_name: str,
+                 directory: object) -> None:
+    """Refuse ``params`` whose dt (s) is not the session's window length.
+
+    A step of the session is one of its windows; the model's periods count windows of
+    ``params.dt``: other windows would give other periods and times, and belief_node
+    itself ignores bits of windows other than its dt.
+
+    Raises:
+        ValueError: one line naming both lengths and the parameters to give.
+    """
+    if session.window_us == window_us(params.dt):
+        return
+    window_s = session.window_us / 1e6
+    named = [name for name, p in NAMED_PARAMS.items() if window_us(p.dt) == session.window_us]
+    which = f" ({', '.join(named)})" if named else ""
+    raise ValueError(f"the session {directory} has windows of {window_s:g} s; --params"
+                     f" {params_name} has windows of {params.dt:g} s: give --params with dt"
+                     f" {window_s:g}{which}")
+
+
+def check_same_windows(sessions: Sequence[tuple[object, RecordedSession]]) -> None:
+    """Refuse sessions (``(name, session)``) whose windows differ: their lags are not pooled.
+
+    Raises:
+        ValueError: one line naming a session of each length (seconds).
+    """
+    lengths = {session.window_us: name for name, session in reversed(sessions)}
+    if len(lengths) > 1:
+        named = ", ".join(f"{name}: {us / 1e6:g} s" for us, name in sorted(lengths.items()))
+        raise ValueError(f"the sessions have windows of different lengths ({named}): a lag"
+                         " counts windows, so analyze sessions of one window length together")
+
+
+def _on_pace(messages: list[tuple[int, StepT]], stream: int, rate_hz: float, what: str,
+             warn: Callable[[str], None] | None) -> list[StepT]:
+    """The step messages of ``stream`` the live nodes take: a forged jump ahead is left out.
+
+    The same rule as belief_node's and controller_node's
+    (:class:`~infomax_contingency.core.stepclock.StepPace`, confirmed after
+    ``SOURCE_TIMEOUT_S``), on the times the recorder received them (``messages``:
+    ``(ns, parsed message)``). ``warn`` is told of each message left out.
+    """
+    pace = StepPace(rate_hz, SOURCE_TIMEOUT_S)
+    taken: list[StepT] = []
+    for received_ns, data in messages:
+        if data.stream != stream:
+            continue
+        verdict = pace.check(data.step, received_ns / 1e9, data)
+        if verdict is Pace.ON_PACE:
+            taken.append(data)
+        elif verdict is Pace.CONFIRMED:
+            taken.extend(pace.take_confirmed())
+        elif warn is not None:
+            warn(pace.jump_message(f"the recorded {what} for step {data.step}"))
+    return taken
+
+
+def _belief_memory(diagnostics: list, namespace: str) -> tuple[int, str]:
+    """The session's belief_node's ``memory_steps``, and why it is not known ("" if it is).
+
+    The session's own node is the belief_node of its ``namespace`` (``/robot1``:
+    ``robot1/belief_node``, as its diagnostics name it): ``/diagnostics`` holds those of
+    every robot on the domain. None of any belief_node: 0 (the whole history).
+    """
+    own, values = _own_values(diagnostics, namespace, "memory_steps")
+    reported = _belief_node_values(diagnostics, "memory_steps")
+    if len(values) == 1:
+        return values[0], ""
+    if len(values) > 1:
+        return 0, (f"the diagnostics of {own} report memory_steps"
+                   f" {' and '.join(map(str, values))} (two belief_nodes of one name on the"
+                   " domain?): its memory cannot be told")
+    if reported:
+        return 0, (f"the diagnostics hold no memory_steps of this session's {own}, only of"
+                   f" {', '.join(sorted(reported))}: its memory cannot be told")
+    return 0, ""
+
+
+def _belief_node_values(diagnostics: list, key: str) -> dict[str, set[int]]:
+    """``node -> values of key`` that every belief_node (of any namespace) reported."""
+    reported: dict[str, set[int]] = {}
+    for _, array in diagnostics:
+        for status in array.status:
+            node = status.name.split(":", 1)[0]  # robot1/belief_node: P(S=1) = ...
+            for pair in status.values:
+                if pair.key == key and node.rsplit("/", 1)[-1] == "belief_node":
+                    reported.setdefault(node, set()).add(int(pair.value))
+    return reported
+
+
+def _own_values(diagnostics: list, namespace: str, key: str) -> tuple[str, list[int]]:
+    """The session's belief_node (of ``namespace``) and the values of ``key`` it reported."""
+    own = f"{namespace.strip('/')}/belief_node".lstrip("/")
+    return own, sorted(_belief_node_values(diagnostics, key).get(own, ()))
+
+
+def session_memory(session: RecordedSession, memory: int | None) -> int:
+    """The memory a replay keeps (steps): ``memory`` if given, else belief_node's.
+
+    Raises:
+        ValueError: not given, and the session's diagnostics do not tell it (one line).
+    """
+    if memory is not None:
+        return memory
+    if session.memory_problem:
+        raise ValueError(f"{session.memory_problem}: give --memory N")
+    return session.memory_steps
