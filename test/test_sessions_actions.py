@@ -7,6 +7,7 @@ channel carrying the robot's own output; and their bad input.
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -236,6 +237,26 @@ def test_a_replayed_wav_reports_clipping_and_a_dc_offset(tmp_path: Path, capsys)
         out = capsys.readouterr().out
         assert "windows were clipped (samples at full scale): lower the input gain" in out, out
         assert "windows had a DC offset (removed from the level; check the microphone)" in out
+
+
+def test_a_float_wav_not_scaled_to_full_scale_is_named_with_a_fixed_threshold(
+    tmp_path: Path, capsys
+) -> None:
+    """IEEE-float samples 1000 times too large (+60 dB): said, not a silent answer."""
+    rate = 16000
+    samples = (load_mono(WAV, rate) * 1000.0).astype("<f4")
+    fmt = struct.pack("<HHIIHH", 3, 1, rate, rate * 4, 4, 32)  # IEEE float, mono, 32 bits
+    body = (b"WAVE" + b"fmt " + struct.pack("<I", len(fmt)) + fmt + b"data"
+            + struct.pack("<I", samples.nbytes) + samples.tobytes())  # fmt: skip
+    loud = tmp_path / "unscaled.wav"
+    loud.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
+    actions = _csv(tmp_path / "actions.csv", "time_s\n" + "\n".join(map(str, CHIRPS_S)) + "\n")
+    for how in (str(actions), "random:0.1"):  # recorded actions, and a what-if
+        assert main(["replay", str(loud), "--actions", how, "--threshold-db", "-30"]) == 0
+        out = capsys.readouterr().out
+        assert " windows were louder than full scale (0 dB: samples beyond [-1, 1], a float" in out
+    assert main(["replay", str(WAV), "--actions", str(actions), "--threshold-db", "-30"]) == 0
+    assert "louder than full scale" not in capsys.readouterr().out
 
 
 def test_a_kmeans_refusal_names_a_dc_offset(tmp_path: Path, capsys) -> None:

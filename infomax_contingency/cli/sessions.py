@@ -174,7 +174,8 @@ def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams
     memory = args.memory or 0
     if args.threshold_db is None and not args.calibrate:
         return _wav_background_records(args, kind, params, path, mic, reference, memory)
-    bits, threshold = wav_bits(path, params.dt, mic, args.threshold_db, args.calibration_s)
+    bits, threshold, problems = wav_bits(path, params.dt, mic, args.threshold_db,
+                                         args.calibration_s)
     if kind == "controller":
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
                                      memory=memory)
@@ -189,7 +190,8 @@ def _wav_records(args: argparse.Namespace, kind: str, params: ModelParams
             decisions, level = decisions_from_reference(path, reference, params.dt)
             what = f"actions from the onsets of channel {reference} (threshold {level:.1f} dB)"
         controller = ReplayedDecisions(params, decisions)
-    return replay_bits(bits, controller, memory), f"{what}; sound threshold {threshold:.1f} dB", []
+    return (replay_bits(bits, controller, memory), f"{what}; sound threshold {threshold:.1f} dB",
+            problems)
 
 
 def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelParams,

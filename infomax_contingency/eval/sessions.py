@@ -168,8 +168,8 @@ def recorded_bits(session: RecordedSession) -> list[bool | Withheld]:
 
 
 def wav_bits(path: Path, window_s: float, channel: int | None, threshold_db: float | None,
-             calibration_s: float) -> tuple[list[bool], float]:
-    """The bits of a wav file's windows and the threshold used (dB).
+             calibration_s: float) -> tuple[list[bool], float, list[str]]:
+    """The bits of a wav file's windows, the threshold used (dB) and the input's problems.
 
     The microphone is ``channel`` (None: the mix of all channels), windowed and
     binarized as mic_node's ``source: wav`` does: ``threshold_db``, or the k-means
@@ -186,10 +186,14 @@ def wav_bits(path: Path, window_s: float, channel: int | None, threshold_db: flo
             binarizer.calibrate(replay.calibration_energies(calibration_s, window_s))
         except AudioError as error:
             raise AudioError(f"{error}{dc_offset_note(path, window_s, channel)}") from None
-    bits = []
+    bits, over_full_scale = [], 0
     while (energy := replay.next_energy()) is not None:
         bits.append(bool(binarizer.push(energy)))
-    return bits, float(binarizer.threshold_db)
+        over_full_scale += energy > 0.0
+    problems = [f"{over_full_scale} windows were louder than full scale (0 dB: samples beyond"
+                " [-1, 1], a float file not scaled to full scale?): their levels are taken as"
+                " they are"] if over_full_scale else []  # fmt: skip
+    return bits, float(binarizer.threshold_db), problems
 
 
 def wav_background_bits(
