@@ -23,7 +23,8 @@ import numpy as np
 
 from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.sim.fake_room import FakeRoom, as_transmitted
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 RATE_HZ, WINDOW_S = 16000, 0.5
 

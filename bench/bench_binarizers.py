@@ -7,7 +7,7 @@ Two tables:
   same windows of the ``responsive`` room). It must stay far below the 500 000 us of
   the window itself.
 * **contrast**: the fixed-interval controller (a vocalization every ``--interval``
-  windows) against the audio-level fake rooms (:data:`infomax_contingency.sim.fake_room.PRESETS`,
+  windows) against the audio-level fake rooms (:data:`infomax_contingency.sim.room_config.PRESETS`,
   plus ``noisy+partner``: the noisy room with a partner who answers), ``--seeds`` runs
   of ``--steps`` steps each through the offline loop (the mic node's own path). For
   every bit source: P(active) in the agent period after a vocalization (timer z in
@@ -32,8 +32,10 @@ import numpy as np
 from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.controllers import FixedIntervalController
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.sim.fake_room import AudioWorld, FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.sim.audio_loop import AudioWorld
+from infomax_contingency.sim.fake_room import FakeRoom, as_transmitted
 from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 RATE_HZ, WINDOW_S = 16000, 0.5
 

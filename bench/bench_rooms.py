@@ -22,7 +22,8 @@ from infomax_contingency.eval.rooms import (
     run_metrics,
     run_room,
 )
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.sim.rooms import ROOM_SOUNDS
 
 

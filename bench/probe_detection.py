@@ -106,7 +106,7 @@ from infomax_contingency.eval.rooms import running as rooms_running
 from infomax_contingency.eval.rooms.config import RoomsConfig
 from infomax_contingency.eval.rooms.running import RoomRun
 from infomax_contingency.eval.rooms.scoring import postures, settled_step
-from infomax_contingency.sim.fake_room import FakeRoomConfig
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 HISTORY_WINDOWS = 60
 """Background windows a level's threshold is taken over (the default source's 30 s)."""

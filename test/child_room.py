@@ -8,7 +8,8 @@ child_imports.py then says which FORBIDDEN modules that loaded.
 
 from __future__ import annotations
 
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 
 def step_room(spec: str) -> None:

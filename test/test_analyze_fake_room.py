@@ -25,7 +25,9 @@ from infomax_contingency.core.controllers import make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import fig4_study
 from infomax_contingency.eval.sessions import write_offline_session
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, iter_audio_loop
+from infomax_contingency.sim.audio_loop import iter_audio_loop
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 # One worker runs the module: each worker that ran one of its tests made the three
 # sessions of the module fixture again (with `--dist loadgroup`).

@@ -32,7 +32,9 @@ from infomax_contingency.audio.windows import WavReplay
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+from infomax_contingency.sim.audio_loop import simulate_audio_loop
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_interaction  # noqa: E402  (the espeak-ng helper of the committed fixture)

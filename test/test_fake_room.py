@@ -14,14 +14,9 @@ from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import (
-    PRESETS,
-    AudioWorld,
-    FakeRoom,
-    FakeRoomConfig,
-    simulate_audio_loop,
-    timing_warnings,
-)
+from infomax_contingency.sim.audio_loop import AudioWorld, simulate_audio_loop
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import PRESETS, FakeRoomConfig, timing_warnings
 from infomax_contingency.sim.rooms import ROOMS
 
 ROBOT = ModelParams.named("robot")

@@ -44,7 +44,8 @@ from exact_beliefs import (
     step_pairs,
 )
 from infomax_contingency.nodes.qos import LOSSLESS_READER_QOS
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.sim.fake_room import FakeRoom, as_transmitted
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.testing.graph import GraphProcesses, StepRecorder
 from infomax_contingency.testing.stepped import Probe, SteppedExecutor
 

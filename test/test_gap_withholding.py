@@ -18,7 +18,7 @@ import brute_force
 from infomax_contingency.core.controllers import ReplayedDecisions
 from infomax_contingency.core.model import NAMED_PARAMS
 from infomax_contingency.core.selfsound import GapWithholding
-from infomax_contingency.sim.fake_room import AudioWorld
+from infomax_contingency.sim.audio_loop import AudioWorld
 from infomax_contingency.sim.loop import run_loop
 
 PARAMS = NAMED_PARAMS["robot"]

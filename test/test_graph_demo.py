@@ -102,7 +102,9 @@ def _offline_demo(seed: int, leave_s: float, steps: int) -> list:
     from infomax_contingency.core.model import ModelParams
     from infomax_contingency.core.policy_table import PolicyTable
     from infomax_contingency.resources import resource_path
-    from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+    from infomax_contingency.sim.audio_loop import simulate_audio_loop
+    from infomax_contingency.sim.fake_room import FakeRoom
+    from infomax_contingency.sim.room_config import FakeRoomConfig
 
     params = ModelParams.named("robot")
     table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"),

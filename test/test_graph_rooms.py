@@ -20,7 +20,9 @@ from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+from infomax_contingency.sim.audio_loop import simulate_audio_loop
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from stepped_graph import SteppedGraph, stepped_graph
 
 make_graph = graph_fixture()

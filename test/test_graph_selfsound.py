@@ -33,7 +33,9 @@ from infomax_contingency.nodes.step_topics import (
     self_sound_message,
 )
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+from infomax_contingency.sim.audio_loop import simulate_audio_loop
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.testing.stepped import nodes_on_their_own_executors
 from stepped_graph import stepped_graph
 

@@ -43,7 +43,8 @@ from infomax_contingency.nodes.step_topics import (
     bit_message,
     decision_message,
 )
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.sim.fake_room import FakeRoom, as_transmitted
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.testing.graph import StepRecorder
 from infomax_contingency.testing.stepped import DEFAULT_DEADLINE_S, Probe
 from stepped_graph import SteppedGraph, stepped_graph

@@ -56,7 +56,8 @@ from infomax_contingency.nodes.step_topics import (
     parse_decision,
 )
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, as_transmitted
+from infomax_contingency.sim.fake_room import FakeRoom, as_transmitted
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.testing.stepped import (
     Probe,
     SteppedExecutor,

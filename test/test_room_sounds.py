@@ -7,7 +7,8 @@ import pytest
 
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.sim import room_sounds
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, timing_warnings
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig, timing_warnings
 from infomax_contingency.sim.rooms import PARTNER_STATES, ROOM_CHANGE_S, ROOM_SOUNDS
 
 ROBOT = ModelParams.named("robot")

@@ -23,7 +23,9 @@ from infomax_contingency.core.selfsound import (
 )
 from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import FakeRoom, FakeRoomConfig, simulate_audio_loop
+from infomax_contingency.sim.audio_loop import simulate_audio_loop
+from infomax_contingency.sim.fake_room import FakeRoom
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 ROBOT = ModelParams.named("robot")
 PAPER = ModelParams.named("paper")

@@ -59,7 +59,7 @@ from infomax_contingency.cli.demo_checks import (
 from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.posture import BORED, PostureHysteresis
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.fake_room import PRESETS
+from infomax_contingency.sim.room_config import PRESETS
 
 CONNECT_TIMEOUT_S = 180.0
 """Seconds the nodes may take to come up and connect before the demo gives up."""

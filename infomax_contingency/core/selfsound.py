@@ -323,7 +323,7 @@ class GapWithholding:
     "long ago" then.
 
     Pure bookkeeping: mic_node and the offline loop
-    (:class:`~infomax_contingency.sim.fake_room.AudioWorld`) use it alike.
+    (:class:`~infomax_contingency.sim.audio_loop.AudioWorld`) use it alike.
     """
 
     def __init__(self, steps: int) -> None:

@@ -97,13 +97,8 @@ from infomax_contingency.nodes.step_topics import (
     parse_no_step,
     self_sound_message,
 )
-from infomax_contingency.sim.fake_room import (
-    PRESETS,
-    FakeRoom,
-    FakeRoomConfig,
-    as_transmitted,
-    timing_warnings,
-)
+from infomax_contingency.sim.fake_room import FakeRoom, as_transmitted
+from infomax_contingency.sim.room_config import PRESETS, FakeRoomConfig, timing_warnings
 
 ROOM_PARAMETERS: tuple[tuple[str, str, float, float, str], ...] = (
     ("noise_floor_db", "RMS level of the background hiss", -150.0, 0.0, "dB"),

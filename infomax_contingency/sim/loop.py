@@ -8,7 +8,7 @@ reporting statistic beside the controller's own: it is a generator, so a run of 
 length is consumed step by step in constant memory.
 
 The bit-level rooms (:func:`infomax_contingency.sim.simulation.simulate`) and the
-audio-level fake room (:func:`infomax_contingency.sim.fake_room.simulate_audio_loop`)
+audio-level fake room (:func:`infomax_contingency.sim.audio_loop.simulate_audio_loop`)
 both run through it; each turns its :class:`LoopStep` into its own record type.
 """
 

@@ -9,8 +9,8 @@ Every name a command, experiment or node accepts for a simulated room is a key o
   period) and ``k3`` (background) — the probability that a window of that period is
   active;
 * and, where it has one, its audio-level preset: the fields of
-  :class:`~infomax_contingency.sim.fake_room.FakeRoomConfig` it sets
-  (:data:`~infomax_contingency.sim.fake_room.PRESETS` is made from these).
+  :class:`~infomax_contingency.sim.room_config.FakeRoomConfig` it sets
+  (:data:`~infomax_contingency.sim.room_config.PRESETS` is made from these).
 
 The rooms ``quiet``, ``office`` and ``poster-session`` (each also ``+partner``) are the
 named backgrounds of the efficiency experiment: background activity
@@ -87,7 +87,7 @@ class RoomKind:
             ``partner_arrive_s`` and ``partner_leave_s``).
         rates: default rates of a ``rates`` room (options ``k1``, ``k3`` and, with a
             partner, ``k2`` override them); ``None`` for the other families.
-        audio: the :class:`~infomax_contingency.sim.fake_room.FakeRoomConfig` fields of
+        audio: the :class:`~infomax_contingency.sim.room_config.FakeRoomConfig` fields of
             its audio-level preset; ``None``: the room exists at the bit level only.
     """
 
@@ -314,7 +314,7 @@ ROOM_SOUNDS: Mapping[str, Mapping[str, Any]] = MappingProxyType(
     }
 )
 """The sound of each audio room's background (fields of
-:class:`~infomax_contingency.sim.fake_room.FakeRoomConfig`; levels in the module
+:class:`~infomax_contingency.sim.room_config.FakeRoomConfig`; levels in the module
 docstring's table). The partner's presence is added per :data:`PARTNER_STATES`."""
 
 _PARTNER_TIMES = {

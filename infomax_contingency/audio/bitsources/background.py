@@ -11,7 +11,7 @@ threshold follows each room, and the model's background rate K3 is held near
 
 The source needs the decisions (:attr:`needs_decisions`): mic_node hands it each
 decision of ``vocalize_step``, the offline loop
-(:class:`~infomax_contingency.sim.fake_room.AudioWorld`) each of its decisions, a replay
+(:class:`~infomax_contingency.sim.audio_loop.AudioWorld`) each of its decisions, a replay
 of a recording its recorded actions. It needs the
 model's periods (:meth:`follow_model`), which mic_node, the offline loop and ``replay``
 give it from their ``params``.

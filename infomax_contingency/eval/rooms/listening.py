@@ -13,14 +13,10 @@ from infomax_contingency.eval.rooms.binarizers import make_binarizer
 from infomax_contingency.eval.rooms.config import CONTROLLER_NAMES, RoomsConfig, controller_specs
 from infomax_contingency.eval.rooms.running import RoomTimeUpError, TimedWorld
 from infomax_contingency.limits import refuse_over_budget
-from infomax_contingency.sim.fake_room import (
-    AudioWorld,
-    FakeRoom,
-    FakeRoomConfig,
-    RoomWindow,
-    as_transmitted,
-)
+from infomax_contingency.sim.audio_loop import AudioWorld
+from infomax_contingency.sim.fake_room import FakeRoom, RoomWindow, as_transmitted
 from infomax_contingency.sim.loop import run_loop
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 LISTENING_BINARIZER = RoomsConfig.binarizer
 """``room-wav``'s default: mic_node's, the ``background`` source that calibrates itself on

@@ -10,8 +10,10 @@ from infomax_contingency.core.model import ModelParams, belief_from_log_odds
 from infomax_contingency.eval.experiments.runs import experiment_controller
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
 from infomax_contingency.eval.rooms.config import room_seed
-from infomax_contingency.sim.fake_room import AudioObservation, AudioWorld, FakeRoom, FakeRoomConfig
+from infomax_contingency.sim.audio_loop import AudioObservation, AudioWorld
+from infomax_contingency.sim.fake_room import FakeRoom
 from infomax_contingency.sim.loop import LoopStep, run_loop
+from infomax_contingency.sim.room_config import FakeRoomConfig
 
 
 class RoomTimeUpError(Exception):

@@ -18,7 +18,7 @@ from infomax_contingency.core.model import (
 )
 from infomax_contingency.core.posture import ATTENTIVE, PostureHysteresis
 from infomax_contingency.eval.rooms.running import RoomRun
-from infomax_contingency.sim.fake_room import FakeRoomConfig
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.sim.rooms import BACKGROUND_CHANGES_S, ROOM_CHANGE_S
 
 
