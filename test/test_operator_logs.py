@@ -12,14 +12,17 @@ from typing import Any
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiArray
 from std_srvs.srv import Trigger
 
+from infomax_contingency.core.steady import SteadyInputs
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
+from infomax_contingency.nodes.step_topics import NoStep, no_step_message
 from infomax_contingency.testing.stepped import (
     Probe,
     SteppedExecutor,
@@ -58,6 +61,9 @@ def _threshold_lines(text: str) -> list[str]:
             if "[mic_node]: " in line]  # fmt: skip
     return [line for line in said if line.startswith(("threshold in force", "calibrated:",
                                                       "noise floor"))]  # fmt: skip
+
+
+OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
 
 
 def _mic(graph: Callable, **parameters: Any) -> tuple[Any, Probe, SteppedExecutor, Callable]:
@@ -146,3 +152,89 @@ def test_belief_and_posture_nodes_say_what_they_wait_for_and_when_it_came(
     lines = [line for line in capfd.readouterr().err.splitlines() if "received after" in line]
     assert len(lines) == 1 and "[posture_node]: '/belief' received after" in lines[0], lines
     assert lines[0].endswith(" s of waiting")
+
+
+@pytest.mark.parametrize("node_class", [PostureNode, MicNode])
+def test_a_steady_input_that_stops_is_said_once_and_again_when_it_is_back(
+    graph: Callable, capfd: pytest.CaptureFixture[str], node_class: type
+) -> None:
+    """posture_node's ``belief`` and mic_node's ``audio`` stop: one WARN, one WARN diagnostic.
+
+    Each names the topic and the silence; an INFO line says when it is back (the node's
+    clock is the test's: ``now_s``). mic_node's ``no_step`` (windows without a step) keeps
+    ``belief`` alive.
+    """
+    if node_class is MicNode:
+        node, probe, executor, play = _mic(graph, threshold_mode="fixed")
+        topic, message, talk = "audio", _audio([-50.0]), probe.pubs["audio"]
+    else:
+        node, probe, executor = graph(PostureNode)
+        topic, message, talk = "belief", Float64(data=0.95), probe.talk("belief", Float64)
+        executor.connected(talk)
+    clock = [1000.0]
+    node.now_s = lambda: clock[0]
+    statuses = probe.listen("/diagnostics", DiagnosticArray)
+
+    def send(publisher: Any, message: Any, name: str, at_s: float) -> None:
+        clock[0] = at_s
+        count = node.arrivals.get(name, 0)
+        publisher.publish(message)
+        executor.run_until(lambda: node.arrivals.get(name, 0) > count, f"'{name}' at the node")
+
+    def status_at(at_s: float) -> tuple[bytes, str, dict[str, str]]:
+        clock[0] = at_s
+        heard = len(statuses)
+        node.publish_diagnostics()
+        executor.run_until(lambda: len(statuses) > heard, "a diagnostics message")
+        [status] = statuses[-1].status
+        return status.level, status.message, {v.key: v.value for v in status.values}
+
+    def said(fragment: str) -> list[str]:
+        return [line for line in capfd.readouterr().err.splitlines() if fragment in line]
+
+    send(talk, message, topic, 1000.0)
+    last_s = 1000.0
+    if node_class is PostureNode:  # windows without a step: the beliefs pause, not stop
+        no_step = probe.talk("no_step", Int64MultiArray)
+        executor.connected(no_step)
+        send(no_step, no_step_message(NoStep(7, 3)), "no_step", 1004.0)
+        last_s = 1004.0
+    said("")  # what came so far
+    level, _, values = status_at(last_s + 4.0)
+    assert level == OK and f"{topic}_silent_s" not in values and said("nothing on") == []
+    level, text, values = status_at(last_s + 6.0)
+    stopped = said("nothing on")
+    assert len(stopped) == 1 and "WARN" in stopped[0] and "for 6.0 s, after 1 messages" in (
+        stopped[0]) and f"'/{topic}'" in stopped[0], (stopped, text)  # fmt: skip
+    assert level == WARN and f"nothing on '/{topic}' for 6 s" in text, text
+    assert float(values[f"{topic}_silent_s"]) == 6.0 and values["input_stops"] == "1"
+    level, text, values = status_at(last_s + 9.0)  # still silent: no second line
+    assert level == WARN and float(values[f"{topic}_silent_s"]) == 9.0 and said("nothing on") == []
+    send(talk, message, topic, last_s + 11.0)
+    back = said("back after")
+    assert len(back) == 1 and f"'/{topic}' back after 11.0 s without a message" in back[0], back
+    level, _, values = status_at(last_s + 12.0)
+    assert level == OK and f"{topic}_silent_s" not in values and values["input_stops"] == "1"
+
+
+def test_a_steady_inputs_bound_follows_its_usual_pace_and_no_message_is_no_stop() -> None:
+    """A steady input's bound: at least the floor, four usual intervals when longer.
+
+    Never judged before the first message; a companion's message counts as its own.
+    """
+    inputs = SteadyInputs(floor_s=5.0)
+    inputs.watch("sound_step", companions=("no_step",))
+    assert inputs.newly_silent(1e6) == [], "nothing came yet: not judged here"
+    for at_s in (0.0, 0.5, 1.0):
+        inputs.arrived("sound_step", at_s)
+    assert inputs.bound_s("sound_step") == 5.0
+    inputs.arrived("no_step", 5.0)
+    assert inputs.newly_silent(9.9) == [] and inputs.newly_silent(10.5) == [("sound_step", 5.5)]
+    assert inputs.newly_silent(12.0) == [] and inputs.silent(12.0) == {"sound_step": 7.0}
+    assert inputs.arrived("sound_step", 13.0) == [("sound_step", 8.0)] and inputs.stops == 1
+    slow = SteadyInputs(floor_s=5.0)  # a room at speed 0.1: a window each 5 s
+    slow.watch("audio")
+    for at_s in range(0, 60, 5):
+        slow.arrived("audio", float(at_s))
+    assert slow.bound_s("audio") == 20.0 and slow.newly_silent(55.0 + 19.0) == []
+    assert slow.newly_silent(55.0 + 21.0) == [("audio", 21.0)]

@@ -86,12 +86,14 @@ from infomax_contingency.nodes.graph_node import (
     OK,
     WARN,
     GraphNode,
+    count_only,
     take_from_writer,
     take_on_pace,
 )
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
+    NO_STEP,
     SOUND_STEP,
     STEP_APPLIED,
     VOCALIZE_STEP,
@@ -189,9 +191,12 @@ class BeliefNode(GraphNode):
         )
         self._bits_gate = self.create_timer(BITS_GATE_POLL_S, self._subscribe_bits_when_ready)
         self.create_service(Trigger, "~/reset", self._on_reset)
-        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
+        count_only(self, Int64MultiArray, NO_STEP)  # steps paused, not stopped
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?",
+                          companions=(NO_STEP,))  # fmt: skip
         self.wait_visibly(
-            SOUND_STEP, "the bits of mic_node, read once a controller publishes decisions"
+            SOUND_STEP, "the bits of mic_node, read once a controller publishes decisions",
+            companions=(NO_STEP,),
         )
 
     def _subscribe_bits_when_ready(self) -> None:

@@ -67,6 +67,7 @@ from infomax_contingency.nodes.graph_node import (
     OK,
     WARN,
     GraphNode,
+    count_only,
     take_from_writer,
     take_on_pace,
 )
@@ -74,6 +75,7 @@ from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.step_topics import (
+    NO_STEP,
     SOUND_STEP,
     VOCALIZE_STEP,
     StepBit,
@@ -202,8 +204,10 @@ class ControllerNode(GraphNode):
             self._listeners_ready, 0.0, self._start_answering,
             waiting_for=f"{self.wait_for_listeners} listeners on '{VOCALIZE_STEP}'",
         )  # fmt: skip
+        count_only(self, Int64MultiArray, NO_STEP)
         self.wait_visibly(
-            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?"
+            SOUND_STEP, "the bits of mic_node: is mic_node running and hearing audio?",
+            companions=(NO_STEP,),
         )
 
     def _listeners_ready(self) -> bool:

@@ -10,7 +10,11 @@ controller_node for ``sound_step``, belief_node for both step topics, posture_no
 ``belief``, ...) calls :meth:`GraphNode.wait_visibly`: it logs at once (INFO) what it
 waits for and again when the first message came, with the time waited; when nothing
 has arrived after :data:`WAITING_NOTICE_S` seconds it logs once (WARN) how to provide
-it, and its diagnostics say WARN "waiting for ..." until it arrives.
+it, and its diagnostics say WARN "waiting for ..." until it arrives. Such an input arrives
+steadily once it has started: when it then stops (nothing for :data:`STOPPED_NOTICE_S`
+seconds, or a few of its usual intervals if longer: :mod:`~infomax_contingency.core.steady`),
+the node logs once (WARN) the topic and how long it has been silent, its diagnostics say
+WARN with ``TOPIC_silent_s`` among the values, and an INFO line says when it is back.
 
 Intruders: a node that listens to a topic with one rightful publisher (``sound`` and
 ``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
@@ -42,6 +46,7 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
+from infomax_contingency.core.steady import SteadyInputs
 from infomax_contingency.core.stepclock import (
     LockstepPacer,
     Pace,
@@ -80,6 +85,10 @@ RELEASED_WINDOW = "the next window anyway"
 WAITING_NOTICE_S = 5.0
 """Seconds without an awaited input before a node says what it waits for."""
 
+STOPPED_NOTICE_S = WAITING_NOTICE_S
+"""Seconds without a message on a steady input that had come before a node says it stopped
+(at the least: a few of the input's usual intervals if longer; see core.steady)."""
+
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
@@ -100,8 +109,7 @@ class GraphNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
         try:
-            self.intruders: dict[str, list[str]] = {}
-            """Watched topics with more than one publisher -> the publishers (last check)."""
+            self.intruders: dict[str, list[str]] = {}  # watched topics -> their publishers
             self.started_ns = time.time_ns()
             self.stale_messages = 0
             """Messages ignored because they were published before this node started."""
@@ -144,6 +152,7 @@ class GraphNode(Node):
             """Topics waited for visibly, nothing received yet -> when the wait began (now_s)."""
             self._visible_wait_since_s = 0.0
             """When the first wait began (now_s); the WARN of check_waiting counts from it."""
+            self.steady = SteadyInputs(STOPPED_NOTICE_S)  # the steady inputs: which stopped
             self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             self.configure()
             self.activate()
@@ -257,22 +266,35 @@ class GraphNode(Node):
     def count_arrival(self, topic: str) -> None:
         """Count one message received on ``topic`` (done by :meth:`subscribe`).
 
-        The first one on a topic waited for visibly is logged with the time waited.
+        The first one on a topic waited for visibly is logged with the time waited, and
+        the first one after a steady input was said to have stopped with its silence.
         """
         count = self.arrivals[topic] = self.arrivals.get(topic, 0) + 1
+        for name, silent_s in self.steady.arrived(topic, self.now_s()):
+            self.get_logger().info(
+                f"'{self.resolve_topic_name(name)}' back after {silent_s:.1f} s without a message"
+            )
         if count == 1 and topic in self._waiting_since_s:
             waited_s = self.now_s() - self._waiting_since_s.pop(topic)
             self.get_logger().info(
                 f"'{self.resolve_topic_name(topic)}' received after {waited_s:.1f} s of waiting"
             )
 
-    def wait_visibly(self, topic: str, hint: str) -> None:
+    def wait_visibly(
+        self, topic: str, hint: str, steady: bool = True, companions: tuple[str, ...] = ()
+    ) -> None:
         """Log that this node waits for ``topic``, and again when it came (with the wait).
 
         When nothing arrives within :data:`WAITING_NOTICE_S` s, a warning says so with
         ``hint``, how to provide it (e.g. which node publishes it). Checked by
         :meth:`check_waiting` with each diagnostics message (every diagnostics_period_s).
+        A ``steady`` input (one that comes every window or faster once it has started)
+        that stops is said too (:data:`STOPPED_NOTICE_S`); a message on one of
+        ``companions`` counts as one of its own (``no_step``: mic_node's windows without a
+        step; the node counts them with :func:`count_only`).
         """
+        if steady:
+            self.steady.watch(topic, companions)
         if not self._awaited:
             self._visible_wait_since_s = self.now_s()
         self._awaited.append((topic, hint))
@@ -372,9 +394,20 @@ class GraphNode(Node):
 
         Also checks what the node still waits for (:meth:`wait_visibly`).
         """
-        waited_s = self.now_s() - self._visible_wait_since_s
+        now_s = self.now_s()
+        waited_s = now_s - self._visible_wait_since_s
         if self._awaited and waited_s >= WAITING_NOTICE_S:  # before, nothing to say
             self.check_waiting(waited_s)
+        hints = dict(self._awaited)
+        for topic, silent_s in self.steady.newly_silent(now_s):
+            self.get_logger().warning(
+                f"nothing on '{self.resolve_topic_name(topic)}' for {silent_s:.1f} s, after"
+                f" {self.arrivals.get(topic, 0)} messages: it stopped ({hints[topic]})"
+            )
+        silent = self.steady.silent(now_s)
+        notices = [self.waiting_for] if self.waiting_for else []
+        notices += [f"nothing on '{self.resolve_topic_name(topic)}' for {silent_s:.0f} s"
+                    for topic, silent_s in silent.items()]  # fmt: skip
         self.intruders = self.extra_publishers(self.WATCHED_TOPICS)
         for topic, names in self.intruders.items():
             self.warn_intrusion(
@@ -382,10 +415,13 @@ class GraphNode(Node):
             )
         level, message, values = self.diagnostic_status()
         values.update({f"publishers_{t}": ", ".join(names) for t, names in self.intruders.items()})
-        if self.waiting_for and level == OK:
-            level, message = WARN, self.waiting_for
-        elif self.waiting_for and level == WARN:
-            message = f"{message}; {self.waiting_for}"
+        values.update({f"{topic}_silent_s": silent_s for topic, silent_s in silent.items()})
+        if self.steady.stops:
+            values["input_stops"] = self.steady.stops
+        if notices and level == OK:
+            level, message = WARN, "; ".join(notices)
+        elif notices and level == WARN:
+            message = "; ".join([message, *notices])
         status = DiagnosticStatus(
             level=level,
             # unique across robots: robot1/belief_node (the root namespace: belief_node)
@@ -414,6 +450,17 @@ class GraphNode(Node):
         """Ask :func:`run_node` to stop spinning and return ``exit_status``."""
         if not self.finished.done():
             self.finished.set_result(exit_status)
+
+
+def count_only(node: GraphNode, kind: type, topic: str, qos: QoSProfile = STREAM_QOS
+               ) -> Subscription:  # fmt: skip
+    """Subscribe ``node`` to ``topic`` only to count its messages (raw: none is decoded).
+
+    For a steady input's companion (:meth:`GraphNode.wait_visibly`): its messages say
+    that the input's source is alive while the input itself pauses.
+    """
+    return node.create_subscription(kind, topic, lambda _data: node.count_arrival(topic), qos,
+                                    raw=True)  # fmt: skip
 
 
 def take_on_pace(node: GraphNode, pace: StepPace, jumps: RecentEvents, step: int,

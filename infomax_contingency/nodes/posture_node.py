@@ -32,11 +32,11 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S, WriterFollower
 from infomax_contingency.core.posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
-from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode
+from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode, count_only
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import LATCHED_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
-from infomax_contingency.nodes.step_topics import SELF_SOUND, self_sound_message
+from infomax_contingency.nodes.step_topics import NO_STEP, SELF_SOUND, self_sound_message
 
 DEFAULT_JOINTS = ("head_pan", "head_tilt", "left_arm_lift", "right_arm_lift")
 DEFAULT_ATTENTIVE = (0.0, 0.15, 0.3, 0.3)
@@ -120,7 +120,9 @@ class PostureNode(GraphNode):
         self.motions_declared = 0
         self._set_declare_motion_sound(self.declare_motion_sound)
         self.subscribe(Float64, "belief", self._on_belief)
-        self.wait_visibly("belief", "P(S=1) from belief_node: is it running?")
+        count_only(self, Int64MultiArray, NO_STEP)  # beliefs paused, not stopped
+        self.wait_visibly("belief", "P(S=1) from belief_node: is it running?",
+                          companions=(NO_STEP,))  # fmt: skip
         self._publish(self._initial)
 
     def _check_positions(self, posture: str, positions: list[float]) -> None:

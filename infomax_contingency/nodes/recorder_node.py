@@ -201,7 +201,8 @@ class RecorderNode(GraphNode):
         self._session_pub.publish(String(data=self.description))
         self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
         self.create_timer(self.flush_period_s, self._flush)
-        self.wait_visibly("sound_step", "the bits of mic_node: the session starts with them")
+        self.wait_visibly("sound_step", "the bits of mic_node: the session starts with them",
+                          companions=("no_step",))  # recorded: paused while no step comes
 
     def _fail(self, message: str) -> None:
         """Stop writing after an error (logged once, shown in the diagnostics)."""

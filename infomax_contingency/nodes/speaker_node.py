@@ -59,13 +59,19 @@ from infomax_contingency.nodes.graph_node import (
     OK,
     WARN,
     GraphNode,
+    count_only,
     take_from_writer,
     take_on_pace,
 )
 from infomax_contingency.nodes.parameters import ConfigError, device_parameter
 from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
-from infomax_contingency.nodes.step_topics import VOCALIZE_STEP, StepDecision, parse_decision
+from infomax_contingency.nodes.step_topics import (
+    NO_STEP,
+    VOCALIZE_STEP,
+    StepDecision,
+    parse_decision,
+)
 
 EVENTS_POLL_S = 0.01
 """Seconds between checks for sounds that started, while a loudspeaker is open (a dry run
@@ -142,7 +148,9 @@ class SpeakerNode(GraphNode):
         )
         self.parameters.live("dry_run", self._set_dry_run, self._check_dry_run)
         self.subscribe(Int64MultiArray, VOCALIZE_STEP, self._on_decision, STEP_READER_QOS)
-        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?")
+        count_only(self, Int64MultiArray, NO_STEP)  # decisions paused, not stopped
+        self.wait_visibly(VOCALIZE_STEP, "the decisions of controller_node: is it running?",
+                          companions=(NO_STEP,))  # fmt: skip
 
     def _on_decision(self, msg: Int64MultiArray, stamp: int) -> None:
         decision = parse_decision(msg)
