@@ -138,7 +138,8 @@ def test_a_bag_metadata_that_is_a_device_is_refused(tmp_path):
 
 
 def test_session_files_are_regular_text_files_or_refused(tmp_path):
-    from infomax_contingency.nodes.parameters import ConfigError, undeclared_parameters
+    from infomax_contingency.nodes.parameter_files import undeclared_parameters
+    from infomax_contingency.nodes.parameters import ConfigError
     from infomax_contingency.nodes.recorder_node import session_description
 
     binary = tmp_path / "binary.yaml"

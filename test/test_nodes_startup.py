@@ -180,6 +180,11 @@ CASES = {
         ["volume:=2.0"],
         "parameter 'volume' = 2.0 is not allowed: a number in [0.001, 1]",
     ),
+    "sim_time": (  # nothing publishes /clock: the nodes' timers would never fire
+        "belief_node",
+        ["use_sim_time:=true"],
+        "parameter 'use_sim_time' = True is not allowed: these nodes run on the system clock",
+    ),
 }
 
 
@@ -192,8 +197,8 @@ NODE_CLASSES = {
     "speaker_node": SpeakerNode,
 }
 
-PROCESS_CASES = ("window_type", "damaged_table")
-"""The refusals also run as processes: a parameter's range and a file's content."""
+PROCESS_CASES = ("window_type", "damaged_table", "sim_time")
+"""The refusals also run as processes: a parameter's range, a file's content, rclpy's own."""
 
 
 def node_command(node: str, parameters: list[str]) -> list[str]:

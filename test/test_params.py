@@ -35,7 +35,7 @@ from infomax_contingency.nodes.controller_node import ControllerNode
 from infomax_contingency.nodes.fake_audio_node import FakeAudioNode
 from infomax_contingency.nodes.graph_node import ERROR, WAITING_NOTICE_S, WARN
 from infomax_contingency.nodes.mic_node import MicNode
-from infomax_contingency.nodes.parameters import ConfigError
+from infomax_contingency.nodes.parameters import SIM_TIME_REASON, ConfigError
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.qos import LATCHED_READER_QOS
 from infomax_contingency.nodes.speaker_node import EVENTS_POLL_S, SpeakerNode
@@ -127,6 +127,24 @@ def test_a_live_set_is_checked_as_at_start_up(graph: Callable) -> None:
     assert node.hysteresis.bored_below == 0.2
     [result] = set_remotely(probe, executor, "posture_node", bored_positions=[0.0])
     assert not result.successful and "one position per joint" in result.reason
+
+
+@pytest.mark.parametrize("node_class", [PostureNode, MicNode])
+def test_use_sim_time_true_is_refused_live_and_the_timers_run_on(
+    graph: Callable, node_class: type
+) -> None:
+    """Nothing publishes /clock: a node on simulated time would stop its timers unseen."""
+    node, probe, executor = graph(node_class)
+    [result] = set_remotely(probe, executor, node_class.NODE_NAME, use_sim_time=True)
+    assert not result.successful and result.reason == SIM_TIME_REASON
+    assert node.get_parameter("use_sim_time").value is False
+    assert not node.get_clock().ros_time_is_active
+    statuses = probe.listen("/diagnostics", DiagnosticArray)
+    executor.run_until(lambda: len(statuses) >= 2, "diagnostics on the node's timer")
+    [result] = set_remotely(probe, executor, node_class.NODE_NAME, use_sim_time=False)
+    assert result.successful, result.reason
+    [result] = set_remotely(probe, executor, node_class.NODE_NAME, use_sim_tme=True)  # a typo
+    assert not result.successful and "'use_sim_tme' is not a parameter" in result.reason
 
 
 def test_parameters_that_cannot_change_are_read_only_with_a_reason(graph: Callable) -> None:
@@ -709,7 +727,7 @@ def test_a_new_bit_source_is_a_mic_node_bit_source_with_its_parameters(graph: Ca
 
 def test_mic_knows_the_settings_of_the_bit_sources_it_does_not_use(graph: Callable) -> None:
     """robot.yaml gives every bit source's settings: none is reported as undeclared."""
-    from infomax_contingency.nodes.parameters import undeclared_parameters
+    from infomax_contingency.nodes.parameter_files import undeclared_parameters
 
     node, _probe, _executor = graph(MicNode, bit_source="vad")
     assert not node.has_parameter("threshold_mode") and "threshold_mode" in node.parameters.known

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from infomax_contingency.nodes.parameters import (
+from infomax_contingency.nodes.parameter_files import (
     SHARED_PARAMETERS,
     parameter_sections,
     params_files,

@@ -33,7 +33,7 @@ from infomax_contingency.lifetime import (
     signal_when_parent_dies,
     stop_came_while_starting,
 )
-from infomax_contingency.nodes.parameters import (
+from infomax_contingency.nodes.parameter_files import (
     params_files,
     undeclared_command_line_parameters,
     undeclared_parameters,
