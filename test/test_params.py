@@ -119,6 +119,48 @@ def test_a_live_posture_threshold_changes_the_posture_at_once(graph: Callable) -
     assert [m.data for m in postures] == ["bored", "attentive"]
 
 
+def test_an_atomic_set_is_checked_by_the_values_it_sets_together(graph: Callable) -> None:
+    """A pair valid together is taken, though one of it is not valid with the other's old value.
+
+    bored_below 0.95 is above the old attentive_above 0.9; a pair that is not valid names
+    the values of the set.
+    """
+    node, probe, executor = graph(PostureNode)
+    client = AsyncParameterClient(probe, "posture_node")
+    executor.run_until(lambda: client.services_are_ready(), "the parameter services")
+
+    def atomically(**values: float) -> SetParametersResult:
+        future = client.set_parameters_atomically(
+            [Parameter(name, value=value) for name, value in values.items()])
+        executor.run_until(future.done, "the answer of set_parameters_atomically")
+        return future.result().result
+
+    result = atomically(bored_below=0.95, attentive_above=0.97)
+    assert result.successful, result.reason
+    assert (node.hysteresis.bored_below, node.hysteresis.attentive_above) == (0.95, 0.97)
+    result = atomically(attentive_above=0.5, bored_below=0.6)
+    assert not result.successful and result.reason.startswith(
+        "parameter 'bored_below' = 0.6: must be below 'attentive_above' (= 0.5)")
+    assert (node.hysteresis.bored_below, node.hysteresis.attentive_above) == (0.95, 0.97)
+    [result] = set_remotely(probe, executor, "posture_node", attentive_above=0.9)
+    assert not result.successful and "(= 0.9)" in result.reason, "one at a time: the old pair"
+
+
+def test_an_atomic_set_of_the_fake_rooms_bounds_is_checked_and_applied_as_a_pair(
+    graph: Callable,
+) -> None:
+    """event_min_s above the old event_max_s, with a new event_max_s above it: one room."""
+    node, probe, executor = graph(FakeAudioNode)
+    client = AsyncParameterClient(probe, "fake_audio_node")
+    executor.run_until(lambda: client.services_are_ready(), "the parameter services")
+    low, high = node.room.config.event_max_s + 1.0, node.room.config.event_max_s + 2.0
+    future = client.set_parameters_atomically(
+        [Parameter("event_min_s", value=low), Parameter("event_max_s", value=high)])
+    executor.run_until(future.done, "the answer of set_parameters_atomically")
+    assert future.result().result.successful, future.result().result.reason
+    assert (node.room.config.event_min_s, node.room.config.event_max_s) == (low, high)
+
+
 def test_a_live_set_is_checked_as_at_start_up(graph: Callable) -> None:
     node, probe, executor = graph(PostureNode)
     [result] = set_remotely(probe, executor, "posture_node", bored_below=0.95)

@@ -472,9 +472,15 @@ class FakeAudioNode(GraphNode):
             )
 
     def _room_config(self, name: str, value: float) -> FakeRoomConfig:
-        """The room's parameters with ``name`` = ``value``; ConfigError as at start-up."""
+        """The room's parameters with ``name`` = ``value``; ConfigError as at start-up.
+
+        The other room parameters of the same set count with their new values (an atomic
+        set of ``event_min_s`` and ``event_max_s`` is judged, and applied, as a pair).
+        """
+        names = {room_name for room_name, *_ in ROOM_PARAMETERS}
+        values = {n: v for n, v in self.parameters.the_set.items() if n in names}
         try:
-            return dataclasses.replace(self.room.config, **{name: value})
+            return dataclasses.replace(self.room.config, **{**values, name: value})
         except ValueError as error:
             raise ConfigError(str(error)) from None
 

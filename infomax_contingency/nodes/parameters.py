@@ -20,6 +20,7 @@ from __future__ import annotations
 import array
 import math
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 from typing import Any
 
 from rcl_interfaces.msg import (
@@ -66,6 +67,8 @@ class ParameterReader:
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._checks: dict[str, Callable[[Any], None]] = {}
         self._refusal = ""
+        self._in_set: dict[str, Any] = {}
+        """The live values of the set being checked, coerced (see :meth:`in_set`)."""
         self.known: set[str] = set()
         """Names the node takes in another configuration though it does not declare them
         now (another bit source's settings): not a misspelling (``undeclared_parameters``)."""
@@ -84,11 +87,26 @@ class ParameterReader:
 
         Only for parameters declared with ``read_only=False``. ``check(value)`` (optional)
         raises :class:`ConfigError` for a value that its start-up rule allows but the
-        node's other parameters do not (the same message as at start-up).
+        node's other parameters do not (the same message as at start-up); it reads those
+        with :meth:`in_set`, so that parameters set together are judged together.
         """
         self._appliers[name] = on_change
         if check is not None:
             self._checks[name] = check
+
+    def in_set(self, name: str) -> Any:
+        """``name``'s value in the set being checked, else its current value.
+
+        For a check that compares parameters (posture_node: ``bored_below`` below
+        ``attentive_above``): an atomic set of both is judged by the pair it sets, not
+        one new value against the other's old one.
+        """
+        return self._in_set[name] if name in self._in_set else self._node.get_parameter(name).value
+
+    @property
+    def the_set(self) -> dict[str, Any]:
+        """The live values of the set being checked or applied (coerced; empty between sets)."""
+        return dict(self._in_set)
 
     def _check_first(self, parameters: list[Parameter]) -> list[Parameter]:
         """Check a set by the start-up rules before rclpy checks the descriptors.
@@ -105,6 +123,7 @@ class ParameterReader:
         (:data:`SIM_TIME_REASON`); else those pass unchanged.
         """
         self._refusal = ""
+        self._in_set = _live_values(parameters, self._coercers, self._appliers)
         checked = []
         undeclared = [p.name for p in parameters if not self._node.has_parameter(p.name)]
         read_only = [p.name for p in parameters if p.name not in undeclared
@@ -131,6 +150,7 @@ class ParameterReader:
                 checked.append(self._node.get_parameter(parameter.name))
                 continue
             checked.append(Parameter(parameter.name, value=value))
+        self._in_set = {}
         return checked
 
     def _undeclared_reason(self, name: str) -> str:
@@ -161,21 +181,24 @@ class ParameterReader:
             reason, self._refusal = self._refusal, ""
             return SetParametersResult(successful=False, reason=reason)
         values = {}
-        for parameter in parameters:
-            coerce = self._coercers.get(parameter.name)
-            if coerce is None:  # being declared, or not one of ours (use_sim_time)
-                continue
-            if parameter.name not in self._appliers:
-                return SetParametersResult(successful=False,
-                                           reason=READ_ONLY_REASON.format(parameter.name))
-            try:
+        self._in_set = _live_values(parameters, self._coercers, self._appliers)
+        try:
+            for parameter in parameters:
+                coerce = self._coercers.get(parameter.name)
+                if coerce is None:  # being declared, or not one of ours (use_sim_time)
+                    continue
+                if parameter.name not in self._appliers:
+                    return SetParametersResult(successful=False,
+                                               reason=READ_ONLY_REASON.format(parameter.name))
                 values[parameter.name] = coerce(parameter.value)
                 self._checks.get(parameter.name, lambda _value: None)(values[parameter.name])
-            except ConfigError as error:
-                return SetParametersResult(successful=False, reason=str(error))
-        for name, value in values.items():
-            self._appliers[name](value)
-            self._node.get_logger().info(f"parameter '{name}' set to {value!r}")
+            for name, value in values.items():  # an applier may read the set too
+                self._appliers[name](value)
+                self._node.get_logger().info(f"parameter '{name}' set to {value!r}")
+        except ConfigError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        finally:
+            self._in_set = {}
         return SetParametersResult(successful=True)
 
     def _declare(
@@ -417,6 +440,18 @@ class ParameterReader:
             " 'params'): one window is one step of the model; remove window_s"
         )
 
+
+
+def _live_values(parameters: list[Parameter], coercers: dict[str, Callable[[Any], Any]],
+                 appliers: dict[str, Callable[[Any], None]]) -> dict[str, Any]:  # fmt: skip
+    """The coerced value of each live parameter of a set (one its rule refuses left out)."""
+    values = {}
+    for parameter in parameters:
+        coerce = coercers.get(parameter.name)
+        if coerce is not None and parameter.name in appliers:
+            with suppress(ConfigError):  # refused by its own rule in the check
+                values[parameter.name] = coerce(parameter.value)
+    return values
 
 
 def device_parameter(node: Node, what: str) -> str:

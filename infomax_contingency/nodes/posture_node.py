@@ -149,12 +149,12 @@ class PostureNode(GraphNode):
         read.live(
             "attentive_above",
             lambda value: setattr(rule, "attentive_above", value),
-            lambda value: _check_thresholds(value, rule.bored_below),
+            lambda value: _check_thresholds(value, read.in_set("bored_below")),
         )
         read.live(
             "bored_below",
             lambda value: setattr(rule, "bored_below", value),
-            lambda value: _check_thresholds(rule.attentive_above, value),
+            lambda value: _check_thresholds(read.in_set("attentive_above"), value),
         )
         set_positions(ATTENTIVE)
         set_positions(BORED)
