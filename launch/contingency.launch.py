@@ -48,9 +48,12 @@ kill, a supervisor's SIGTERM, after which ``ros2 launch`` itself would leave its
 running): the launch names its own process in ``INFOMAX_CONTINGENCY_PARENT_PID`` and each
 node asks the kernel for SIGTERM when its parent dies (``nodes/runtime.end_with_parent``;
 a node started under a ``--launch-prefix`` such as gdb ends with the prefix's process).
-mic_node ending by itself (status 0: ``max_windows`` bits published, or the end of a wav
-file with ``exit_at_end``) stops the other nodes of its robot with SIGINT, so the launch
-ends (status 0) once they are done; the last line says so.
+mic_node ending with status 0 (``max_windows`` bits published, the end of a wav file
+with ``exit_at_end``, or a stop signal sent to it alone) stops the other nodes of its
+robot with SIGINT, so the launch ends (status 0) once they are done; the last line says
+so. Another node that ends with status 0 or by a stop signal while the graph runs (killed
+by hand, say) leaves the rest running, as a node restarted by hand joins it again: an
+ERROR line names it, what stops working without it, and the command that restarts it.
 ``multi_robot.launch.py`` starts several robots against several simulated rooms;
 ``bringup`` runs the same graph in one process.
 """
@@ -88,6 +91,17 @@ fake room); mic_node (and the fake room) are added apart."""
 PARENT_PID_VARIABLE = "INFOMAX_CONTINGENCY_PARENT_PID"
 """What names the process a node ends with (``nodes/runtime.PARENT_PID_VARIABLE``; not
 imported, so that loading this file loads nothing of the package)."""
+
+STOPS_WORKING = {
+    "fake_audio_node": "no audio from the simulated room: mic_node makes no bits",
+    "controller_node": "no decisions: the robot stops vocalizing, belief_node stops updating"
+                       " and the posture holds",
+    "belief_node": "no belief: the posture holds",
+    "posture_node": "the posture holds",
+    "speaker_node": "the robot makes no sound (its decisions go on unheard)",
+    "recorder_node": "the recording stops (the bag holds what came before)",
+}
+"""What stops working when a node other than mic_node ends while the graph runs."""
 
 NODE_STOP_DEADLINE_S = 20.0
 """Seconds a node takes at most to end after its stop signal (``nodes/runtime.STOP_DEADLINE_S``;
@@ -159,6 +173,8 @@ class _ExitWatch:
         self.mic = None
         self.interrupted = ""
         """The reason of a shutdown the user asked for (Ctrl-C), once it came."""
+        self.restart: dict[int, str] = {}
+        """id of a node action -> the command that starts that node again by hand."""
 
     def on_shutdown(self, event, context: LaunchContext) -> None:
         """Remember a Ctrl-C: the last line then says the launch was interrupted."""
@@ -179,7 +195,8 @@ class _ExitWatch:
         if event.action is self.mic and event.returncode == 0 and not self.failure:
             if not context.is_shutdown and not self.finished:
                 self.finished = (
-                    f"{event.action.name} finished by itself (max_windows or exit_at_end)"
+                    f"{event.action.name} ended with status 0 (max_windows reached, the end of"
+                    " its file with exit_at_end, or a stop signal)"
                 )
                 actions.append(LogInfo(msg=f"{self.finished}: stopping the other nodes"))
                 actions += [
@@ -195,6 +212,7 @@ class _ExitWatch:
             actions.append(LogInfo(msg=f"launch ended: {self.finished}"))
         # -2 / -15 / 130 / 143: interrupted, because the launch is stopping (Ctrl-C).
         failed = event.returncode not in (0, None, -2, -15, 130, 143)
+        self._say_gone(event, context, failed)
         if failed and not self.failure:
             self.failure = f"{event.action.name} exited with status {event.returncode}"
             if not self.interrupted:
@@ -214,7 +232,41 @@ class _ExitWatch:
         return actions
 
 
+    def _say_gone(self, event, context: LaunchContext, failed: bool) -> None:
+        """ERROR: a node ended while the graph runs (not stopped by the launch); how to restart.
+
+        Not for mic_node (its end stops the robot) nor a failure (it ends the launch).
+        """
+        if failed or event.action is self.mic or context.is_shutdown or self.finished:
+            return
+        if self.failure or self.interrupted:
+            return  # the launch is stopping: every node ends
+        executable = event.action.name.rsplit("-", 1)[0]
+        launch.logging.get_logger("launch").error(
+            f"{event.action.name} ended (status {event.returncode}) while the graph runs:"
+            f" {STOPS_WORKING.get(executable, 'its part of the graph stops')}. The other nodes"
+            f" run on; restart it with `{self.restart.get(id(event.action), executable)}`, or"
+            " relaunch"
+        )
+
+
 _WATCH = _ExitWatch()
+
+
+def _restart_command(context: LaunchContext, executable: str, namespace: str,
+                     parameters: list) -> str:  # fmt: skip
+    """The ``ros2 run`` command that starts ``executable`` again as this launch started it."""
+    words = ["ros2", "run", PACKAGE, executable, "--ros-args"]
+    if namespace.strip("/"):
+        words += ["-r", f"__ns:=/{namespace.strip('/')}"]
+    for item in parameters:
+        if isinstance(item, dict):
+            for key, value in item.items():
+                shown = str(value).lower() if isinstance(value, bool) else str(value)
+                words += ["-p", f"{key}:={shown}"]
+        else:
+            words += ["--params-file", item.perform(context)]
+    return " ".join(words)
 
 
 def _check_namespace(namespace: str) -> None:
@@ -273,7 +325,7 @@ def _graph(context: LaunchContext) -> list:
     def node(executable: str, parameters: list) -> Node:
         # The level of this node's logger only: rcl's, rmw's and DDS's stay at INFO.
         logger = node_logger(namespace_text, executable)
-        return Node(
+        action = Node(
             package=PACKAGE,
             executable=executable,
             name=executable,
@@ -289,6 +341,9 @@ def _graph(context: LaunchContext) -> list:
             emulate_tty=True,
             sigkill_timeout=str(NODE_STOP_DEADLINE_S),
         )
+        _WATCH.restart[id(action)] = _restart_command(context, executable, namespace_text,
+                                                      parameters)  # fmt: skip
+        return action
 
     record = _is_true(context, "record")
     for line in _arguments_of_other_modes(context, fake_room, record):

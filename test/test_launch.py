@@ -327,13 +327,41 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
     assert "[mic_node]: 8 bits published (max_windows): stopping" in output
     assert "record_dir:=" in output and "is ignored: it is for record:=true" in output
     assert not (tmp_path / "unused").exists()
-    assert "mic_node-1 finished by itself (max_windows or exit_at_end): stopping" in output
+    assert f"{MIC_ENDED}: stopping" in output
     for node in ("fake_audio_node-2", "controller_node-3", "belief_node-4"):
         assert f"[{node}]: process has finished cleanly" in output
-    assert output.strip().splitlines()[-1].endswith(
-        "launch ended: mic_node-1 finished by itself (max_windows or exit_at_end)"
-    )
-    assert "Traceback" not in output
+    assert output.strip().splitlines()[-1].endswith(f"launch ended: {MIC_ENDED}")
+    assert "Traceback" not in output and "while the graph runs" not in output
+
+
+MIC_ENDED = ("mic_node-1 ended with status 0 (max_windows reached, the end of its file with"
+             " exit_at_end, or a stop signal)")  # fmt: skip
+"""How the launch says that mic_node ended by itself (it cannot tell a stop signal apart)."""
+
+
+@pytest.mark.slow
+def test_a_node_stopped_alone_is_named_with_what_stops_and_how_to_restart_it(
+    workspace: Path, launch, tmp_path: Path
+) -> None:
+    """belief_node stopped by hand: an ERROR line, the graph runs on; mic_node's end is neutral."""
+    graph = launch("contingency.launch.py use_fake_room:=true namespace:=robot5")
+    graph.wait_for("[robot5.posture_node]: '/robot5/belief' received after")
+    pids = dict(re.findall(r"\[(\w+)-\d+\]: process started with pid \[(\d+)\]",
+                           graph.output()))  # fmt: skip
+    os.kill(int(pids["belief_node"]), signal.SIGTERM)
+    graph.wait_for("belief_node-4 ended (status")
+    [line] = [line for line in graph.output().splitlines() if "belief_node-4 ended" in line]
+    restart = ("restart it with `ros2 run infomax_contingency belief_node --ros-args -r"
+               " __ns:=/robot5 --params-file ")  # fmt: skip
+    assert line.startswith("[ERROR]") and restart in line, line
+    assert "while the graph runs: no belief: the posture holds" in line, line
+    assert graph.process.poll() is None, "the graph runs on without it"
+    os.kill(int(pids["mic_node"]), signal.SIGTERM)
+    assert graph.wait(120) == 0, graph.output()[-3000:]
+    output = graph.output()
+    assert f"{MIC_ENDED}: stopping the other nodes" in output
+    assert output.strip().splitlines()[-1].endswith(f"launch ended: {MIC_ENDED}")
+    assert output.count("while the graph runs") == 1, output[-3000:]
 
 
 REQUEST_RETRY_S = 5.0
