@@ -148,16 +148,21 @@ def test_the_stop_deadline_starts_once_with_the_first_stop(
     """Nothing happens before a stop; the first stop (not a later one) starts the deadline."""
     monkeypatch.setattr(runtime, "DEADLINE_POLL_S", 0.01)
     ended: list[tuple[str, float]] = []
+    armed: list[float] = []
     stop = runtime.StopSignals("probe", deadline_s=0.3,
-                               on_deadline=lambda *named: ended.append(named))  # fmt: skip
+                               on_deadline=lambda *named: ended.append(named),
+                               arm_hard_deadline=armed.append)  # fmt: skip
     stop._watchdog.start()  # as install() does, without taking over this process's signals
     stop._watchdog.join(0.5)
     assert stop._watchdog.is_alive() and not ended  # no stop yet: no deadline
     stop._handle(signal.SIGTERM, None)
     began = stop.stopping_since
     stop._handle(signal.SIGINT, None)
+    assert not armed  # a signal handler only sets flags
+    stop.start_deadline()
     stop.start_deadline()
     assert stop.requested and stop.stopping_since == began
+    assert len(armed) == 1 and 0 < armed[0] <= 0.3 + runtime.HARD_DEADLINE_MARGIN_S
     stop._watchdog.join(30)
     assert not stop._watchdog.is_alive() and ended == [("probe", 0.3)]
 
@@ -187,6 +192,32 @@ def test_a_node_process_stuck_after_its_stop_signal_ends_by_the_deadline() -> No
             process.wait()
     assert process.returncode == 1
     assert err == "stuck_node: not stopped 1 s after the stop signal; ending now\n"
+
+
+def test_a_node_process_whose_teardown_holds_the_interpreter_still_ends() -> None:
+    """A stop stuck in a C call that keeps the interpreter still ends, with its stacks.
+
+    The deadline's own thread never runs then; the hard deadline ends it, status 1. A
+    launch once waited for ever on a belief_node after its stop signal: one way is this.
+    """
+    program = (
+        "import ctypes\n"
+        "from infomax_contingency.nodes import runtime\n"
+        "runtime.HARD_DEADLINE_MARGIN_S = 1.0\n"
+        "stop = runtime.StopSignals('stuck_node', deadline_s=1.0).install()\n"
+        "stop.start_deadline()  # the spin ended; the teardown begins and hangs\n"
+        "ctypes.PyDLL(None).sleep(120)  # libc's sleep, the interpreter held throughout\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 1
+    assert err.startswith("Timeout (0:00:02)!") and "line 6 in <module>" in err, err
 
 
 def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:

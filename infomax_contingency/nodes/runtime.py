@@ -11,6 +11,7 @@ reason, SIGKILL included (:func:`end_with_parent`).
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -119,6 +120,12 @@ left it alone) then ends at once, with one line and status 1, rather than run on
 DEADLINE_POLL_S = 0.5
 """Seconds between two looks of the stop deadline's watchdog at whether a stop began."""
 
+HARD_DEADLINE_MARGIN_S = 5.0
+"""Seconds after the stop deadline at which a process whose main thread holds the
+interpreter (a C call stuck in DDS's teardown: the deadline's own thread then never runs)
+is ended by :mod:`faulthandler`'s thread, which needs no interpreter: the stacks of its
+threads on stderr (where it hung), then status 1."""
+
 
 def _end_now(program: str, deadline_s: float) -> None:
     """The stop deadline passed: one line on stderr, then end without any more teardown."""
@@ -128,6 +135,11 @@ def _end_now(program: str, deadline_s: float) -> None:
         sys.stderr.flush()
     finally:
         os._exit(1)
+
+
+def _arm_hard_deadline(seconds: float) -> None:
+    """End the process ``seconds`` from now, even if no Python code can run by then."""
+    faulthandler.dump_traceback_later(seconds, exit=True)
 
 
 class StopSignals:
@@ -141,15 +153,21 @@ class StopSignals:
     :meth:`install` also starts a watchdog thread (daemon): once a stop began (a signal,
     or :meth:`start_deadline` when the node finished), a process that has not ended
     ``deadline_s`` (:data:`STOP_DEADLINE_S`) later is ended by ``on_deadline``
-    (:func:`_end_now`). The thread is started here, never from the signal handler or
-    while the interpreter shuts down; the handler only sets flags.
+    (:func:`_end_now`); one whose main thread holds the interpreter, so that the
+    watchdog cannot run, :data:`HARD_DEADLINE_MARGIN_S` later by :mod:`faulthandler`. The
+    thread is started here, never from the signal handler or while the interpreter shuts
+    down; the handler only sets flags.
 
     Args:
         program: the process's name in the deadline's line.
+        deadline_s: seconds from the stop to ``on_deadline``.
+        on_deadline: ends the process: ``(program, deadline_s)``.
+        arm_hard_deadline: ends the process ``seconds`` from now without the interpreter.
     """
 
     def __init__(self, program: str = "node", deadline_s: float = STOP_DEADLINE_S,
-                 on_deadline: Callable[[str, float], None] = _end_now) -> None:  # fmt: skip
+                 on_deadline: Callable[[str, float], None] = _end_now,
+                 arm_hard_deadline: Callable[[float], None] = _arm_hard_deadline) -> None:
         self.requested = False
         self.stopping_since: float | None = None
         """``time.monotonic()`` when the stop began (None: running)."""
@@ -157,6 +175,8 @@ class StopSignals:
         self._program = program
         self._deadline_s = deadline_s
         self._on_deadline = on_deadline
+        self._arm_hard_deadline = arm_hard_deadline
+        self._hard_deadline_armed = False
         self._watchdog = threading.Thread(target=self._watch, name="stop-deadline",
                                           daemon=True)  # fmt: skip
 
@@ -165,6 +185,7 @@ class StopSignals:
             time.monotonic() - self.stopping_since < self._deadline_s
         ):
             time.sleep(DEADLINE_POLL_S)
+        faulthandler.cancel_dump_traceback_later()  # this thread runs: on_deadline ends it
         self._on_deadline(self._program, self._deadline_s)
 
     def install(self) -> StopSignals:
@@ -182,12 +203,21 @@ class StopSignals:
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.requested = True
-        self.start_deadline()
-
-    def start_deadline(self) -> None:
-        """The process is stopping (a signal, or its node finished): it ends by the deadline."""
         if self.stopping_since is None:
             self.stopping_since = time.monotonic()
+
+    def start_deadline(self) -> None:
+        """The process is stopping (a signal, or its node finished): it ends by the deadline.
+
+        Called by the spin loop's caller once it stopped spinning, before any teardown:
+        this also arms the deadline that needs no interpreter (:data:`HARD_DEADLINE_MARGIN_S`).
+        """
+        if self.stopping_since is None:
+            self.stopping_since = time.monotonic()
+        if not self._hard_deadline_armed:
+            self._hard_deadline_armed = True
+            left_s = self._deadline_s - (time.monotonic() - self.stopping_since)
+            self._arm_hard_deadline(max(left_s, 0.0) + HARD_DEADLINE_MARGIN_S)
 
     def restore(self) -> None:
         """Give the signals back to their previous handlers."""
@@ -393,6 +423,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
             return 0
         raise
     finally:
+        stop.start_deadline()  # whatever ended the spin: the teardown ends by the deadline
         for node in nodes:
             try:
                 node.destroy_node()
