@@ -76,6 +76,14 @@ def print_rooms(result: dict) -> None:
         " missed partner; P(active) (windows) in agent-period windows with the partner there,"
         " background and self-feedback windows"
     )
+    _print_summaries(result)
+    _print_operating_curves(result)
+    _print_information_bound(result)
+    _print_belief_figures(result)
+
+
+def _print_summaries(result: dict) -> None:
+    """Per controller, one row per room: settling, errors and the active shares."""
     for label in result["controllers"]:
         print(f"\n{label}")
         print(
@@ -98,6 +106,11 @@ def print_rooms(result: dict) -> None:
                 f"  {_rate(rates['agent']):>12} {_rate(rates['background']):>13}"
                 f" {_rate(rates['self']):>12}"
             )
+
+
+def _print_operating_curves(result: dict) -> None:
+    """Per controller, room and prior: time to settle against false alarms, per threshold."""
+    config = result["config"]
     print(
         "\noperating curves: per upper posture threshold, median s to settle with a partner"
         " / share of empty-room runs that ever turned attentive"
@@ -113,6 +126,11 @@ def print_rooms(result: dict) -> None:
                 )
                 print(f"  {label[:22]:<22} {background:<15} pi={float(pi):<5g}{cells}")
         print(f"  {'':<22} {'':<15} {'threshold':<8}{header}")
+
+
+def _print_information_bound(result: dict) -> None:
+    """Per room: what the bits allow at the measured rates (known rates), and what it needs."""
+    config = result["config"]
     print(
         "\ninformation bound (known rates): per vocalization with the partner there,"
         " agent windows x KL(Bern(P agent) || Bern(P background)) nats; vocalizations to"
@@ -130,7 +148,6 @@ def print_rooms(result: dict) -> None:
                 f" >= {number(bound['vocalizations_bound']).replace('never', 'inf')} vocalizations;"
                 f" needs {needed}"
             )
-    _print_belief_figures(result)
 
 
 def _print_belief_figures(result: dict) -> None:

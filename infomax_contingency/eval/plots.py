@@ -326,25 +326,11 @@ def plot_horizon_maps(result: dict, path: str | Path, params_name: str | None = 
     return _save(figure, path)
 
 
-def plot_efficiency(result: dict, path: str | Path) -> Path:
-    """Three panels per controller (experiment_efficiency).
-
-    Median seconds to a 95 %-confident detection in the named partner rooms; the mean
-    entropy per step in rooms from the prior; the exact episode score (when the
-    controller is a deterministic policy of the step and statistic).
-    """
-    summaries = result["summaries"]
-    labels = list(result["controllers"])
-    rooms = [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
-    steps = result["config"]["steps"]
-    ceiling = steps * result["dt"]
-    scores = result.get("exact_episode_scores")
-    columns = 3 if scores else 2
-    figure = _figure(12.0 if scores else 10.0, 0.38 * len(labels) + 2.0)
-    axes = figure.subplots(1, columns, sharey=True, width_ratios=(2.2, 1, 1)[:columns])
+def _detection_panel(left: Any, summaries: dict, labels: list[str], rooms: list[str],
+                     ceiling: float) -> None:
+    """plot_efficiency's first panel: median s to a 95 %-confident detection, per room."""
     y = np.arange(len(labels))
     height = 0.8 / len(rooms)
-    left = axes[0]
     for index, room in enumerate(rooms):
         medians, lows, highs = [], [], []
         for label in labels:
@@ -370,6 +356,26 @@ def plot_efficiency(result: dict, path: str | Path) -> Path:
         f"median s to P(S=1) >= 0.95\n(95 % CI; {ceiling:g} s: not reached)", fontsize=9
     )
     left.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncols=len(rooms))
+
+
+def plot_efficiency(result: dict, path: str | Path) -> Path:
+    """Three panels per controller (experiment_efficiency).
+
+    Median seconds to a 95 %-confident detection in the named partner rooms; the mean
+    entropy per step in rooms from the prior; the exact episode score (when the
+    controller is a deterministic policy of the step and statistic).
+    """
+    summaries = result["summaries"]
+    labels = list(result["controllers"])
+    rooms = [f"{name}+partner" for name in result["rooms"]["backgrounds_k3"]]
+    steps = result["config"]["steps"]
+    ceiling = steps * result["dt"]
+    scores = result.get("exact_episode_scores")
+    columns = 3 if scores else 2
+    figure = _figure(12.0 if scores else 10.0, 0.38 * len(labels) + 2.0)
+    axes = figure.subplots(1, columns, sharey=True, width_ratios=(2.2, 1, 1)[:columns])
+    y = np.arange(len(labels))
+    _detection_panel(axes[0], summaries, labels, rooms, ceiling)
     means = np.array([summaries[label]["prior_weighted_entropy"] for label in labels])
     cis = np.array([summaries[label]["prior_weighted_entropy_ci"] for label in labels])
     axes[1].barh(
