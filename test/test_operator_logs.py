@@ -20,6 +20,7 @@ from std_srvs.srv import Trigger
 
 from infomax_contingency.core.steady import SteadyInputs
 from infomax_contingency.nodes.belief_node import BeliefNode
+from infomax_contingency.nodes.graph_node import WAITING_NOTICE_S
 from infomax_contingency.nodes.mic_node import MicNode
 from infomax_contingency.nodes.posture_node import PostureNode
 from infomax_contingency.nodes.step_topics import NoStep, no_step_message
@@ -145,6 +146,13 @@ def test_belief_and_posture_nodes_say_what_they_wait_for_and_when_it_came(
     assert "[posture_node]: waiting for '/belief'" in err
     assert "[belief_node]: waiting for '/vocalize_step'" in err
     assert "[belief_node]: waiting for '/sound_step'" in err
+    assert "'/belief' (" in posture.check_waiting(WAITING_NOTICE_S + 1.0)
+    no_step = probe.talk("no_step", Int64MultiArray)
+    executor.connected(no_step)
+    no_step.publish(no_step_message(NoStep(7, 3)))  # mic_node calibrating: the graph is alive
+    executor.run_until(lambda: posture.arrivals.get("no_step"), "no_step at posture_node")
+    assert posture.check_waiting(WAITING_NOTICE_S + 2.0) == ""  # not said to be missing
+    capfd.readouterr()
     belief = probe.talk("belief", Float64)
     executor.connected(belief)
     belief.publish(Float64(data=0.95))
@@ -192,19 +200,20 @@ def test_a_steady_input_that_stops_is_said_once_and_again_when_it_is_back(
     def said(fragment: str) -> list[str]:
         return [line for line in capfd.readouterr().err.splitlines() if fragment in line]
 
-    send(talk, message, topic, 1000.0)
+    send(talk, message, topic, 999.5)
+    send(talk, message, topic, 1000.0)  # from the second message on: judged, at 0.5 s a window
     last_s = 1000.0
     if node_class is PostureNode:  # windows without a step: the beliefs pause, not stop
         no_step = probe.talk("no_step", Int64MultiArray)
         executor.connected(no_step)
-        send(no_step, no_step_message(NoStep(7, 3)), "no_step", 1004.0)
-        last_s = 1004.0
+        send(no_step, no_step_message(NoStep(7, 3)), "no_step", 1000.5)
+        last_s = 1000.5
     said("")  # what came so far
     level, _, values = status_at(last_s + 4.0)
     assert level == OK and f"{topic}_silent_s" not in values and said("nothing on") == []
     level, text, values = status_at(last_s + 6.0)
     stopped = said("nothing on")
-    assert len(stopped) == 1 and "WARN" in stopped[0] and "for 6.0 s, after 1 messages" in (
+    assert len(stopped) == 1 and "WARN" in stopped[0] and "for 6.0 s, after 2 messages" in (
         stopped[0]) and f"'/{topic}'" in stopped[0], (stopped, text)  # fmt: skip
     assert level == WARN and f"nothing on '/{topic}' for 6 s" in text, text
     assert float(values[f"{topic}_silent_s"]) == 6.0 and values["input_stops"] == "1"
@@ -220,11 +229,18 @@ def test_a_steady_input_that_stops_is_said_once_and_again_when_it_is_back(
 def test_a_steady_inputs_bound_follows_its_usual_pace_and_no_message_is_no_stop() -> None:
     """A steady input's bound: at least the floor, four usual intervals when longer.
 
-    Never judged before the first message; a companion's message counts as its own.
+    Never judged before its second message; a companion's message counts as its own once
+    its own first came, and before says only that its source is alive ("after 0 messages"
+    and a slow room's first windows were said to be stops).
     """
     inputs = SteadyInputs(floor_s=5.0)
     inputs.watch("sound_step", companions=("no_step",))
     assert inputs.newly_silent(1e6) == [], "nothing came yet: not judged here"
+    assert not inputs.heard("sound_step")
+    inputs.arrived("no_step", 1.0)  # mic_node calibrating: alive, no step yet
+    assert inputs.heard("sound_step") and inputs.newly_silent(1e6) == []
+    inputs = SteadyInputs(floor_s=5.0)
+    inputs.watch("sound_step", companions=("no_step",))
     for at_s in (0.0, 0.5, 1.0):
         inputs.arrived("sound_step", at_s)
     assert inputs.bound_s("sound_step") == 5.0
@@ -238,3 +254,9 @@ def test_a_steady_inputs_bound_follows_its_usual_pace_and_no_message_is_no_stop(
         slow.arrived("audio", float(at_s))
     assert slow.bound_s("audio") == 20.0 and slow.newly_silent(55.0 + 19.0) == []
     assert slow.newly_silent(55.0 + 21.0) == [("audio", 21.0)]
+    slower = SteadyInputs(floor_s=5.0)  # speed 0.08: a window each 6.25 s, from the first
+    slower.watch("audio")
+    slower.arrived("audio", 0.0)
+    assert slower.newly_silent(5.5) == [], "one message: its pace is not known yet"
+    slower.arrived("audio", 6.25)
+    assert slower.newly_silent(6.25 + 6.0) == [] and slower.bound_s("audio") == 25.0

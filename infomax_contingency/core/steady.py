@@ -5,18 +5,20 @@ window or faster once they have started. :class:`SteadyInputs` tells, from the a
 times a node gives it (seconds of any monotonic clock), when one of them has been silent
 longer than its bound, and when it came back. The bound is ``floor_s`` (a few seconds),
 or :data:`SILENCE_INTERVALS` times the input's usual interval when that is longer (the
-median of its recent intervals, once a few are known: a room paced slower than real time,
-audio in chunks of many seconds), so that the pace of a healthy input never looks like a
-stop. Before its first message an input is not judged here (the node's notice of what it
-waits for says that). Messages on an input's companions count as its own: mic_node says
-on ``no_step`` each window that gives no step (its bit source calibrating or warming up),
-so the steps that pause meanwhile have not stopped.
+median of its recent intervals: a room paced slower than real time, audio in chunks of
+many seconds), so that the pace of a healthy input never looks like a stop. Before its
+second message an input is not judged here (the node's notice of what it waits for says
+what has not come). Messages on an input's companions count as its own once its own
+first came: mic_node says on ``no_step`` each window that gives no step (its bit source
+calibrating or warming up), so the steps that pause meanwhile have not stopped; before,
+they say its source is alive (:meth:`SteadyInputs.heard`).
 
 No clock, no I/O: the node asks with its own times and logs what it is told.
 """
 
 from __future__ import annotations
 
+import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
@@ -27,8 +29,6 @@ SILENCE_INTERVALS = 4.0
 USUAL_INTERVALS = 16
 """The usual interval of an input is the median of this many of its recent intervals."""
 
-KNOWN_PACE_INTERVALS = 4
-"""Intervals an input needs before its usual interval counts (until then: the floor)."""
 
 
 @dataclass
@@ -36,9 +36,12 @@ class _Input:
     """One watched input: its last message and recent intervals (s)."""
 
     last_s: float | None = None
+    """Its last message (or a companion's, once its own first came)."""
     intervals: deque[float] = field(default_factory=lambda: deque(maxlen=USUAL_INTERVALS))
     silent: bool = False
     """Said to be silent, and nothing has come since."""
+    companion_heard: bool = False
+    """A companion's message came (its source is alive), whether or not its own did."""
 
 
 class SteadyInputs:
@@ -71,6 +74,10 @@ class SteadyInputs:
         back = []
         for name in self._of.get(topic, ()):
             watched = self._inputs[name]
+            if name != topic:
+                watched.companion_heard = True
+                if watched.last_s is None:  # not judged before its own first message
+                    continue
             if watched.last_s is not None:
                 gap_s = now_s - watched.last_s
                 watched.intervals.append(gap_s)  # a pace that slowed for good is learnt
@@ -80,11 +87,19 @@ class SteadyInputs:
         return back
 
     def bound_s(self, topic: str) -> float:
-        """Seconds without a message after which ``topic`` is silent."""
+        """Seconds without a message after which ``topic`` is silent (inf: not judged yet).
+
+        Judged from its second message on: one interval already shows its pace.
+        """
         intervals = self._inputs[topic].intervals
-        known = len(intervals) >= KNOWN_PACE_INTERVALS
-        usual_s = statistics.median(intervals) if known else 0.0
-        return max(self.floor_s, SILENCE_INTERVALS * usual_s)
+        if not intervals:
+            return math.inf
+        return max(self.floor_s, SILENCE_INTERVALS * statistics.median(intervals))
+
+    def heard(self, topic: str) -> bool:
+        """A message came on ``topic`` or on one of its companions (its source is alive)."""
+        watched = self._inputs.get(topic)
+        return watched is not None and (watched.last_s is not None or watched.companion_heard)
 
     def newly_silent(self, now_s: float) -> list[tuple[str, float]]:
         """Inputs silent past their bound at ``now_s`` and not said before: (topic, seconds)."""

@@ -303,8 +303,13 @@ class GraphNode(Node):
             self.get_logger().info(f"waiting for '{self.resolve_topic_name(topic)}'")
 
     def check_waiting(self, waited_s: float) -> str:
-        """After ``waited_s`` seconds: what is still awaited (logged once per topic)."""
-        missing = [(t, h) for t, h in self._awaited if not self.arrivals.get(t)]
+        """After ``waited_s`` seconds: what is still awaited (logged once per topic).
+
+        An input whose companion came (``no_step``: mic_node calibrating) is not missing:
+        its source is alive and says why it pauses.
+        """
+        missing = [(t, h) for t, h in self._awaited
+                   if not self.arrivals.get(t) and not self.steady.heard(t)]
         if waited_s < WAITING_NOTICE_S or not missing:
             self.waiting_for = ""
             return ""
