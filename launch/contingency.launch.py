@@ -255,7 +255,11 @@ _WATCH = _ExitWatch()
 
 def _restart_command(context: LaunchContext, executable: str, namespace: str,
                      parameters: list) -> str:  # fmt: skip
-    """The ``ros2 run`` command that starts ``executable`` again as this launch started it."""
+    """The ``ros2 run`` command that starts ``executable`` again as this launch started it.
+
+    The launch's own values are given for the node by name (``-p NODE:NAME:=VALUE``): a
+    plain ``-p`` loses to the parameter files' ``/**/NODE`` sections (rcl's precedence).
+    """
     words = ["ros2", "run", PACKAGE, executable, "--ros-args"]
     if namespace.strip("/"):
         words += ["-r", f"__ns:=/{namespace.strip('/')}"]
@@ -263,7 +267,7 @@ def _restart_command(context: LaunchContext, executable: str, namespace: str,
         if isinstance(item, dict):
             for key, value in item.items():
                 shown = str(value).lower() if isinstance(value, bool) else str(value)
-                words += ["-p", f"{key}:={shown}"]
+                words += ["-p", f"{executable}:{key}:={shown}"]
         else:
             words += ["--params-file", item.perform(context)]
     return " ".join(words)

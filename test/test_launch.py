@@ -343,18 +343,23 @@ MIC_ENDED = ("mic_node-1 ended with status 0 (max_windows reached, the end of it
 def test_a_node_stopped_alone_is_named_with_what_stops_and_how_to_restart_it(
     workspace: Path, launch, tmp_path: Path
 ) -> None:
-    """belief_node stopped by hand: an ERROR line, the graph runs on; mic_node's end is neutral."""
+    """controller_node stopped by hand: an ERROR line, the graph runs on; mic_node's end is neutral.
+
+    The restart command gives the launch's own values for the node by name: a plain ``-p``
+    lost to the parameter files' ``/**/controller_node`` section.
+    """
     graph = launch("contingency.launch.py use_fake_room:=true namespace:=robot5")
     graph.wait_for("[robot5.posture_node]: '/robot5/belief' received after")
     pids = dict(re.findall(r"\[(\w+)-\d+\]: process started with pid \[(\d+)\]",
                            graph.output()))  # fmt: skip
-    os.kill(int(pids["belief_node"]), signal.SIGTERM)
-    graph.wait_for("belief_node-4 ended (status")
-    [line] = [line for line in graph.output().splitlines() if "belief_node-4 ended" in line]
-    restart = ("restart it with `ros2 run infomax_contingency belief_node --ros-args -r"
+    os.kill(int(pids["controller_node"]), signal.SIGTERM)
+    graph.wait_for("controller_node-3 ended (status")
+    [line] = [line for line in graph.output().splitlines() if "controller_node-3 ended" in line]
+    restart = ("restart it with `ros2 run infomax_contingency controller_node --ros-args -r"
                " __ns:=/robot5 --params-file ")  # fmt: skip
     assert line.startswith("[ERROR]") and restart in line, line
-    assert "while the graph runs: no belief: the posture holds" in line, line
+    assert " -p controller_node:wait_for_listeners:=4`" in line, line
+    assert "while the graph runs: no decisions: " in line, line
     assert graph.process.poll() is None, "the graph runs on without it"
     os.kill(int(pids["mic_node"]), signal.SIGTERM)
     assert graph.wait(120) == 0, graph.output()[-3000:]

@@ -22,6 +22,7 @@ from typing import Any
 
 import rclpy
 from rclpy.duration import Duration
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
@@ -375,6 +376,19 @@ OUT_OF_MEMORY = ("out of memory: an input (a file, a parameter) needs more memor
 """A node's error line for a MemoryError (one line, not a traceback)."""
 
 
+def _start_error(error: Exception) -> str:
+    """The one line of a node that cannot start: a user error, a size, a parameter's type.
+
+    MemoryError: a size no check foresaw. rclpy refuses a value of the wrong type for a
+    parameter every node has (``-p use_sim_time:=1``) before the node's own checks.
+    """
+    if isinstance(error, MemoryError):
+        return OUT_OF_MEMORY
+    if isinstance(error, InvalidParameterTypeException):
+        return str(error).rsplit(": ", 1)[0].replace("Trying to set", "cannot set")
+    return str(error)
+
+
 def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,  # noqa: C901
               args: Sequence[str] | None = None) -> int:
     """Create the nodes, spin them on one executor until one finishes; the exit status.
@@ -411,12 +425,10 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
         return int(any_finished.result()) if any_finished.done() else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
-    except (*USER_ERRORS, MemoryError) as error:  # MemoryError: a size no check foresaw
+    except (*USER_ERRORS, MemoryError, InvalidParameterTypeException) as error:
         if stop.requested or not rclpy.ok():  # a signal while a node was being set up
             return 0
-        rclpy.logging.get_logger(current).error(
-            OUT_OF_MEMORY if isinstance(error, MemoryError) else str(error)
-        )
+        rclpy.logging.get_logger(current).error(_start_error(error))
         return 2
     except Exception:
         if stop.requested or not rclpy.ok():  # a signal in the middle of the set-up
