@@ -322,6 +322,9 @@ def _graph(context: LaunchContext) -> list:
             reason = f"{argument}:={path} is not a file: give a ROS parameter file (YAML)"
             raise RuntimeError(f"launch stopped: {reason}")  # launch exits with status 1
 
+    if context.launch_configurations.get("use_sim_time", "").strip().lower() == "true":
+        raise RuntimeError("launch stopped: use_sim_time:=true: these nodes run on the system"
+                           " clock (nothing publishes /clock for them; they refuse it)")
     namespace_text = namespace.perform(context)
     _check_namespace(namespace_text)
     level = log_level.perform(context)

@@ -246,6 +246,7 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     graph = launch(f"contingency.launch.py params_file:={bad} room_seed:=7")
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
     dashed = launch("contingency.launch.py namespace:=robot-1")
+    simulated = launch("contingency.launch.py use_sim_time:=true")  # not declared: was ignored
     (tmp_path / "old_session").mkdir()
     recorded = launch(f"contingency.launch.py record:=true record_dir:={tmp_path / 'old_session'}")
     assert graph.wait(60) == 1, graph.output()[-2000:]  # a failure: not the status of a run
@@ -262,6 +263,9 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     assert ("launch stopped: namespace:=robot-1 is not a ROS namespace: namespace must not"
             " contain characters other than alphanumerics, '_', or '/'") in dashed.output()
     assert "Traceback" not in dashed.output()
+    assert simulated.wait(60) == 1
+    assert ("launch stopped: use_sim_time:=true: these nodes run on the system clock"
+            in simulated.output()), simulated.output()[-2000:]
     # a recorder refuses a directory that exists: the launch ends, naming it
     assert recorded.wait(60) == 1
     assert "old_session' exists already" in recorded.output(), recorded.output()[-3000:]
