@@ -33,8 +33,8 @@ def test_windows_other_than_the_params_dt_are_refused_naming_both(tmp_path: Path
     """A session of the paper's 0.8 s windows, replayed or analyzed with robot's 0.5 s."""
     paper = write_offline_session(tmp_path / "paper", BITS, DECISIONS, [0.5] * STEPS, 0.8)
     robot = write_offline_session(tmp_path / "robot", BITS, DECISIONS, [0.5] * STEPS, 0.5)
-    expected = (f"the session {paper} has windows of 0.8 s; --params robot has windows of"
-                " 0.5 s: give --params with dt 0.8 (paper)")
+    expected = (f"the session {paper} has windows of 0.8 s; the parameter set robot (--params)"
+                " has windows of 0.5 s: give --params with dt 0.8 (paper)")
     for command in (["replay", str(paper)], ["replay", str(paper), "--actions", "rule"],
                     ["analyze", str(paper)],
                     ["plot", "--session", str(paper), "--out", str(tmp_path / "p.png")]):

@@ -169,9 +169,9 @@ def check_window(session: RecordedSession, params: ModelParams, params_name: str
     window_s = session.window_us / 1e6
     named = [name for name, p in NAMED_PARAMS.items() if window_us(p.dt) == session.window_us]
     which = f" ({', '.join(named)})" if named else ""
-    raise ValueError(f"the session {directory} has windows of {window_s:g} s; --params"
-                     f" {params_name} has windows of {params.dt:g} s: give --params with dt"
-                     f" {window_s:g}{which}")
+    raise ValueError(f"the session {directory} has windows of {window_s:g} s; the parameter"
+                     f" set {params_name} (--params) has windows of {params.dt:g} s: give"
+                     f" --params with dt {window_s:g}{which}")
 
 
 def check_same_windows(sessions: Sequence[tuple[object, RecordedSession]]) -> None:
