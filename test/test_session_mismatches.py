@@ -46,11 +46,13 @@ def test_windows_other_than_the_params_dt_are_refused_naming_both(tmp_path: Path
 
 
 def _session(directory: Path, bits: list[list[int]], decisions: list[list[int]],
-             beliefs: list[float], resets: int = 0) -> Path:
+             beliefs: list[float], resets: int = 0,
+             instances: tuple[tuple[int, int, int], ...] = ()) -> Path:
     """A session bag: ``sound_step`` and ``vocalize_step`` fields in the order given.
 
     Message ``k`` of each topic is received at ``k`` x 0.5 s (a bit, then its decision,
-    then a belief); /diagnostics of belief_node: memory 60 (the yardstick's) and ``resets``.
+    then a belief); /diagnostics of belief_node: memory 60 (the yardstick's) and ``resets``,
+    and one more report per ``(listener_id, last_step, steps)`` of ``instances``.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -66,16 +68,20 @@ def _session(directory: Path, bits: list[list[int]], decisions: list[list[int]],
     for k, belief in enumerate(beliefs):
         writer.write("/belief", encode("std_msgs/msg/Float64", data=belief),
                      start + k * 500_000_000 + 2)
-    pairs = [types.types["diagnostic_msgs/msg/KeyValue"](key=key, value=value)
-             for key, value in (("memory_steps", str(MEMORY)), ("resets", str(resets)))]
-    status = types.types["diagnostic_msgs/msg/DiagnosticStatus"](
-        level=0, name="belief_node: P(S=1)", message="", hardware_id="/belief_node",
-        values=pairs)
     header = types.types["std_msgs/msg/Header"](
         stamp=types.types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="")
-    array = types.types[DIAGNOSTICS](header=header, status=[status])
-    writer.write("/diagnostics", bytes(types.serialize_cdr(array, DIAGNOSTICS)),
-                 start + len(bits) * 500_000_000)
+    reports = [()] + [(("listener_id", str(listener)), ("last_step", str(last)),
+                       ("steps", str(steps))) for listener, last, steps in instances]
+    for k, more in enumerate(reports):
+        pairs = [types.types["diagnostic_msgs/msg/KeyValue"](key=key, value=value)
+                 for key, value in (("memory_steps", str(MEMORY)), ("resets", str(resets)),
+                                    *more)]  # fmt: skip
+        status = types.types["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=0, name="belief_node: P(S=1)", message="", hardware_id="/belief_node",
+            values=pairs)
+        array = types.types[DIAGNOSTICS](header=header, status=[status])
+        writer.write("/diagnostics", bytes(types.serialize_cdr(array, DIAGNOSTICS)),
+                     start + len(bits) * 500_000_000 + k)
     writer.close()
     return directory
 
@@ -145,3 +151,27 @@ def test_a_reset_belief_node_is_replayed_with_its_reset(tmp_path: Path, capsys) 
     out = capsys.readouterr().out
     assert "DIFFERS from the recorded one at step 21" in out
     assert "1 reset(s) not located: compared up to step 21" in out
+
+
+def test_a_restarted_belief_node_is_named_and_its_first_beliefs_compared(tmp_path: Path,
+                                                                         capsys) -> None:
+    """belief_node killed after step 12, a new one joined at step 16 with zero counts.
+
+    Its diagnostics report another listener_id; the replay compares the first one's beliefs
+    and names the restart, where it blamed a recorder that missed beliefs.
+    """
+    bits, decisions = _fields(7, range(1, STEPS + 1))
+    pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
+    first = offline_beliefs([(pairs[:12], "start")])
+    later = [0.25] * (STEPS - 15)  # steps 16-30: not replayed
+    instances = ((11, 12, 12), (22, 17, 2))  # the second joined at 17 - 2 + 1 = 16
+    bag = _session(tmp_path / "restarted", bits, decisions, first + later, instances=instances)
+    assert main(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "equals the recorded belief at all 12 steps compared" in out, out
+    assert ("belief_node restarted (a new one joined at step 16 with zero counts, its"
+            " diagnostics say): compared the first one's 12 beliefs") in out, out
+    first[5] += 0.125
+    other = _session(tmp_path / "other", bits, decisions, first + later, instances=instances)
+    assert main(["replay", str(other)]) == 1
+    assert "DIFFERS from the recorded one at step 6" in capsys.readouterr().out

@@ -48,6 +48,8 @@ class RecordedSession:
             or out of order (a second writer: the live nodes tell it by its DDS numbers,
             which a bag does not hold), in arrival order.
         resets: how often belief_node's ``~/reset`` was called (its diagnostics' count).
+        belief_restarts: the steps at which a new belief_node (another ``listener_id`` in
+            its diagnostics: a restarted node) joined the stream, with zero counts.
         restart: ``(stream, step)``: a later stream the controller answered too (a
             restarted mic_node), first heard after ``step`` of this one; None if none.
         cut: the bag was cut by a killed recorder (read up to its last chunk).
@@ -64,6 +66,7 @@ class RecordedSession:
     doubtful: list[tuple[int, str]] = field(default_factory=list)
     restart: tuple[int, int] | None = None
     resets: int = 0
+    belief_restarts: list[int] = field(default_factory=list)
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -112,7 +115,9 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                            window_us=first.window_us, memory_problem=problem,
                            doubtful=doubtful, restart=_restart(bit_messages, decision_messages),
                            resets=max(_own_values(topics["/diagnostics"], topics.namespace,
-                                                  "resets")[1], default=0))
+                                                  "resets")[1], default=0),
+                           belief_restarts=_belief_restarts(topics["/diagnostics"],
+                                                            topics.namespace))
 
 
 def _restart(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]]
@@ -242,6 +247,31 @@ def _belief_node_values(diagnostics: list, key: str) -> dict[str, set[int]]:
                 if pair.key == key and node.rsplit("/", 1)[-1] == "belief_node":
                     reported.setdefault(node, set()).add(int(pair.value))
     return reported
+
+
+def _belief_restarts(diagnostics: list, namespace: str) -> list[int]:
+    """The steps at which a new instance of the session's belief_node joined its stream.
+
+    Each instance reports its random ``listener_id``; a new one's first report gives the
+    step it joined at: ``last_step - steps + 1`` (it applied ``steps`` steps since).
+    """
+    own = f"{namespace.strip('/')}/belief_node".lstrip("/")
+    joins: list[int] = []
+    listener = None
+    for _, array in diagnostics:
+        for status in array.status:
+            if status.name.split(":", 1)[0] != own:
+                continue
+            values = {pair.key: pair.value for pair in status.values}
+            try:
+                current = int(values["listener_id"])
+                joined = int(values["last_step"]) - int(values["steps"]) + 1
+            except (KeyError, ValueError):
+                continue
+            if listener is not None and current != listener:
+                joins.append(joined)
+            listener = current
+    return joins
 
 
 def _own_values(diagnostics: list, namespace: str, key: str) -> tuple[str, list[int]]:
