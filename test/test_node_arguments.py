@@ -167,6 +167,22 @@ def test_the_stop_deadline_starts_once_with_the_first_stop(
     assert not stop._watchdog.is_alive() and ended == [("probe", 0.3)]
 
 
+def _stuck_process(program: str, stop_signal: int | None = None) -> tuple[int, str]:
+    """Run ``program`` (``-c``), send ``stop_signal`` once it printed "ready": status, stderr."""
+    process = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        if stop_signal is not None:
+            assert process.stdout.readline() == "ready\n"
+            process.send_signal(stop_signal)
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    return process.returncode, err
+
+
 def test_a_node_process_stuck_after_its_stop_signal_ends_by_the_deadline() -> None:
     """A process whose stop hangs (a DDS teardown on a loaded machine) still ends, in one line.
 
@@ -180,17 +196,8 @@ def test_a_node_process_stuck_after_its_stop_signal_ends_by_the_deadline() -> No
         "while True:\n"
         "    time.sleep(0.05)  # the stop hangs: requested is never looked at\n"
     )
-    process = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)  # fmt: skip
-    try:
-        assert process.stdout.readline() == "ready\n"
-        process.send_signal(signal.SIGTERM)
-        _, err = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-    assert process.returncode == 1
+    status, err = _stuck_process(program, stop_signal=signal.SIGTERM)
+    assert status == 1
     assert err == "stuck_node: not stopped 1 s after the stop signal; ending now\n"
 
 
@@ -208,15 +215,8 @@ def test_a_node_process_whose_teardown_holds_the_interpreter_still_ends() -> Non
         "stop.start_deadline()  # the spin ended; the teardown begins and hangs\n"
         "ctypes.PyDLL(None).sleep(120)  # libc's sleep, the interpreter held throughout\n"
     )
-    process = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)  # fmt: skip
-    try:
-        _, err = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-    assert process.returncode == 1
+    status, err = _stuck_process(program)
+    assert status == 1
     assert err.startswith("Timeout (0:00:0") and "line 6 in <module>" in err, err  # ~2 s
 
 
