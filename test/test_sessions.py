@@ -10,6 +10,7 @@ audio topic, about 130 KB)::
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -103,3 +104,9 @@ def test_analyze_refuses_a_session_given_twice(tmp_path: Path, capsys) -> None:
         assert main(["analyze", str(SESSION), again]) == 2
         error = capsys.readouterr().err
         assert "is given twice" in error and len(error.strip().splitlines()) == 1
+    copy = tmp_path / "copy"
+    shutil.copytree(SESSION, copy)  # a copy: the same recording under another name
+    assert main(["analyze", str(SESSION), str(copy)]) == 2
+    error = capsys.readouterr().err
+    assert f"and {copy} are one recording (mic_node stream " in error, error
+    assert len(error.strip().splitlines()) == 1

@@ -453,6 +453,18 @@ def _refuse_twice(sessions: Sequence[str]) -> None:
         seen[resolved] = name
 
 
+def _refuse_copies(sessions: Sequence[tuple[str, RecordedSession]]) -> None:
+    """Refuse two sessions that are one recording (a copy): its stream, bits and decisions."""
+    seen: dict[tuple, str] = {}
+    for name, session in sessions:
+        key = (session.stream, tuple(session.bits), tuple(session.decisions))
+        if key in seen:
+            raise ValueError(f"the sessions {seen[key]} and {name} are one recording (mic_node"
+                             f" stream {session.stream}, the same steps): each session's"
+                             " evidence counts once, give it once")
+        seen[key] = name
+
+
 def run_analyze(args: argparse.Namespace) -> int:
     """Print the study; write ``--out`` when both peaks are found. 0, or 1 if data lack."""
     for option, value in (("--max-lag-s", args.max_lag_s),
@@ -464,6 +476,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     sessions = [(name, load_session(Path(name), warn=warn)) for name in args.sessions]
     check_same_windows(sessions)
     check_window(sessions[0][1], params, args.params, sessions[0][0])
+    _refuse_copies(sessions)
     runs = []
     for _, session in sessions:
         records = list(replay_recorded(session, params, memory=0))  # bits and decisions

@@ -54,6 +54,7 @@ class RecordedSession:
             restarted mic_node), first heard after ``step`` of this one; None if none.
         cut: the bag was cut by a killed recorder (read up to its last chunk).
         window_us: the length of the stream's windows (its steps), microseconds.
+        stream: the stream's id (mic_node's, random per start).
     """
 
     bits: list[tuple[int, bool | Withheld]]
@@ -67,6 +68,7 @@ class RecordedSession:
     restart: tuple[int, int] | None = None
     resets: int = 0
     belief_restarts: list[int] = field(default_factory=list)
+    stream: int = 0
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -112,7 +114,7 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
     doubtful = sorted(_out_of_sequence([step for step, _ in bits], "bit")
                       + _out_of_sequence([step for step, _ in decisions], "decision"))
     return RecordedSession(bits, decisions, beliefs, memory, cut=bool(cut),
-                           window_us=first.window_us, memory_problem=problem,
+                           window_us=first.window_us, memory_problem=problem, stream=stream,
                            doubtful=doubtful, restart=_restart(bit_messages, decision_messages),
                            resets=max(_own_values(topics["/diagnostics"], topics.namespace,
                                                   "resets")[1], default=0),
