@@ -169,8 +169,9 @@ def test_a_restarted_belief_node_is_named_and_its_first_beliefs_compared(tmp_pat
     assert main(["replay", str(bag)]) == 0
     out = capsys.readouterr().out
     assert "equals the recorded belief at all 12 steps compared" in out, out
-    assert ("belief_node restarted (a new one joined at step 16 with zero counts, its"
-            " diagnostics say): compared the first one's 12 beliefs") in out, out
+    assert ("belief_node restarted (a new one joined at step 16 with zero counts, the one"
+            " before reported step 12 last, its diagnostics say): compared the first one's 12"
+            " beliefs") in out, out
     first[5] += 0.125
     other = _session(tmp_path / "other", bits, decisions, first + later, instances=instances)
     assert main(["replay", str(other)]) == 1

@@ -294,12 +294,13 @@ def _aligned_beliefs(session: RecordedSession, replayed: list[tuple[int, float]]
     """
     beliefs, count = session.beliefs, len(replayed)
     first = min(step for step, _ in session.bits)
-    if first == 1 and session.belief_restarts and replayed:
-        join = session.belief_restarts[0]  # the later instance's beliefs: from join to the end
-        kept = max(0, len(beliefs) - max(0, replayed[-1][0] - join + 1))
+    if first == 1 and session.belief_restarts:
+        join, last = session.belief_restarts[0]  # the first one's beliefs: steps 1 .. last
+        kept = min(last, len(beliefs))
         return beliefs[:kept], [f"belief_node restarted (a new one joined at step {join} with"
-                                f" zero counts, its diagnostics say): compared the first one's"
-                                f" {kept} beliefs; the later ones are not replayed"]
+                                f" zero counts, the one before reported step {last} last, its"
+                                f" diagnostics say): compared the first one's {kept} beliefs;"
+                                " the later ones are not replayed"]
     if first == 1:
         if session.cut and count > len(beliefs):  # the cut took the last beliefs
             return beliefs, [f"the last {count - len(beliefs)} replayed steps have no"

@@ -48,8 +48,9 @@ class RecordedSession:
             or out of order (a second writer: the live nodes tell it by its DDS numbers,
             which a bag does not hold), in arrival order.
         resets: how often belief_node's ``~/reset`` was called (its diagnostics' count).
-        belief_restarts: the steps at which a new belief_node (another ``listener_id`` in
-            its diagnostics: a restarted node) joined the stream, with zero counts.
+        belief_restarts: ``(joined, last)`` per new belief_node (another ``listener_id``
+            in its diagnostics: a restarted node): the step it joined the stream at with
+            zero counts, and the last step the one before it reported applied.
         restart: ``(stream, step)``: a later stream the controller answered too (a
             restarted mic_node), first heard after ``step`` of this one; None if none.
         cut: the bag was cut by a killed recorder (read up to its last chunk).
@@ -67,7 +68,7 @@ class RecordedSession:
     doubtful: list[tuple[int, str]] = field(default_factory=list)
     restart: tuple[int, int] | None = None
     resets: int = 0
-    belief_restarts: list[int] = field(default_factory=list)
+    belief_restarts: list[tuple[int, int]] = field(default_factory=list)
     stream: int = 0
 
 
@@ -251,29 +252,31 @@ def _belief_node_values(diagnostics: list, key: str) -> dict[str, set[int]]:
     return reported
 
 
-def _belief_restarts(diagnostics: list, namespace: str) -> list[int]:
-    """The steps at which a new instance of the session's belief_node joined its stream.
+def _belief_restarts(diagnostics: list, namespace: str) -> list[tuple[int, int]]:
+    """``(joined, last)`` per new instance of the session's belief_node (a restart).
 
-    Each instance reports its random ``listener_id``; a new one's first report gives the
-    step it joined at: ``last_step - steps + 1`` (it applied ``steps`` steps since).
+    ``joined``: the step it joined its stream at; ``last``: the last step the instance
+    before it reported applied. Each instance reports its random ``listener_id``; a new
+    one's first report gives the step it joined at (``last_step - steps + 1``: it applied
+    ``steps`` steps since).
     """
     own = f"{namespace.strip('/')}/belief_node".lstrip("/")
-    joins: list[int] = []
-    listener = None
+    restarts: list[tuple[int, int]] = []
+    listener, last = None, 0
     for _, array in diagnostics:
         for status in array.status:
             if status.name.split(":", 1)[0] != own:
                 continue
             values = {pair.key: pair.value for pair in status.values}
             try:
-                current = int(values["listener_id"])
-                joined = int(values["last_step"]) - int(values["steps"]) + 1
+                current, newest = int(values["listener_id"]), int(values["last_step"])
+                joined = newest - int(values["steps"]) + 1
             except (KeyError, ValueError):
                 continue
             if listener is not None and current != listener:
-                joins.append(joined)
-            listener = current
-    return joins
+                restarts.append((joined, last))
+            listener, last = current, newest
+    return restarts
 
 
 def _own_values(diagnostics: list, namespace: str, key: str) -> tuple[str, list[int]]:
