@@ -53,6 +53,9 @@ class RecordedSession:
             zero counts, and the last step the one before it reported applied.
         restart: ``(stream, step)``: a later stream the controller answered too (a
             restarted mic_node), first heard after ``step`` of this one; None if none.
+        later_streams: ``(stream, bits, decisions)`` of each later stream the controller
+            answered, in that order, from the first step it answered (belief_node follows
+            them so, its counts kept).
         cut: the bag was cut by a killed recorder (read up to its last chunk).
         window_us: the length of the stream's windows (its steps), microseconds.
         stream: the stream's id (mic_node's, random per start).
@@ -70,6 +73,8 @@ class RecordedSession:
     resets: int = 0
     belief_restarts: list[tuple[int, int]] = field(default_factory=list)
     stream: int = 0
+    later_streams: list[tuple[int, list[tuple[int, bool | Withheld]], list[tuple[int, bool]]]] = (
+        field(default_factory=list))
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -120,7 +125,31 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                            resets=max(_own_values(topics["/diagnostics"], topics.namespace,
                                                   "resets")[1], default=0),
                            belief_restarts=_belief_restarts(topics["/diagnostics"],
-                                                            topics.namespace))
+                                                            topics.namespace),
+                           later_streams=_later_streams(bit_messages, decision_messages,
+                                                        rate_hz, warn))
+
+
+def _later_streams(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]],
+                   rate_hz: float, warn: Callable[[str], None] | None
+                   ) -> list[tuple[int, list[tuple[int, bool | Withheld]], list[tuple[int, bool]]]]:
+    """The streams answered after the first, as belief_node takes them (``later_streams``).
+
+    belief_node follows the stream the controller answers from the first step answered
+    (older bits were never answered); each stream's messages on pace, as the first's.
+    """
+    first = bits[0][1].stream
+    answered = list(dict.fromkeys(d.stream for _, d in decisions if d.stream != first))
+    streams = []
+    for stream in answered:
+        taken = _on_pace(decisions, stream, rate_hz, "decision", warn)
+        if not taken:
+            continue
+        start = min(d.step for d in taken)
+        stream_bits = [(b.step, b.observation)
+                       for b in _on_pace(bits, stream, rate_hz, "bit", warn) if b.step >= start]
+        streams.append((stream, stream_bits, [(d.step, d.vocalize) for d in taken]))
+    return streams
 
 
 def _restart(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]]

@@ -52,14 +52,17 @@ from infomax_contingency.sim.simulation import StepRecord, statistic_record, ste
 
 
 def replay_recorded(session: RecordedSession, params: ModelParams,
-                    memory: int | None = None, resets: Collection[int] = ()
-                    ) -> Iterator[StepRecord]:
+                    memory: int | None = None, resets: Collection[int] = (),
+                    follow_restarts: bool = True) -> Iterator[StepRecord]:
     """The steps of ``session`` with its recorded actions, as ``simulate --json`` rows.
 
     The bits and decisions are fed in the order they were recorded (a decision arrives
     after its step's bit); ``memory`` defaults to the session's (:func:`session_memory`).
     ``resets``: the steps (their index among those replayed, from 0) before which the
-    history is forgotten, as belief_node's ``~/reset`` does between two steps.
+    history is forgotten, as belief_node's ``~/reset`` does between two steps. With
+    ``follow_restarts``, the streams of a restarted mic_node follow, as belief_node
+    follows them: the old stream's steps still awaiting a decision are applied without
+    one, the counts are kept and the timer is forgotten (the gap between is not guessed).
     """
     tracker = StatisticTracker(params, memory=session_memory(session, memory))
     out: list[StepRecord] = []
@@ -79,14 +82,21 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
         else:
             tracker.act(u)
 
-    joiner = StepJoiner(apply, max_pending=max(1, len(session.bits)))
-    decisions = dict(session.decisions)
-    for step, bit in session.bits:
-        joiner.bit(step, bit)
-        if step in decisions:
-            joiner.decision(step, decisions[step])
-        yield from out
-        out.clear()
+    streams = [(session.stream, session.bits, session.decisions)]
+    streams += session.later_streams if follow_restarts else []
+    joiner = StepJoiner(apply, max_pending=max(1, max(len(bits) for _, bits, _ in streams)))
+    for index, (_, bits, decision_list) in enumerate(streams):
+        if index:  # belief_node's switch to the stream the controller answers now
+            joiner.finish()
+            joiner.restart()
+            tracker.forget_timer()
+        decisions = dict(decision_list)
+        for step, bit in bits:
+            joiner.bit(step, bit)
+            if step in decisions:
+                joiner.decision(step, decisions[step])
+            yield from out
+            out.clear()
 
 
 # --------------------------------------------------------------------------------------
