@@ -153,17 +153,17 @@ def test_a_reset_belief_node_is_replayed_with_its_reset(tmp_path: Path, capsys) 
     assert "1 reset(s) not located: compared up to step 21" in out
 
 
-def test_a_restarted_belief_node_is_named_and_its_first_beliefs_compared(tmp_path: Path,
-                                                                         capsys) -> None:
+def test_a_restarted_belief_node_is_named_and_both_replayed(tmp_path: Path, capsys) -> None:
     """belief_node killed after step 12, a new one joined at step 16 with zero counts.
 
-    Its diagnostics report another listener_id; the replay compares the first one's beliefs
-    and names the restart, where it blamed a recorder that missed beliefs.
+    Its diagnostics report another listener_id; the replay compares the first one's
+    beliefs and the new one's, replayed from its join, where it blamed a recorder that
+    missed beliefs.
     """
     bits, decisions = _fields(7, range(1, STEPS + 1))
     pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
     first = offline_beliefs([(pairs[:12], "start")])
-    later = [0.25] * (STEPS - 15)  # steps 16-30: not replayed
+    later = offline_beliefs([(pairs[15:], "joined")])  # zero counts, the timer unknown
     instances = ((11, 12, 12), (22, 17, 2))  # the second joined at 17 - 2 + 1 = 16
     bag = _session(tmp_path / "restarted", bits, decisions, first + later, instances=instances)
     assert main(["replay", str(bag)]) == 0
@@ -171,8 +171,14 @@ def test_a_restarted_belief_node_is_named_and_its_first_beliefs_compared(tmp_pat
     assert "equals the recorded belief at all 12 steps compared" in out, out
     assert ("belief_node restarted (a new one joined at step 16 with zero counts, the one"
             " before reported step 12 last, its diagnostics say): compared the first one's 12"
-            " beliefs") in out, out
-    first[5] += 0.125
-    other = _session(tmp_path / "other", bits, decisions, first + later, instances=instances)
-    assert main(["replay", str(other)]) == 1
-    assert "DIFFERS from the recorded one at step 6" in capsys.readouterr().out
+            " beliefs; and the new one's 15 beliefs, replayed from step 16 with zero counts"
+            " (the one before published 12)") in out, out
+    for wrong, where in ((first[5] + 0.125, 5), (later[3] + 0.125, 12 + 3)):
+        beliefs = first + later
+        beliefs[where] = wrong
+        other = _session(tmp_path / f"other{where}", bits, decisions, beliefs,
+                         instances=instances)  # fmt: skip
+        assert main(["replay", str(other)]) == 1
+        out = capsys.readouterr().out
+        assert "DIFFERS" in out and ("at step 6" in out if where == 5 else
+                                     "after the belief_node restart" in out), out

@@ -247,8 +247,34 @@ def run_replay(args: argparse.Namespace) -> int:
     for record in records if args.json else ():
         _write_line(json.dumps(record.__dict__))
     same, verdict = belief_verdict(session, [(r.t, r.belief) for r in records], resets)
+    if same and len(session.belief_restarts) == 1:
+        same, verdict = _new_belief_node(session, params, args.memory, records, verdict)
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def _new_belief_node(session: RecordedSession, params: ModelParams, memory: int | None,
+                     records: list[StepRecord], verdict: str) -> tuple[bool, str]:
+    """The verdict with a restarted belief_node's own beliefs compared too.
+
+    The new one joined at step ``join`` with zero counts (replayed so: ``from_step``); the
+    one before published the beliefs of steps 1 .. K, K from the last step it reported
+    to the step before the join. The recorded beliefs are those K, then the new one's: the
+    K for which both agree is the split (none: the new one's beliefs differ).
+    """
+    join, last = session.belief_restarts[0]
+    later = [r.belief for r in replay_recorded(session, params, memory, from_step=join)]
+    first, recorded = [r.belief for r in records], session.beliefs
+    for kept in range(last, join):
+        tail = recorded[kept:]
+        if (first[:kept] == recorded[:kept] and len(tail) <= len(later)
+                and tail == later[:len(tail)]):
+            return True, (f"{verdict.removesuffix(')')}; and the new one's {len(tail)} beliefs,"
+                          f" replayed from step {join} with zero counts (the one before"
+                          f" published {kept}))")  # fmt: skip
+    return False, (f"replayed belief DIFFERS from the recorded one after the belief_node"
+                   f" restart: no split of the {len(recorded)} recorded beliefs gives the"
+                   f" first one's and those of a new one from step {join} with zero counts")
 
 
 def _replay_locating_resets(session: RecordedSession, params: ModelParams,
@@ -299,8 +325,8 @@ def _aligned_beliefs(session: RecordedSession, replayed: list[tuple[int, float]]
         kept = min(last, len(beliefs))
         return beliefs[:kept], [f"belief_node restarted (a new one joined at step {join} with"
                                 f" zero counts, the one before reported step {last} last, its"
-                                f" diagnostics say): compared the first one's {kept} beliefs;"
-                                " the later ones are not replayed"]
+                                f" diagnostics say): compared the first one's {kept}"
+                                " beliefs"]
     if first == 1:
         if session.cut and count > len(beliefs):  # the cut took the last beliefs
             return beliefs, [f"the last {count - len(beliefs)} replayed steps have no"

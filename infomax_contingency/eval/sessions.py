@@ -53,7 +53,7 @@ from infomax_contingency.sim.simulation import StepRecord, statistic_record, ste
 
 def replay_recorded(session: RecordedSession, params: ModelParams,
                     memory: int | None = None, resets: Collection[int] = (),
-                    follow_restarts: bool = True) -> Iterator[StepRecord]:
+                    follow_restarts: bool = True, from_step: int = 1) -> Iterator[StepRecord]:
     """The steps of ``session`` with its recorded actions, as ``simulate --json`` rows.
 
     The bits and decisions are fed in the order they were recorded (a decision arrives
@@ -63,6 +63,8 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
     ``follow_restarts``, the streams of a restarted mic_node follow, as belief_node
     follows them: the old stream's steps still awaiting a decision are applied without
     one, the counts are kept and the timer is forgotten (the gap between is not guessed).
+    ``from_step`` > 1: as a belief_node that joined the first stream there (a restarted
+    one): zero counts, the timer unknown until the next vocalization.
     """
     tracker = StatisticTracker(params, memory=session_memory(session, memory))
     out: list[StepRecord] = []
@@ -71,6 +73,8 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
     def apply(step: int, y: bool | Withheld | None, u: bool | None) -> None:
         if applied[0] in resets:
             tracker.reset()
+        if applied[0] == 0 and from_step > 1:  # joined there: the decisions before unknown
+            tracker.forget_timer_completely()
         applied[0] += 1
         z = tracker.statistic.z
         statistic = tracker.observe_window(y)  # a withheld or missing bit is not counted
@@ -92,6 +96,8 @@ def replay_recorded(session: RecordedSession, params: ModelParams,
             tracker.forget_timer()
         decisions = dict(decision_list)
         for step, bit in bits:
+            if index == 0 and step < from_step:
+                continue
             joiner.bit(step, bit)
             if step in decisions:
                 joiner.decision(step, decisions[step])
