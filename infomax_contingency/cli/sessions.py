@@ -265,10 +265,12 @@ def _new_belief_node(session: RecordedSession, params: ModelParams, memory: int 
     join, last = session.belief_restarts[0]
     later = [r.belief for r in replay_recorded(session, params, memory, from_step=join)]
     first, recorded = [r.belief for r in records], session.beliefs
-    for kept in range(last, join):
+    pairs = zip(first, recorded, strict=False)
+    agree = next((i for i, (a, b) in enumerate(pairs) if a != b),
+                 min(len(first), len(recorded)))  # the first one's beliefs end by here
+    for kept in range(max(last, 0), min(join, agree + 1)):  # bounded: forged steps too
         tail = recorded[kept:]
-        if (first[:kept] == recorded[:kept] and len(tail) <= len(later)
-                and tail == later[:len(tail)]):
+        if len(tail) <= len(later) and tail == later[:len(tail)]:
             return True, (f"{verdict.removesuffix(')')}; and the new one's {len(tail)} beliefs,"
                           f" replayed from step {join} with zero counts (the one before"
                           f" published {kept}))")  # fmt: skip
