@@ -25,27 +25,39 @@ def period(params: ModelParams, z: int) -> str:
     return BACKGROUND
 
 
+def evidence(params: ModelParams, z: int) -> str | tuple[str, int]:
+    """What a bit at timer z is evidence of: its period, or ``(AGENT, z)`` with k2_per_lag.
+
+    (Each agent timer value its own rate, MODEL.md section 2.)
+    """
+    where = period(params, z)
+    return (AGENT, z) if where == AGENT and params.k2_per_lag else where
+
+
 def next_timer(params: ModelParams, z: int, u: int) -> int:
     """Timer after action u."""
     return 0 if u else min(z + 1, params.ta2 + 1)
 
 
-def log_marginals(params: ModelParams, events: list[tuple[str, int]]) -> tuple[float, float]:
-    """``log P(agent/background bits | S=1)`` and ``| S=0``, by direct counting."""
-    ones = {AGENT: 0, BACKGROUND: 0}
-    zeros = {AGENT: 0, BACKGROUND: 0}
+def log_marginals(params: ModelParams, events: list[tuple[object, int]]) -> tuple[float, float]:
+    """``log P(agent/background bits | S=1)`` and ``| S=0``, by direct counting.
+
+    An event's place is SELF (not counted), BACKGROUND, or an agent rate: AGENT, or
+    ``(AGENT, z)`` for one rate per agent timer value (:func:`evidence`); under S=1 each
+    agent rate has its own Beta(b21, b22) prior, under S=0 every bit shares one rate.
+    """
+    ones: dict[object, int] = {}
+    zeros: dict[object, int] = {}
     for where, bit in events:
         if where != SELF:
-            (ones if bit else zeros)[where] += 1
+            (ones if bit else zeros)[where] = (ones if bit else zeros).get(where, 0) + 1
     b21, b22, b31, b32 = params.b21, params.b22, params.b31, params.b32
-    log_s1 = (
-        betaln(b21 + ones[AGENT], b22 + zeros[AGENT])
-        - betaln(b21, b22)
-        + betaln(b31 + ones[BACKGROUND], b32 + zeros[BACKGROUND])
-        - betaln(b31, b32)
-    )
-    log_s0 = betaln(b31 + ones[AGENT] + ones[BACKGROUND], b32 + zeros[AGENT] + zeros[BACKGROUND])
-    return log_s1, log_s0 - betaln(b31, b32)
+    log_s1 = 0.0
+    for where in set(ones) | set(zeros):
+        a, b = (b31, b32) if where == BACKGROUND else (b21, b22)
+        log_s1 += betaln(a + ones.get(where, 0), b + zeros.get(where, 0)) - betaln(a, b)
+    log_s0 = betaln(b31 + sum(ones.values()), b32 + sum(zeros.values())) - betaln(b31, b32)
+    return log_s1, log_s0
 
 
 def log_evidence(params: ModelParams, events: list[tuple[str, int]]) -> float:

@@ -245,3 +245,56 @@ def test_a_bag_of_two_namespaced_robots_is_refused_naming_both(tmp_path, capsys)
     bag = _copy_under_namespaces(tmp_path, ("/robot1", "/robot2"))
     error = _one_line_error(capsys, "replay", str(bag))
     assert "several robots (/robot1, /robot2)" in error
+
+
+def _copy_saying_its_belief_model(tmp_path: Path, k2_per_lag: str) -> Path:
+    """The demo session (recorded with one K2) with its belief_node saying ``k2_per_lag``."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    types = get_typestore(Stores.ROS2_JAZZY)
+    kind = "diagnostic_msgs/msg/DiagnosticArray"
+    key_value = types.types["diagnostic_msgs/msg/KeyValue"]
+    bag = tmp_path / f"says_{k2_per_lag}"
+    writer = BagWriter(bag)
+    with Reader(SESSION) as reader:
+        for connection in reader.connections:
+            writer.add_topic(connection.topic, connection.msgtype, [])
+        for connection, time_ns, data in reader.messages():
+            if connection.topic == "/diagnostics":
+                array = types.deserialize_cdr(data, kind)
+                for status in array.status:
+                    if status.name.split(":", 1)[0] == "belief_node":
+                        status.values.append(key_value(key="k2_per_lag", value=k2_per_lag))
+                data = bytes(types.serialize_cdr(array, kind))
+            writer.write(connection.topic, data, time_ns)
+    writer.close()
+    return bag
+
+
+def test_the_belief_model_a_session_says_is_the_one_it_is_replayed_with(tmp_path, capsys):
+    one_k2 = str(Path(__file__).parent / "data" / "robot_one_k2.yaml")
+    says_one_k2 = _copy_saying_its_belief_model(tmp_path, "False")
+    for command in (["replay", str(says_one_k2)],
+                    ["plot", "--session", str(says_one_k2), "--out", str(tmp_path / "p.png")]):
+        error = _one_line_error(capsys, *command)
+        assert ("belief_node had one K2 (k2_per_lag false); the parameter set robot (--params)"
+                " has one K2 per agent timer value: give --params with k2_per_lag: false") in error
+    assert main(["replay", str(says_one_k2), "--params", one_k2]) == 0
+    out = capsys.readouterr().out
+    assert "equals the recorded belief at all 120 steps" in out and "does not say" not in out
+    # a session that says one K2 per lag is replayed so, even where one K2 would equal
+    assert main(["replay", str(_copy_saying_its_belief_model(tmp_path, "True"))]) == 1
+    assert "DIFFERS" in capsys.readouterr().out
+
+
+def test_a_session_that_does_not_say_its_belief_model_is_told_by_its_beliefs(capsys):
+    # recorded with one K2 before belief_node said so: replayed with the model that equals
+    assert main(["replay", str(SESSION)]) == 0
+    out = capsys.readouterr().out
+    assert "equals the recorded belief at all 120 steps" in out
+    assert ("with one K2 (k2_per_lag false: the session does not say its belief model, and"
+            " its beliefs are that one's)") in out
+    assert main(["replay", str(SESSION), "--memory", "3"]) == 1  # neither model equals
+    out = capsys.readouterr().out
+    assert "DIFFERS" in out and "k2_per_lag" not in out

@@ -152,7 +152,7 @@ def test_closed_loop_finds_the_partner_and_not_the_noise() -> None:
         bits = make_bit_source(DEFAULT_BIT_SOURCE, 16000, 0.5)
         bits.follow_model(ROBOT)
         records = simulate_audio_loop(
-            PolicyController(table), FakeRoom(FakeRoomConfig.preset(room), 1), bits, 200
+            PolicyController(table, ROBOT), FakeRoom(FakeRoomConfig.preset(room), 1), bits, 200
         )
         results[room] = np.array([r.belief for r in records])
         assert [r.t for r in records] == list(range(1, 201))

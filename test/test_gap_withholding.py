@@ -140,7 +140,7 @@ def test_the_offline_belief_in_random_runs_equals_counting_with_the_windows_time
     for taken, z in zip(loop, timers, strict=True):
         assert taken.observation.withheld == (taken.z != z), (taken.t, taken.z, z)
         if not taken.observation.withheld:
-            events.append((brute_force.period(PARAMS, z), taken.observation.y))
+            events.append((brute_force.evidence(PARAMS, z), taken.observation.y))
         assert taken.statistic.belief(PARAMS) == pytest.approx(
             brute_force.belief(PARAMS, events), abs=1e-12)
 
@@ -163,7 +163,7 @@ def test_the_offline_belief_equals_counting_with_the_windows_timers(vocalize_at:
         timers_lagged += taken.z != z
         assert taken.observation.withheld == (taken.z != z)
         if not taken.observation.withheld:
-            events.append((brute_force.period(PARAMS, z), bit))
+            events.append((brute_force.evidence(PARAMS, z), bit))
         assert taken.statistic.belief(PARAMS) == pytest.approx(
             brute_force.belief(PARAMS, events), abs=1e-12)
         z = brute_force.next_timer(PARAMS, z, decisions[step])

@@ -21,6 +21,7 @@ from infomax_contingency.eval.sessions import load_session
 from stepped_graph import stepped_graph
 
 SESSION = Path(__file__).parent / "data" / "session_demo"
+ONE_K2 = Path(__file__).parent / "data" / "robot_one_k2.yaml"
 STEP_TOPICS = ("/sound", "/sound_step", "/vocalize", "/vocalize_step", "/belief",
                "/partner_present")
 
@@ -29,7 +30,9 @@ def _graph(controller: dict, bag: Path = SESSION, **mic_parameters: object) -> d
     mic = {"source": "bag", "bag_dir": str(bag), "lockstep": True, "exit_at_end": True,
            "bit_source": "energy", "threshold_mode": "fixed", "wait_for_listeners": 3,
            **mic_parameters}
-    return {"controller_node": controller, "belief_node": {"memory_steps": 60}, "mic_node": mic}
+    # the committed session was recorded with one K2 (its belief_node did not say so yet)
+    belief = {"memory_steps": 60, "params": str(ONE_K2) if bag == SESSION else "robot"}
+    return {"controller_node": controller, "belief_node": belief, "mic_node": mic}
 
 
 def _replay(controller: dict, bag: Path = SESSION, steps: int = 120,

@@ -112,7 +112,7 @@ def _offline_demo(seed: int, leave_s: float, steps: int) -> list:
     bits = make_bit_source(DEFAULT_BIT_SOURCE, 16000, 0.5)
     bits.follow_model(params)
     room = FakeRoom(FakeRoomConfig.preset("responsive", partner_leave_s=leave_s), seed)
-    return simulate_audio_loop(PolicyController(table), room, bits, steps, memory=60)
+    return simulate_audio_loop(PolicyController(table, params), room, bits, steps, memory=60)
 
 
 @NODE_GRAPHS

@@ -99,7 +99,7 @@ def _offline(seed: int, steps: int, bit_source: str = "energy") -> list:
     else:
         binarizer = make_bit_source(bit_source, 16000, 0.5)
         binarizer.follow_model(params)  # as mic_node does
-    return simulate_audio_loop(PolicyController(table), room, binarizer, steps)
+    return simulate_audio_loop(PolicyController(table, params), room, binarizer, steps)
 
 
 def _assert_equals_offline(run: tuple[list, list, list], offline: list, steps: int) -> None:

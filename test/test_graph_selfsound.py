@@ -51,7 +51,7 @@ def offline(declare: bool) -> list:
                              expected_params=params)  # fmt: skip
     config = FakeRoomConfig.preset("silent", robot_speech_probability=1.0)
     bits = make_bit_source("energy", 16000, 0.5, **FIXED_THRESHOLD)
-    return simulate_audio_loop(PolicyController(table), FakeRoom(config, SEED), bits, STEPS,
+    return simulate_audio_loop(PolicyController(table, params), FakeRoom(config, SEED), bits, STEPS,
                                memory=MEMORY, declare_self_sound=declare)  # fmt: skip
 
 

@@ -124,7 +124,7 @@ def test_self_calibrating_threshold_in_the_graph_equals_the_offline_loop(tmp_pat
     table = PolicyTable.load(
         resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=params
     )
-    offline = list(wav_background_loop(wav, params, None, PolicyController(table)))
+    offline = list(wav_background_loop(wav, params, None, PolicyController(table, params)))
     steps = len(offline)
     assert 20 <= steps < 40, "the first windows only hear the room"
     assert any(r.u for r in offline) and 0 < sum(r.y for r in offline) < steps

@@ -145,7 +145,6 @@ RUFF_EXCEPTIONS = {
     "infomax_contingency.audio.wav": {"open_wav_info"},
     "infomax_contingency.cli.sessions": {"_check_replay"},
     "infomax_contingency.core.learning": {"learn"},
-    "infomax_contingency.core.model": {"__post_init__"},
     "infomax_contingency.eval.rooms.config": {"__post_init__"},
     "infomax_contingency.nodes.runtime": {"run_nodes"},
     "infomax_contingency.sim.room_config": {"__post_init__"},

@@ -34,40 +34,41 @@ PARAM_SETS = {
 }
 
 
-def integrated_belief(params: ModelParams, p2: int, q2: int, p3: int, q3: int) -> float:
-    """P(S=1 | counts) with the rates integrated out numerically (scipy.integrate.quad).
+def log_integral(a: float, b: float, ones: int, zeros: int) -> float:
+    """``log of the integral of k^ones (1-k)^zeros Beta(k; a, b) dk``, by scipy.integrate.quad.
 
-    Likelihoods are scaled by a constant per period so the integrals stay well inside
-    double range; the scale cancels in the posterior.
+    The likelihood is scaled by its peak so the integral stays well inside double range.
     """
+    mode = (ones + a - 1) / max(ones + zeros + a + b - 2, 1e-9)
+    mode = min(max(mode, 1e-6), 1 - 1e-6)
+    log_peak = ones * math.log(mode) + zeros * math.log1p(-mode)
 
-    def integral(a: float, b: float, ones: int, zeros: int) -> float:
-        mode = (ones + a - 1) / max(ones + zeros + a + b - 2, 1e-9)
-        mode = min(max(mode, 1e-6), 1 - 1e-6)
-        log_peak = ones * math.log(mode) + zeros * math.log1p(-mode)
+    def likelihood(k: float) -> float:
+        if k <= 0 or k >= 1:
+            return 0.0
+        return math.exp(ones * math.log(k) + zeros * math.log1p(-k) - log_peak)
 
-        def likelihood(k: float) -> float:
-            if k <= 0 or k >= 1:
-                return 0.0
-            return math.exp(ones * math.log(k) + zeros * math.log1p(-k) - log_peak)
+    # the prior's k^(a-1) (1-k)^(b-1) is quad's algebraic weight: exact at the ends
+    with warnings.catch_warnings():  # quad's accuracy notes; the tolerance below decides
+        warnings.simplefilter("ignore", integrate.IntegrationWarning)
+        value = integrate.quad(
+            likelihood,
+            0,
+            1,
+            weight="alg",
+            wvar=(a - 1, b - 1),
+            limit=200,
+            epsabs=0,
+            epsrel=1e-11,
+        )[0]
+    return math.log(value) + log_peak - float(special.betaln(a, b))
 
-        # the prior's k^(a-1) (1-k)^(b-1) is quad's algebraic weight: exact at the ends
-        with warnings.catch_warnings():  # quad's accuracy notes; the tolerance below decides
-            warnings.simplefilter("ignore", integrate.IntegrationWarning)
-            value = integrate.quad(
-                likelihood,
-                0,
-                1,
-                weight="alg",
-                wvar=(a - 1, b - 1),
-                limit=200,
-                epsabs=0,
-                epsrel=1e-11,
-            )[0]
-        return math.log(value) + log_peak - float(special.betaln(a, b))
 
-    log_s1 = integral(params.b21, params.b22, p2, q2) + integral(params.b31, params.b32, p3, q3)
-    log_s0 = integral(params.b31, params.b32, p2 + p3, q2 + q3)
+def integrated_belief(params: ModelParams, p2: int, q2: int, p3: int, q3: int) -> float:
+    """P(S=1 | counts) with the rates integrated out numerically (:func:`log_integral`)."""
+    log_s1 = (log_integral(params.b21, params.b22, p2, q2)
+              + log_integral(params.b31, params.b32, p3, q3))  # fmt: skip
+    log_s0 = log_integral(params.b31, params.b32, p2 + p3, q2 + q3)
     lam = math.log(params.pi / (1 - params.pi)) + log_s1 - log_s0
     return 1 / (1 + math.exp(-lam))
 
@@ -154,20 +155,25 @@ def direct_statistic(
     z_values = [z_initial]
     for u in actions:
         z_values.append(brute_force.next_timer(params, z_values[-1], u))
-    counted = [(brute_force.period(params, z), y) for z, y in zip(z_values, bits, strict=True)]
+    counted = [(brute_force.period(params, z), z, y) for z, y in zip(z_values, bits, strict=True)]
     counted = [event for event in counted if event[0] != brute_force.SELF]
     if memory:
         counted = counted[-memory:]
     count = {
-        key: counted.count(key)
+        key: sum(1 for where, _, y in counted if (where, y) == key)
         for key in [("agent", 1), ("agent", 0), ("background", 1), ("background", 0)]
     }
+    lags: tuple[int, ...] = ()
+    if params.k2_per_lag and count[("agent", 1)] + count[("agent", 0)]:
+        lags = tuple(sum(1 for where, z, y in counted if where == "agent" and (z, y) == (lag, bit))
+                     for lag in range(params.ta1, params.ta2 + 1) for bit in (1, 0))  # fmt: skip
     return Statistic(
         z_values[-1],
         count[("agent", 1)],
         count[("agent", 0)],
         count[("background", 1)],
         count[("background", 0)],
+        lags,
     )
 
 
@@ -274,10 +280,16 @@ def test_parameter_sets_and_yaml(tmp_path) -> None:
     path = tmp_path / "params.yaml"
     path.write_text(
         "model:\n  dt: 0.5\n  ts1: 0\n  ts2: 1\n  ta1: 2\n  ta2: 4\n  pi: 0.01\n"
-        "  b31: 0.5\n  b32: 9.5\n"
+        "  b31: 0.5\n  b32: 9.5\n  k2_per_lag: true\n"
     )
     assert ModelParams.load(path) == robot
     assert ModelParams.load(path).digest() == robot.digest()
+    path.write_text("dt: 0.5\nts1: 0\nts2: 1\nta1: 2\nta2: 4\npi: 0.01\nk2_per_lag: 1\n")
+    with pytest.raises(ParameterError, match="k2_per_lag must be true or false, got 1"):
+        ModelParams.load(path)
+    # one K2 (false, the default) leaves the paper's digest; a table ignores k2_per_lag
+    assert "k2_per_lag" not in paper.to_dict() and robot.to_dict()["k2_per_lag"] is True
+    assert robot.for_table() == ModelParams(**{**robot.to_dict(), "k2_per_lag": False})
     path.write_text("dt: 0.5\nts1: 0\nts2: 1\nta1: 2\nta2: 4\npi: 0.01\nb99: 1\n")
     with pytest.raises(ParameterError, match="b99"):
         ModelParams.load(path)
@@ -292,3 +304,52 @@ def test_parameter_sets_and_yaml(tmp_path) -> None:
     with pytest.raises(ParameterError, match="named sets"):
         ModelParams.load("papr")
     assert paper.differences(robot) and not paper.differences(ModelParams.named("paper"))
+
+
+@pytest.mark.parametrize("name", ["robot", "gaps_informative_per_lag"])
+def test_per_lag_belief_and_predictive_equal_brute_force(name: str) -> None:
+    """One K2 per agent timer value, against direct counting with a rate per lag.
+
+    The tracker's belief, entropy and predictive probability (brute_force.evidence).
+    """
+    params = PARAM_SETS["robot"] if name == "robot" else ModelParams(
+        **{**PARAM_SETS["gaps_informative"].to_dict(), "k2_per_lag": True})
+    rng = np.random.default_rng(17)
+    for _ in range(40):
+        length = int(rng.integers(1, 50))
+        z = int(rng.integers(0, params.timer_long_ago + 1))
+        tracker, events = StatisticTracker(params, z_initial=z), []
+        for _ in range(length):
+            y = int(rng.random() < 0.4)
+            tracker.observe(y)
+            events.append((brute_force.evidence(params, z), y))
+            u = int(rng.random() < 0.3)
+            tracker.act(u)
+            z = brute_force.next_timer(params, z, u)
+        statistic = tracker.statistic
+        expected = brute_force.belief(params, events)
+        assert statistic.belief(params) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        assert statistic.entropy(params) == pytest.approx(
+            brute_force.entropy_bits(expected), abs=1e-9)
+        where = brute_force.evidence(params, z)
+        if where != brute_force.SELF:
+            assert statistic.predictive_active(params) == pytest.approx(
+                brute_force.probability_of_bit(params, events, where, 1), rel=1e-9)
+
+
+
+def test_per_lag_belief_equals_numerical_integration() -> None:
+    """Each lag's rate integrated out numerically (scipy quad), independently of betaln."""
+    params = PARAM_SETS["robot"]
+    rng = np.random.default_rng(23)
+    for _ in range(15):
+        lags = tuple(int(c) for c in rng.integers(0, 12, size=2 * params.agent_lags))
+        p3, q3 = (int(c) for c in rng.integers(0, 30, size=2))
+        p2, q2 = sum(lags[0::2]), sum(lags[1::2])
+        expected = (math.log(params.pi / (1 - params.pi))
+                    + sum(log_integral(params.b21, params.b22, active, inactive)
+                          for active, inactive in zip(lags[0::2], lags[1::2], strict=True))
+                    + log_integral(params.b31, params.b32, p3, q3)
+                    - log_integral(params.b31, params.b32, p2 + p3, q2 + q3))  # fmt: skip
+        got = Statistic(4, p2, q2, p3, q3, lags).log_odds(params)
+        assert got == pytest.approx(expected, rel=1e-8, abs=1e-9)

@@ -150,9 +150,10 @@ def test_plot_a_session_bag(tmp_path, capsys: pytest.CaptureFixture) -> None:
     # The figure draws the recorded belief (replayed exactly with the recorded actions).
     from infomax_contingency.eval.sessions import load_session, replay_recorded
 
-    session = load_session(bag)
-    records = [r.__dict__ for r in replay_recorded(session, ROBOT)]
-    figure = plots.session_figure(ROBOT, records, memory=session.memory_steps)
+    session = load_session(bag)  # recorded with one K2, which it does not say: plot tells
+    one_k2 = ROBOT.for_table()
+    records = [r.__dict__ for r in replay_recorded(session, one_k2)]
+    figure = plots.session_figure(one_k2, records, memory=session.memory_steps)
     belief_line = figure.axes[1].get_lines()[0]
     assert list(belief_line.get_ydata()) == session.beliefs
     not_a_bag = tmp_path / "empty_dir"

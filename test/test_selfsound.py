@@ -44,7 +44,7 @@ def brute_force_belief(params: ModelParams, z_initial: int, actions: list[int],
     z_values = [z_initial]
     for u in actions:
         z_values.append(brute_force.next_timer(params, z_values[-1], u))
-    room = [(brute_force.period(params, z), y)
+    room = [(brute_force.evidence(params, z), y)
             for z, y, w in zip(z_values, bits, withheld, strict=True) if not w]  # fmt: skip
     robot = [y for y, w in zip(bits, withheld, strict=True) if w]
     log_robot = float(betaln(1 + sum(robot), 1 + len(robot) - sum(robot)) - betaln(1, 1))
@@ -116,7 +116,7 @@ def test_the_joiner_passes_withheld_bits_on() -> None:
 def test_controller_does_not_count_a_withheld_bit() -> None:
     """The controller decides on a withheld window but counts it as a missing bit."""
     table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"))
-    controller, by_hand = PolicyController(table), StatisticTracker(ROBOT, memory=60)
+    controller, by_hand = PolicyController(table, ROBOT), StatisticTracker(ROBOT, memory=60)
     for t in range(60):
         y = Withheld(True) if t % 3 == 0 else int(t % 4 == 1)
         u = controller.step(y)
@@ -213,7 +213,7 @@ def test_the_robots_speech_is_taken_for_a_partner_unless_it_is_declared() -> Non
     for declare in (False, True):
         room = FakeRoom(FakeRoomConfig.preset("silent", robot_speech_probability=1.0), 3)
         bits = make_bit_source("energy", 16000, 0.5, threshold_mode="fixed", threshold_db=-40.0)
-        records = simulate_audio_loop(PolicyController(table), room, bits, 120, memory=60,
+        records = simulate_audio_loop(PolicyController(table, ROBOT), room, bits, 120, memory=60,
                                       declare_self_sound=declare)  # fmt: skip
         final[declare] = records[-1].belief
         assert room.robot_utterances > 5

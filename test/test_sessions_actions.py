@@ -62,8 +62,10 @@ def stereo_wav(tmp_path: Path) -> Path:
 def test_the_robots_own_table_on_the_recorded_bits_makes_the_recorded_decisions(capsys
                                                                                  ) -> None:
     # The session was recorded with this table in the loop: on the same bits it decides
-    # as the robot did, and its belief is the recorded one.
-    assert main(["replay", str(SESSION), "--actions", f"policy:{ROBOT_TABLE}", "--json"]) == 0
+    # as the robot did, and its belief is the recorded one (of one K2, as it was recorded).
+    one_k2 = str(DATA / "robot_one_k2.yaml")
+    assert main(["replay", str(SESSION), "--actions", f"policy:{ROBOT_TABLE}", "--json",
+                 "--params", one_k2]) == 0
     rows = _rows(capsys)
     session = load_session(SESSION)
     assert [row["u"] for row in rows] == [int(u) for _, u in session.decisions]
@@ -93,7 +95,7 @@ def test_a_what_if_on_a_session_with_withheld_steps_leaves_them_uncounted(
     for k, row in enumerate(rows):
         assert (row["y"], row["u"]) == (int(bits[k]), int((k + 1) % 4 == 0))
         if not withheld[k]:
-            events.append((brute_force.period(params, row["z"]), row["y"]))
+            events.append((brute_force.evidence(params, row["z"]), row["y"]))
         assert row["belief"] == pytest.approx(brute_force.belief(params, events), abs=1e-12)
 
 
@@ -168,7 +170,7 @@ def test_a_sound_during_the_warm_up_labels_the_steps_after_it(tmp_path: Path, ca
     events = []
     for k, row in enumerate(rows):
         assert (row["z"], row["u"]) == (timers[first + k], int(decisions[first + k]))
-        events.append((brute_force.period(params, row["z"]), row["y"]))
+        events.append((brute_force.evidence(params, row["z"]), row["y"]))
         assert row["belief"] == pytest.approx(brute_force.belief(params, events), abs=1e-12)
 
 

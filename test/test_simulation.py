@@ -37,7 +37,7 @@ ROBOT = ModelParams.named("robot")
 
 def test_greedy_equals_the_one_step_table() -> None:
     table = solve_receding(ROBOT, 1, 8)
-    greedy = GreedyController(ROBOT)
+    greedy = GreedyController(ROBOT.for_table())  # the table's model: one K2
     vocalizes = 0
     for counts in count_tuples(8):
         for z in range(ROBOT.n_timer_values):
@@ -178,7 +178,8 @@ def test_simulation_is_reproducible_and_detects() -> None:
 
     def run(room: str, seed: int) -> list:
         rng = np.random.default_rng(seed)
-        return simulate(ROBOT, PolicyController(table), make_room(room, ROBOT, rng), 120, rng)
+        return simulate(ROBOT, PolicyController(table, ROBOT), make_room(room, ROBOT, rng), 120,
+                        rng)  # fmt: skip
 
     assert run("responsive", 3) == run("responsive", 3)
     assert run("responsive", 3)[-1].belief > 0.95

@@ -343,7 +343,8 @@ def _brute_force_counts(
 
     ``None`` marks a missing bit or decision. Every assignment of the missing decisions
     and every starting timer in ``z_start`` is enumerated; a window is counted when all
-    of them give it the same period (and its bit is known).
+    of them give it the same period (and its bit is known), with ``k2_per_lag`` an agent
+    window when all give it the same timer (each timer value its own rate).
     """
     unknown = [i for i, u in enumerate(decisions) if u is None]
     periods_per_window: list[set[int]] = [set() for _ in bits]
@@ -354,14 +355,15 @@ def _brute_force_counts(
                 us[index] = value
             z = z0
             for t, u in enumerate(us):
-                periods_per_window[t].add(period_of(params, z))
+                agent_lag = params.k2_per_lag and period_of(params, z) == AGENT
+                periods_per_window[t].add(-z if agent_lag else period_of(params, z))
                 z = advance_timer(params, z, u)
     counts = [0, 0, 0, 0]
     for y, periods in zip(bits, periods_per_window, strict=True):
         if y is None or len(periods) > 1:
             continue
         (period,) = periods
-        if period == AGENT:
+        if period == AGENT or period < 0:
             counts[0 if y else 1] += 1
         elif period == BACKGROUND:
             counts[2 if y else 3] += 1

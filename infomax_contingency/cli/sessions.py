@@ -36,6 +36,8 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
 from infomax_contingency.eval.sessions import (
     RecordedSession,
+    belief_model,
+    check_belief_model,
     check_same_windows,
     check_window,
     decisions_from_reference,
@@ -49,6 +51,7 @@ from infomax_contingency.eval.sessions import (
     wav_background_bits,
     wav_background_loop,
     wav_bits,
+    with_session_model,
 )
 from infomax_contingency.sim.actions import read_actions_csv
 from infomax_contingency.sim.simulation import RunSummary, StepRecord
@@ -236,6 +239,7 @@ def run_replay(args: argparse.Namespace) -> int:
         return _print_what_if(args, records, what, problems)
     session = load_session(Path(args.session), warn=warn)
     check_window(session, params, args.params, args.session)
+    check_belief_model(session, params, args.params, args.session)
     if kind == "controller":
         memory = session_memory(session, args.memory)
         controller = make_controller(args.actions, params, np.random.default_rng(args.seed),
@@ -243,14 +247,33 @@ def run_replay(args: argparse.Namespace) -> int:
         records = replay_bits(recorded_bits(session), controller, memory)
         return _print_what_if(args, records, f"controller {controller.name} deciding on the"
                               " recorded bits (what-if)")
-    records, resets = _replay_locating_resets(session, params, args.memory)
+    params, records, same, verdict = _replay_with_its_model(session, params, args.memory)
     for record in records if args.json else ():
         _write_line(json.dumps(record.__dict__))
-    same, verdict = belief_verdict(session, [(r.t, r.belief) for r in records], resets)
     if same and len(session.belief_restarts) == 1:
         same, verdict = _new_belief_node(session, params, args.memory, records, verdict)
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
+
+
+def _replay_with_its_model(session: RecordedSession, params: ModelParams, memory: int | None
+                           ) -> tuple[ModelParams, list[StepRecord], bool, str]:
+    """The replay with ``params`` or the session's other belief model, and its verdict.
+
+    The model: :func:`~infomax_contingency.eval.sessions.with_session_model`. Returns the
+    parameters replayed with, the records, whether they equal, the verdict.
+    """
+    def replay(model: ModelParams) -> tuple[bool, tuple[list[StepRecord], bool, str]]:
+        records, resets = _replay_locating_resets(session, model, memory)
+        same, verdict = belief_verdict(session, [(r.t, r.belief) for r in records], resets)
+        return same, (records, same, verdict)
+
+    chosen, (records, same, verdict), told = with_session_model(session, params, replay)
+    if told:
+        verdict += (f", with {belief_model(chosen.k2_per_lag)} (k2_per_lag"
+                    f" {str(chosen.k2_per_lag).lower()}: the session does not say its belief"
+                    " model, and its beliefs are that one's)")
+    return chosen, records, same, verdict
 
 
 def _new_belief_node(session: RecordedSession, params: ModelParams, memory: int | None,

@@ -94,9 +94,17 @@ class Controller:
 class PolicyController(Controller):
     """Decisions looked up in a solved :class:`PolicyTable`."""
 
-    def __init__(self, table: PolicyTable):
+    def __init__(self, table: PolicyTable, params: ModelParams | None = None):
+        """Look up ``table``; keep the statistic for ``params`` (its belief).
+
+        ``params`` default to the table's; a table is solved for one K2, so they may
+        differ from its own in ``k2_per_lag`` only (ValueError otherwise).
+        """
+        if params is not None and params.for_table() != table.params:
+            raise ValueError("the table was solved for other model parameters: "
+                             + "; ".join(table.params.differences(params.for_table())))
         memory = 0 if table.mode == EPISODIC else table.memory
-        super().__init__(table.params, memory=memory)
+        super().__init__(table.params if params is None else params, memory=memory)
         self.table = table
         self.name = f"policy:{table.mode}"
         self.episode_step = 0
@@ -140,7 +148,7 @@ class RuleController(Controller):
 
     def decide(self, statistic: Statistic) -> int:
         """Vocalize iff the timer is past the agent period and agent data is the scarcer."""
-        return int(rule_decisions(self.params, self.c, *statistic))
+        return int(rule_decisions(self.params, self.c, statistic.z, *statistic.counts))
 
 
 class GreedyController(Controller):
@@ -293,7 +301,8 @@ def make_controller(
         if kind == "policy":
             if not argument:
                 raise ValueError("policy needs a table file: policy:FILE")
-            return PolicyController(PolicyTable.load(Path(argument), expected_params=params))
+            return PolicyController(PolicyTable.load(Path(argument), expected_params=params),
+                                    params)
         if kind == "rule":
             return RuleController(params, float(argument) if argument else 9.0, memory)
         if kind == "greedy" and not argument:

@@ -23,21 +23,21 @@ Conventions:
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import hashlib
-import json
 import math
 from collections import deque
-from collections.abc import Mapping
-from pathlib import Path
 from types import ModuleType
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from infomax_contingency.core.params import (  # noqa: F401  (re-exported: the model's parameters)
+    BETA_FIELDS,
+    NAMED_PARAMS,
+    ModelParams,
+    ParameterError,
+)
 from infomax_contingency.core.selfsound import Withheld
-from infomax_contingency.limits import load_yaml, short_repr
 
 
 @functools.cache
@@ -66,175 +66,9 @@ def expit(x: Any) -> Any:
 SELF, AGENT, BACKGROUND = 1, 2, 3
 """Period labels, numbered as in MODEL.md."""
 
-BETA_FIELDS = ("b11", "b12", "b21", "b22", "b31", "b32")
-
 TIE_TOLERANCE = 1e-12
 """Vocalizing must beat silence by more than this many bits of expected (summed) entropy:
 ties, and floating-point noise around them, go to silence."""
-
-
-class ParameterError(ValueError):
-    """Model parameters that are invalid or cannot be loaded."""
-
-
-@dataclasses.dataclass(frozen=True)
-class ModelParams:
-    """Model parameters (MODEL.md section 1).
-
-    Attributes:
-        dt: step (microphone window) length, seconds.
-        ts1, ts2: first and last timer value of the self-feedback period, steps.
-        ta1, ta2: first and last timer value of the agent period, steps.
-        pi: prior probability P(S=1) that a responsive agent is present.
-        b11, b12: Beta prior of the self-feedback rate K1.
-        b21, b22: Beta prior of the agent-period rate K2 (when S=1).
-        b31, b32: Beta prior of the background rate K3 (and of the shared rate when S=0).
-    """
-
-    dt: float
-    ts1: int
-    ts2: int
-    ta1: int
-    ta2: int
-    pi: float
-    b11: float = 1.0
-    b12: float = 1.0
-    b21: float = 1.0
-    b22: float = 1.0
-    b31: float = 1.0
-    b32: float = 1.0
-
-    def __post_init__(self) -> None:  # noqa: C901
-        for name in ("ts1", "ts2", "ta1", "ta2"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-                if isinstance(value, float) and value.is_integer():
-                    object.__setattr__(self, name, int(value))
-                else:
-                    raise ParameterError(f"{name} must be a whole number of steps,"
-                                         f" got {short_repr(value)}")
-            object.__setattr__(self, name, int(getattr(self, name)))
-        for name in ("dt", "pi", *BETA_FIELDS):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
-                raise ParameterError(f"{name} must be a number, got {short_repr(value)}")
-            if not math.isfinite(float(value)):
-                raise ParameterError(f"{name} must be finite, got {short_repr(value)}")
-            object.__setattr__(self, name, float(value))
-        if self.dt <= 0:
-            raise ParameterError(f"dt must be > 0 seconds, got {self.dt}")
-        if self.ts1 < 0:
-            raise ParameterError(f"ts1 must be >= 0, got {self.ts1}")
-        if self.ts2 < self.ts1:
-            raise ParameterError(f"ts2 must be >= ts1 (= {self.ts1}), got {self.ts2}")
-        if self.ta1 <= self.ts2:
-            raise ParameterError(
-                f"ta1 must be > ts2 (= {self.ts2}): the agent period follows the self period;"
-                f" got ta1 = {self.ta1}"
-            )
-        if self.ta2 < self.ta1:
-            raise ParameterError(f"ta2 must be >= ta1 (= {self.ta1}), got {self.ta2}")
-        if not 0.0 < self.pi < 1.0:
-            raise ParameterError(f"pi must lie strictly between 0 and 1, got {self.pi}")
-        for name in BETA_FIELDS:
-            if getattr(self, name) <= 0:
-                raise ParameterError(
-                    f"{name} must be > 0 (a Beta prior parameter), got {getattr(self, name)}"
-                )
-
-    @property
-    def n_timer_values(self) -> int:
-        """Number of timer values ``0 .. ta2 + 1``."""
-        return self.ta2 + 2
-
-    @property
-    def timer_long_ago(self) -> int:
-        """The timer value meaning "no vocalization for a long time" (``ta2 + 1``)."""
-        return self.ta2 + 1
-
-    def to_dict(self) -> dict[str, float | int]:
-        """Plain dict of the fields, in declaration order."""
-        return dataclasses.asdict(self)
-
-    def digest(self) -> str:
-        """SHA-256 of the canonical JSON of the parameters (identifies a policy table)."""
-        canonical = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(canonical.encode()).hexdigest()
-
-    def differences(self, other: ModelParams) -> list[str]:
-        """Human-readable list of the fields that differ from ``other``."""
-        mine, theirs = self.to_dict(), other.to_dict()
-        return [f"{k}: {mine[k]!r} != {theirs[k]!r}" for k in mine if mine[k] != theirs[k]]
-
-    @classmethod
-    def from_mapping(cls, values: Mapping[str, Any], source: str = "parameters") -> ModelParams:
-        """Build from a mapping; unknown or missing fields are refused by name."""
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - fields)
-        if unknown:
-            raise ParameterError(
-                f"{source}: unknown model parameter(s) {unknown}; allowed: {sorted(fields)}"
-            )
-        required = {"dt", "ts1", "ts2", "ta1", "ta2", "pi"}
-        missing = sorted(required - set(values))
-        if missing:
-            raise ParameterError(f"{source}: missing model parameter(s) {missing}")
-        try:
-            return cls(**values)
-        except ParameterError as error:
-            raise ParameterError(f"{source}: {error}") from None
-
-    @classmethod
-    def named(cls, name: str) -> ModelParams:
-        """One of the reference sets of MODEL.md section 5: ``paper`` or ``robot``."""
-        try:
-            return NAMED_PARAMS[name]
-        except KeyError:
-            raise ParameterError(
-                f"unknown parameter set {name!r}; named sets: {sorted(NAMED_PARAMS)},"
-                " or give a YAML file"
-            ) from None
-
-    @classmethod
-    def from_yaml(cls, path: str | Path) -> ModelParams:
-        """Load from a YAML file holding the fields (optionally under a ``model:`` key).
-
-        The file's size and nesting are bounded before it is parsed
-        (:func:`~infomax_contingency.limits.load_yaml`).
-        """
-        path = Path(path)
-        try:
-            data = load_yaml(path, "parameter file")
-        except FileNotFoundError:
-            raise ParameterError(f"parameter file {path} does not exist") from None
-        except ValueError as error:
-            raise ParameterError(str(error)) from None
-        if isinstance(data, Mapping) and isinstance(data.get("model"), Mapping):
-            data = data["model"]
-        if not isinstance(data, Mapping):
-            raise ParameterError(
-                f"parameter file {path} must hold a mapping of model parameters"
-                " (dt, ts1, ts2, ta1, ta2, pi, b11 .. b32)"
-            )
-        return cls.from_mapping(data, source=str(path))
-
-    @classmethod
-    def load(cls, name_or_path: str | Path) -> ModelParams:
-        """A named set (``paper``, ``robot``) or a YAML file."""
-        if str(name_or_path) in NAMED_PARAMS:
-            return NAMED_PARAMS[str(name_or_path)]
-        path = Path(name_or_path)
-        if path.suffix in (".yaml", ".yml") or path.exists():
-            return cls.from_yaml(path)
-        return cls.named(str(name_or_path))
-
-
-NAMED_PARAMS: dict[str, ModelParams] = {
-    "paper": ModelParams(dt=0.8, ts1=0, ts2=0, ta1=1, ta2=3, pi=0.01),
-    # b31, b32: mic_node's default bit source holds K3 near its false_alarm (0.05): a
-    # Beta prior of that mean, worth 10 windows (docs/RESULTS.md section 7)
-    "robot": ModelParams(dt=0.5, ts1=0, ts2=1, ta1=2, ta2=4, pi=0.01, b31=0.5, b32=9.5),
-}
 
 
 # --------------------------------------------------------------------------------------
@@ -324,6 +158,23 @@ def entropy(params: ModelParams, p2: Any, q2: Any, p3: Any, q3: Any) -> Any:
     return entropy_from_log_odds(log_odds(params, p2, q2, p3, q3))
 
 
+def per_lag_log_odds(params: ModelParams, lags: tuple[int, ...], p2: int, q2: int, p3: int,
+                     q3: int) -> float:  # fmt: skip
+    """Log posterior odds of S=1 with one K2 per agent timer value (``k2_per_lag``), exact.
+
+    ``lags``: the active and inactive agent bits at timer ``ta1``, then ``ta1 + 1``, ...
+    (:attr:`Statistic.lags`; empty: none yet); ``p2``, ``q2`` are their sums. Under S=1
+    each lag's bits are Bernoulli of its own rate, Beta(b21, b22) a priori, and the
+    background's of K3; under S=0 every bit is Bernoulli of one rate, Beta(b31, b32).
+    """
+    b21, b22, b31, b32 = params.b21, params.b22, params.b31, params.b32
+    counts = np.asarray(lags, dtype=float).reshape(-1, 2)
+    agent = float(np.sum(betaln(b21 + counts[:, 0], b22 + counts[:, 1]) - betaln(b21, b22)))
+    prior = math.log(params.pi) - math.log1p(-params.pi)
+    return (prior + agent + float(betaln(b31 + p3, b32 + q3))
+            - float(betaln(b31 + p2 + p3, b32 + q2 + q3)))  # fmt: skip
+
+
 def _beta_mean_of_counts(alpha: float, beta: float, x: Any, y: Any) -> Any:
     """Posterior mean ``(alpha + x) / (alpha + beta + x + y)`` of a Beta-Bernoulli rate.
 
@@ -388,13 +239,21 @@ def variance_ratio(params: ModelParams, p2: int, q2: int, p3: int, q3: int) -> f
 
 
 class Statistic(NamedTuple):
-    """The sufficient statistic ``(z, p2, q2, p3, q3)`` (MODEL.md section 2)."""
+    """The sufficient statistic ``(z, p2, q2, p3, q3)`` (MODEL.md section 2).
+
+    With ``k2_per_lag`` it also holds :attr:`lags`, the agent counts by timer value; the
+    belief and entropy are then those of that model, while policy tables and the rule
+    read the pooled ``p2``, ``q2`` (:attr:`counts`).
+    """
 
     z: int
     p2: int = 0
     q2: int = 0
     p3: int = 0
     q3: int = 0
+    lags: tuple[int, ...] = ()
+    """``k2_per_lag``: active and inactive agent bits at timer ``ta1``, ``ta1 + 1``, ...
+    ``ta2`` (``2 * agent_lags`` counts; empty until the first agent bit)."""
 
     @property
     def counts(self) -> tuple[int, int, int, int]:
@@ -405,10 +264,17 @@ class Statistic(NamedTuple):
         """Count bit ``y`` in the period of the current timer (nothing in the self period)."""
         period = period_of(params, self.z)
         if period == AGENT:
-            return self._replace(p2=self.p2 + 1) if y else self._replace(q2=self.q2 + 1)
+            counted = self._replace(p2=self.p2 + 1) if y else self._replace(q2=self.q2 + 1)
+            return counted.count_lag(params, self.z, y, 1) if params.k2_per_lag else counted
         if period == BACKGROUND:
             return self._replace(p3=self.p3 + 1) if y else self._replace(q3=self.q3 + 1)
         return self
+
+    def count_lag(self, params: ModelParams, z: int, y: int | bool, change: int) -> Statistic:
+        """:attr:`lags` with the count of bit ``y`` at agent timer ``z`` changed by ``change``."""
+        lags = list(self.lags) or [0] * (2 * params.agent_lags)
+        lags[2 * (z - params.ta1) + (0 if y else 1)] += change
+        return self._replace(lags=tuple(lags) if any(lags) else ())  # (): none, one form
 
     def act(self, params: ModelParams, u: int | bool) -> Statistic:
         """Advance the timer with action ``u``."""
@@ -419,16 +285,32 @@ class Statistic(NamedTuple):
         return self.act(params, u).observe(params, y)
 
     def log_odds(self, params: ModelParams) -> float:
-        """Log posterior odds of S=1."""
+        """Log posterior odds of S=1 (of the per-lag model with ``k2_per_lag``)."""
+        if params.k2_per_lag:
+            if self.p2 + self.q2 and not self.lags:
+                raise ValueError("agent bits counted without k2_per_lag: keep the statistic"
+                                 " with the parameters its belief is asked of")  # fmt: skip
+            return per_lag_log_odds(params, self.lags, *self.counts)
         return float(log_odds(params, *self.counts))
 
     def belief(self, params: ModelParams) -> float:
         """P(S=1 | a)."""
-        return float(belief(params, *self.counts))
+        return float(belief_from_log_odds(self.log_odds(params)))
 
     def entropy(self, params: ModelParams) -> float:
         """Entropy of S given a, in bits."""
-        return float(entropy(params, *self.counts))
+        return float(entropy_from_log_odds(self.log_odds(params)))
+
+    def predictive_active(self, params: ModelParams) -> float:
+        """P(y = 1) of a bit counted at the timer ``z`` (an agent or background value)."""
+        period = period_of(params, self.z)
+        if not (params.k2_per_lag and period == AGENT):
+            return float(predictive_active(params, period, *self.counts, b=self.belief(params)))
+        active, inactive = self.lags[2 * (self.z - params.ta1):][:2] if self.lags else (0, 0)
+        under_s1 = _beta_mean_of_counts(params.b21, params.b22, active, inactive)
+        pooled = _beta_mean_of_counts(params.b31, params.b32, self.p2 + self.p3,
+                                      self.q2 + self.q3)  # fmt: skip
+        return float(pooled + self.belief(params) * (under_s1 - pooled))
 
     def variance_ratio(self, params: ModelParams) -> float | None:
         """``[Var(K2)/n2] / [Var(K3)/n3]``; None where undefined."""
@@ -441,7 +323,7 @@ def expected_next_entropy(params: ModelParams, statistic: Statistic, u: int) -> 
     period = period_of(params, after_action.z)
     if period == SELF:
         return statistic.entropy(params)
-    p_active = float(predictive_active(params, period, *statistic.counts))
+    p_active = after_action.predictive_active(params)
     entropy_active = after_action.observe(params, 1).entropy(params)
     entropy_inactive = after_action.observe(params, 0).entropy(params)
     return p_active * entropy_active + (1.0 - p_active) * entropy_inactive
@@ -472,7 +354,8 @@ class StatisticTracker:
     * a missing decision (:meth:`act_unknown`), or a stretch of unknown length without
       steps (:meth:`forget_timer`), leaves the timer uncertain: the tracker keeps every
       timer value still possible, and a bit is counted only when all of them put its
-      window in the same period (so its likelihood is known). The timer is certain again
+      window in the same period, and with ``k2_per_lag`` an agent window at the same
+      timer value (so its likelihood is known). The timer is certain again
       after the next known vocalization, or once ``ta2 + 1`` silent steps have passed.
 
     A withheld bit (:class:`Withheld`: the window overlapped sound the robot declared as
@@ -501,7 +384,7 @@ class StatisticTracker:
     def reset(self) -> None:
         """Forget the history: zero counts, timer at its initial value (and certain)."""
         self.statistic = Statistic(self._z_initial)
-        self._window: deque[tuple[int, bool]] = deque()
+        self._window: deque[tuple[int, bool]] = deque()  # (timer, bit) of each counted bit
         self._other_timers: frozenset[int] = frozenset()
 
     @property
@@ -518,23 +401,28 @@ class StatisticTracker:
         """Count bit ``y`` at the current timer; returns the new statistic.
 
         While the timer is uncertain the bit is counted only if every possible timer value
-        puts it in the same period (otherwise :attr:`uncounted` grows).
+        puts it in the same period, and with ``k2_per_lag`` an agent bit at the same timer
+        (otherwise :attr:`uncounted` grows).
         """
         before = self.statistic
         if self._other_timers:
-            periods = {period_of(self.params, z) for z in self.possible_timers}
-            if len(periods) > 1:
+            rates = {self._rate_of(z) for z in self.possible_timers}
+            if len(rates) > 1:
                 self.uncounted += 1
                 return before
         after = before.observe(self.params, y)
         if after is not before and self.memory > 0:
-            period = period_of(self.params, before.z)
-            self._window.append((period, bool(y)))
+            self._window.append((before.z, bool(y)))
             if len(self._window) > self.memory:
-                old_period, old_bit = self._window.popleft()
-                after = _uncount(after, old_period, old_bit)
+                old_z, old_bit = self._window.popleft()
+                after = _uncount(self.params, after, old_z, old_bit)
         self.statistic = after
         return after
+
+    def _rate_of(self, z: int) -> int:
+        """What a bit at timer ``z`` is evidence of: its period, or its lag with ``k2_per_lag``."""
+        period = period_of(self.params, z)
+        return -z if self.params.k2_per_lag and period == AGENT else period
 
     def skip_observation(self) -> Statistic:
         """The bit of this step is missing: nothing is counted (exact, see the class)."""
@@ -588,9 +476,13 @@ class StatisticTracker:
         self._other_timers = frozenset(possible - {self.statistic.z})
 
 
-def _uncount(statistic: Statistic, period: int, bit: bool) -> Statistic:
-    """Remove one observation from the counts (sliding memory)."""
+def _uncount(params: ModelParams, statistic: Statistic, z: int, bit: bool) -> Statistic:
+    """Remove one observation, a bit counted at timer ``z``, from the counts (sliding memory)."""
+    period = period_of(params, z)
     field = {(AGENT, True): "p2", (AGENT, False): "q2", (BACKGROUND, True): "p3"}.get(
         (period, bit), "q3"
     )
-    return statistic._replace(**{field: getattr(statistic, field) - 1})
+    statistic = statistic._replace(**{field: getattr(statistic, field) - 1})
+    if params.k2_per_lag and period == AGENT:
+        statistic = statistic.count_lag(params, z, bit, -1)
+    return statistic

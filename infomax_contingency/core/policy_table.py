@@ -192,7 +192,7 @@ class PolicyTable:
     ) -> PolicyTable:
         """Join layers packed with ``numpy.packbits`` (see the module docstring)."""
         packed = np.concatenate(packed_layers) if packed_layers else np.zeros(0, np.uint8)
-        return cls(params, mode, horizon, memory, max_counts, packed, solver_version)
+        return cls(params.for_table(), mode, horizon, memory, max_counts, packed, solver_version)
 
     # ----------------------------------------------------------------------------------
     # Lookup
@@ -213,7 +213,7 @@ class PolicyTable:
         Raises ``IndexError`` for a statistic outside the table: an episodic step outside
         ``1 .. T-1``, counts summing to more than the layer holds, a timer out of range.
         """
-        z, p2, q2, p3, q3 = statistic
+        z, (p2, q2, p3, q3) = statistic.z, statistic.counts
         if self.mode == EPISODIC:
             if step is None or not 1 <= step < self.horizon:
                 raise IndexError(
@@ -291,8 +291,8 @@ class PolicyTable:
         reader = _ArchiveReader(Path(path))
         metadata, fields, packed = reader.read()
         table = cls._from_fields(reader, metadata, fields, packed)
-        if expected_params is not None and table.params != expected_params:
-            differences = "; ".join(table.params.differences(expected_params))
+        if expected_params is not None and table.params != expected_params.for_table():
+            differences = "; ".join(table.params.differences(expected_params.for_table()))
             raise reader.fail(
                 f"was built for other model parameters (table vs expected: {differences});"
                 f" use a table solved for these parameters or {reader.how_to_fix}"

@@ -59,6 +59,9 @@ class RecordedSession:
         cut: the bag was cut by a killed recorder (read up to its last chunk).
         window_us: the length of the stream's windows (its steps), microseconds.
         stream: the stream's id (mic_node's, random per start).
+        k2_per_lag: the model belief_node's beliefs were of (one K2 per agent timer value
+            or one K2, from its diagnostics); None: they do not say (recorded before they
+            did, or by no belief_node of this namespace, or two that differ).
     """
 
     bits: list[tuple[int, bool | Withheld]]
@@ -75,6 +78,7 @@ class RecordedSession:
     stream: int = 0
     later_streams: list[tuple[int, list[tuple[int, bool | Withheld]], list[tuple[int, bool]]]] = (
         field(default_factory=list))
+    k2_per_lag: bool | None = None
 
 
 def load_session(directory: Path, warn: Callable[[str], None] | None = None
@@ -127,7 +131,8 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                            belief_restarts=_belief_restarts(topics["/diagnostics"],
                                                             topics.namespace),
                            later_streams=_later_streams(bit_messages, decision_messages,
-                                                        rate_hz, warn))
+                                                        rate_hz, warn),
+                           k2_per_lag=_belief_model(topics["/diagnostics"], topics.namespace))
 
 
 def _later_streams(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]],
@@ -211,6 +216,28 @@ def check_window(session: RecordedSession, params: ModelParams, params_name: str
                      f" --params with dt {window_s:g}{which}")
 
 
+def check_belief_model(session: RecordedSession, params: ModelParams, params_name: str,
+                       directory: object) -> None:
+    """Refuse ``params`` whose ``k2_per_lag`` is not the one the session's beliefs were of.
+
+    A session that does not say (recorded before belief_node reported it) passes.
+
+    Raises:
+        ValueError: one line naming both and the parameters to give.
+    """
+    recorded = session.k2_per_lag
+    if recorded is not None and recorded != params.k2_per_lag:
+        raise ValueError(f"the session {directory}'s belief_node had {belief_model(recorded)}"
+                         f" (k2_per_lag {str(recorded).lower()}); the parameter set"
+                         f" {params_name} (--params) has {belief_model(params.k2_per_lag)}:"
+                         f" give --params with k2_per_lag: {str(recorded).lower()}")
+
+
+def belief_model(k2_per_lag: bool) -> str:
+    """The belief model of ``k2_per_lag``, in words."""
+    return "one K2 per agent timer value" if k2_per_lag else "one K2"
+
+
 def check_same_windows(sessions: Sequence[tuple[object, RecordedSession]]) -> None:
     """Refuse sessions (``(name, session)``) whose windows differ: their lags are not pooled.
 
@@ -267,6 +294,15 @@ def _belief_memory(diagnostics: list, namespace: str) -> tuple[int, str]:
         return 0, (f"the diagnostics hold no memory_steps of this session's {own}, only of"
                    f" {', '.join(sorted(reported))}: its memory cannot be told")
     return 0, ""
+
+
+def _belief_model(diagnostics: list, namespace: str) -> bool | None:
+    """The ``k2_per_lag`` the session's belief_node reported (None: none, or both)."""
+    own = f"{namespace.strip('/')}/belief_node".lstrip("/")
+    said = {pair.value for _, array in diagnostics for status in array.status
+            if status.name.split(":", 1)[0] == own
+            for pair in status.values if pair.key == "k2_per_lag"}  # fmt: skip
+    return {"True": True, "False": False}.get(said.pop()) if len(said) == 1 else None
 
 
 def _belief_node_values(diagnostics: list, key: str) -> dict[str, set[int]]:

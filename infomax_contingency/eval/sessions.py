@@ -19,10 +19,10 @@ or from a channel carrying the robot's own output
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 from infomax_contingency.audio.background import BackgroundThreshold, ordinal
 from infomax_contingency.audio.bitsources.rules import Binarizer
@@ -42,6 +42,8 @@ from infomax_contingency.core.stepclock import StepJoiner
 from infomax_contingency.eval.session_bag import (  # noqa: F401 - read here too
     SESSION_TOPICS,
     RecordedSession,
+    belief_model,
+    check_belief_model,
     check_same_windows,
     check_window,
     load_session,
@@ -49,6 +51,28 @@ from infomax_contingency.eval.session_bag import (  # noqa: F401 - read here too
 )
 from infomax_contingency.sim.loop import run_loop
 from infomax_contingency.sim.simulation import StepRecord, statistic_record, step_record
+
+ReplayT = TypeVar("ReplayT")
+
+
+def with_session_model(session: RecordedSession, params: ModelParams,
+                       replay: Callable[[ModelParams], tuple[bool, ReplayT]]
+                       ) -> tuple[ModelParams, ReplayT, bool]:
+    """``params``, or them with the other belief model where only that one replays equal.
+
+    A session that says its belief model (``k2_per_lag``, :func:`check_belief_model`) is
+    replayed with ``params``. One recorded before belief_node said it, whose beliefs
+    ``replay(params)`` finds different, is replayed with the other model too; when that
+    one equals, it is the session's. ``replay`` returns whether the beliefs equal, and
+    its result. Returns the parameters chosen, their result and whether the model was
+    told so (from the beliefs) rather than given.
+    """
+    same, result = replay(params)
+    if same or session.k2_per_lag is not None:
+        return params, result, False
+    other = replace(params, k2_per_lag=not params.k2_per_lag)
+    other_same, other_result = replay(other)
+    return (other, other_result, True) if other_same else (params, result, False)
 
 
 def replay_recorded(session: RecordedSession, params: ModelParams,

@@ -434,6 +434,7 @@ class BeliefNode(GraphNode):
             "uncounted_bits": self.tracker.uncounted,
             "withheld_bits": self.tracker.withheld,
             "memory_steps": self.tracker.memory,
+            "k2_per_lag": self.params.k2_per_lag,
             "stream": self.stream or "none yet",
             "controller": self.controllers.source or "none yet",
             "steps": counts.steps,

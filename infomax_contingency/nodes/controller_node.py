@@ -167,7 +167,7 @@ class ControllerNode(GraphNode):
                                                 self.get_logger().warning)
         else:
             table = PolicyTable.load(self.table_path, expected_params=params)
-            self.controller = PolicyController(table)
+            self.controller = PolicyController(table, params)
         self.window_us = window_us(params.dt)
         self.streams = SourceLock(timeout_s)
         self.writer = WriterSequence()

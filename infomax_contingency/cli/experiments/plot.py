@@ -41,16 +41,25 @@ def _run_plot(args: argparse.Namespace) -> int:
     if args.session and Path(args.session).is_dir():  # a recorded session (bag)
         from infomax_contingency.cli.sessions import warn
         from infomax_contingency.eval.sessions import (
+            check_belief_model,
             check_window,
             load_session,
             replay_recorded,
             session_memory,
+            with_session_model,
         )
 
         session = load_session(Path(args.session), warn=warn)
         check_window(session, params, args.params, args.session)
+        check_belief_model(session, params, args.params, args.session)
         memory = session_memory(session, memory or None)  # 0: belief_node's, from the bag
-        records = [record.__dict__ for record in replay_recorded(session, params, memory)]
+
+        def replay(model: ModelParams) -> tuple[bool, list[dict]]:
+            rows = [record.__dict__ for record in replay_recorded(session, model, memory)]
+            beliefs = [row["belief"] for row in rows][:len(session.beliefs)]
+            return bool(beliefs) and beliefs == session.beliefs[:len(beliefs)], rows
+
+        params, records, _ = with_session_model(session, params, replay)  # the recorded one
         if not records:
             raise ValueError(f"the session {args.session} has no step to plot: no recorded"
                              " bit was answered by a recorded decision")

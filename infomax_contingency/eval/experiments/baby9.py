@@ -42,7 +42,7 @@ def baby9_session(
     """One run of the optimal table in the baby-9 room with reply convention ``reply``."""
     rng = np.random.default_rng(0)  # the room is deterministic (rates 0 or 1)
     room = make_room(f"baby9:reply={reply}", params, rng)
-    return simulate(params, PolicyController(table), room, steps, rng, memory=0)
+    return simulate(params, PolicyController(table, params), room, steps, rng, memory=0)
 
 
 def baby9_run_summary(params: ModelParams, reply: str, records: Sequence[StepRecord]) -> dict:

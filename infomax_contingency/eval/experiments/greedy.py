@@ -62,8 +62,12 @@ def refuse_oversized_greedy(config: GreedyConfig) -> None:
 
 
 def greedy_set(config: GreedyConfig, name: str) -> dict:
-    """The greedy experiment for one parameter set (see :func:`experiment_greedy`)."""
-    params = ModelParams.load(name)
+    """The greedy experiment for one parameter set (see :func:`experiment_greedy`).
+
+    It compares the one-step rule with the tables, so it runs on the model they are
+    solved for (one K2: :meth:`~infomax_contingency.core.model.ModelParams.for_table`).
+    """
+    params = ModelParams.load(name).for_table()
     greedy = greedy_actions(params, config.max_count)
     layers = receding_layers(params, range(1, config.longest_horizon + 1), config.max_count)
     first_vocalizing = next((h for h in sorted(layers) if layers[h].any()), None)

@@ -70,7 +70,7 @@ def refuse_oversized_horizon(config: HorizonConfig) -> None:
 
 def horizon_set(config: HorizonConfig, name: str) -> dict:
     """The horizon experiment for one parameter set (see :func:`experiment_horizon`)."""
-    params = ModelParams.load(name)
+    params = ModelParams.load(name).for_table()  # the tables' model: one K2
     longest = config.longest_horizon
     layers = receding_layers(params, range(1, longest + 1), config.domain_max_count)
     stable_from = longest

@@ -98,7 +98,7 @@ def experiment_learn(config: LearnConfig | None = None) -> dict:
     ``method`` the method's label), methods first, then seeds.
     """
     config = config or LearnConfig()
-    params = ModelParams.load(config.params_name)
+    params = ModelParams.load(config.params_name).for_table()  # learns the tables' policy
     if config.horizon < 2:
         raise ValueError(f"learning horizon must be >= 2 steps, got {config.horizon}")
     methods = [parse_method(text, config.budget) for text in config.methods]

@@ -158,7 +158,7 @@ def experiment_rule(config: RuleConfig | None = None, cache_dir: Path | None = N
     best weighted c) over the whole episode.
     """
     config = config or RuleConfig()
-    params = ModelParams.load(config.params_name)
+    params = ModelParams.load(config.params_name).for_table()  # the tables' model: one K2
     if not 1 <= config.first_step <= config.last_step < config.horizon:
         raise ValueError(f"need 1 <= first step <= last step < T = {config.horizon}")
     table, path = obtain_table(params, EPISODIC, config.horizon, 0, cache_dir)

@@ -88,7 +88,7 @@ def experiment_controller(spec: str, params: ModelParams, rng: np.random.Generat
     """
     kind, _, argument = spec.partition(":")
     if kind == "policy":
-        return PolicyController(_load_table(argument, params))
+        return PolicyController(_load_table(argument, params), params)
     return make_controller(spec, params, rng)
 
 

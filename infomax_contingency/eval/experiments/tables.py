@@ -20,9 +20,10 @@ def table_name(params: ModelParams, mode: str, horizon: int, memory: int = 0) ->
     ``<set>`` is the name of a reference parameter set, or ``params-<first 12 hex digits of
     the parameter hash>`` for other parameters.
     """
+    solved_for = params.for_table()  # a table does not depend on k2_per_lag
     label = next(
-        (name for name, named in model.NAMED_PARAMS.items() if named == params),
-        f"params-{params.digest()[:12]}",
+        (name for name, named in model.NAMED_PARAMS.items() if named.for_table() == solved_for),
+        f"params-{solved_for.digest()[:12]}",
     )
     if mode == EPISODIC:
         return f"{label}_episodic_T{horizon}.npz"
