@@ -284,6 +284,9 @@ def test_parameter_sets_and_yaml(tmp_path) -> None:
     )
     assert ModelParams.load(path) == robot
     assert ModelParams.load(path).digest() == robot.digest()
+    path.write_text("{dt: 0.5, ts1: 0, ts2: 1, ta1: 2, ta2: 1000000000, pi: 0.01}\n")
+    with pytest.raises(ParameterError, match="ta2 must be at most 10000 steps"):
+        ModelParams.load(path)  # 65 bytes that took the machine's memory before
     path.write_text("dt: 0.5\nts1: 0\nts2: 1\nta1: 2\nta2: 4\npi: 0.01\nk2_per_lag: 1\n")
     with pytest.raises(ParameterError, match="k2_per_lag must be true or false, got 1"):
         ModelParams.load(path)

@@ -21,6 +21,10 @@ from infomax_contingency.limits import load_yaml, short_repr
 
 BETA_FIELDS = ("b11", "b12", "b21", "b22", "b31", "b32")
 
+MAX_TIMER_STEPS = 10_000
+"""Largest ``ta2`` (steps): the timer's values are kept as arrays, in the worlds, the
+solver and the belief; 10,000 are 83 minutes of 0.5-s windows, far past any reply."""
+
 
 class ParameterError(ValueError):
     """Model parameters that are invalid or cannot be loaded."""
@@ -88,7 +92,7 @@ class ModelParams:
         object.__setattr__(self, "k2_per_lag", bool(self.k2_per_lag))
 
     def _check_ranges(self) -> None:
-        """Periods in order, pi in (0, 1), Beta parameters > 0."""
+        """Periods in order and at most :data:`MAX_TIMER_STEPS`, pi in (0, 1), Beta > 0."""
         if self.dt <= 0:
             raise ParameterError(f"dt must be > 0 seconds, got {self.dt}")
         if self.ts1 < 0:
@@ -102,6 +106,9 @@ class ModelParams:
             )
         if self.ta2 < self.ta1:
             raise ParameterError(f"ta2 must be >= ta1 (= {self.ta1}), got {self.ta2}")
+        if self.ta2 > MAX_TIMER_STEPS:
+            raise ParameterError(f"ta2 must be at most {MAX_TIMER_STEPS} steps (the timer's"
+                                 f" values are kept in arrays), got {self.ta2}")
         if not 0.0 < self.pi < 1.0:
             raise ParameterError(f"pi must lie strictly between 0 and 1, got {self.pi}")
         for name in BETA_FIELDS:
