@@ -20,18 +20,26 @@ device or FIFO has no size to check), its nesting depth (a 100,000-deep file wou
 otherwise end the parser in a RecursionError) and what its aliases expand to, as the
 policy tables' metadata JSON is bounded; :func:`read_text_capped` is its bounded read,
 for other small text files, and :func:`short_repr` quotes a value in a message.
+
+Files a command writes are checked the same way before the work
+(:func:`check_output_file`) and written whole or not at all (:func:`written_atomically`):
+nothing but a regular file at the path is ever written over — a device, a FIFO (a write
+to it would never end), a socket, a directory or a symbolic link is refused in one line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
 import reprlib
 import resource
 import stat
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 MAX_YAML_BYTES = 1 << 16
 """Largest YAML file read, bytes (model parameters, threshold files: well under 1 KB)."""
@@ -41,6 +49,10 @@ MAX_YAML_NODES = 1 << 17
 """Most values (mappings, sequences, keys, scalars) a YAML file may expand to, aliases
 followed: more than a file of :data:`MAX_YAML_BYTES` can hold written out (an alias
 bomb of 454 bytes expands to 10^7)."""
+UNWRITABLE_ROOTS = ("/proc", "/sys", "/dev")
+"""Places no command writes a file to (the kernel's interfaces and the devices)."""
+WRITTEN_FILE_MODE = 0o644
+"""Permissions of a file :func:`written_atomically` writes (read by all, as the tables)."""
 NO_LIMIT = 1 << 60
 """A limit at or above this (1 EiB) is no limit (cgroup v1 writes 2^63 - 4096 for none)."""
 
@@ -233,8 +245,8 @@ def _file_kind(mode: int) -> str:
     """What a file that is not a regular one is, for a message (``"a device"``)."""
     kinds = ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
              (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
-             (stat.S_ISSOCK, "a socket"))
-    return next((name for test, name in kinds if test(mode)), "not a regular file")
+             (stat.S_ISSOCK, "a socket"), (stat.S_ISLNK, "a symbolic link"))
+    return next((name for test, name in kinds if test(mode)), "an unknown kind of file")
 
 
 def read_bytes_capped(path: str | Path, what: str, max_bytes: int = MAX_YAML_BYTES) -> bytes:
@@ -351,3 +363,89 @@ def load_yaml(path: str | Path, what: str, max_depth: int = MAX_YAML_DEPTH,
                          f" {MAX_YAML_NODES:,} values (write the values out, without"
                          " aliases)")
     return value
+
+
+def refuse_unless_regular(path: str | Path, what: str) -> None:
+    """Refuse to write over anything at ``path`` but a regular file (ValueError, one line).
+
+    The path itself is looked at (``lstat``), not what a symbolic link points to: a write
+    replaces what is there (a rename) or, into a FIFO, never ends, so a device, FIFO,
+    socket, directory or symbolic link (even one to a regular file) is refused. A path
+    with nothing at it passes. ``what`` starts the message (``--out``, ``threshold file``).
+    """
+    if not str(path):
+        raise ValueError(f"{what}: the path is empty; give a file name")
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return  # nothing there, or a parent that is not a directory: the write says so
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{what} {path} is not a regular file (it is {_file_kind(mode)}):"
+                         " nothing is written over it; give a new name or a regular file")
+
+
+def check_output_file(path: str | Path, what: str, contents: str = "file") -> None:
+    """Refuse, before any work, a path a command could not write ``contents`` to.
+
+    Refused in one line starting with ``what`` (the option, ``--out``): a path under
+    :data:`UNWRITABLE_ROOTS`; anything there but a regular file
+    (:func:`refuse_unless_regular`); a directory that cannot be made or written in (tried
+    for real: a file is made there and removed); a file that is not writable. Missing
+    parent directories are made.
+
+    Raises:
+        ValueError: the path is empty or something other than a regular file is there.
+        OSError: the place cannot be written.
+    """
+    if not str(path):
+        raise ValueError(f"{what}: the path is empty; give a file name")
+    path = Path(path)
+    resolved = path.resolve()
+    if any(resolved.is_relative_to(root) for root in UNWRITABLE_ROOTS):
+        raise OSError(f"{what} {path}: /{resolved.parts[1]} is no place for a {contents}")
+    refuse_unless_regular(path, what)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as error:
+        raise OSError(f"{what} {path}: cannot write in {path.parent} ({error.strerror})") from None
+    if path.exists() and not os.access(path, os.W_OK):
+        raise OSError(f"{what} {path}: the file is not writable")
+
+
+@contextlib.contextmanager
+def written_atomically(path: str | Path, what: str,
+                       make_parents: bool = False) -> Iterator[BinaryIO]:
+    """A binary stream whose bytes become the file ``path`` whole, or not at all.
+
+    The bytes go to a temporary file beside ``path``, which is renamed over it at the end
+    (permissions :data:`WRITTEN_FILE_MODE`); nothing at ``path`` but a regular file is
+    written over (:func:`refuse_unless_regular`, before and again just before the
+    rename). An error or an exception inside the ``with`` leaves ``path`` as it was.
+    ``make_parents``: make the missing parent directories first.
+
+    Raises:
+        ValueError: something other than a regular file is at ``path``.
+        OSError: the file could not be written (one line: ``what``, the path, the reason).
+    """
+    path = Path(path)
+    refuse_unless_regular(path, what)
+    try:
+        if make_parents:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except OSError as error:
+        raise OSError(f"cannot write {what} {path}: {error.strerror or error}") from None
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            yield stream
+        os.chmod(temporary, WRITTEN_FILE_MODE)
+        refuse_unless_regular(path, what)
+        os.replace(temporary, path)
+    except OSError as error:
+        Path(temporary).unlink(missing_ok=True)
+        raise OSError(f"cannot write {what} {path}: {error.strerror or error}") from None
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise

@@ -1,6 +1,8 @@
 """Tests of the audio-to-bits core: reading wavs, energies, the k-means threshold, streaming."""
 
 import math
+import os
+import stat
 import struct
 import warnings
 
@@ -561,6 +563,26 @@ def test_save_refuses_a_directory_and_leaves_nothing_behind(tmp_path) -> None:
     with pytest.raises(AudioError, match="it is a directory"):
         save_threshold(tmp_path / "t.yaml", fit, window_s=0.1, rate=16000, source="x")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
+
+
+def test_save_writes_over_nothing_but_a_regular_file(tmp_path) -> None:
+    """A FIFO, a symbolic link, or a link where the old temporary name was: left alone."""
+    fit = ThresholdFit(-30.0, -50.0, -10.0, 1, 1)
+    (tmp_path / "target.txt").write_text("keep me")
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "link").symlink_to("target.txt")
+    for name, kind in (("fifo", "a FIFO"), ("link", "a symbolic link")):
+        with pytest.raises(AudioError, match=f"threshold file .*{name} is not a regular file"
+                           f" \\(it is {kind}\\)"):
+            save_threshold(tmp_path / name, fit, window_s=0.1, rate=16000, source="x")
+    assert stat.S_ISFIFO((tmp_path / "fifo").lstat().st_mode)
+    assert (tmp_path / "link").is_symlink()
+    (tmp_path / "t.yaml.tmp").symlink_to("target.txt")  # the name it once wrote through
+    save_threshold(tmp_path / "t.yaml", fit, window_s=0.1, rate=16000, source="x")
+    assert load_threshold(tmp_path / "t.yaml") == -30.0
+    assert (tmp_path / "target.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "fifo", "link", "t.yaml", "t.yaml.tmp", "target.txt"]
 
 
 # --------------------------------------------------------------------------- synthesis

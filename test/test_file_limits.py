@@ -9,6 +9,7 @@ cut short.
 from __future__ import annotations
 
 import os
+import stat
 import struct
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from infomax_contingency.limits import (
     load_yaml,
     read_bytes_capped,
     short_repr,
+    written_atomically,
     yaml_nodes,
 )
 from infomax_contingency.sim.actions import read_actions_csv
@@ -267,3 +269,20 @@ def test_a_plotted_session_file_is_a_regular_file(tmp_path, capsys):
         error = capsys.readouterr().err
         assert f"session file {path} is refused: it is {kind}" in error
         assert error.count("\n") == 1
+
+
+def test_a_file_written_atomically_replaces_only_a_regular_file(tmp_path):
+    """Whole or not at all; nothing but a regular file is written over, also mid-way."""
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    with pytest.raises(RuntimeError), written_atomically(path, "out file") as stream:
+        stream.write(b"half")
+        raise RuntimeError("the writer failed")
+    assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+    with (pytest.raises(ValueError, match=r"out file .* is not a regular file \(it is a FIFO\)"),
+          written_atomically(path, "out file") as stream):
+        stream.write(b"new")
+        path.unlink()
+        os.mkfifo(path)  # a FIFO put there while the file is written
+    assert stat.S_ISFIFO(path.lstat().st_mode)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]

@@ -10,6 +10,8 @@ opening and the "not heard" error are checked.
 from __future__ import annotations
 
 import functools
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -58,6 +60,31 @@ def test_calibrate_on_a_wav_prints_threshold_and_histogram(room_wav, tmp_path, c
     assert sum(int(line.rsplit(" ", 1)[1]) for line in bars) == energies.size
     assert "warning" not in text
     assert f"wrote {out}" in text
+
+
+def _not_regular_files(directory) -> list[tuple[str, object]]:
+    """A FIFO, a symbolic link to a file and a dangling one in ``directory``: (kind, path)."""
+    fifo, link, dangling = (directory / name for name in ("fifo", "link", "dangling"))
+    os.mkfifo(fifo)
+    (directory / "target.txt").write_text("keep me")
+    link.symlink_to("target.txt")
+    dangling.symlink_to("nowhere.txt")
+    return [("a FIFO", fifo), ("a symbolic link", link), ("a symbolic link", dangling)]
+
+
+def test_calibrate_writes_over_nothing_but_a_regular_file(room_wav, tmp_path, capsys) -> None:
+    """A FIFO or symbolic link at --out is refused before calibrating, and left as it was."""
+    for kind, path in _not_regular_files(tmp_path):
+        assert cli.main(["calibrate", "--wav", str(room_wav), "--out", str(path)]) == 2
+        out, err = capsys.readouterr()
+        assert err == (f"infomax-contingency calibrate: error: --out {path} is not a regular"
+                       f" file (it is {kind}): nothing is written over it; give a new"
+                       " name or a regular file\n")
+        assert "calibrated on" not in out  # refused before the audio was read
+    assert stat.S_ISFIFO((tmp_path / "fifo").lstat().st_mode)
+    assert (tmp_path / "link").is_symlink() and (tmp_path / "dangling").is_symlink()
+    assert (tmp_path / "target.txt").read_text() == "keep me"
+    assert not (tmp_path / "nowhere.txt").exists()
 
 
 def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -234,10 +235,14 @@ def test_solve_refuses_above_max_memory(capsys, tmp_path, no_solving) -> None:
         ("/proc/self/table.npz", "/proc is no place for a table file"),
         ("/dev/null", "/dev is no place for a table file"),
         ("{tmp}/file.txt/table.npz", "cannot write in"),
+        ("{tmp}/fifo", "is not a regular file (it is a FIFO)"),
+        ("{tmp}/link", "is not a regular file (it is a symbolic link)"),
     ],
 )
 def test_solve_checks_out_before_solving(capsys, tmp_path, no_solving, out, message) -> None:
     (tmp_path / "file.txt").write_text("a file where a directory would be")
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "link").symlink_to("file.txt")  # replacing it would turn it into a file
     status, _, stderr = run_cli(capsys, *SOLVE_40, "--out", out.format(tmp=tmp_path))
     assert status == 2 and message in stderr and stderr.count("\n") == 1, stderr
 

@@ -1,6 +1,7 @@
 """Threshold files: a calibrated threshold in a small YAML file, written and read back.
 
-:func:`save_threshold` writes what a calibration found (replaced atomically);
+:func:`save_threshold` writes what a calibration found (replaced atomically, and only
+where nothing or a regular file is: never a device, FIFO or symbolic link);
 :func:`load_threshold` reads the threshold of one level (``energy``, or another bit
 source's level such as ``speech_band``) and refuses anything else in one line.
 """
@@ -16,7 +17,7 @@ import yaml
 
 from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
 from infomax_contingency.audio.threshold import ThresholdFit, check_threshold_db
-from infomax_contingency.limits import load_yaml, short_repr
+from infomax_contingency.limits import load_yaml, short_repr, written_atomically
 
 THRESHOLD_FORMAT_VERSION = 1
 """Version of the threshold file layout written by :func:`save_threshold`."""
@@ -36,7 +37,9 @@ def save_threshold(
     """Write a calibrated threshold to a small YAML file (replaced atomically).
 
     Args:
-        path: file to write; missing parent directories are created.
+        path: file to write (nothing there yet, or a regular file: anything else, a
+            symbolic link too, is refused; ``limits.written_atomically``); missing parent
+            directories are created.
         fit: the k-means fit.
         window_s: window length used for the energies, seconds.
         rate: processing sample rate, Hz.
@@ -65,21 +68,14 @@ def save_threshold(
     if level != "energy":
         record["level"] = str(level)
     what = "energy" if level == "energy" else f"{level} level"
+    text = (f"# Sound threshold: a window is 'sound' (y = 1) iff its {what} > threshold_db.\n"
+            + yaml.safe_dump(record, sort_keys=False))
     path = Path(path)
-    if path.is_dir():
-        raise AudioError(f"cannot write the threshold file {path}: it is a directory")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(
-        f"# Sound threshold: a window is 'sound' (y = 1) iff its {what} > threshold_db.\n"
-        + yaml.safe_dump(record, sort_keys=False),
-        encoding="utf-8",
-    )
     try:
-        tmp.replace(path)
-    except OSError as error:
-        tmp.unlink(missing_ok=True)
-        raise AudioError(f"cannot write the threshold file {path}: {error.strerror}") from None
+        with written_atomically(path, "threshold file", make_parents=True) as stream:
+            stream.write(text.encode("utf-8"))
+    except (OSError, ValueError) as error:  # one line naming the file and why
+        raise AudioError(str(error)) from None
 
 
 def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float:  # noqa: C901

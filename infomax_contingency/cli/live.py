@@ -38,6 +38,7 @@ from infomax_contingency.audio.threshold import (
 )
 from infomax_contingency.audio.threshold_file import save_threshold
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.limits import check_output_file
 
 FULL_SCALE_SLACK_DB = 0.01
 """Windows louder than 0 dB by more than this hold samples outside [-1, 1] (a full-scale
@@ -139,6 +140,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.wav is not None and (args.device is not None or args.seconds is not None):
         raise ValueError("calibrate from --wav FILE or from --device/--seconds, not both")
     args.window_s = ModelParams.load(args.params).dt  # one window is one step of the model
+    check_output_file(args.out, "--out", "threshold file")  # before the audio is taken
     energies, source, what = _calibration_energies(args)
     if energies.size < 2:
         raise AudioError(

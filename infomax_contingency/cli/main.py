@@ -13,7 +13,6 @@ import math
 import os
 import re
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -37,7 +36,12 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC, RECEDING, PolicyTable
 from infomax_contingency.core.solver import SolveCost, solve, solve_cost
 from infomax_contingency.errors import USER_ERRORS
-from infomax_contingency.limits import format_bytes, format_number, memory_budget
+from infomax_contingency.limits import (
+    check_output_file,
+    format_bytes,
+    format_number,
+    memory_budget,
+)
 from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
 from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
 
@@ -55,8 +59,6 @@ SIZE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 """Suffixes of ``--max-memory`` (binary: 4G = 4 GiB)."""
 PROGRESS_EVERY_S = 1.0
 """Least interval between two progress lines of a solve, seconds."""
-UNWRITABLE_ROOTS = ("/proc", "/sys", "/dev")
-"""Places a table file is never written to."""
 
 
 def parse_size(text: str) -> int:
@@ -118,25 +120,6 @@ def refuse_if_too_big(cost: SolveCost, args: argparse.Namespace, what: str) -> N
         )
 
 
-def check_writable(out: Path) -> None:
-    """Refuse an ``--out`` that cannot take a table, before any solving (OSError, one line)."""
-    resolved = out.resolve()
-    if any(resolved.is_relative_to(root) for root in UNWRITABLE_ROOTS):
-        raise OSError(f"--out {out}: /{resolved.parts[1]} is no place for a table file")
-    if out.is_dir():
-        raise OSError(f"--out {out} is a directory; give a file name such as {out}/table.npz")
-    if out.exists() and not out.is_file():
-        raise OSError(f"--out {out} is not a regular file")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out.parent):
-            pass
-    except OSError as error:
-        raise OSError(f"--out {out}: cannot write in {out.parent} ({error.strerror})") from None
-    if out.exists() and not os.access(out, os.W_OK):
-        raise OSError(f"--out {out}: the file is not writable")
-
-
 class ProgressPrinter:
     """Solve progress on stderr, at most once per :data:`PROGRESS_EVERY_S`.
 
@@ -177,7 +160,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     cost = solve_cost(params, args.mode, args.horizon, memory)
     refuse_if_too_big(cost, args, f"solve horizon {args.horizon}")
     out = Path(args.out)
-    check_writable(out)
+    check_output_file(out, "--out", "table file")
     print(f"solve: {describe_cost(cost)} (estimate)", flush=True)
     start = time.perf_counter()
     table = solve(params, args.mode, args.horizon, memory, ProgressPrinter(cost.seconds))

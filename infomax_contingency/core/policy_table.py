@@ -31,7 +31,6 @@ import hashlib
 import json
 import os
 import struct
-import tempfile
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -43,7 +42,7 @@ import numpy as np
 
 from infomax_contingency.core.model import ModelParams, ParameterError, Statistic
 from infomax_contingency.core.statespace import count_index, n_count_tuples
-from infomax_contingency.limits import refuse_over_budget
+from infomax_contingency.limits import refuse_over_budget, written_atomically
 
 FORMAT_NAME = "infomax_contingency.policy_table"
 FORMAT_VERSION = 2
@@ -262,23 +261,15 @@ class PolicyTable:
     def save(self, path: str | Path) -> None:
         """Write the table as a compressed ``.npz`` file.
 
-        The file appears complete or not at all: it is written next to ``path`` under a
-        temporary name and renamed.
+        The file appears complete or not at all, and only where nothing or a regular file
+        was (``limits.written_atomically``: never over a device, FIFO or symbolic link).
         """
-        path = Path(path)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        try:
-            with os.fdopen(handle, "wb") as stream:
-                np.savez_compressed(
-                    stream,
-                    actions=self.packed_actions,
-                    metadata=np.array(json.dumps(self.metadata())),
-                )
-            os.chmod(temporary, 0o644)
-            os.replace(temporary, path)
-        except BaseException:
-            Path(temporary).unlink(missing_ok=True)
-            raise
+        with written_atomically(path, "table file") as stream:
+            np.savez_compressed(
+                stream,
+                actions=self.packed_actions,
+                metadata=np.array(json.dumps(self.metadata())),
+            )
 
     @classmethod
     def load(cls, path: str | Path, expected_params: ModelParams | None = None) -> PolicyTable:
