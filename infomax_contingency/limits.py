@@ -414,6 +414,26 @@ def check_output_file(path: str | Path, what: str, contents: str = "file") -> No
         raise OSError(f"{what} {path}: the file is not writable")
 
 
+def check_output_files(*outputs: tuple[str, str | Path | None, str]) -> None:
+    """:func:`check_output_file` of each ``(what, path, contents)`` asked for, then two apart.
+
+    A ``None`` path is an output not asked for. Two outputs naming one file, however
+    spelled (``r.wav`` and ``./d/../r.wav``, a directory reached through a symbolic link,
+    a hard link), are refused in one line (ValueError): the second would overwrite the
+    first.
+    """
+    given = [(what, Path(path)) for what, path, contents in outputs if path is not None]
+    for what, path, contents in outputs:
+        if path is not None:
+            check_output_file(path, what, contents)
+    for index, (what, path) in enumerate(given):
+        for other_what, other in given[:index]:
+            if path.resolve() == other.resolve() or (
+                    path.exists() and other.exists() and os.path.samefile(path, other)):
+                raise ValueError(f"{other_what} {other} and {what} {path} name one file:"
+                                 " give each its own")
+
+
 @contextlib.contextmanager
 def written_atomically(path: str | Path, what: str,
                        make_parents: bool = False) -> Iterator[BinaryIO]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,7 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval import plots
 from infomax_contingency.sim.simulation import simulate
 from infomax_contingency.sim.world import make_room
+from test_rooms_experiment import fifo_with_a_reader
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ROBOT = ModelParams.named("robot")
@@ -67,6 +69,21 @@ def test_plot_recorded_session(tmp_path, capsys: pytest.CaptureFixture) -> None:
         cli.main(["plot", "--params", "robot", "--session", str(session), "--out", str(out)]) == 2
     )
     assert "differs from the replayed" in capsys.readouterr().err
+
+
+def test_plot_writes_over_nothing_but_a_regular_file(tmp_path, capsys) -> None:
+    (tmp_path / "kept.png").write_bytes(b"kept")
+    (tmp_path / "link.png").symlink_to("kept.png")
+    with fifo_with_a_reader(tmp_path / "fifo.png") as fifo:
+        for path, kind in ((fifo, "a FIFO"), (tmp_path / "link.png", "a symbolic link")):
+            assert cli.main(["plot", "--steps", "5", "--out", str(path)]) == 2
+            error = capsys.readouterr().err
+            assert error.count("\n") == 1, error
+            assert f"--out {path} is not a regular file (it is {kind})" in error
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and (tmp_path / "link.png").is_symlink()
+    assert (tmp_path / "kept.png").read_bytes() == b"kept"
+    with fifo_with_a_reader(tmp_path / "f.png") as fifo, pytest.raises(ValueError, match="FIFO"):
+        plots.plot_session(ROBOT, _session(5), fifo)  # the writer itself refuses it too
 
 
 def test_bad_session_files(tmp_path, capsys: pytest.CaptureFixture) -> None:

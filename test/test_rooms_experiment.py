@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +14,7 @@ import pytest
 from infomax_contingency.audio.wav import read_wav
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.eval import rooms as rooms_evaluation
 from infomax_contingency.eval.rooms import (
     BINARIZERS,
     RoomsConfig,
@@ -214,6 +218,47 @@ def test_room_wav_writes_the_sound_and_its_actions(capsys, tmp_path: Path) -> No
     assert loud > 10 * np.abs(samples[round(1.6 * rate) : round(1.9 * rate)]).max()
     assert main([*argv[:-1], str(tmp_path / "quiet.mp3")]) == 2
     assert "must end in .wav" in capsys.readouterr().err
+
+
+@contextlib.contextmanager
+def fifo_with_a_reader(path: Path):
+    """A FIFO at ``path`` whose read end is open: a write into it would not block."""
+    os.mkfifo(path)
+    reader = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        yield path
+    finally:
+        os.close(reader)
+
+
+def test_room_wav_refuses_one_file_for_both_and_a_fifo_before_rendering(
+        capsys, tmp_path: Path, monkeypatch) -> None:
+    """The wav and its actions file are two files, regular ones, checked before the work."""
+    monkeypatch.setattr(rooms_evaluation, "render_room", lambda *a: pytest.fail("rendered"))
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "here").symlink_to(".")
+    wav = tmp_path / "r.wav"
+    argv = ["room-wav", "quiet+partner", "--seconds", "5", "--out", str(wav), "--actions"]
+    for actions in (wav, tmp_path / "sub" / ".." / "r.wav", tmp_path / "here" / "r.wav"):
+        assert main([*argv, str(actions)]) == 2
+        assert capsys.readouterr().err == (
+            f"infomax-contingency room-wav: error: --out {wav} and --actions {actions} name"
+            " one file: give each its own\n")
+    with fifo_with_a_reader(tmp_path / "fifo") as fifo:
+        assert main([*argv, str(fifo)]) == 2
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and "--actions" in error and "(it is a FIFO)" in error
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and not wav.exists()
+
+
+def test_actions_file_is_written_over_nothing_but_a_regular_file(tmp_path: Path) -> None:
+    with fifo_with_a_reader(tmp_path / "fifo") as fifo:
+        with pytest.raises(ValueError, match="actions file .* is not a regular file"):
+            write_actions_csv(fifo, [1.0])
+    (tmp_path / "link").symlink_to("fifo")
+    with pytest.raises(ValueError, match=r"\(it is a symbolic link\)"):
+        write_actions_csv(tmp_path / "link", [1.0])
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
 
 
 def test_actions_file_round_trip_and_bad_files(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import stat
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,7 @@ from infomax_contingency.audio.bag import read_topics
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.sessions import load_session
+from test_rooms_experiment import fifo_with_a_reader
 
 SESSION = Path(__file__).parent / "data" / "session_demo"
 JSON_KEYS = {"t", "time_s", "z", "y", "u", "belief", "entropy", "ratio"}
@@ -89,6 +91,21 @@ def test_analyze_finds_the_fake_rooms_periods_and_writes_a_parameter_file(
     table = tmp_path / "table.npz"
     assert main(["solve", "--params", str(out), "--mode", "episodic", "--horizon", "4",
                  "--out", str(table)]) == 0
+
+
+def test_analyze_writes_over_nothing_but_a_regular_file(tmp_path: Path, capsys) -> None:
+    """A FIFO at --out is refused before the study (it hung); so are --out and --plot as one."""
+    with fifo_with_a_reader(tmp_path / "fifo") as fifo:
+        assert main(["analyze", str(SESSION), "--out", str(fifo)]) == 2
+        output = capsys.readouterr()
+        assert output.err == (f"infomax-contingency analyze: error: --out {fifo} is not a"
+                              " regular file (it is a FIFO): nothing is written over it; give a"
+                              " new name or a regular file\n")
+        assert output.out == ""  # refused before the study
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+    same = tmp_path / "same.png"
+    assert main(["analyze", str(SESSION), "--out", str(same), "--plot", str(same)]) == 2
+    assert "name one file" in capsys.readouterr().err and not same.exists()
 
 
 def test_analyze_draws_the_figure(tmp_path: Path) -> None:

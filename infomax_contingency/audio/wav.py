@@ -30,7 +30,7 @@ from infomax_contingency.audio.common import (
     check_rate,
     float_samples,
 )
-from infomax_contingency.limits import refuse_over_budget
+from infomax_contingency.limits import refuse_over_budget, written_atomically
 
 _WAV_MAGICS = (b"RIFF", b"RIFX", b"RF64")
 _PCM, _FLOAT, _EXTENSIBLE = 0x0001, 0x0003, 0xFFFE
@@ -355,7 +355,8 @@ def write_wav_int16(path: str | os.PathLike[str], samples: ArrayLike, rate: int)
     """Write samples in [-1, 1] as a 16-bit PCM WAV (values outside are clipped).
 
     Args:
-        path: file to write (its directory must exist).
+        path: file to write (its directory must exist; nothing or a regular file there,
+            replaced whole: ``limits.written_atomically``).
         samples: shaped ``(frames,)`` or ``(frames, channels)``.
         rate: sample rate, Hz.
     """
@@ -367,6 +368,7 @@ def write_wav_int16(path: str | os.PathLike[str], samples: ArrayLike, rate: int)
     from scipy.io import wavfile  # here: scipy.io takes ~0.3 s to load, and nodes never write
 
     try:
-        wavfile.write(path, rate, data)
-    except OSError as exc:
-        raise AudioError(f"cannot write {path}: {exc.strerror or exc}") from exc
+        with written_atomically(path, "wav file") as stream:
+            wavfile.write(stream, rate, data)
+    except (OSError, ValueError) as error:  # one line naming the file and why
+        raise AudioError(str(error)) from None

@@ -23,6 +23,7 @@ from infomax_contingency.eval.information import (
     CROSSING_VOCALIZATIONS_FOLLOWED,
     VOCALIZATION_TARGETS,
 )
+from infomax_contingency.limits import check_output_files, written_atomically
 from infomax_contingency.sim.actions import write_actions_csv
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES
 
@@ -195,6 +196,7 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
         curve_priors=args.curve_priors,
         jobs=args.jobs,
     )
+    check_output_files(("--out", args.out, "result file"), ("--plot", args.plot, "figure"))
     started = time.perf_counter()
     result = evaluation.experiment_rooms(config, Path(args.cache_dir) if args.cache_dir else None)
     elapsed = time.perf_counter() - started
@@ -203,10 +205,8 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
     result["runs_per_s"] = runs / elapsed
     text = json.dumps(result, indent=1, default=json_default)
     if args.out:
-        try:
-            Path(args.out).write_text(text + "\n")
-        except OSError as error:
-            raise OSError(f"--out {args.out}: {error.strerror or error}") from None
+        with written_atomically(args.out, "--out") as stream:
+            stream.write((text + "\n").encode("utf-8"))
     if args.plot:
         plots.plot_room_curves(result, args.plot)
     if args.json:
@@ -283,7 +283,8 @@ def _run_room_wav(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".wav":
         raise ValueError(f"--out {out}: the file name must end in .wav")
-    actions = Path(args.actions) if args.actions else out.with_suffix(".csv")
+    actions = args.actions if args.actions is not None else out.with_suffix(".csv")
+    check_output_files(("--out", out, "wav file"), ("--actions", actions, "actions file"))
     samples, times, rate = evaluation.render_room(
         args.room, args.seconds, args.seed, args.controller, args.binarizer, args.params
     )

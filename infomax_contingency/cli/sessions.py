@@ -53,6 +53,7 @@ from infomax_contingency.eval.sessions import (
     wav_bits,
     with_session_model,
 )
+from infomax_contingency.limits import check_output_files, written_atomically
 from infomax_contingency.sim.actions import read_actions_csv
 from infomax_contingency.sim.simulation import RunSummary, StepRecord
 
@@ -522,6 +523,7 @@ def run_analyze(args: argparse.Namespace) -> int:
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{option} must be a number of seconds > 0, got {value}")
     _refuse_twice(args.sessions)
+    check_output_files(("--out", args.out, "parameter file"), ("--plot", args.plot, "figure"))
     params = ModelParams.load(args.params)
     sessions = [(name, load_session(Path(name), warn=warn)) for name in args.sessions]
     check_same_windows(sessions)
@@ -564,6 +566,7 @@ def run_analyze(args: argparse.Namespace) -> int:
         values = {**params.__dict__, "ts1": study.self_period[0], "ts2": study.self_period[1],
                   "ta1": study.agent_period[0], "ta2": study.agent_period[1]}
         ModelParams(**values)  # refuses an inconsistent set before anything is written
-        Path(args.out).write_text(yaml.safe_dump(values, sort_keys=False))
+        with written_atomically(args.out, "--out") as stream:
+            stream.write(yaml.safe_dump(values, sort_keys=False).encode("utf-8"))
         print(f"wrote {args.out}: infomax-contingency solve --params {args.out} ...")
     return 1 if shortcomings else 0

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from infomax_contingency.core.model import AGENT, SELF, ModelParams, StatisticTracker, period_of
-from infomax_contingency.limits import read_text_capped
+from infomax_contingency.limits import read_text_capped, written_atomically
 
 SESSION_FIELDS = ("t", "time_s", "z", "y", "u", "belief", "entropy", "ratio")
 DPI = 100
@@ -47,11 +47,12 @@ def _figure(width: float, height: float) -> Any:
 
 
 def _save(figure: Any, path: str | Path) -> Path:
+    """Write ``figure`` as a PNG file, whole, where nothing or a regular file is."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise PlotError(f"figure file {path} must end in .png")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=DPI)
+    with written_atomically(path, "figure file", make_parents=True) as stream:
+        figure.savefig(stream, format="png", dpi=DPI)
     return path
 
 

@@ -13,7 +13,7 @@ import math
 import os
 from collections.abc import Iterable
 
-from infomax_contingency.limits import read_text_capped
+from infomax_contingency.limits import read_text_capped, written_atomically
 
 HEADER = "time_s"
 """The column's name (the file's first line)."""
@@ -22,17 +22,17 @@ MAX_ACTIONS_BYTES = 16 << 20
 
 
 def write_actions_csv(path: str | os.PathLike[str], times_s: Iterable[float]) -> None:
-    """Write the vocalization times (seconds, increasing) to ``path``."""
+    """Write the vocalization times (seconds, increasing) to ``path``.
+
+    Nothing but a regular file is written over, and the file is replaced whole
+    (``limits.written_atomically``: a FIFO, device or symbolic link is refused, ValueError).
+    """
     times = [float(t) for t in times_s]
     for earlier, later in zip(times, times[1:], strict=False):
         if not later > earlier:
             raise ValueError(f"actions must be in increasing time order: {later} after {earlier}")
-    try:
-        with open(path, "w", encoding="ascii") as out:
-            out.write(HEADER + "\n")
-            out.writelines(f"{t:.6f}\n" for t in times)
-    except OSError as error:
-        raise OSError(f"cannot write the actions file {path}: {error.strerror or error}") from None
+    with written_atomically(path, "actions file") as out:
+        out.write("".join([HEADER + "\n", *(f"{t:.6f}\n" for t in times)]).encode("ascii"))
 
 
 def read_actions_csv(path: str | os.PathLike[str]) -> list[float]:

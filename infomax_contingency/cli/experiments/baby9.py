@@ -18,10 +18,12 @@ from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval import plots
 from infomax_contingency.eval.experiments.baby9 import Baby9Config, baby9_session, experiment_baby9
 from infomax_contingency.eval.experiments.tables import obtain_table
+from infomax_contingency.limits import check_output_files
 
 
 def run_baby9(args: argparse.Namespace) -> int:
     """Run ``experiment baby9``; print its table (or JSON), write the figure if asked."""
+    check_output_files(("--plot", args.plot, "figure"))  # before the work
     config = Baby9Config(args.params, args.horizon, args.memory, args.steps, tuple(args.replies))
     result = experiment_baby9(config, cache_dir_of(args))
     if args.plot:

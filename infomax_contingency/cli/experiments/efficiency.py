@@ -13,10 +13,12 @@ from infomax_contingency.cli.experiments.options import cache_dir_of, print_json
 from infomax_contingency.cli.formatting import number, seed
 from infomax_contingency.eval import plots
 from infomax_contingency.eval.experiments.efficiency import EfficiencyConfig, experiment_efficiency
+from infomax_contingency.limits import check_output_files
 
 
 def run_efficiency(args: argparse.Namespace) -> int:
     """Run ``experiment efficiency``; print its tables (or JSON), write the figure if asked."""
+    check_output_files(("--plot", args.plot, "figure"))  # before the work
     config = EfficiencyConfig(
         params_name=args.params,
         prior_rooms=args.prior_rooms,

@@ -18,17 +18,20 @@ from infomax_contingency.cli.experiments.options import (
 from infomax_contingency.cli.formatting import number
 from infomax_contingency.eval import plots
 from infomax_contingency.eval.experiments.horizon import HorizonConfig, experiment_horizon
+from infomax_contingency.limits import check_output_files
 
 
 def run_horizon(args: argparse.Namespace) -> int:
     """Run ``experiment horizon``; print its table (or JSON), write the maps if asked."""
     config = HorizonConfig(tuple(args.params), tuple(args.horizons), args.domain, args.longest)
+    targets = {name: Path(args.plot) for name in args.params} if args.plot is not None else {}
+    if len(targets) > 1:  # one figure per set: NAME_SET.png
+        targets = {name: path.with_name(f"{path.stem}_{name}{path.suffix}")
+                   for name, path in targets.items()}
+    check_output_files(*(("--plot", path, "figure") for path in targets.values()))
     result = experiment_horizon(config)
     if args.plot:
-        for name in args.params:
-            target = Path(args.plot)
-            if len(args.params) > 1:
-                target = target.with_name(f"{target.stem}_{name}{target.suffix}")
+        for name, target in targets.items():
             plots.plot_horizon_maps(result, target, name)
             print(f"wrote {target}", file=sys.stderr if args.json else sys.stdout)
     if args.json:

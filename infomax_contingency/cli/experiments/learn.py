@@ -11,9 +11,11 @@ from infomax_contingency.cli.experiments.options import commas, int_list, print_
 from infomax_contingency.core import learning
 from infomax_contingency.eval import plots
 from infomax_contingency.eval.experiments.learn import LearnConfig, experiment_learn
+from infomax_contingency.limits import check_output_files
 
 
 def _run_learn(args: argparse.Namespace) -> int:
+    check_output_files(("--plot", args.plot, "figure"))  # before the work
     config = LearnConfig(
         params_name=args.params,
         horizon=args.horizon,
