@@ -55,8 +55,13 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
 @pytest.mark.parametrize("arguments, message", [
     (["--minutes", "0"], "--minutes must be > 0"),
     (["--minutes", "nan"], "--minutes must be > 0"),
-    (["--min-interval-s", "5", "--max-interval-s", "2"], "need 0 < min <= max"),
-    (["--min-interval-s", "0"], "need 0 < min <= max"),
+    (["--min-interval-s", "5", "--max-interval-s", "2"],
+     "need 0 < --min-interval-s <= --max-interval-s seconds, got 5 .. 2"),
+    (["--min-interval-s", "0"], "need 0 < --min-interval-s <= --max-interval-s"),
+    # an interval no draw can take: refused before the graph starts (controller_node died)
+    (["--fake-room", "--min-interval-s", "1e308", "--max-interval-s", "1e308"],
+     "--max-interval-s must be at most 1.07374e+09 s (2,147,483,647 steps of 0.5 s: no run is"
+     " longer), got 1e+308"),
     (["--threshold-file", "/nonexistent.yaml"], "no such file"),
     (["--threshold-file", "/dev/zero"], "--threshold-file /dev/zero: not a regular file"),
     (["--calibration-s", "-1"], "--calibration-s must be in (0, 3600] seconds"),

@@ -5,16 +5,19 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
+import re
 import subprocess
 import sys
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from infomax_contingency.cli import main as cli
 from infomax_contingency.core.controllers import (
+    MAX_INTERVAL_STEPS,
     FixedIntervalController,
     GreedyController,
     PolicyController,
@@ -70,6 +73,26 @@ def test_fixed_and_random_controllers() -> None:
     assert 0.27 < share < 0.33
     with pytest.raises(ValueError, match="interval"):
         FixedIntervalController(PAPER, 0)
+
+
+def test_interval_controller_refuses_an_interval_no_run_reaches(capsys) -> None:
+    """Past 2^31 - 1 steps: one line naming the largest (an OverflowError or numpy's before)."""
+    rng = np.random.default_rng(0)
+    largest = ("MAX_S must be at most 1.07374e+09 s (2,147,483,647 steps of 0.5 s: no run is"
+               " longer)")
+    for spec in ("interval:1e308-1e308", "interval:1e20-1e20", "interval:3-1.1e9"):
+        with pytest.raises(ValueError, match=re.escape(f"interval controller: {largest}")):
+            make_controller(spec, ROBOT, rng)
+    longest = make_controller("interval:1e9-1.07374e9", ROBOT, rng)
+    assert longest.max_steps <= MAX_INTERVAL_STEPS and longest.step(0) == 0
+    shortest = make_controller("interval:1e-05-1", ROBOT, rng)  # an exponent's minus
+    assert (shortest.min_steps, shortest.max_steps) == (1, 2)
+    session = str(Path(__file__).parent / "data" / "session_demo")
+    for command in (["simulate", "--controller", "interval:1e308-1e308", "--steps", "3"],
+                    ["replay", session, "--actions", "interval:1e308-1e308"]):
+        assert cli.main(command) == 2
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and f"{largest}, got 1e+308" in error, error
 
 
 def test_policy_controller_follows_the_table_and_restarts_episodes() -> None:

@@ -25,6 +25,8 @@ from typing import Any
 from infomax_contingency.cli import demo
 from infomax_contingency.cli.demo_checks import MAX_CALIBRATION_S, MAX_SEED, MAX_STEPS
 from infomax_contingency.cli.formatting import seed
+from infomax_contingency.core.controllers import interval_steps
+from infomax_contingency.core.model import ModelParams
 
 DEFAULT_INTERVAL_S = (3.0, 6.0)
 """Default range of the random intervals between the robot's sounds, seconds."""
@@ -75,10 +77,9 @@ def _check(args: argparse.Namespace) -> int:
                          f" {demo.WINDOW_S:g} s: the nodes' max_windows), got {args.minutes:g}")
     if not 0 <= args.seed <= MAX_SEED:
         raise ValueError(f"--seed must be in [0, {MAX_SEED}], got {args.seed}")
-    low, high = args.min_interval_s, args.max_interval_s
-    if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
-        raise ValueError(f"--min-interval-s and --max-interval-s: need 0 < min <= max"
-                         f" seconds, got {low:g} .. {high:g}")
+    # the steps controller_node will draw: its check, before any node starts
+    interval_steps(ModelParams.named("robot"), args.min_interval_s, args.max_interval_s,
+                   ("--min-interval-s", "--max-interval-s"))
     if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
         raise ValueError(f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds, got"
                          f" {args.calibration_s:g}")

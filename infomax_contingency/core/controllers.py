@@ -15,7 +15,8 @@ is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and r
 * ``random:P`` — vocalize with probability P.
 * ``interval:MIN_S-MAX_S`` — the paper's calibration protocol: vocalize at random
   intervals drawn uniformly from MIN_S .. MAX_S seconds (rounded to whole steps of
-  ``dt``, at least one step), the first after one such interval.
+  ``dt``, at least one step, at most :data:`MAX_INTERVAL_STEPS`), the first after one
+  such interval.
 """
 
 from __future__ import annotations
@@ -34,6 +35,32 @@ from infomax_contingency.core.policy_table import EPISODIC, PolicyTable
 CONTROLLER_KINDS = (
     "policy:FILE", "rule[:C]", "greedy", "fixed:K", "random:P", "interval:MIN_S-MAX_S"
 )
+MAX_INTERVAL_STEPS = 2**31 - 1
+"""Longest interval of ``interval:MIN_S-MAX_S``, steps: the longest run there is (the nodes'
+``max_windows``), so a longer one would never sound (and past 2^63 no draw can take it)."""
+
+
+def interval_steps(params: ModelParams, min_s: float, max_s: float,
+                   names: tuple[str, str] = ("MIN_S", "MAX_S")) -> tuple[int, int]:
+    """The steps of ``dt`` of an interval range of ``min_s .. max_s`` seconds, checked.
+
+    Each is rounded to whole steps, at least one. ``names``: what the message calls the
+    two (the specification's ``MIN_S`` / ``MAX_S``, or a command's options).
+
+    Raises:
+        ValueError: not ``0 < min_s <= max_s`` finite, or ``max_s`` beyond
+            :data:`MAX_INTERVAL_STEPS` steps (one line naming the largest allowed).
+    """
+    low_name, high_name = names
+    if not (math.isfinite(min_s) and math.isfinite(max_s) and 0 < min_s <= max_s):
+        raise ValueError(f"need 0 < {low_name} <= {high_name} seconds, got {min_s:g} .."
+                         f" {max_s:g}")
+    longest_s = MAX_INTERVAL_STEPS * params.dt
+    if max_s > longest_s:
+        raise ValueError(f"{high_name} must be at most {longest_s:g} s ({MAX_INTERVAL_STEPS:,}"
+                         f" steps of {params.dt:g} s: no run is longer), got {max_s:g}")
+    low = max(1, round(min_s / params.dt))
+    return low, min(MAX_INTERVAL_STEPS, max(low, round(max_s / params.dt)))
 
 
 def rule_decisions(
@@ -213,9 +240,9 @@ class RandomIntervalController(Controller):
     def __init__(self, params: ModelParams, min_steps: int, max_steps: int,
                  rng: np.random.Generator) -> None:
         super().__init__(params)
-        if not 1 <= min_steps <= max_steps:
-            raise ValueError(f"interval controller: need 1 <= min steps <= max steps, got"
-                             f" {min_steps} .. {max_steps}")
+        if not 1 <= min_steps <= max_steps <= MAX_INTERVAL_STEPS:
+            raise ValueError(f"interval controller: need 1 <= min steps <= max steps <="
+                             f" {MAX_INTERVAL_STEPS}, got {min_steps} .. {max_steps}")
         self.min_steps, self.max_steps = min_steps, max_steps
         self.rng = rng
         self.name = f"interval:{min_steps * params.dt:g}-{max_steps * params.dt:g}"
@@ -224,12 +251,12 @@ class RandomIntervalController(Controller):
     @classmethod
     def from_seconds(cls, params: ModelParams, min_s: float, max_s: float,
                      rng: np.random.Generator) -> RandomIntervalController:
-        """Intervals of ``min_s .. max_s`` seconds, rounded to steps of ``params.dt``."""
-        if not (math.isfinite(min_s) and math.isfinite(max_s) and 0 < min_s <= max_s):
-            raise ValueError(f"interval controller: need 0 < MIN_S <= MAX_S seconds, got"
-                             f" {min_s:g} .. {max_s:g}")
-        low = max(1, round(min_s / params.dt))
-        return cls(params, low, max(low, round(max_s / params.dt)), rng)
+        """Intervals of ``min_s .. max_s`` seconds, rounded to steps (:func:`interval_steps`)."""
+        try:
+            low, high = interval_steps(params, min_s, max_s)
+        except ValueError as error:
+            raise ValueError(f"interval controller: {error}") from None
+        return cls(params, low, high, rng)
 
     def _draw(self) -> int:
         return int(self.rng.integers(self.min_steps, self.max_steps + 1))
@@ -281,11 +308,11 @@ class ReplayedDecisions(Controller):
 
 
 def _interval_seconds(argument: str) -> tuple[float, float]:
-    """``(min_s, max_s)`` of ``MIN_S-MAX_S``."""
-    low, separator, high = argument.partition("-")
-    if not separator:
-        raise ValueError("interval needs MIN_S-MAX_S seconds, e.g. interval:3-6")
-    return float(low), float(high)
+    """``(min_s, max_s)`` of ``MIN_S-MAX_S`` (the minus of an exponent is the number's: 1e-05-6)."""
+    for index, char in enumerate(argument):
+        if char == "-" and index > 0 and argument[index - 1] not in "eE":
+            return float(argument[:index]), float(argument[index + 1:])
+    raise ValueError("interval needs MIN_S-MAX_S seconds, e.g. interval:3-6")
 
 
 def make_controller(
