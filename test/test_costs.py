@@ -28,6 +28,7 @@ from infomax_contingency.audio.threshold import kmeans_split
 from infomax_contingency.audio.threshold_file import load_threshold, save_threshold
 from infomax_contingency.audio.wav import open_wav_info, write_wav_int16
 from infomax_contingency.audio.windows import WavReplay
+from infomax_contingency.cli import main as cli_main
 from infomax_contingency.cli.main import main
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.limits import (
@@ -328,6 +329,33 @@ def test_ctrl_c_of_an_experiment_with_workers_ends_them_all_in_one_line() -> Non
     status, err = _interrupt(process, workers_started)
     assert status in INTERRUPTED, err
     assert err.strip() == "infomax-contingency experiment: interrupted"
+
+
+def test_ctrl_c_while_the_parser_is_built_is_one_line(capsys, monkeypatch) -> None:
+    """A Ctrl-C 0.4-0.7 s after the start landed in build_parser: a traceback before."""
+
+    def interrupted(subparsers) -> None:  # a registrar that a Ctrl-C stops mid-way
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_main, "REGISTRARS", [*cli_main.REGISTRARS[:3], interrupted])
+    for argv, line in ((["info", "policies/robot_receding_H24_M60.npz"],
+                        "infomax-contingency info: interrupted\n"),
+                       ([], "infomax-contingency: interrupted\n")):
+        try:
+            status = main(argv)
+        except KeyboardInterrupt:  # not the test run's own Ctrl-C: fail, do not stop pytest
+            pytest.fail("the Ctrl-C went out of main(): a traceback")
+        assert status == 130
+        assert capsys.readouterr().err == line
+
+
+def test_the_parser_is_built_without_loading_scipy() -> None:
+    """Building every command's options makes no bit source: scipy took 0.5 s to load there."""
+    code = ("import sys; from infomax_contingency.cli.main import build_parser; build_parser();"
+            " print(sorted(name for name in sys.modules if name.split('.')[0] == 'scipy'))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=120, check=True)  # fmt: skip
+    assert result.stdout.strip() == "[]", result.stdout[:300]
 
 
 def test_an_experiments_workers_end_when_the_command_is_killed() -> None:

@@ -367,29 +367,40 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _named(argv: Sequence[str] | None) -> str:
+    """``infomax-contingency COMMAND``, the command the arguments' first word names.
+
+    For a message before the arguments are parsed; the program alone if there is none.
+    """
+    words = sys.argv[1:] if argv is None else list(argv)
+    command = words[0] if words and not words[0].startswith("-") else ""
+    return f"infomax-contingency {command}".strip()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status.
 
     One line on stderr for a user error or memory running out (status 2) and for a
-    Ctrl-C (status 130), never a traceback.
+    Ctrl-C (status 130), never a traceback — also while the parser is being built.
     """
-    args = build_parser().parse_args(argv)
+    name = _named(argv)
     try:
+        args = build_parser().parse_args(argv)
+        name = f"infomax-contingency {args.command}"
         return args.run(args)
     except BrokenPipeError:  # e.g. `... | head` (an OSError: before USER_ERRORS)
         devnull = os.open(os.devnull, os.O_WRONLY)  # nothing more to write at exit either
         os.dup2(devnull, sys.stdout.fileno())
         return 0
     except USER_ERRORS as error:
-        print(f"infomax-contingency {args.command}: error: {error}", file=sys.stderr)
+        print(f"{name}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"infomax-contingency {args.command}: interrupted", file=sys.stderr)
+        print(f"{name}: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS
     except MemoryError:  # a size no cost check foresaw: one line, not a traceback
-        print(f"infomax-contingency {args.command}: error: out of memory: the sizes asked"
-              " for need more memory than this process may use (docs/LIMITS.md)",
-              file=sys.stderr)
+        print(f"{name}: error: out of memory: the sizes asked for need more memory than"
+              " this process may use (docs/LIMITS.md)", file=sys.stderr)
         return 2
 
 

@@ -224,7 +224,7 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
 
 def add_experiment_rooms_arguments(sub: argparse.ArgumentParser) -> None:
     """The options of ``experiment rooms`` (defaults: :class:`RoomsConfig`)."""
-    d = evaluation.RoomsConfig()
+    d = evaluation.RoomsConfig  # the class: its defaults; an instance builds a bit source (scipy)
     sub.add_argument("--params", default=d.params_name, help=f"parameter set ({d.params_name})")
     sub.add_argument(
         "--rooms",
@@ -320,7 +320,7 @@ def register_room_wav(subparsers: argparse._SubParsersAction) -> None:
         help=f"who decides: {' | '.join(evaluation.CONTROLLER_NAMES)} or a controller"
         " specification such as rule:9, fixed:6, policy:FILE (default optimal)",
     )
-    d = evaluation.RoomsConfig()
+    d = evaluation.RoomsConfig  # the class: its defaults; an instance builds a bit source (scipy)
     parser.add_argument(
         "--binarizer",
         default=evaluation.LISTENING_BINARIZER,
