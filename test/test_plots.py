@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import shutil
 import stat
 import subprocess
 import sys
@@ -156,6 +157,18 @@ def test_read_session_round_trip(tmp_path) -> None:
     assert plots.read_session(path) == records
     counts = plots.session_counts(ROBOT, records)
     assert counts.shape == (10, 4) and counts[-1].sum() <= 10
+
+
+def test_titles_with_bytes_that_are_not_utf8_are_drawn(tmp_path, capsys) -> None:
+    """--title or a session's file name with such bytes: a TypeError of the renderer before."""
+    out = tmp_path / "q.png"
+    assert cli.main(["plot", "--steps", "10", "--title", "x\udcff", "--out", str(out)]) == 0
+    assert out.read_bytes().startswith(PNG_MAGIC)
+    bag = tmp_path / "bag\udcff\udcfe"  # as Python names a directory named b"bag\xff\xfe"
+    shutil.copytree(Path(__file__).parent / "data" / "session_demo", bag)
+    assert cli.main(["plot", "--session", str(bag), "--out", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert plots.drawable_text("bag\udcff\udcfe \ud800") == "bag\ufffd\ufffd \ufffd"
 
 
 def test_plot_a_session_bag(tmp_path, capsys: pytest.CaptureFixture) -> None:

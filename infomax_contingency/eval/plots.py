@@ -46,11 +46,28 @@ def _figure(width: float, height: float) -> Any:
     return Figure(figsize=(width, height), dpi=DPI, layout="constrained")
 
 
+def drawable_text(text: str) -> str:
+    """``text`` with every lone surrogate replaced by U+FFFD, which a font can draw.
+
+    Python escapes each byte of a file name or an argument that is not UTF-8 as a lone
+    surrogate (``surrogateescape``); the renderer cannot draw one.
+    """
+    return "".join("\ufffd" if "\ud800" <= char <= "\udfff" else char for char in text)
+
+
 def _save(figure: Any, path: str | Path) -> Path:
-    """Write ``figure`` as a PNG file, whole, where nothing or a regular file is."""
+    """Write ``figure`` as a PNG file, whole, where nothing or a regular file is.
+
+    Every text of the figure is made drawable first (:func:`drawable_text`): a title from
+    a non-UTF-8 file name or ``--title`` made the renderer raise a TypeError.
+    """
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise PlotError(f"figure file {path} must end in .png")
+    from matplotlib.text import Text  # loaded with the figure already
+
+    for artist in figure.findobj(Text):
+        artist.set_text(drawable_text(artist.get_text()))
     with written_atomically(path, "figure file", make_parents=True) as stream:
         figure.savefig(stream, format="png", dpi=DPI)
     return path
