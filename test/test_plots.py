@@ -103,6 +103,42 @@ def test_bad_session_files(tmp_path, capsys: pytest.CaptureFixture) -> None:
     assert "must end in .png" in capsys.readouterr().err
 
 
+def test_a_deeply_nested_line_is_no_session(tmp_path, capsys) -> None:
+    """100,000 ``[`` on a line: a RecursionError traceback of the JSON parser before."""
+    deep = tmp_path / "deep.jsonl"
+    deep.write_text("[" * 100_000 + "\n")
+    assert cli.main(["plot", "--session", str(deep), "--out", str(tmp_path / "x.png")]) == 2
+    assert capsys.readouterr().err == (
+        f"infomax-contingency plot: error: {deep} line 1 is nested 100,000 deep: not a step"
+        " record (one flat JSON object per line, as `infomax-contingency simulate --json`"
+        " writes)\n")
+
+
+@pytest.mark.parametrize(("line", "field", "value", "message"), [
+    (2, "belief", 7.5, "belief must be a finite number in [0, 1], got 7.5"),
+    (2, "belief", float("nan"), "belief must be a finite number in [0, 1], got nan"),
+    (2, "belief", -0.1, "belief must be a finite number in [0, 1], got -0.1"),
+    (3, "t", 2, "t 2 does not come after the previous step's 2 (t must increase, each step"
+                " once)"),
+    (2, "t", 1.5, "t must be a whole number, got 1.5"),
+    (2, "y", 7, "y must be 0 or 1, got 7"),
+    (2, "u", 2, "u must be 0 or 1, got 2"),
+    (1, "z", -1, "z must be a whole number >= 0, got -1"),
+    (1, "z", 0.5, "z must be a whole number >= 0, got 0.5"),
+    (4, "time_s", float("inf"), "time_s must be a finite number of seconds, got inf"),
+])
+def test_tampered_session_values_are_refused_naming_line_and_field(
+        tmp_path, capsys, line, field, value, message) -> None:
+    records = _session(6)
+    records[line - 1][field] = value
+    path = tmp_path / "s.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert cli.main(["plot", "--session", str(path), "--out", str(tmp_path / "x.png")]) == 2
+    assert capsys.readouterr().err == (
+        f"infomax-contingency plot: error: {path} line {line}: {message}\n")
+    assert not (tmp_path / "x.png").exists()
+
+
 def test_learning_horizon_and_efficiency_figures(tmp_path) -> None:
     curve = {"method": "plain", "horizon": 12, "vocalizations": [0, 10, 100], "scores": [0, 0.5, 1]}
     path = plots.plot_learning_curves([curve, {**curve, "method": "improved"}], tmp_path / "l.png")

@@ -21,13 +21,24 @@ from typing import Any
 import numpy as np
 
 from infomax_contingency.core.model import AGENT, SELF, ModelParams, StatisticTracker, period_of
-from infomax_contingency.limits import read_text_capped, written_atomically
+from infomax_contingency.limits import (
+    bracket_depth,
+    read_text_capped,
+    short_repr,
+    written_atomically,
+)
 
 SESSION_FIELDS = ("t", "time_s", "z", "y", "u", "belief", "entropy", "ratio")
 DPI = 100
 MAX_SESSION_FILE_BYTES = 64 << 20
 """Largest JSON-lines session read, bytes: 500,000 steps of ``simulate --json`` (133 bytes
 each), more than a plot of them fits in memory (16 KiB per step)."""
+
+
+MAX_SESSION_LINE_DEPTH = 8
+"""Deepest nesting of ``[`` / ``{`` on a session line (a step record is one flat object:
+1): a deeper line is refused before the JSON parser, which recursed past Python's limit
+on 100,000 ``[``."""
 
 
 class PlotError(ValueError):
@@ -90,10 +101,15 @@ def read_session(path: str | Path) -> list[dict]:
         raise PlotError(f"session file {path} does not exist") from None
     except ValueError as error:
         raise PlotError(str(error)) from None
-    records = []
+    records: list[dict] = []
     for number, line in enumerate(lines, start=1):
         if not line.strip() or line.startswith("#"):
             continue
+        depth = bracket_depth(line)
+        if depth > MAX_SESSION_LINE_DEPTH:
+            raise PlotError(f"{path} line {number} is nested {depth:,} deep: not a step record"
+                            " (one flat JSON object per line, as `infomax-contingency simulate"
+                            " --json` writes)")
         try:
             record = json.loads(line)
         except json.JSONDecodeError as error:
@@ -102,14 +118,57 @@ def read_session(path: str | Path) -> list[dict]:
                 " line as written by `infomax-contingency simulate --json`"
             ) from None
         if not isinstance(record, dict):
-            raise PlotError(f"{path} line {number}: expected a JSON object, got {record!r:.40}")
+            raise PlotError(f"{path} line {number}: expected a JSON object, got"
+                            f" {short_repr(record, 40)}")
         missing = [field for field in SESSION_FIELDS if field not in record]
         if missing:
             raise PlotError(f"{path} line {number} lacks the field(s) {missing}")
+        _check_record(record, records[-1]["t"] if records else None, f"{path} line {number}")
         records.append(record)
     if not records:
         raise PlotError(f"session file {path} holds no step records")
     return records
+
+
+def _whole(value: Any) -> bool:
+    """A JSON whole number: an integer, or a number with no fraction (not true / false)."""
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+
+
+def _finite(value: Any) -> bool:
+    """A finite JSON number (not true / false, NaN or infinity)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    return isinstance(value, int) or math.isfinite(value)
+
+
+SESSION_FIELD_RULES: dict[str, tuple[Any, str]] = {
+    "t": (_whole, "a whole number"),
+    "time_s": (_finite, "a finite number of seconds"),
+    "z": (lambda v: _whole(v) and v >= 0, "a whole number >= 0"),
+    "y": (lambda v: _whole(v) and v in (0, 1), "0 or 1"),
+    "u": (lambda v: _whole(v) and v in (0, 1), "0 or 1"),
+    "belief": (lambda v: _finite(v) and 0 <= v <= 1, "a finite number in [0, 1]"),
+    "ratio": (lambda v: v is None or (isinstance(v, int | float) and not isinstance(v, bool)),
+              "null or a number"),
+}
+"""What each field of a step record drawn must hold: (test, what it says when it fails)."""
+
+
+def _check_record(record: dict, previous_t: Any, where: str) -> None:
+    """Refuse a step record whose fields the figure cannot be drawn from (one line).
+
+    ``previous_t``: the step before's ``t`` (None for the first); ``t`` must grow.
+    """
+    for field, (test, allowed) in SESSION_FIELD_RULES.items():
+        if not test(record[field]):
+            raise PlotError(f"{where}: {field} must be {allowed}, got"
+                            f" {short_repr(record[field], 40)}")
+    if previous_t is not None and not record["t"] > previous_t:
+        raise PlotError(f"{where}: t {record['t']} does not come after the previous step's"
+                        f" {previous_t} (t must increase, each step once)")
 
 
 def session_counts(params: ModelParams, records: Sequence[dict], memory: int = 0) -> np.ndarray:
@@ -118,7 +177,11 @@ def session_counts(params: ModelParams, records: Sequence[dict], memory: int = 0
     Raises :class:`PlotError` when a record's timer disagrees with the replay (the session
     was recorded with other parameters, or steps are missing).
     """
-    tracker = StatisticTracker(params, memory=memory, z_initial=int(records[0]["z"]))
+    first = records[0]
+    if not 0 <= first["z"] <= params.timer_long_ago:
+        raise PlotError(f"step t={first['t']}: the record's timer z={first['z']} is not one of"
+                        f" the parameters' 0 .. {params.timer_long_ago} (use --params)")
+    tracker = StatisticTracker(params, memory=memory, z_initial=int(first["z"]))
     counts = []
     for record in records:
         if tracker.statistic.z != record["z"]:
