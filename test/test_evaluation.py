@@ -359,6 +359,10 @@ def test_experiment_bad_input_is_one_line(capsys: pytest.CaptureFixture) -> None
     assert error.count("\n") == 1 and "memory M = 10" in error
     assert cli.main(["experiment", "rule", "--steps", "30-20"]) == 2
     assert "first step" in capsys.readouterr().err
+    for c in ("nan", "-1", "inf", "0"):  # as rule:C is refused (nan and -1 printed results)
+        assert cli.main(["experiment", "rule", "--c", c]) == 2
+        assert capsys.readouterr().err == ("infomax-contingency experiment: error: rule constant"
+                                           f" c must be > 0 and finite, got {float(c)}\n")
 
 
 def test_command_defaults_are_the_experiment_configs() -> None:

@@ -104,3 +104,8 @@ def test_learn_command(capsys: pytest.CaptureFixture, tmp_path) -> None:
     assert figure.stat().st_size > 10_000
     assert cli.main(["learn", "--method", "plain@many"]) == 2
     assert "budget" in capsys.readouterr().err
+    for target in ("2", "nan", "0", "-1"):  # a score above 1 is never reached
+        assert cli.main(["learn", "--horizon", "4", "--budget", "10", "--target", target]) == 2
+        assert capsys.readouterr().err.startswith(
+            f"infomax-contingency learn: error: --target must be a score in (0, 1], got"
+            f" {float(target)}: ")

@@ -77,6 +77,28 @@ def test_demo_refuses_to_record_over_an_existing_directory(tmp_path: Path, capsy
     assert "exists already" in capsys.readouterr().err
 
 
+def test_an_empty_or_linked_bag_directory_is_refused_before_a_node_starts(tmp_path) -> None:
+    """``demo --record ""`` recorded nothing without a word; a dangling link was followed.
+
+    The checks are called as the commands call them, before any node starts.
+    """
+    from infomax_contingency.cli.calibration_session import _check
+    from infomax_contingency.cli.demo_checks import check_arguments
+    from infomax_contingency.cli.main import build_parser
+
+    parser = build_parser()
+    with pytest.raises(ValueError, match="^--record: the path is empty; name a new directory$"):
+        check_arguments(parser.parse_args(["demo", "--record", ""]))
+    (tmp_path / "link").symlink_to(tmp_path / "nowhere")
+    for argv in (["demo", "--record"], ["calibration-session", "--fake-room", "--out"]):
+        with pytest.raises(ValueError, match="link: exists already; name a new directory"):
+            (check_arguments if argv[0] == "demo" else _check)(
+                parser.parse_args([*argv, str(tmp_path / "link")]))
+    with pytest.raises(ValueError, match="^--out: the path is empty"):
+        _check(parser.parse_args(["calibration-session", "--fake-room", "--out", ""]))
+    assert not (tmp_path / "nowhere").exists()
+
+
 def test_analyze_finds_the_fake_rooms_periods_and_writes_a_parameter_file(
     tmp_path: Path, capsys
 ) -> None:

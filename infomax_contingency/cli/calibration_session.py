@@ -23,7 +23,12 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.cli import demo
-from infomax_contingency.cli.demo_checks import MAX_CALIBRATION_S, MAX_SEED, MAX_STEPS
+from infomax_contingency.cli.demo_checks import (
+    MAX_CALIBRATION_S,
+    MAX_SEED,
+    MAX_STEPS,
+    check_record_directory,
+)
 from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.controllers import interval_steps
 from infomax_contingency.core.model import ModelParams
@@ -89,8 +94,7 @@ def _check(args: argparse.Namespace) -> int:
     if args.threshold_file and not Path(args.threshold_file).is_file():
         what = "not a regular file" if Path(args.threshold_file).exists() else "no such file"
         raise ValueError(f"--threshold-file {args.threshold_file}: {what}")
-    if Path(args.out).exists():
-        raise ValueError(f"--out {args.out}: exists already; name a new directory")
+    check_record_directory(args.out, "--out")
     return max(1, round(args.minutes * 60 / demo.WINDOW_S))
 
 

@@ -70,27 +70,31 @@ def check_arguments(args: argparse.Namespace) -> None:
             f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
             f" got {args.calibration_s}"
         )
-    if args.record:
-        check_record_directory(Path(args.record))
+    if args.record is not None:  # "" too: it recorded nothing, without a word
+        check_record_directory(args.record)
 
 
-def check_record_directory(directory: Path) -> None:
-    """Refuse a ``--record`` directory that exists or that cannot be created and written.
+def check_record_directory(directory: str | Path, option: str = "--record") -> None:
+    """Refuse a bag directory (``option``) that exists or cannot be created and written.
 
     Tried for real (the directory and a file in it are made, then removed): a path the
     permissions allow on paper may still refuse (``/proc``, a read-only mount, a full disk).
+    An empty path and a symbolic link (even a dangling one) are refused too.
     """
+    if not str(directory):
+        raise ValueError(f"{option}: the path is empty; name a new directory")
+    directory = Path(directory)
     if directory.exists() or directory.is_symlink():
-        raise ValueError(f"--record {directory}: exists already; name a new directory")
+        raise ValueError(f"{option} {directory}: exists already; name a new directory")
     try:
         directory.mkdir()
     except OSError as error:
-        raise ValueError(f"--record {directory}: cannot create it: {error.strerror}") from None
+        raise ValueError(f"{option} {directory}: cannot create it: {error.strerror}") from None
     try:
         with tempfile.TemporaryFile(dir=directory):
             pass
     except OSError as error:
-        raise ValueError(f"--record {directory}: cannot write in it: {error.strerror}") from None
+        raise ValueError(f"{option} {directory}: cannot write in it: {error.strerror}") from None
     finally:
         with contextlib.suppress(OSError):
             directory.rmdir()

@@ -163,13 +163,19 @@ class PolicyController(Controller):
         self.episode_step = 0
 
 
+def check_rule_constant(c: float) -> float:
+    """The rule's constant ``c``, which must be a finite number > 0 (ValueError, one line)."""
+    if not (c > 0 and math.isfinite(c)):
+        raise ValueError(f"rule constant c must be > 0 and finite, got {c}")
+    return c
+
+
 class RuleController(Controller):
     """The interpretable rule with constant ``c``."""
 
     def __init__(self, params: ModelParams, c: float = 9.0, memory: int = 0):
         super().__init__(params, memory)
-        if not c > 0:
-            raise ValueError(f"rule constant c must be > 0, got {c}")
+        check_rule_constant(c)
         self.c = c
         self.name = f"rule:{c:g}"
 

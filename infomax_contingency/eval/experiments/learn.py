@@ -25,7 +25,8 @@ class LearnConfig:
         seeds: one run per method and seed.
         evaluate_every: the learned policy is scored every this many vocalizations.
         evaluate_growth: and only once the vocalizations grew by this fraction (0: off).
-        target: the score a run should reach (0 = never vocalize, 1 = optimal).
+        target: the score a run should reach (0 = never vocalize, 1 = optimal), in
+            (0, 1]: no policy scores above the optimum, and never vocalizing reaches 0.
     """
 
     params_name: str = "paper"
@@ -101,6 +102,9 @@ def experiment_learn(config: LearnConfig | None = None) -> dict:
     params = ModelParams.load(config.params_name).for_table()  # learns the tables' policy
     if config.horizon < 2:
         raise ValueError(f"learning horizon must be >= 2 steps, got {config.horizon}")
+    if not 0 < config.target <= 1:  # also NaN
+        raise ValueError(f"--target must be a score in (0, 1], got {config.target}: 1 is the"
+                         " optimal policy's, which none exceeds; never vocalizing scores 0")
     methods = [parse_method(text, config.budget) for text in config.methods]
     if config.evaluate_every < 1 or min(budget for _, _, budget in methods) < 1:
         raise ValueError("the budget and --evaluate-every must be >= 1 vocalization")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from infomax_contingency.core import model
-from infomax_contingency.core.controllers import rule_decisions
+from infomax_contingency.core.controllers import check_rule_constant, rule_decisions
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import EPISODIC
 from infomax_contingency.core.scoring import (
@@ -161,6 +161,7 @@ def experiment_rule(config: RuleConfig | None = None, cache_dir: Path | None = N
     params = ModelParams.load(config.params_name).for_table()  # the tables' model: one K2
     if not 1 <= config.first_step <= config.last_step < config.horizon:
         raise ValueError(f"need 1 <= first step <= last step < T = {config.horizon}")
+    check_rule_constant(config.c)  # as rule:C is checked (nan and -1 printed results)
     table, path = obtain_table(params, EPISODIC, config.horizon, 0, cache_dir)
     data = rule_statistics(params, config, table_actions(table))
     measures = {
