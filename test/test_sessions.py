@@ -130,6 +130,20 @@ def test_analyze_writes_over_nothing_but_a_regular_file(tmp_path: Path, capsys) 
     assert "name one file" in capsys.readouterr().err and not same.exists()
 
 
+def test_analyze_says_a_recording_its_metadata_does_not_list_was_not_read(
+        tmp_path: Path, capsys) -> None:
+    """Only the files metadata.yaml lists are read: an added recording is named, once."""
+    bag = tmp_path / "bag"
+    shutil.copytree(SESSION, bag)
+    shutil.copy(bag / "session_demo.mcap", bag / "later.mcap")
+    assert main(["analyze", str(bag)]) == 1  # the short session's shortcomings, as before
+    assert capsys.readouterr().err == (
+        f"warning: the session {bag} also holds later.mcap, which its metadata.yaml does not"
+        " list: not read (another recording? give each its own directory)\n")
+    assert main(["analyze", str(SESSION)]) == 1
+    assert capsys.readouterr().err == ""
+
+
 def test_analyze_draws_the_figure(tmp_path: Path) -> None:
     figure = tmp_path / "fig4.png"
     main(["analyze", str(SESSION), "--plot", str(figure)])
