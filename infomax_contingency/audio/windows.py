@@ -19,8 +19,9 @@ what comes out. Energies are dB (:mod:`infomax_contingency.audio.energy`); times
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Hashable, Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -28,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from infomax_contingency.audio.capture import MicrophoneStream
-from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError
+from infomax_contingency.audio.common import PROCESSING_RATE_HZ, AudioError, as_mono
 from infomax_contingency.audio.devices import LogFunction, default_log
 from infomax_contingency.audio.energy import (
     WindowAssembler,
@@ -40,6 +41,7 @@ from infomax_contingency.audio.energy import (
 )
 from infomax_contingency.audio.threshold import calibration_window_count
 from infomax_contingency.audio.wav import WavReader, to_mono
+from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S, WriterFollower, Writing
 from infomax_contingency.core.selfsound import ChunkClock
 
 
@@ -128,60 +130,81 @@ class WindowSource:
 
 
 class TopicWindows(WindowSource):
-    """Chunks of mono samples (the ``audio`` topic) windowed as they come.
+    """Chunks of mono samples (the ``audio`` topic) windowed as they come, from one writer.
 
-    A chunk found missing (a gap in the publication sequence numbers) drops the
-    incomplete window: the next window starts with the next chunk. Each window gets its
-    time range from the chunks' publication times
+    Only the chunks of one writer are windowed: the first writer whose chunk was taken,
+    told apart from any other by :class:`~infomax_contingency.core.flowcontrol.WriterFollower`
+    (the writer's name where the middleware gives it, else its DDS numbers); another
+    writer's chunks are counted (:attr:`foreign_chunks`) and ignored. A chunk found missing
+    (the followed writer's numbers skip some) drops the incomplete window: the next window
+    starts with the next chunk, its ``gap_s`` the audio missed. A writer that replaces the
+    followed one after ``switch_s`` of its silence (a restarted room, numbering from 1
+    again) is such a gap too, of unknown length (``gap_s`` infinite). A chunk refused for
+    its samples changes nothing: neither the windows nor the writers' numbers. Each window
+    gets its time range from the chunks' publication times
     (:class:`~infomax_contingency.core.selfsound.ChunkClock`), when they are given.
 
     Args:
         rate_hz: sample rate of the chunks, Hz.
         window_s: window length, seconds.
         samples: keep each window's samples (a bit source that needs them).
+        switch_s: seconds of the followed writer's silence (between publication times)
+            after which another writer is followed.
     """
 
-    def __init__(self, rate_hz: int, window_s: float, samples: bool = False) -> None:
+    def __init__(self, rate_hz: int, window_s: float, samples: bool = False,
+                 switch_s: float = SOURCE_TIMEOUT_S) -> None:  # fmt: skip
         self.rate_hz = rate_hz
         self.samples = samples
         self._assembler = WindowAssembler(rate_hz, window_s)
         self._clock = ChunkClock(rate_hz)
         self._windows_since_gap = 0
-        self._last_sequence: int | None = None
+        self.writers = WriterFollower(switch_s)
+        """Which writer's chunks are windowed."""
         self._ready: list[SourceWindow] = []
         self.dropped_chunks = 0
-        """Chunks found missing."""
+        """Chunks of the followed writer found missing."""
         self._lost_s = 0.0  # audio missed before the next window (its ``gap_s``)
         self.bad_chunks = 0
         """Chunks of bad samples, ignored."""
+        self.foreign_chunks = 0
+        """Chunks of another writer than the one followed, ignored."""
 
     def feed(self, chunk: NDArray[np.float32], sequence: int | None = None,
-             published_ns: int | None = None) -> int:
-        """Add one chunk (``sequence``: its publication number, if known); chunks missed before.
+             published_ns: int | None = None, writer: Hashable | None = None,
+             alone: Callable[[], bool] = lambda: True) -> Writing:  # fmt: skip
+        """Add one chunk numbered ``sequence`` by its ``writer`` (DDS; None: not given).
 
-        ``published_ns``: when the chunk was published (ns; its windows' time ranges).
+        ``published_ns``: when the chunk was published (ns; its windows' time ranges, and
+        the clock of the writers' silence). ``alone()``: True if the topic has one
+        publisher (asked only when the numbers skip some:
+        :meth:`~infomax_contingency.core.flowcontrol.WriterFollower.judge`). Returns what
+        the chunk was: the followed writer's (:attr:`WriterFollower.missed` of its chunks
+        lost before it), a new writer's after the followed one fell silent, or another
+        writer's (ignored).
 
         Raises:
             AudioError: a chunk of bad samples (it is ignored; nothing else changes).
         """
-        missed = 0
-        if sequence is not None and 0 < sequence < 2**63:
-            if self._last_sequence is not None and sequence > self._last_sequence + 1:
-                missed = sequence - self._last_sequence - 1
-                self.dropped_chunks += missed
-                self._assembler.reset()
-                self._clock.reset()
-                self._windows_since_gap = 0
-                self._lost_s = max(missed * len(chunk), 1) / self.rate_hz  # chunks as this one
-            self._last_sequence = sequence
         try:
-            windows = self._assembler.push_windows(chunk)
+            samples = as_mono(chunk, "chunk")
         except AudioError:
             self.bad_chunks += 1
             raise
+        now_s = time.time() if published_ns is None else published_ns / 1e9
+        writing = self.writers.judge(sequence, now_s, writer, alone)
+        if writing is Writing.FOREIGN:
+            self.foreign_chunks += 1
+            return writing
+        if writing is Writing.SWITCHED:
+            self._gap(math.inf)
+        elif missed := self.writers.missed:
+            self.dropped_chunks += missed
+            self._gap(max(missed * len(samples), 1) / self.rate_hz)  # chunks as this one
+        windows = self._assembler.push_windows(samples)
         energies = frame_energies_db(windows)
         if published_ns is not None:
-            self._clock.add(len(chunk), published_ns)
+            self._clock.add(len(samples), published_ns)
         n = self._assembler.samples_per_window
         for e, w in zip(energies, windows, strict=True):
             first = self._windows_since_gap * n
@@ -190,7 +213,14 @@ class TopicWindows(WindowSource):
             self._ready.append(SourceWindow(float(e), w if self.samples else None, span_ns=span,
                                             gap_s=self._lost_s))  # fmt: skip
             self._lost_s = 0.0
-        return missed
+        return writing
+
+    def _gap(self, lost_s: float) -> None:
+        """Audio was lost (``lost_s`` seconds, inf: unknown): the next window starts anew."""
+        self._assembler.reset()
+        self._clock.reset()
+        self._windows_since_gap = 0
+        self._lost_s = lost_s
 
     def take(self) -> list[SourceWindow]:
         ready, self._ready = self._ready, []
@@ -200,7 +230,9 @@ class TopicWindows(WindowSource):
         return f"the 'audio' topic at {self.rate_hz} Hz"
 
     def status(self) -> dict[str, Any]:
-        return {"dropped_chunks": self.dropped_chunks, "bad_chunks": self.bad_chunks}
+        return {"dropped_chunks": self.dropped_chunks, "bad_chunks": self.bad_chunks,
+                "foreign_chunks": self.foreign_chunks,
+                "audio_writer_changes": self.writers.switches}  # fmt: skip
 
 
 class MicrophoneWindows(WindowSource):

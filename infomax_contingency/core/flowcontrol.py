@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any
@@ -42,15 +43,33 @@ UNNUMBERED = 2**63
 """DDS numbers at or above this mean "no number" (rmw_cyclonedds gives UINT64_MAX)."""
 
 
+class Writing(Enum):
+    """What :meth:`WriterFollower.judge` made of a message."""
+
+    FOLLOWED = "followed"
+    """From the writer followed (the first writer's first message too); messages of it lost
+    right before are in :attr:`WriterFollower.missed`."""
+    SWITCHED = "switched"
+    """From another writer, followed from now on: the one followed had been silent for
+    ``switch_s`` (restarted?). What it sent in between is unknown."""
+    FOREIGN = "foreign"
+    """From another writer while the one followed speaks: refused."""
+
+
 class WriterFollower:
     """Whether a message of a topic without identity comes from the writer followed.
 
     DDS numbers each writer's messages 1, 2, 3, ... (``publication_sequence_number``).
-    The writer followed numbers its next message above its last; a message numbered at
-    or below that comes from another writer (``ros2 topic pub`` numbers from 1) and is
-    refused. When nothing from the followed writer came for ``switch_s`` while others
-    did (it was restarted: it numbers from 1 again), the next message's writer is
-    followed. A message without a number (0, None: the middleware gives none) is taken.
+    Where the middleware also names the writer of each message (``publisher_gid``: rclpy
+    from 9.1 on, not Jazzy's 7.1), :meth:`judge` tells writers apart by that name. Else
+    by the numbers: the writer followed numbers its next message above its last; a
+    message numbered at or below that comes from another writer (``ros2 topic pub``
+    numbers from 1) and is refused. A number that skips some is the followed writer's,
+    its messages in between lost, when the topic has no other publisher (``alone``);
+    with another one it may be that one's, and is refused. When nothing from the
+    followed writer came for ``switch_s`` while others did (it was restarted: it numbers
+    from 1 again), the next message's writer is followed. A message without a number
+    (0, None: the middleware gives none) and without a writer's name is taken.
     """
 
     def __init__(self, switch_s: float) -> None:
@@ -59,19 +78,58 @@ class WriterFollower:
         self.switch_s = switch_s
         self.last: int | None = None
         """The number of the followed writer's last message."""
+        self.writer: Hashable | None = None
+        """The followed writer's name, where the middleware gives names."""
         self.last_taken_s = -math.inf
         self.refused = 0
         """Messages refused as another writer's."""
+        self.switches = 0
+        """Times another writer was followed after the followed one fell silent."""
+        self.missed = 0
+        """Messages of the followed writer lost right before the last one judged."""
+        self.silent_s = 0.0
+        """How long the writer followed before the last switch had been silent, seconds."""
 
     def take(self, sequence: int | None, now: float) -> bool:
         """True if the message numbered ``sequence``, arriving at ``now`` (s), is taken."""
-        if not sequence or sequence >= UNNUMBERED:
-            return True
-        if self.last is None or sequence > self.last or now - self.last_taken_s >= self.switch_s:
-            self.last, self.last_taken_s = sequence, now
-            return True
+        return self.judge(sequence, now) is not Writing.FOREIGN
+
+    def judge(self, sequence: int | None, now: float, writer: Hashable | None = None,
+              alone: Callable[[], bool] = lambda: True) -> Writing:  # fmt: skip
+        """Judge a message numbered ``sequence`` by ``writer`` (None: unnamed) at ``now`` (s).
+
+        ``alone()``: True if the topic has no publisher but the followed writer (asked only
+        when the numbers skip some).
+        """
+        self.missed = 0
+        numbered = bool(sequence) and sequence < UNNUMBERED
+        if self.last_taken_s == -math.inf:
+            same = True  # the first writer
+        elif writer is not None and self.writer is not None:
+            same = writer == self.writer
+        elif not numbered:
+            return Writing.FOLLOWED  # nothing to tell writers apart by
+        elif self.last is None:
+            same = True
+        else:
+            same = sequence == self.last + 1 or (sequence > self.last + 1 and alone())
+        if same:
+            if numbered and self.last is not None:
+                self.missed = max(0, sequence - self.last - 1)
+            self._follow(sequence if numbered else None, writer, now)
+            return Writing.FOLLOWED
+        if now - self.last_taken_s >= self.switch_s:
+            self.silent_s, self.last = now - self.last_taken_s, None
+            self._follow(sequence if numbered else None, writer, now)
+            self.switches += 1
+            return Writing.SWITCHED
         self.refused += 1
-        return False
+        return Writing.FOREIGN
+
+    def _follow(self, sequence: int | None, writer: Hashable | None, now: float) -> None:
+        if sequence is not None:
+            self.last = sequence if self.last is None else max(sequence, self.last)
+        self.writer, self.last_taken_s = writer, now
 
 
 class Listening(Enum):

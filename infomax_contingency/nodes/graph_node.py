@@ -17,7 +17,8 @@ the node logs once (WARN) the topic and how long it has been silent, its diagnos
 WARN with ``TOPIC_silent_s`` among the values, and an INFO line says when it is back.
 
 Intruders: a node that listens to a topic with one rightful publisher (``sound`` and
-``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node) watches
+``sound_step``: mic_node; ``vocalize`` and ``vocalize_step``: controller_node; ``audio``:
+a driver or the fake room, for mic_node reading it) watches
 the publishers on it (:meth:`GraphNode.extra_publishers`) and reports a second one by
 name, in a throttled WARN and an ERROR diagnostic while it lasts.
 

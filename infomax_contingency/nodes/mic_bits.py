@@ -13,6 +13,7 @@ decisions on the bits before them are in (:meth:`BitSourceControls.decidable`).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -216,7 +217,9 @@ class BitSourceControls:
     def gap_before(self, window: SourceWindow) -> bool:
         """True if windows gave no step or audio was lost right before ``window`` (a bit)."""
         if window.gap_s > 0 and self.gap.bits:
-            self._log_gap(f"were lost ({window.gap_s:.2f} s of audio)")
+            lost = ("audio of unknown length: a new writer on 'audio'" if math.isinf(window.gap_s)
+                    else f"{window.gap_s:.2f} s of audio")  # fmt: skip
+            self._log_gap(f"were lost ({lost})")
         gap, self._gap_next = self._gap_next or window.gap_s > 0, False
         return gap
 

@@ -22,6 +22,9 @@ is connected, plus ``start_delay_s`` for the rest of the graph to connect; windo
 ``audio`` topic that arrive meanwhile wait, none is lost. ``max_windows > 0`` stops the
 node (exit status 0) after that many bits, once the subscribers have acknowledged them.
 
+The ``audio`` topic (:mod:`~infomax_contingency.nodes.audio_topic`): only the first writer's
+chunks are windowed; another writer's are counted and ignored, a restarted one is a gap.
+
 Self-sound (:mod:`~infomax_contingency.nodes.self_sound`): a window that overlaps the
 robot's own sound declared on ``self_sound`` is published withheld (as are bits after a gap:
 ``GapWithholding``); while it has a publisher, windows wait ``self_sound_hold_s`` past their end.
@@ -40,22 +43,21 @@ import sys
 import time
 from typing import Any
 
-import numpy as np
 from rclpy.duration import Duration
-from std_msgs.msg import Bool, Float32, Float32MultiArray, Int64MultiArray
+from std_msgs.msg import Bool, Float32, Int64MultiArray
 from std_srvs.srv import Trigger
 
 from infomax_contingency.audio.bitsources.base import OUT_OF_RANGE, UNSEPARATED
-from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.contracts import AudioContract
 from infomax_contingency.audio.devices import DISCONNECTED
 from infomax_contingency.audio.windows import MicrophoneWindows, SourceWindow, TopicWindows
 from infomax_contingency.core.flowcontrol import Listening, StepOutbox
 from infomax_contingency.core.stepclock import LockstepPacer
 from infomax_contingency.nodes import mic_config
+from infomax_contingency.nodes.audio_topic import AudioTopicInput
 from infomax_contingency.nodes.graph_node import ERROR, OK, RELEASED_WINDOW, WARN, GraphNode
 from infomax_contingency.nodes.mic_bits import BitSourceControls
-from infomax_contingency.nodes.qos import AUDIO_QOS, STEP_READER_QOS, STREAM_QOS
+from infomax_contingency.nodes.qos import STEP_READER_QOS, STREAM_QOS
 from infomax_contingency.nodes.runtime import run_node
 from infomax_contingency.nodes.self_sound import SelfSoundInput
 from infomax_contingency.nodes.step_topics import (
@@ -127,13 +129,7 @@ class MicNode(GraphNode):
         self.self_sound = SelfSoundInput(self, self.config.self_sound_hold_s,
                                          self.config.window_s, self._release)  # fmt: skip
         if isinstance(self.source, TopicWindows):
-            self.create_subscription(Float32MultiArray, "audio", self._on_audio, AUDIO_QOS)
-            self.wait_visibly(
-                "audio",
-                f"std_msgs/Float32MultiArray, mono samples at {self.source.rate_hz} Hz: start an"
-                " audio driver or fake_audio_node (launch use_fake_room:=true), or set source"
-                " to wav or sounddevice",
-            )
+            AudioTopicInput(self, self.source, self.contract, self._on_audio_windows)
         self.create_service(Trigger, "~/recalibrate", self.controls.on_recalibrate)
         self.controls.activate(self.stream_id)
         self._pace_timer = None
@@ -210,28 +206,7 @@ class MicNode(GraphNode):
         if self.config.exit_at_end:
             self._finish_publishing()
 
-    def _on_audio(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
-        self.count_arrival("audio")
-        if 0 < int(info.get("source_timestamp", 0)) < self.started_ns:
-            self.stale_messages += 1  # published before this node started
-            return
-        sent_s = self.sent_s(int(info.get("source_timestamp", 0)), self.contract.clock())
-        for warning in self.contract.check(msg.data, msg.layout.dim, sent_s):
-            self.get_logger().warning(warning)
-        sequence = info.get("publication_sequence_number")
-        try:
-            missed = self.source.feed(
-                np.frombuffer(msg.data, dtype=np.float32),
-                sequence if isinstance(sequence, int) else None,
-                int(info.get("source_timestamp", 0)) or self.get_clock().now().nanoseconds,
-            )
-        except AudioError as error:
-            self.losses.note(self.now_s())
-            self.log_throttled("bad chunk", "warning", f"audio chunk ignored: {error}")
-            return
-        if missed:
-            self.losses.note(self.now_s())
-            self.contract.chunks_lost()
+    def _on_audio_windows(self) -> None:
         self.controls.hold(self.source.take(), self.outbox.max_backlog)
         self._decide_held()
 
@@ -354,7 +329,7 @@ class MicNode(GraphNode):
         if self.pacer is not None:
             values["lockstep_timeouts"] = self.pacer.timeouts
         if self.intruders:
-            return ERROR, "another publisher on 'sound' or 'sound_step'", values
+            return ERROR, f"another publisher on {' and '.join(map(repr, self.intruders))}", values
         if not self.started:
             return WARN, f"waiting for {self.awaited}", values
         if values.get("state") == DISCONNECTED:
