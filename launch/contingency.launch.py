@@ -63,9 +63,11 @@ import os
 import re
 import signal
 import subprocess
+import tempfile
 import time
 
 import launch.logging
+import yaml
 from launch.actions import (
     DeclareLaunchArgument,
     EmitEvent,
@@ -173,8 +175,9 @@ class _ExitWatch:
         self.mic = None
         self.interrupted = ""
         """The reason of a shutdown the user asked for (Ctrl-C), once it came."""
-        self.restart: dict[int, str] = {}
-        """id of a node action -> the command that starts that node again by hand."""
+        self.restart: dict[int, tuple] = {}
+        """id of a node action -> how it was started: executable, namespace, parameter files
+        and the launch's own values (the command that starts it again: _restart_command)."""
 
     def on_shutdown(self, event, context: LaunchContext) -> None:
         """Remember a Ctrl-C: the last line then says the launch was interrupted."""
@@ -242,35 +245,46 @@ class _ExitWatch:
         if self.failure or self.interrupted:
             return  # the launch is stopping: every node ends
         executable = event.action.name.rsplit("-", 1)[0]
+        started = self.restart.get(id(event.action))
+        command = _restart_command(*started) if started else f"`{executable}`"
         launch.logging.get_logger("launch").error(
             f"{event.action.name} ended (status {event.returncode}) while the graph runs:"
             f" {STOPS_WORKING.get(executable, 'its part of the graph stops')}. The other nodes"
-            f" run on; restart it with `{self.restart.get(id(event.action), executable)}`, or"
-            " relaunch"
+            f" run on; restart it with {command}, or relaunch"
         )
 
 
 _WATCH = _ExitWatch()
 
 
-def _restart_command(context: LaunchContext, executable: str, namespace: str,
-                     parameters: list) -> str:  # fmt: skip
-    """The ``ros2 run`` command that starts ``executable`` again as this launch started it.
+def _restart_command(executable: str, namespace: str, files: list[str], values: dict) -> str:
+    """The ``ros2 run`` command (in backquotes) that starts ``executable`` again as launched.
 
-    The launch's own values are given for the node by name (``-p NODE:NAME:=VALUE``): a
-    plain ``-p`` loses to the parameter files' ``/**/NODE`` sections (rcl's precedence).
+    The launch's own ``values`` for the node go into a parameter file of their own, written
+    now (in the temporary directory), keyed by the node's full name and given after the
+    launch's ``files``, so they win in any namespace: ``-p NODE:NAME:=VALUE`` matches no
+    node in a namespace (rcl reads one name token before the ``:``, which rclpy compares
+    as ``/NODE``) and a plain ``-p`` loses to the files' ``/**/NODE`` sections.
     """
     words = ["ros2", "run", PACKAGE, executable, "--ros-args"]
-    if namespace.strip("/"):
-        words += ["-r", f"__ns:=/{namespace.strip('/')}"]
-    for item in parameters:
-        if isinstance(item, dict):
-            for key, value in item.items():
-                shown = str(value).lower() if isinstance(value, bool) else str(value)
-                words += ["-p", f"{executable}:{key}:={shown}"]
-        else:
-            words += ["--params-file", item.perform(context)]
-    return " ".join(words)
+    namespace = namespace.strip("/")
+    full_name = f"/{namespace}/{executable}" if namespace else f"/{executable}"
+    if namespace:
+        words += ["-r", f"__ns:=/{namespace}"]
+    for path in files:
+        words += ["--params-file", path]
+    if values:
+        text = yaml.safe_dump({full_name: {"ros__parameters": values}}, default_flow_style=False)
+        try:
+            handle, path = tempfile.mkstemp(prefix=f"{executable}_restart_", suffix=".yaml")
+            with os.fdopen(handle, "w") as out:
+                out.write(text)
+        except OSError as error:
+            shown = ", ".join(f"{key}: {value}" for key, value in values.items())
+            return (f"`{' '.join(words)} --params-file FILE`, FILE setting {shown} for"
+                    f" {full_name} (the launch could not write it: {error})")  # fmt: skip
+        words += ["--params-file", path]
+    return f"`{' '.join(words)}`"
 
 
 def _check_namespace(namespace: str) -> None:
@@ -348,8 +362,12 @@ def _graph(context: LaunchContext) -> list:
             emulate_tty=True,
             sigkill_timeout=str(NODE_STOP_DEADLINE_S),
         )
-        _WATCH.restart[id(action)] = _restart_command(context, executable, namespace_text,
-                                                      parameters)  # fmt: skip
+        _WATCH.restart[id(action)] = (
+            executable, namespace_text,
+            [item.perform(context) for item in parameters if not isinstance(item, dict)],
+            {key: value for item in parameters if isinstance(item, dict)
+             for key, value in item.items()},
+        )  # fmt: skip
         return action
 
     record = _is_true(context, "record")

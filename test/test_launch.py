@@ -349,8 +349,11 @@ def test_a_node_stopped_alone_is_named_with_what_stops_and_how_to_restart_it(
 ) -> None:
     """controller_node stopped by hand: an ERROR line, the graph runs on; mic_node's end is neutral.
 
-    The restart command gives the launch's own values for the node by name: a plain ``-p``
-    lost to the parameter files' ``/**/controller_node`` section.
+    The restart command gives the launch's own values in a parameter file keyed by the
+    node's full name: a plain ``-p`` lost to the parameter files' ``/**/controller_node``
+    section, and ``-p controller_node:NAME:=VALUE`` (printed before) matched no node in a
+    namespace, so the node restarted with the file's 3 listeners. The printed command is
+    run here and the node asked, as ``ros2 param get`` does.
     """
     graph = launch("contingency.launch.py use_fake_room:=true namespace:=robot5")
     graph.wait_for("[robot5.posture_node]: '/robot5/belief' received after")
@@ -362,9 +365,23 @@ def test_a_node_stopped_alone_is_named_with_what_stops_and_how_to_restart_it(
     restart = ("restart it with `ros2 run infomax_contingency controller_node --ros-args -r"
                " __ns:=/robot5 --params-file ")  # fmt: skip
     assert line.startswith("[ERROR]") and restart in line, line
-    assert " -p controller_node:wait_for_listeners:=4`" in line, line
     assert "while the graph runs: no decisions: " in line, line
     assert graph.process.poll() is None, "the graph runs on without it"
+    [command] = re.findall(r"`(ros2 run [^`]*)`", line)
+    values_file = Path(command.split("--params-file ")[-1])
+    assert yaml.safe_load(values_file.read_text()) == {
+        "/robot5/controller_node": {"ros__parameters": {"wait_for_listeners": 4}}}
+    with (tmp_path / "restarted.log").open("w") as log:
+        restarted = subprocess.Popen(shell(workspace, command), stdout=log,
+                                     stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        answer = ros2_once_known(
+            workspace, "param get --no-daemon /robot5/controller_node wait_for_listeners")
+        assert "Integer value is: 4" in answer, answer
+    finally:
+        os.killpg(restarted.pid, signal.SIGINT)
+        assert restarted.wait(timeout=60) == 0, (tmp_path / "restarted.log").read_text()
+        values_file.unlink()
     os.kill(int(pids["mic_node"]), signal.SIGTERM)
     assert graph.wait(120) == 0, graph.output()[-3000:]
     output = graph.output()
