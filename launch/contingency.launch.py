@@ -35,7 +35,8 @@ Arguments (``ros2 launch ... --show-args`` lists them):
 ``use_fake_room``, ``realtime`` and ``record`` take ``true`` or ``false``;
 any other value ends the launch before a node starts, naming the valid values. An argument
 of a mode not chosen (``room_seed`` or ``realtime:=false`` without ``use_fake_room:=true``,
-``record_dir`` without ``record:=true``) is ignored, with a WARNING line naming it.
+``record_dir`` without ``record:=true``) is ignored, with a WARNING line naming it; so is
+an argument this file does not declare (``fake_room:=true``), with the closest one it does.
 
 A node that exits with an error ends the whole launch with a final line naming it; a
 Ctrl-C ends it with ``launch interrupted (ctrl-c (SIGINT)): ...``. The nodes start with
@@ -58,6 +59,7 @@ ERROR line names it, what stops working without it, and the command that restart
 ``bringup`` runs the same graph in one process.
 """
 
+import difflib
 import functools
 import os
 import re
@@ -320,6 +322,44 @@ def _arguments_of_other_modes(context: LaunchContext, fake_room: bool, record: b
             for argument in out]
 
 
+NOT_OURS = ("launch-prefix", "launch-prefix-filter", "use_sim_time")
+"""Launch arguments this file declares not but knows: ``ros2 launch``'s ``--launch-prefix``
+and ``--launch-prefix-filter`` come as these; ``use_sim_time:=true`` is refused apart."""
+
+ARGUMENTS_CHECKED = "arguments_checked"
+"""A launch configuration that a launch file including this one sets to ``true`` when it
+checked the command line's arguments against its own (multi_robot.launch.py)."""
+
+
+def undeclared_arguments(context: LaunchContext, declared: list[str], launch_file: str
+                         ) -> list[str]:  # fmt: skip
+    """One line per ``NAME:=VALUE`` of the command line that ``launch_file`` does not declare.
+
+    ``ros2 launch`` passes any argument on, and an argument no one declares is ignored
+    without a word (``fake_room:=true`` for ``use_fake_room:=true``); the line names it and
+    the closest of the ``declared`` names.
+    """
+    lines = []
+    for text in context.argv:
+        name, _, value = text.partition(":=")
+        if name in declared or name in NOT_OURS:
+            continue
+        close = difflib.get_close_matches(name, declared, n=1, cutoff=0.5)
+        hint = f"did you mean {close[0]}:={value}? " if close else ""
+        lines.append(f"{name}:={value} is ignored: {launch_file} has no argument {name!r}"
+                     f" ({hint}--show-args lists them)")  # fmt: skip
+    return lines
+
+
+def _ignored_arguments(context: LaunchContext, fake_room: bool, record: bool) -> list[str]:
+    """One line per argument given that is ignored: of another mode, or not declared here."""
+    lines = _arguments_of_other_modes(context, fake_room, record)
+    if LaunchConfiguration(ARGUMENTS_CHECKED, default="").perform(context) != "true":
+        declared = [argument.name for argument in launch_arguments(FindPackageShare(PACKAGE))]
+        lines += undeclared_arguments(context, declared, "contingency.launch.py")
+    return lines
+
+
 def _graph(context: LaunchContext) -> list:
     """The nodes, chosen by the launch arguments (evaluated once the arguments are known)."""
     params_file = LaunchConfiguration("params_file")
@@ -371,7 +411,7 @@ def _graph(context: LaunchContext) -> list:
         return action
 
     record = _is_true(context, "record")
-    for line in _arguments_of_other_modes(context, fake_room, record):
+    for line in _ignored_arguments(context, fake_room, record):
         launch.logging.get_logger("launch").warning(line)
     # Recording: the recorder is a third listener of the bits (controller, belief,
     # recorder) and the room's truth listener, so the first step is not sent before it.

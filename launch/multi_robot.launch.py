@@ -6,11 +6,16 @@ starts ``contingency.launch.py`` once per robot with ``namespace:=robotK``,
 ``use_fake_room:=true`` and ``room_seed:=K`` (K = 1 .. robots): the graphs share no topic
 (``/robot1/belief``, ``/robot2/belief``, ...) and no service (``/robot2/belief_node/reset``);
 only ``/diagnostics`` is common, each status named by the node's full name. ``realtime``,
-``log_level``, ``params_file`` and ``fake_room_file`` are passed to every robot.
+``log_level``, ``params_file`` and ``fake_room_file`` are passed to every robot. An
+argument this file does not declare is named in a WARNING line (with the closest it does).
 """
 
+import launch.logging
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
 from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch.launch_description_sources.python_launch_file_utilities import (
+    load_python_launch_file_as_module,
+)
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.substitutions import FindPackageShare
 
@@ -29,12 +34,18 @@ def _robots(context: LaunchContext) -> list:
     one_robot = PathJoinSubstitution(
         [FindPackageShare(PACKAGE), "launch", "contingency.launch.py"]
     )
+    # An argument this file does not declare is named once here, not by every robot's file.
+    robot_file = load_python_launch_file_as_module(one_robot.perform(context))
+    for line in robot_file.undeclared_arguments(context, [*PASSED_ON, "robots"],
+                                                "multi_robot.launch.py"):  # fmt: skip
+        launch.logging.get_logger("launch").warning(line)
     includes = []
     for index in range(1, int(text) + 1):
         arguments = {
             "namespace": f"robot{index}",
             "use_fake_room": "true",
             "room_seed": str(index),
+            robot_file.ARGUMENTS_CHECKED: "true",
         }
         for name in PASSED_ON:
             arguments[name] = LaunchConfiguration(name).perform(context)

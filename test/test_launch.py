@@ -243,7 +243,7 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
 ) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**/mic_node:\n  ros__parameters:\n    window_s: 0.25\n")
-    graph = launch(f"contingency.launch.py params_file:={bad} room_seed:=7")
+    graph = launch(f"contingency.launch.py params_file:={bad} room_seed:=7 fake_room:=true")
     missing = launch("contingency.launch.py params_file:=/nonexistent.yaml")  # at once
     dashed = launch("contingency.launch.py namespace:=robot-1")
     simulated = launch("contingency.launch.py use_sim_time:=true")  # not declared: was ignored
@@ -253,6 +253,10 @@ def test_a_bad_parameter_file_ends_the_launch_with_a_clear_line(
     lines = graph.output().strip().splitlines()
     assert "window_s" in graph.output() and "Traceback" not in graph.output()
     assert "room_seed:=7 is ignored: it is for use_fake_room:=true" in graph.output()
+    # an argument no one declares was ignored without a word: named, with the closest one
+    assert ("[WARNING] [launch]: fake_room:=true is ignored: contingency.launch.py has no"
+            " argument 'fake_room' (did you mean use_fake_room:=true? --show-args lists them)"
+            in graph.output()), graph.output()[-2000:]
     assert lines[-1].endswith(
         "launch stopped: mic_node-1 exited with status 2 (its error is above)"
     )
@@ -527,6 +531,10 @@ def each_robot_has_its_own_topics_and_a_lockstep_room(
             assert time.monotonic() < deadline, publishers()
             time.sleep(0.1)  # names come after the endpoints; the deadline bounds it
         assert publishers() == [(f"/{robot}", "mic_node")], publishers()
+    # an argument multi_robot.launch.py does not declare: named once, by it, not per robot
+    ignored = [line for line in graph.output().splitlines() if "is ignored" in line]
+    assert ignored == ["[WARNING] [launch]: robot:=3 is ignored: multi_robot.launch.py has no"
+                       " argument 'robot' (did you mean robots:=3? --show-args lists them)"]
 
 
 def robot2_alone_in_process(params: Path, fake_room: Path, steps: int) -> tuple[list, list]:
@@ -574,7 +582,7 @@ def test_two_robots_in_namespaces_have_their_own_topics_and_do_not_cross_talk(
     beside = record_robot2(
         launch,
         f"multi_robot.launch.py robots:=2 realtime:=false params_file:={params}"
-        f" fake_room_file:={fake_room}",
+        f" fake_room_file:={fake_room} robot:=3",
         steps,
         each_robot_has_its_own_topics_and_a_lockstep_room,
     )
