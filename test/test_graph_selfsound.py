@@ -107,6 +107,32 @@ def test_bad_self_sound_ranges_get_a_clear_diagnostic() -> None:
         assert values["self_sound_last_problem"] == mic.self_sound.gate.problems[3]
 
 
+def test_each_kind_of_self_sound_problem_is_said_whatever_came_just_before(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """A long range, then refused ones: each kind its own WARN line within the 5 s throttle.
+
+    One throttle for every kind had kept the refused ranges out of the log after the long
+    one; a flood of one kind is still one line per period.
+    """
+    with nodes_on_their_own_executors() as start:
+        mic, probe, executor = start(MicNode, source="topic", **FIXED_THRESHOLD)
+        declare = probe.talk(SELF_SOUND, Int64MultiArray)
+        executor.connected(declare)
+        now = mic.get_clock().now().nanoseconds
+        declare.publish(self_sound_message(now, now + 40 * NS_PER_S))  # long: applied, said
+        for _ in range(3):  # reversed: refused, said once
+            declare.publish(self_sound_message(now, now - NS_PER_S))
+        declare.publish(self_sound_message(12_345 * NS_PER_S, 12_346 * NS_PER_S))  # a clock's
+        gate = mic.self_sound.gate
+        executor.run_until(lambda: gate.refused + gate.declared == 5, "five declarations")
+        err = capfd.readouterr().err
+        assert err.count("declares 40.0 s of the robot's own sound") == 1, err
+        assert err.count("0 < start_ns <= end_ns") == 1, err
+        assert err.count("stamped on another clock") == 1, err
+        assert (gate.long, gate.refused) == (1, 4)
+
+
 def test_posture_node_declares_its_moves() -> None:
     """Each move of the head is the robot's own sound for ``move_duration_s``."""
     with nodes_on_their_own_executors() as start:

@@ -156,6 +156,19 @@ def test_a_long_range_is_applied_and_said() -> None:
     assert describe(gate)["self_sound_long"] == 1
 
 
+def test_a_long_range_that_is_also_late_is_said_and_counted_as_both() -> None:
+    """A 40 s range arriving after a window it overlaps was reported as late only."""
+    gate: SelfSoundGate[int] = SelfSoundGate(hold_s=0.1)
+    gate.push(NOW, NOW + NS_PER_S, 0)
+    assert gate.release(NOW + 2 * NS_PER_S, holding=True) == [(0, False)]
+    verdict = gate.declare(NOW + NS_PER_S // 2, NOW + 40 * NS_PER_S, NOW + 2 * NS_PER_S)
+    assert (gate.long, gate.late) == (1, 1)
+    assert verdict.accepted and verdict.late_windows == 1
+    assert [kind for kind, _ in verdict.problems] == ["long", "late"]
+    assert all("\n" not in line for _, line in verdict.problems)
+    assert describe(gate)["self_sound_long"] == 1 and len(gate.problems) == 2
+
+
 def test_gate_without_declarers_releases_at_once() -> None:
     gate: SelfSoundGate[str] = SelfSoundGate(hold_s=5.0)
     gate.push(NOW, NOW + NS_PER_S, "a")

@@ -81,14 +81,21 @@ class Verdict:
 
     Attributes:
         accepted: the range applies to the windows it overlaps that are not out yet.
-        problem: empty, or one line saying what is wrong (refused) or late (accepted).
+        problems: ``(kind, line)`` for each thing wrong with it, one line each: refused
+            (kind ``malformed``, ``reversed``, ``too long`` or ``other clock``), or accepted
+            but ``long`` (over :data:`LONG_RANGE_S`) or ``late`` (or both).
         late_windows: windows already published that the range overlaps (taken as
             evidence: they cannot be withheld any more).
     """
 
     accepted: bool
-    problem: str = ""
+    problems: tuple[tuple[str, str], ...] = ()
     late_windows: int = 0
+
+    @property
+    def problem(self) -> str:
+        """The problems' lines in one line ("" when none)."""
+        return "; ".join(line for _, line in self.problems)
 
 
 @dataclasses.dataclass
@@ -150,62 +157,67 @@ class SelfSoundGate(Generic[ItemT]):
     def declare_fields(self, fields: Sequence[int], now_ns: int) -> Verdict:
         """A ``self_sound`` message's fields (``[start_ns, end_ns]``), received at ``now_ns``."""
         if len(fields) != 2:
-            return self._refuse(f"'self_sound' message refused: {list(fields)} (expected"
-                                " [start_ns, end_ns] on the ROS clock)")  # fmt: skip
+            return self._refuse("malformed", f"'self_sound' message refused: {list(fields)}"
+                                " (expected [start_ns, end_ns] on the ROS clock)")  # fmt: skip
         return self.declare(int(fields[0]), int(fields[1]), now_ns)
 
-    def _refuse(self, problem: str) -> Verdict:
+    def _refuse(self, kind: str, problem: str) -> Verdict:
         self.refused += 1
         self.problems.append(problem)
-        return Verdict(False, problem)
+        return Verdict(False, ((kind, problem),))
 
     def declare(self, start_ns: int, end_ns: int, now_ns: int) -> Verdict:
-        """A node declared the robot's sound over ``[start_ns, end_ns]``, received at ``now_ns``."""
-        problem = self._check(start_ns, end_ns, now_ns)
-        if problem:
-            return self._refuse(problem)
+        """A node declared the robot's sound over ``[start_ns, end_ns]``, received at ``now_ns``.
+
+        A range both long and late is said as both (and counted as both).
+        """
+        refusal = self._check(start_ns, end_ns, now_ns)
+        if refusal:
+            return self._refuse(*refusal)
         self.declared += 1
         self._ranges.append((start_ns, end_ns))
-        late = sum(1 for ws, we in self._released if start_ns < we and ws <= end_ns)
-        if not late and end_ns - start_ns > LONG_RANGE_S * NS_PER_S:
+        problems = []
+        if end_ns - start_ns > LONG_RANGE_S * NS_PER_S:
             self.long += 1
-            self.problems.append(
+            problems.append(("long", (
                 f"self-sound [{start_ns}, {end_ns}] ns declares"
                 f" {(end_ns - start_ns) / NS_PER_S:.1f} s of the robot's own sound: every"
                 " window in it is withheld, counted by no one (if that is not the robot's"
-                " sound, a publisher on 'self_sound' is wrong)"
-            )
-            return Verdict(True, self.problems[-1])
-        if not late:
-            return Verdict(True)
-        self.late += 1
-        delay_s = (now_ns - max(start_ns, self._first_overlap_end(start_ns, end_ns))) / NS_PER_S
-        self.problems.append(
-            f"self-sound [{start_ns}, {end_ns}] ns arrived {delay_s:.3f} s after the end of a"
-            f" window it overlaps: {late} window(s) already published were counted as evidence"
-            f" (declare the sound when it starts, or raise the hold of"
-            f" {self.hold_ns / NS_PER_S:g} s)"
-        )
-        return Verdict(True, self.problems[-1], late)
+                " sound, a publisher on 'self_sound' is wrong)")))  # fmt: skip
+        late = sum(1 for ws, we in self._released if start_ns < we and ws <= end_ns)
+        if late:
+            self.late += 1
+            overlap_end = self._first_overlap_end(start_ns, end_ns)
+            delay_s = (now_ns - max(start_ns, overlap_end)) / NS_PER_S
+            problems.append(("late", (
+                f"self-sound [{start_ns}, {end_ns}] ns arrived {delay_s:.3f} s after the end of"
+                f" a window it overlaps: {late} window(s) already published were counted as"
+                f" evidence (declare the sound when it starts, or raise the hold of"
+                f" {self.hold_ns / NS_PER_S:g} s)")))  # fmt: skip
+        self.problems.extend(line for _, line in problems)
+        return Verdict(True, tuple(problems), late)
 
     def _first_overlap_end(self, start_ns: int, end_ns: int) -> int:
         return min(we for ws, we in self._released if start_ns < we and ws <= end_ns)
 
-    def _check(self, start_ns: int, end_ns: int, now_ns: int) -> str:
+    def _check(self, start_ns: int, end_ns: int, now_ns: int) -> tuple[str, str] | None:
+        """None for a range that may be applied, else ``(kind, line)`` of why it is refused."""
         if start_ns <= 0 or end_ns < start_ns:
-            return (f"self-sound range [{start_ns}, {end_ns}] ns refused: it must be"
-                    " [start_ns, end_ns] with 0 < start_ns <= end_ns")  # fmt: skip
+            return "reversed", (f"self-sound range [{start_ns}, {end_ns}] ns refused: it must"
+                                " be [start_ns, end_ns] with 0 < start_ns <= end_ns")  # fmt: skip
         if end_ns - start_ns > self.max_range_ns:
-            return (f"self-sound range [{start_ns}, {end_ns}] ns refused: it lasts"
-                    f" {(end_ns - start_ns) / NS_PER_S:g} s, more than"
-                    f" {self.max_range_ns / NS_PER_S:g} s (declare a long sound again and"
-                    " again, a few seconds ahead)")  # fmt: skip
+            return "too long", (
+                f"self-sound range [{start_ns}, {end_ns}] ns refused: it lasts"
+                f" {(end_ns - start_ns) / NS_PER_S:g} s, more than"
+                f" {self.max_range_ns / NS_PER_S:g} s (declare a long sound again and"
+                " again, a few seconds ahead)")  # fmt: skip
         if end_ns < now_ns - self.tolerance_ns or start_ns > now_ns + self.tolerance_ns:
             off_s = ((start_ns if start_ns > now_ns else end_ns) - now_ns) / NS_PER_S
-            return (f"self-sound range [{start_ns}, {end_ns}] ns refused: it lies {off_s:+.1f} s"
-                    " from this node's ROS clock: stamped on another clock? Stamp it with"
-                    " node.get_clock().now() (ROS time; sim time only if every node uses it)")
-        return ""
+            return "other clock", (
+                f"self-sound range [{start_ns}, {end_ns}] ns refused: it lies {off_s:+.1f} s"
+                " from this node's ROS clock: stamped on another clock? Stamp it with"
+                " node.get_clock().now() (ROS time; sim time only if every node uses it)")
+        return None
 
     def push(self, start_ns: int, end_ns: int, item: ItemT) -> None:
         """A window of ``[start_ns, end_ns)`` was made; it waits in order."""

@@ -2,8 +2,9 @@
 
 Any node declares the robot's own sound (speech, motors) on ``self_sound`` as a time
 range on the ROS clock (:mod:`~infomax_contingency.core.selfsound`). :class:`SelfSoundInput`
-subscribes it for a microphone node, checks every range (a refused or late one is
-counted, logged in one WARN line and kept for the diagnostics), and holds each window in
+subscribes it for a microphone node, checks every range (a refused, long or late one is
+counted, logged in one WARN line per kind of problem, each kind throttled on its own, and
+kept for the diagnostics), and holds each window in
 the gate until it is known whether a declared range overlaps it. The decision itself is
 the pure :class:`~infomax_contingency.core.selfsound.SelfSoundGate`.
 """
@@ -57,9 +58,10 @@ class SelfSoundInput:
 
     def _on_message(self, msg: Int64MultiArray, stamp: int) -> None:
         verdict = self.gate.declare_fields(msg.data, self._now_ns())
-        if verdict.problem:
+        if verdict.problems:
             self.faults.note(self.node.now_s())
-            self.node.log_throttled("self_sound", "warning", verdict.problem)
+        for kind, line in verdict.problems:  # throttled per kind: one kind hides no other
+            self.node.log_throttled(f"self_sound {kind}", "warning", line)
 
     def push(self, window: SourceWindow, energy_db: float, bit: bool, gap_before: bool) -> None:
         """A window's bit: it waits for the ranges that may overlap its time range.
