@@ -7,7 +7,9 @@ process's stderr (rcutils writes there), with pytest's ``capfd``.
 from __future__ import annotations
 
 import array
+import itertools
 from collections.abc import Callable, Iterator
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -19,6 +21,7 @@ from std_msgs.msg import Bool, Float32, Float32MultiArray, Float64, Int64MultiAr
 from std_srvs.srv import Trigger
 
 from infomax_contingency.core.steady import SteadyInputs
+from infomax_contingency.nodes import mic_bits
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.graph_node import WAITING_NOTICE_S
 from infomax_contingency.nodes.mic_node import MicNode
@@ -103,8 +106,9 @@ def test_mic_node_logs_the_threshold_in_force_at_start_up_and_when_set_live(
 
 
 def test_mic_node_logs_a_threshold_that_follows_the_noise_floor_when_it_moved(
-    graph: Callable, capfd: pytest.CaptureFixture[str]
+    graph: Callable, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.setattr(mic_bits, "ROOM_LOG_PERIOD_S", 0.0)  # here: the 1 dB rule alone
     node, probe, executor, play = _mic(
         graph, threshold_mode="noise_floor", noise_window_s=1.0, noise_percentile=0.0
     )
@@ -114,8 +118,49 @@ def test_mic_node_logs_a_threshold_that_follows_the_noise_floor_when_it_moved(
     assert _threshold_lines(capfd.readouterr().err) == [
         "noise floor -60.11 dB after 2 windows: threshold -50.11 dB (margin 10 dB)",
         "threshold in force: -30.04 dB (noise floor -40.0 dB + margin 10 dB; bit_source"
-        " energy)",
+        " energy; it follows the room: said again at most every 0 s, every value in the"
+        " diagnostics' threshold_db)",
     ]
+
+
+class _SwingingThreshold:
+    """A bit source whose threshold follows the room and swings every window (background's)."""
+
+    calibrating = False
+
+    def __init__(self) -> None:
+        self.threshold_db = -70.0
+
+    def threshold_origin(self) -> str:
+        return "room: the 2nd loudest of 8 background windows' speech-band levels"
+
+
+def test_a_threshold_that_follows_the_room_is_logged_at_most_once_a_minute() -> None:
+    """In lockstep, background's threshold (-64 .. -33 dB) had been 94 of 131 lines in 20 s.
+
+    Now a line at most every ROOM_LOG_PERIOD_S of audio and of the clock alike; every
+    value stays in the diagnostics (threshold_db), the changes not said are counted.
+    """
+    lines: list[str] = []
+    now = [0.0]
+    log = mic_bits.ThresholdLog(SimpleNamespace(info=lines.append), "background", 0.5,
+                                lambda: now[0])  # fmt: skip
+    bits = _SwingingThreshold()
+    log(bits)  # at start-up: said
+    swings = itertools.cycle([-64.0, -50.0, -33.0, -45.0])
+    for window in range(1, 4001):  # 2000 s of audio in 20 s of a lockstep replay
+        now[0] = window * 0.005
+        bits.threshold_db = next(swings)
+        log.after_window(bits, was_calibrating=False)
+    assert len(lines) == 1 and log.unsaid == 4000
+    for _ in range(240):  # then in real time: 120 s of audio and of the clock
+        now[0] += 0.5
+        bits.threshold_db = next(swings)
+        log.after_window(bits, was_calibrating=False)
+    assert len(lines) == 3, lines
+    assert lines[-1].startswith("threshold in force: ") and lines[-1].endswith(
+        "; bit_source background; it follows the room: said again at most every 60 s, every"
+        " value in the diagnostics' threshold_db)")
 
 
 def test_mic_node_logs_the_end_of_its_calibration_and_of_a_recalibration(

@@ -41,7 +41,12 @@ from infomax_contingency.nodes.step_topics import (
 )
 
 NOISE_FLOOR_LOG_STEP_DB = 1.0
-"""A threshold that follows the noise floor is logged again once it moved this much, dB."""
+"""A threshold that follows the room is logged again only once it moved this much, dB."""
+
+ROOM_LOG_PERIOD_S = 60.0
+"""A threshold that follows the room is logged again at most this often: seconds of audio
+and seconds of the clock alike (a lockstep replay runs many times faster than the audio).
+Every value is in the diagnostics (``threshold_db``)."""
 
 
 class ThresholdLog:
@@ -49,16 +54,34 @@ class ThresholdLog:
 
     mic_node calls it wherever the threshold can change: at start-up, after each window
     (the end of a calibration, an accepted refit, the noise floor), after a live set and a
-    ~/recalibrate. A threshold that follows the noise floor window by window is logged
-    again once it moved by :data:`NOISE_FLOOR_LOG_STEP_DB` (diagnostics show every value);
-    so is one that follows the room's background windows (bit source ``background``).
+    ~/recalibrate. A threshold that follows the room window by window (the noise floor;
+    the room's background windows, bit source ``background``, whose threshold swings tens
+    of dB in a lively room) is logged again only once it moved by
+    :data:`NOISE_FLOOR_LOG_STEP_DB` and at most once per :data:`ROOM_LOG_PERIOD_S` of audio
+    and of the clock; the diagnostics show every value (``threshold_db``), and
+    :attr:`unsaid` counts the changes not logged.
+
+    Args:
+        logger: where the lines go.
+        bit_source: the bit source's name, for the line.
+        window_s: the window length, seconds (the audio's time).
+        clock: monotonic seconds (the clock's time).
     """
 
-    def __init__(self, logger: Any, bit_source: str) -> None:
+    def __init__(self, logger: Any, bit_source: str, window_s: float,
+                 clock: Callable[[], float]) -> None:  # fmt: skip
         self.logger = logger
         self.bit_source = bit_source
+        self.window_s = window_s
+        self.clock = clock
+        self.period_s = ROOM_LOG_PERIOD_S
         self.logged_db: float | None = None
         """The threshold last logged, dB (set it when another line named the threshold)."""
+        self.unsaid = 0
+        """Changes of a threshold that follows the room not logged (too soon, too small)."""
+        self._audio_s = 0.0  # audio since the last line, seconds
+        self._said_at = -math.inf  # the clock at the last line
+        self._seen_db: float | None = None  # the threshold at the last call
 
     def after_window(self, bits: BitSource, was_calibrating: bool) -> None:
         """After a window: the end of a calibration, or a threshold that changed (a refit).
@@ -67,26 +90,37 @@ class ThresholdLog:
         bit itself; its end is logged with the source's ready line (the threshold and
         the clusters or floor it came from), which counts as the threshold's line.
         """
+        self._audio_s += self.window_s
         if was_calibrating and not bits.calibrating:
             self.logger.info(bits.ready_message())
-            self.logged_db = bits.threshold_db
+            self.said(bits.threshold_db)
             return
         self(bits)
 
     def __call__(self, bits: BitSource) -> None:
-        """Log ``bits``' threshold in force if it changed since the last line."""
+        """Log ``bits``' threshold in force if it changed since the last line (see above)."""
         threshold_db, last = bits.threshold_db, self.logged_db
+        changed, self._seen_db = threshold_db != self._seen_db, threshold_db
         if threshold_db is None or threshold_db == last:
             return  # no threshold (vad, calibrating: its end is logged), or the same one
         origin = bits.threshold_origin()
         follows_the_room = origin.startswith(("noise floor", "room:"))
         if last is not None and follows_the_room and (
             abs(threshold_db - last) < NOISE_FLOOR_LOG_STEP_DB
+            or min(self._audio_s, self.clock() - self._said_at) < self.period_s
         ):
+            self.unsaid += changed
             return
-        self.logged_db = threshold_db
+        self.said(threshold_db)
+        again = (f"; it follows the room: said again at most every {self.period_s:g} s, every"
+                 " value in the diagnostics' threshold_db" if follows_the_room else "")
         self.logger.info(f"threshold in force: {threshold_db:.2f} dB ({origin}; bit_source"
-                         f" {self.bit_source})")  # fmt: skip
+                         f" {self.bit_source}{again})")  # fmt: skip
+
+    def said(self, threshold_db: float | None) -> None:
+        """A line named ``threshold_db`` (dB) now: the next is measured from it."""
+        self.logged_db, self._audio_s, self._said_at = threshold_db, 0.0, self.clock()
+        self._seen_db = threshold_db
 
 
 class BitSourceControls:
@@ -100,7 +134,8 @@ class BitSourceControls:
     def __init__(self, node: GraphNode, config: mic_config.MicConfig) -> None:
         self.node = node
         self.config = config
-        self.threshold_log = ThresholdLog(node.get_logger(), config.bit_source)
+        self.threshold_log = ThresholdLog(node.get_logger(), config.bit_source, config.window_s,
+                                          lambda: node.now_s())  # fmt: skip
         self.bits: BitSource = mic_config.make_bits(config, node.get_logger().warning)
         if unread := mic_config.unread_threshold_file(node.parameters, config):
             node.get_logger().warning(unread)
@@ -201,6 +236,7 @@ class BitSourceControls:
     def values(self) -> dict[str, float]:
         """Diagnostic values: digital silence (s), windows without a step, held, decided early."""
         return {"digital_silence_s": self.silence.silent_run * self.silence.window_s,
+                "threshold_changes_unlogged": self.threshold_log.unsaid,
                 "windows_without_step": self.windows_without_step,
                 "bits_withheld_after_gap": self.gap.withheld,
                 "windows_held": len(self.held),
@@ -239,7 +275,7 @@ class BitSourceControls:
             self.node.get_logger().warning(f"{ignored}: {self._no_audio}")
         if calibrated := self._calibrate_ahead():
             self.node.get_logger().info(calibrated)
-            self.threshold_log.logged_db = self.bits.threshold_db  # that line names it
+            self.threshold_log.said(self.bits.threshold_db)  # that line names it
         for spec in self.bits.specs():
             if spec.live:
                 self._make_live(spec.name)
