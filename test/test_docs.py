@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import difflib
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -86,6 +87,30 @@ def test_the_parameter_reference_is_what_the_nodes_declare() -> None:
     assert not diff, (
         f"docs/PARAMETERS.md is stale; regenerate it with `make params-doc`"
         f" ({parameter_reference.COMMAND}):\n{diff[:3000]}")
+
+
+SPECIAL_VALUE = re.compile(r"(?:^|[;(,] )(negative|-?\d+(?:\.\d+)?) = ")
+"""A description's special value ("-1 = no partner", "negative = never", "0 = the whole")."""
+
+
+def test_the_special_values_a_description_names_are_in_its_range() -> None:
+    """partner_arrive_s said "negative = no partner", but its range stops at -1.
+
+    ``ros2 param set /fake_audio_node partner_arrive_s -5`` was refused. Every value a
+    description names, and "negative" (any negative number), must lie in the range.
+    """
+    wrong = []
+    for line in (ROOT / "docs" / "PARAMETERS.md").read_text().splitlines():
+        cells = [cell.strip() for cell in line.strip("|").split(" | ")]
+        bounds = re.fullmatch(r"a number in \[(\S+), (\S+)\].*", cells[3]) if len(cells) == 6 \
+            else None  # fmt: skip
+        if bounds is None:
+            continue
+        low, high = float(bounds[1]), float(bounds[2])
+        for value in SPECIAL_VALUE.findall(cells[5]):
+            if not (low <= -1e9 if value == "negative" else low <= float(value) <= high):
+                wrong.append(f"{cells[0]}: {value!r} = ... outside [{low:g}, {high:g}]")
+    assert not wrong, wrong
 
 
 def test_the_readme_fits_on_a_screen() -> None:

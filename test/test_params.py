@@ -645,6 +645,16 @@ def test_code_defaults_equal_config_robot_yaml(graph: Callable, node_class: type
             assert node.get_parameter(parameter).value == value, f"{name}: {parameter}"
 
 
+def test_an_empty_list_is_named_as_given(graph: Callable) -> None:
+    """``-p joint_names:=[]`` was refused as ``= None``: rcl reads [] as a value of no type."""
+    for arguments, allowed in ((["-p", "joint_names:=[]"], "a non-empty list of strings"),
+                               (["-p", "move_duration_s:=[]"], "a number in [0, 60] s")):
+        with pytest.raises(ConfigError) as refused:
+            PostureNode(namespace="empty", cli_args=["--ros-args", *arguments])
+        name = arguments[1].split(":=")[0]
+        assert str(refused.value) == f"parameter '{name}' = [] is not allowed: {allowed}"
+
+
 def test_fake_room_partner_and_replies_are_live(graph: Callable) -> None:
     """The partner leaves and comes back, replies stop: seen on partner_present and audio."""
     node, probe, executor = graph(

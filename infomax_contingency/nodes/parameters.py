@@ -225,11 +225,11 @@ class ParameterReader:
         descriptor.name = name
         descriptor.additional_constraints = allowed
         try:
-            return coerce(self._node.declare_parameter(name, default, descriptor).value)
+            return coerce(_given(self._node.declare_parameter(name, default, descriptor).value))
         except (InvalidParameterTypeException, InvalidParameterValueException):
             pass
         loose = ParameterDescriptor(name=name, dynamic_typing=True)
-        raw = self._node.declare_parameter(name, default, loose).value
+        raw = _given(self._node.declare_parameter(name, default, loose).value)
         self._node.undeclare_parameter(name)
         value = coerce(raw)  # raises ConfigError when the value cannot be used at all
         try:
@@ -474,3 +474,12 @@ def device_parameter(node: Node, what: str) -> str:
     if isinstance(value, bool) or not isinstance(value, int | str):
         raise ConfigError(f"parameter 'device' = {value!r} is not allowed: {allowed}")
     return str(value).strip()
+
+
+def _given(value: Any) -> Any:
+    """A declared parameter's value as given (an empty list where rclpy says None).
+
+    rcl reads an empty list (``-p NAME:=[]``, ``NAME: []`` in a file) as a value of no
+    type, which rclpy hands over as None.
+    """
+    return [] if value is None else value
