@@ -116,13 +116,17 @@ def _message(chunk: np.ndarray) -> Float32MultiArray:
     return message
 
 
+def _fixed_threshold_mic(run: Callable) -> tuple:
+    """mic_node on the 'audio' topic, a fixed -40 dB threshold, started at once."""
+    return run(MicNode, source="topic", bit_source="energy", threshold_mode="fixed",
+               threshold_db=-40.0, wait_for_listeners=1, start_delay_s=0.0)
+
+
 def test_mic_windows_the_first_writer_only_and_names_the_second(
     run: Callable, capfd: pytest.CaptureFixture[str]
 ) -> None:
     """The room and a `ros2 topic pub` on `audio`: the room's windows, whole, no gap."""
-    node, probe, graph = run(MicNode, source="topic", bit_source="energy",
-                             threshold_mode="fixed", threshold_db=-40.0,
-                             wait_for_listeners=1, start_delay_s=0.0)  # fmt: skip
+    node, probe, graph = _fixed_threshold_mic(run)
     steps = probe.listen("sound_step", Int64MultiArray)
     energies = probe.listen("sound_energy", Float32)
     room = probe.talk("audio", Float32MultiArray)
@@ -162,9 +166,7 @@ def test_mic_takes_a_restarted_room_as_a_gap_and_withholds_the_bits_after_it(
     run: Callable, capfd: pytest.CaptureFixture[str]
 ) -> None:
     """A new writer numbering from 1 after the first fell silent: a gap of unknown length."""
-    node, probe, graph = run(MicNode, source="topic", bit_source="energy",
-                             threshold_mode="fixed", threshold_db=-40.0,
-                             wait_for_listeners=1, start_delay_s=0.0)  # fmt: skip
+    node, probe, graph = _fixed_threshold_mic(run)
     steps = probe.listen("sound_step", Int64MultiArray)
     room = probe.talk("audio", Float32MultiArray)
     graph.connected(room)
