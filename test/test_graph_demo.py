@@ -563,3 +563,13 @@ def test_a_recording_that_stopped_is_the_demos_failure(tmp_path: Path) -> None:
     )
     (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
     assert demo_checks.recording_failure(tmp_path, log) == ""
+
+
+def test_bringup_refuses_an_empty_record_directory(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--record ""`` ran the graph and recorded nothing, without a word; now refused."""
+    from infomax_contingency.nodes import bringup
+
+    with pytest.raises(SystemExit) as ended:  # before any node: the arguments are read first
+        bringup._parse(["bringup", "--fake-room", "--record", ""])
+    assert ended.value.code == 2
+    assert "the path is empty; name a new directory" in capsys.readouterr().err

@@ -33,6 +33,13 @@ from infomax_contingency.nodes.runtime import run_nodes
 from infomax_contingency.nodes.speaker_node import SpeakerNode
 
 
+def _bag_directory(text: str) -> str:
+    """``--record``'s directory: refused when empty (it recorded nothing, without a word)."""
+    if not text:
+        raise argparse.ArgumentTypeError("the path is empty; name a new directory")
+    return text
+
+
 def _parse(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="bringup", description="All nodes of the contingency graph in one process."
@@ -45,6 +52,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     parser.add_argument(
         "--record",
         metavar="DIR",
+        type=_bag_directory,
         help="also run recorder_node, recording the session as a rosbag2 (MCAP) bag in DIR",
     )
     ros_start = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
