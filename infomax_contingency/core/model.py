@@ -119,13 +119,25 @@ def _betaln_of_counts(alpha: float, beta: float, x: Any, y: Any) -> Any:
 
 def log_odds(params: ModelParams, p2: Any, q2: Any, p3: Any, q3: Any) -> Any:
     """Log posterior odds ``lam = log P(S=1|a) / P(S=0|a)`` (natural log), exact."""
-    b21, b22, b31, b32 = params.b21, params.b22, params.b31, params.b32
     p2, q2, p3, q3 = (np.asarray(v) for v in (p2, q2, p3, q3))
+    agent = _betaln_of_counts(params.b21, params.b22, p2, q2)
+    return _log_odds_of_agent(params, agent, 1, p2, q2, p3, q3)
+
+
+def _log_odds_of_agent(params: ModelParams, agent_betaln: Any, rates: int, p2: Any, q2: Any,
+                       p3: Any, q3: Any) -> Any:  # fmt: skip
+    """The log posterior odds given the agent bits' evidence under S=1 (MODEL.md section 2).
+
+    ``agent_betaln``: the sum, over the ``rates`` agent rates (one K2, or one per lag),
+    of ``lnB(b21 + p, b22 + q)`` of each rate's counts; ``p2``, ``q2`` are all the agent
+    bits (under S=0 they share the background's rate).
+    """
+    b21, b22, b31, b32 = params.b21, params.b22, params.b31, params.b32
     prior = math.log(params.pi) - math.log1p(-params.pi)
     return (
         prior
-        + _betaln_of_counts(b21, b22, p2, q2)
-        - betaln(b21, b22)
+        + agent_betaln
+        - rates * betaln(b21, b22)
         + _betaln_of_counts(b31, b32, p3, q3)
         - _betaln_of_counts(b31, b32, p2 + p3, q2 + q3)
     )
@@ -167,12 +179,9 @@ def per_lag_log_odds(params: ModelParams, lags: tuple[int, ...], p2: int, q2: in
     each lag's bits are Bernoulli of its own rate, Beta(b21, b22) a priori, and the
     background's of K3; under S=0 every bit is Bernoulli of one rate, Beta(b31, b32).
     """
-    b21, b22, b31, b32 = params.b21, params.b22, params.b31, params.b32
     counts = np.asarray(lags, dtype=float).reshape(-1, 2)
-    agent = float(np.sum(betaln(b21 + counts[:, 0], b22 + counts[:, 1]) - betaln(b21, b22)))
-    prior = math.log(params.pi) - math.log1p(-params.pi)
-    return (prior + agent + float(betaln(b31 + p3, b32 + q3))
-            - float(betaln(b31 + p2 + p3, b32 + q2 + q3)))  # fmt: skip
+    agent = np.sum(betaln(params.b21 + counts[:, 0], params.b22 + counts[:, 1]))
+    return float(_log_odds_of_agent(params, agent, len(counts), p2, q2, p3, q3))
 
 
 def _beta_mean_of_counts(alpha: float, beta: float, x: Any, y: Any) -> Any:
@@ -191,19 +200,23 @@ def _beta_mean_of_counts(alpha: float, beta: float, x: Any, y: Any) -> Any:
 
 
 def predictive_active(
-    params: ModelParams, period: int, p2: Any, q2: Any, p3: Any, q3: Any, b: Any = None
+    params: ModelParams, period: int, p2: Any, q2: Any, p3: Any, q3: Any, b: Any = None,
+    agent_counts: tuple[Any, Any] | None = None,
 ) -> Any:
     """P(y = 1) for the next bit if it falls in ``period`` (AGENT or BACKGROUND).
 
     ``b`` is the belief P(S=1 | counts); it is computed when not given. For the SELF
     period the bit does not change the statistic and this function is not defined.
+    ``agent_counts``: the active and inactive bits of the agent rate the bit belongs to,
+    where it is not the pooled ``p2``, ``q2`` (one K2 per lag: that lag's).
     """
     p2, q2, p3, q3 = (np.asarray(v) for v in (p2, q2, p3, q3))
     if b is None:
         b = belief(params, p2, q2, p3, q3)
     pooled = _beta_mean_of_counts(params.b31, params.b32, p2 + p3, q2 + q3)
     if period == AGENT:
-        under_s1 = _beta_mean_of_counts(params.b21, params.b22, p2, q2)
+        active, inactive = (p2, q2) if agent_counts is None else agent_counts
+        under_s1 = _beta_mean_of_counts(params.b21, params.b22, active, inactive)
     elif period == BACKGROUND:
         under_s1 = _beta_mean_of_counts(params.b31, params.b32, p3, q3)
     else:
@@ -304,13 +317,11 @@ class Statistic(NamedTuple):
     def predictive_active(self, params: ModelParams) -> float:
         """P(y = 1) of a bit counted at the timer ``z`` (an agent or background value)."""
         period = period_of(params, self.z)
-        if not (params.k2_per_lag and period == AGENT):
-            return float(predictive_active(params, period, *self.counts, b=self.belief(params)))
-        active, inactive = self.lags[2 * (self.z - params.ta1):][:2] if self.lags else (0, 0)
-        under_s1 = _beta_mean_of_counts(params.b21, params.b22, active, inactive)
-        pooled = _beta_mean_of_counts(params.b31, params.b32, self.p2 + self.p3,
-                                      self.q2 + self.q3)  # fmt: skip
-        return float(pooled + self.belief(params) * (under_s1 - pooled))
+        lag = None
+        if params.k2_per_lag and period == AGENT:  # this lag's counts
+            lag = tuple(self.lags[2 * (self.z - params.ta1):][:2]) if self.lags else (0, 0)
+        return float(predictive_active(params, period, *self.counts, b=self.belief(params),
+                                       agent_counts=lag))  # fmt: skip
 
     def variance_ratio(self, params: ModelParams) -> float | None:
         """``[Var(K2)/n2] / [Var(K3)/n3]``; None where undefined."""
@@ -419,10 +430,13 @@ class StatisticTracker:
         self.statistic = after
         return after
 
-    def _rate_of(self, z: int) -> int:
-        """What a bit at timer ``z`` is evidence of: its period, or its lag with ``k2_per_lag``."""
+    def _rate_of(self, z: int) -> tuple[int, int | None]:
+        """The rate a bit at timer ``z`` is evidence of: its period, and its lag.
+
+        The lag (the timer) only with ``k2_per_lag`` in the agent period; else None.
+        """
         period = period_of(self.params, z)
-        return -z if self.params.k2_per_lag and period == AGENT else period
+        return period, (z if self.params.k2_per_lag and period == AGENT else None)
 
     def skip_observation(self) -> Statistic:
         """The bit of this step is missing: nothing is counted (exact, see the class)."""
