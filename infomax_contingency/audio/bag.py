@@ -270,6 +270,19 @@ def _bag_files(directory: Path, info: dict[str, Any] | None) -> list[Path]:
     return files
 
 
+def unlisted_recordings(directory: Path) -> list[str]:
+    """The ``*.mcap`` files of a bag that its ``metadata.yaml`` lists not, so reads not.
+
+    A bag without ``metadata.yaml`` (cut), or whose metadata lists no file, is read from
+    all its MCAP files: none then. BagReadError as :func:`read_topics` for damaged metadata.
+    """
+    info = _bag_metadata(directory)
+    if not info or not info.get("relative_file_paths"):
+        return []
+    read = {path.resolve() for path in _bag_files(directory, info)}
+    return sorted(path.name for path in directory.glob("*.mcap") if path.resolve() not in read)
+
+
 def _listed_counts(info: dict[str, Any]) -> dict[str, int]:
     """Topic -> message count that metadata.yaml lists."""
     counts = {}

@@ -26,7 +26,6 @@ from infomax_contingency.core.stepfields import (
     valid_messages,
     window_us,
 )
-from infomax_contingency.limits import load_yaml
 
 StepT = TypeVar("StepT", StepBit, StepDecision)
 
@@ -97,7 +96,7 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
         ValueError: it holds no valid ``sound_step`` message (nothing to replay).
     """
     # Imported here: sessions need the optional rosbags; the other commands start without it.
-    from infomax_contingency.audio.bag import read_topics
+    from infomax_contingency.audio.bag import read_topics, unlisted_recordings
 
     cut: list[str] = []
 
@@ -108,7 +107,7 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
 
     topics = read_topics(directory, SESSION_TOPICS,
                          required=("/sound_step", "/vocalize_step"), warn=warn_cut)
-    for name in _unlisted_recordings(directory) if warn is not None else ():
+    for name in unlisted_recordings(directory) if warn is not None else ():
         warn(f"the session {directory} also holds {name}, which its metadata.yaml does not"
              " list: not read (another recording? give each its own directory)")
     bit_messages = valid_messages(((t, m.data) for t, m in topics["/sound_step"]), bit_of,
@@ -138,25 +137,6 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
                            later_streams=_later_streams(bit_messages, decision_messages,
                                                         rate_hz, warn),
                            k2_per_lag=_belief_model(topics["/diagnostics"], topics.namespace))
-
-
-def _unlisted_recordings(directory: Path) -> list[str]:
-    """The ``*.mcap`` files of a bag that its ``metadata.yaml`` does not list (not read).
-
-    A bag without ``metadata.yaml`` (cut), or whose metadata lists no file, is read from
-    all its MCAP files: none then.
-    """
-    from infomax_contingency.audio.bag import MAX_METADATA_BYTES, MAX_METADATA_DEPTH
-
-    if not (directory / "metadata.yaml").is_file():
-        return []
-    info = load_yaml(directory / "metadata.yaml", "metadata.yaml", MAX_METADATA_DEPTH,
-                     MAX_METADATA_BYTES)  # read_topics has read it already: it is sound
-    listed = info["rosbag2_bagfile_information"].get("relative_file_paths")
-    if not isinstance(listed, list) or not listed:
-        return []  # no file listed: every *.mcap is read
-    read = {(directory / name).resolve() for name in listed if isinstance(name, str)}
-    return sorted(path.name for path in directory.glob("*.mcap") if path.resolve() not in read)
 
 
 def _later_streams(bits: list[tuple[int, StepBit]], decisions: list[tuple[int, StepDecision]],
