@@ -181,17 +181,21 @@ class TopicWindows(WindowSource):
         :meth:`~infomax_contingency.core.flowcontrol.WriterFollower.judge`). Returns what
         the chunk was: the followed writer's (:attr:`WriterFollower.missed` of its chunks
         lost before it), a new writer's after the followed one fell silent, or another
-        writer's (ignored).
+        writer's (ignored, bad samples or not).
 
         Raises:
-            AudioError: a chunk of bad samples (it is ignored; nothing else changes).
+            AudioError: a chunk of bad samples that another writer's would not be (it is
+                ignored; nothing else changes: the next chunk's number shows it lost).
         """
+        now_s = time.time() if published_ns is None else published_ns / 1e9
         try:
             samples = as_mono(chunk, "chunk")
         except AudioError:
+            if self.writers.would_refuse(sequence, now_s, writer, alone):
+                self.foreign_chunks += 1
+                return Writing.FOREIGN
             self.bad_chunks += 1
             raise
-        now_s = time.time() if published_ns is None else published_ns / 1e9
         writing = self.writers.judge(sequence, now_s, writer, alone)
         if writing is Writing.FOREIGN:
             self.foreign_chunks += 1

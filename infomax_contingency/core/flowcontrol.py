@@ -103,16 +103,9 @@ class WriterFollower:
         """
         self.missed = 0
         numbered = bool(sequence) and sequence < UNNUMBERED
-        if self.last_taken_s == -math.inf:
-            same = True  # the first writer
-        elif writer is not None and self.writer is not None:
-            same = writer == self.writer
-        elif not numbered:
+        same = self._from_followed(sequence, writer, alone)
+        if same is None:
             return Writing.FOLLOWED  # nothing to tell writers apart by
-        elif self.last is None:
-            same = True
-        else:
-            same = sequence == self.last + 1 or (sequence > self.last + 1 and alone())
         if same:
             if numbered and self.last is not None:
                 self.missed = max(0, sequence - self.last - 1)
@@ -125,6 +118,30 @@ class WriterFollower:
             return Writing.SWITCHED
         self.refused += 1
         return Writing.FOREIGN
+
+    def would_refuse(self, sequence: int | None, now: float, writer: Hashable | None = None,
+                     alone: Callable[[], bool] = lambda: True) -> bool:  # fmt: skip
+        """True if :meth:`judge` would refuse this message as another writer's; nothing changes.
+
+        For a message that is dropped whatever its writer (bad samples): another writer's
+        is no loss of the followed one's.
+        """
+        same = self._from_followed(sequence, writer, alone)
+        return same is False and now - self.last_taken_s < self.switch_s
+
+    def _from_followed(self, sequence: int | None, writer: Hashable | None,
+                       alone: Callable[[], bool]) -> bool | None:  # fmt: skip
+        """Whether the message is the followed writer's; None: nothing tells writers apart."""
+        numbered = bool(sequence) and sequence < UNNUMBERED
+        if self.last_taken_s == -math.inf:
+            return True  # the first writer
+        if writer is not None and self.writer is not None:
+            return writer == self.writer
+        if not numbered:
+            return None
+        if self.last is None:
+            return True
+        return sequence == self.last + 1 or (sequence > self.last + 1 and alone())
 
     def _follow(self, sequence: int | None, writer: Hashable | None, now: float) -> None:
         if sequence is not None:
