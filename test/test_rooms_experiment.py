@@ -60,6 +60,14 @@ def test_experiment_detects_the_partner_and_measures_the_bits() -> None:
     assert bits["agent"]["p"] > 0.4 > 0.1 > bits["background"]["p"], bits
     assert optimal["quiet"]["false_attentive"] == 0 and optimal["quiet"]["missed_partner"] == 0
     assert optimal["quiet"]["p_active"]["agent"]["windows"] == 0, "no partner: no agent windows"
+    # the agent windows per lag (timer ta1 .. ta2) add up to the pooled ones, and the bound's
+    # belief is the robot's (one K2 per lag) at those rates
+    lags = with_partner["p_active_agent_lags"]
+    assert len(lags) == ROBOT.ta2 - ROBOT.ta1 + 1
+    assert [sum(lag[k] for lag in lags) for k in ("active", "windows")] == [
+        bits["agent"]["active"], bits["agent"]["windows"]]
+    bound = result["information_bound"]["optimal receding H=24 M=60"]["quiet"]
+    assert bound["p_agent_lags"] == [lag["p"] for lag in lags] and bound["belief"] is not None
     curve = result["operating_curves"]["fixed K=8"]["quiet"][repr(ROBOT.pi)]
     assert [point["attentive_above"] for point in curve] == list(config.curve_thresholds)
     # a lower threshold never settles later (the posture turns attentive no later)

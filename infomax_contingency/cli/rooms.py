@@ -155,9 +155,10 @@ def _print_belief_figures(result: dict) -> None:
     """Per room: the model's own belief on independent bits at the measured rates."""
     config = result["config"]
     print(
-        "\nthe model's belief on independent bits at those rates (exact): median vocalizations"
+        "\nthe model's belief on independent bits at those rates (exact; at each lag's rate"
+        " where measured): median vocalizations"
         f" to P(S=1) = {config['attentive_above']:g}; chance by {_TARGETS} vocalizations;"
-        f" P(agent) it needs for a median of {_TARGETS}"
+        f" P(agent) it needs for a median of {_TARGETS} (the lags' profile kept)"
     )
     for label in result["controllers"]:
         for background, bound in result.get("information_bound", {}).get(label, {}).items():
@@ -171,10 +172,12 @@ def _print_belief_figures(result: dict) -> None:
             median = belief["median_vocalizations"]
             median_text = f"> {CROSSING_VOCALIZATIONS_FOLLOWED}" if median is None else median
             targets = " / ".join(belief["p_crossed_by"])
+            lags = bound.get("p_agent_lags")
+            lag_text = "" if not lags else "; lags " + " / ".join(f"{p:.2f}" for p in lags)
             print(
                 f"  {label[:22]:<22} {background:<15} {belief['background_windows']} background"
                 f" windows per vocalization: median {median_text};"
-                f" by {targets}: {chances}; needs {needed}"
+                f" by {targets}: {chances}; needs {needed}{lag_text}"
             )
 
 

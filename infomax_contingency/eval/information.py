@@ -22,13 +22,19 @@ chance in long runs). It is a reference, not a bound: it depends on the schedule
 background windows per vocalization leave K3 less known), and settling for good is a
 later event than a first crossing. Where a room's runs need clearly more, its bits are
 not independent (bursts), or its vocalizations are spaced otherwise.
+
+Agent rates may be given per agent timer value (``ta1 .. ta2``: a partner answers after a
+delay of its own). The belief is then the one ``params`` say: with ``k2_per_lag`` one K2
+per lag (the robot's), else one K2 for all (the paper's), either exact.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
+from scipy.special import betaln
 
 from infomax_contingency.core.model import ModelParams, log_odds
 
@@ -57,11 +63,27 @@ def agent_window_count(params: ModelParams) -> int:
     return params.ta2 - params.ta1 + 1
 
 
-def evidence_per_vocalization(p_agent: float, p_background: float, agent_windows: int) -> float:
+AgentRates = float | Sequence[float]
+"""P(active) of agent windows: one for every lag, or one per agent timer value ``ta1 ..``."""
+
+
+def lag_rates(agent_windows: int, p_agent: AgentRates) -> tuple[float, ...]:
+    """One P(active) per agent window (lag) from ``p_agent`` (one rate: the same at each)."""
+    if isinstance(p_agent, int | float):
+        return (_check_probability(p_agent, "p_agent"),) * agent_windows
+    rates = tuple(p_agent)
+    if len(rates) != agent_windows:
+        raise ValueError(f"p_agent has {len(rates)} rates: give one per agent window"
+                         f" ({agent_windows})")  # fmt: skip
+    return tuple(_check_probability(p, "p_agent") for p in rates)
+
+
+def evidence_per_vocalization(p_agent: AgentRates, p_background: float,
+                              agent_windows: int) -> float:  # fmt: skip
     """Expected log-odds gain (nats) per vocalization with the partner there, known rates."""
     if agent_windows < 1:
         raise ValueError(f"agent_windows = {agent_windows!r}: must be >= 1")
-    return agent_windows * bernoulli_kl(p_agent, p_background)
+    return sum(bernoulli_kl(p, p_background) for p in lag_rates(agent_windows, p_agent))
 
 
 def evidence_needed(prior: float, target: float) -> float:
@@ -73,7 +95,7 @@ def evidence_needed(prior: float, target: float) -> float:
 
 
 def vocalizations_bound(
-    p_agent: float, p_background: float, agent_windows: int, prior: float, target: float
+    p_agent: AgentRates, p_background: float, agent_windows: int, prior: float, target: float
 ) -> float:
     """At least this many vocalizations (expected, ``inf`` for no contrast) to reach ``target``."""
     needed = evidence_needed(prior, target)
@@ -119,13 +141,15 @@ MAX_CROSSING_VOCALIZATIONS = 40
 """Most vocalizations :func:`belief_crossing` follows."""
 MAX_CROSSING_BACKGROUND_WINDOWS = 100
 """Most background windows per vocalization :func:`belief_crossing` takes (cost grows with it)."""
+MAX_CROSSING_STATES = 2**25
+"""Most count tuples :func:`belief_crossing` follows at once (8 bytes each, a few arrays)."""
 CROSSING_VOCALIZATIONS_FOLLOWED = 20
 """Vocalizations :func:`information_bound` follows for the median (at least its targets)."""
 
 
 def belief_crossing(
     params: ModelParams,
-    p_agent: float,
+    p_agent: AgentRates,
     p_background: float,
     background_windows: int,
     target: float,
@@ -135,54 +159,85 @@ def belief_crossing(
 
     The schedule: ``background_windows`` background windows, then per vocalization its
     self-feedback windows (not counted), its agent windows (``ta1 .. ta2``) and again
-    ``background_windows`` background windows. With the partner there, agent bits are
-    active with probability ``p_agent`` and background bits with ``p_background``, each
-    independently. The belief is the model's (:func:`~infomax_contingency.core.model.log_odds`
-    from the prior ``params.pi``, the whole history: no sliding memory), looked at after
-    every window, as posture_node does. A crossing in the windows after vocalization n
-    (before vocalization n + 1) counts as n vocalizations.
+    ``background_windows`` background windows. With the partner there, the agent window
+    at each lag is active with probability ``p_agent`` (one rate, or one per lag) and
+    background windows with ``p_background``, each independently. The belief is the
+    model's (``params``: one K2 per lag with ``k2_per_lag``, else one; from the prior
+    ``params.pi``, the whole history: no sliding memory), looked at after every window,
+    as posture_node does. A crossing in the windows after vocalization n (before
+    vocalization n + 1) counts as n vocalizations.
 
     Returns:
         ``vocalizations + 2`` probabilities: entry n (0 .. ``vocalizations``) that the
         first crossing comes after exactly n vocalizations, the last that it has not come
-        by then. They sum to 1. Cost: a dynamic programme over the active counts, an
-        array of (agent windows x V) x (``background_windows`` x V) entries updated once
-        per window, V = ``vocalizations``: about 0.3 s for 5 background windows and 20
-        vocalizations, 14 s for 60.
+        by then. They sum to 1. Cost: a dynamic programme over the active counts (of the
+        agent windows, or of each lag's, and of the background windows) updated once per
+        window: one K2, about 0.3 s for 5 background windows and 20 vocalizations; one
+        per lag, about 2 s.
     """
-    _check_crossing_arguments(p_agent, p_background, background_windows, target, vocalizations)
-    agent = agent_window_count(params)
+    rates = lag_rates(agent_window_count(params), p_agent)
+    _check_crossing_arguments(p_background, background_windows, target, vocalizations)
     threshold = math.log(target) - math.log1p(-target)
     crossing = np.zeros(vocalizations + 2)
     if float(log_odds(params, 0, 0, 0, 0)) > threshold:  # the prior alone is past the target
         crossing[0] = 1.0
         return crossing
-    # mass[p2, p3]: P(these active counts so far and no crossing yet)
-    mass = np.zeros((agent * vocalizations + 1, background_windows * (vocalizations + 1) + 1))
-    mass[0, 0] = 1.0
-    p2 = np.arange(mass.shape[0])[:, None]
-    p3 = np.arange(mass.shape[1])[None, :]
-    counted = [0, 0]  # agent and background windows counted so far
-    for made, is_agent in _crossing_schedule(agent, background_windows, vocalizations):
-        axis = 0 if is_agent else 1
-        mass = _count_window(mass, axis, p_agent if is_agent else p_background)
+    # axes: the active agent windows (one, or one per lag), then the background's
+    lags = len(rates) if params.k2_per_lag else 1
+    per_axis = vocalizations if params.k2_per_lag else len(rates) * vocalizations
+    shape = (per_axis + 1,) * lags + (background_windows * (vocalizations + 1) + 1,)
+    if math.prod(shape) > MAX_CROSSING_STATES:
+        raise ValueError(f"{math.prod(shape):,} count tuples to follow (at most"
+                         f" {MAX_CROSSING_STATES:,}): fewer vocalizations or background windows")
+    mass = np.zeros(shape)  # P(these active counts so far and no crossing yet)
+    mass[(0,) * len(shape)] = 1.0
+    active = np.indices(shape, sparse=True)
+    all_active = sum(active[1:], start=active[0])  # every counted window's, for S = 0
+    counted = [0] * len(shape)
+    for made, lag in _crossing_schedule(len(rates), background_windows, vocalizations):
+        axis = len(shape) - 1 if lag is None else (lag if params.k2_per_lag else 0)
+        mass = _count_window(mass, axis, p_background if lag is None else rates[lag])
         counted[axis] += 1
-        n2, n3 = counted
-        lam = log_odds(params, np.minimum(p2, n2), n2 - np.minimum(p2, n2),
-                       np.minimum(p3, n3), n3 - np.minimum(p3, n3))  # fmt: skip
-        crossed = (p2 <= n2) & (p3 <= n3) & (lam > threshold)
+        lam = _log_odds_of_counts(params, counted, active, all_active)
+        crossed = lam > threshold
         crossing[made] += mass[crossed].sum()
         mass[crossed] = 0.0
     crossing[-1] = mass.sum()
     return crossing
 
 
+def _log_odds_of_counts(params: ModelParams, counted: list[int], active: list[np.ndarray],
+                        all_active: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The belief's log odds at every count tuple (``-inf`` where counts exceed ``counted``).
+
+    Axes as in :func:`belief_crossing`: the agent's (a K2 each), then the background's; the
+    sums of Beta functions of :func:`~infomax_contingency.core.model.log_odds` taken axis
+    by axis, and the S = 0 term through the total active count.
+    """
+    *agent, background = counted
+    lam = np.float64(math.log(params.pi) - math.log1p(-params.pi)
+                     - len(agent) * betaln(params.b21, params.b22))  # fmt: skip
+    for axis, n in enumerate(counted):
+        alpha, beta = ((params.b21, params.b22) if axis < len(agent)
+                       else (params.b31, params.b32))  # fmt: skip
+        lam = lam + _betaln_up_to(alpha, beta, active[axis], n)
+    total, every = np.arange(all_active.max() + 1), sum(counted)
+    with np.errstate(invalid="ignore"):
+        odds_zero = np.where(total <= every, betaln(params.b31 + total, params.b32 + every - total),
+                             np.inf)  # fmt: skip
+    return lam - odds_zero[all_active]
+
+
+def _betaln_up_to(alpha: float, beta: float, active: np.ndarray, n: int) -> np.ndarray:
+    """``lnB(alpha + a, beta + n - a)`` for the counts ``active``; ``-inf`` where a > n."""
+    with np.errstate(invalid="ignore"):
+        return np.where(active <= n, betaln(alpha + active, beta + n - active), -np.inf)
+
+
 def _check_crossing_arguments(
-    p_agent: float, p_background: float, background_windows: int, target: float,
-    vocalizations: int,
+    p_background: float, background_windows: int, target: float, vocalizations: int,
 ) -> None:  # fmt: skip
     """ValueError naming the first argument of :func:`belief_crossing` that is wrong."""
-    _check_probability(p_agent, "p_agent")
     _check_probability(p_background, "p_background")
     for value, name, most in (
         (background_windows, "background_windows", MAX_CROSSING_BACKGROUND_WINDOWS),
@@ -196,21 +251,20 @@ def _check_crossing_arguments(
 
 def _crossing_schedule(
     agent_windows: int, background_windows: int, vocalizations: int
-) -> list[tuple[int, bool]]:
-    """(vocalizations made, an agent window?) of each counted window of the schedule, in order."""
-    per_vocalization = [True] * agent_windows + [False] * background_windows
-    return [(0, False)] * background_windows + [
-        (made, is_agent) for made in range(1, vocalizations + 1) for is_agent in per_vocalization
+) -> list[tuple[int, int | None]]:
+    """(vocalizations made, lag: 0, 1, ...; None: background) of each counted window, in order."""
+    per_vocalization = [*range(agent_windows), *[None] * background_windows]
+    return [(0, None)] * background_windows + [
+        (made, lag) for made in range(1, vocalizations + 1) for lag in per_vocalization
     ]
 
 
 def _count_window(mass: np.ndarray, axis: int, p_active: float) -> np.ndarray:
     """``mass`` after one more window counted along ``axis``, active with ``p_active``."""
     shifted = np.roll(mass, 1, axis=axis)
-    if axis == 0:
-        shifted[0, :] = 0.0
-    else:
-        shifted[:, 0] = 0.0
+    first = [slice(None)] * mass.ndim
+    first[axis] = 0
+    shifted[tuple(first)] = 0.0
     return (1.0 - p_active) * mass + p_active * shifted
 
 
@@ -226,31 +280,43 @@ def agent_rate_the_belief_needs(
     background_windows: int,
     target: float,
     vocalizations: int,
+    lag_profile: Sequence[float] | None = None,
 ) -> float | None:
     """The least P(active) in agent windows for which the belief's median is <= ``vocalizations``.
 
-    :func:`belief_crossing` with ``p_agent`` searched in ``[p_background, 1]`` to 1e-3
-    (it assumes the chance of a crossing by n vocalizations grows with ``p_agent``: true
-    in practice near one half, not proved — the log odds are not monotone in the agent
-    count); None if even ``p_agent = 1`` is not enough.
+    :func:`belief_crossing` with ``p_agent`` searched to 1e-3 (it assumes the chance of a
+    crossing by n vocalizations grows with ``p_agent``: true in practice near one half,
+    not proved — the log odds are not monotone in the agent count). With ``lag_profile``
+    (a room's P(active) per lag) the rates keep its shape: ``min(1, c * profile)``, c
+    searched, and the mean over the lags is returned; else one rate at every lag, from
+    ``p_background`` up. None if even every rate 1 is not enough.
     """
+    windows = agent_window_count(params)
+    profile = lag_rates(windows, 1.0 if lag_profile is None else lag_profile)
+    if not any(profile):
+        return None
+    _check_probability(p_background, "p_background")
 
-    def enough(p_agent: float) -> bool:
+    def rates(scale: float) -> tuple[float, ...]:
+        return tuple(min(1.0, scale * p) for p in profile)
+
+    def enough(scale: float) -> bool:
         crossing = belief_crossing(
-            params, p_agent, p_background, background_windows, target, vocalizations
+            params, rates(scale), p_background, background_windows, target, vocalizations
         )
         return float(crossing[:-1].sum()) >= 0.5
 
-    if not enough(1.0):
+    low, high = (0.0, 1.0 / min(p for p in profile if p > 0)) if lag_profile is not None else (
+        p_background, 1.0)  # fmt: skip
+    if not enough(high):
         return None
-    low, high = _check_probability(p_background, "p_background"), 1.0
-    while high - low > 1e-3:
+    while (high - low) * max(profile) > 1e-3:
         middle = 0.5 * (low + high)
         if enough(middle):
             high = middle
         else:
             low = middle
-    return high
+    return float(np.mean(rates(high)))
 
 
 def information_bound(
@@ -260,52 +326,71 @@ def information_bound(
     target: float,
     vocalization_targets: tuple[int, ...] = VOCALIZATION_TARGETS,
     background_windows: int | None = None,
+    p_agent_lags: Sequence[float] | None = None,
 ) -> dict[str, object]:
     """The bound for one measured contrast, as plain data.
 
     Keys: ``nats_per_vocalization`` (:func:`evidence_per_vocalization` with the model's
-    agent windows), ``nats_needed`` (from the model's prior ``params.pi`` to ``target``),
-    ``vocalizations_bound`` (:func:`vocalizations_bound`) and ``p_agent_needed``: per
-    number of vocalizations in ``vocalization_targets``, the least P(active) in agent
-    windows that the bound allows with this ``p_background`` (None: none suffices).
-    With ``background_windows`` (background windows per vocalization), also ``belief``:
-    the model's own belief on independent bits at these rates (:func:`belief_crossing`):
-    its median vocalizations to ``target``, the chance of a crossing by each target
-    number, and the least P(agent) for a median within each
-    (:func:`agent_rate_the_belief_needs`).
+    agent windows, at ``p_agent_lags`` where given), ``nats_needed`` (from the model's
+    prior ``params.pi`` to ``target``), ``vocalizations_bound``
+    (:func:`vocalizations_bound`) and ``p_agent_needed``: per number of vocalizations in
+    ``vocalization_targets``, the least P(active), the same at every lag, that the bound
+    allows with this ``p_background`` (None: none suffices). With ``background_windows``
+    (background windows per vocalization), also ``belief``: the model's own belief
+    (``params``) on independent bits at these rates (:func:`belief_crossing`, at
+    ``p_agent_lags`` where given): its median vocalizations to ``target``, the chance of
+    a crossing by each target number, and the least P(agent) for a median within each
+    (:func:`agent_rate_the_belief_needs`, keeping the lags' profile).
     """
     windows = agent_window_count(params)
+    rates = lag_rates(windows, p_agent if p_agent_lags is None else p_agent_lags)
     belief: dict[str, object] | None = None
     if background_windows is not None:
         if max(vocalization_targets) > MAX_CROSSING_VOCALIZATIONS:
             raise ValueError(f"vocalization targets above {MAX_CROSSING_VOCALIZATIONS}"
                              f" are not followed: {vocalization_targets!r}")  # fmt: skip
-        followed = max(CROSSING_VOCALIZATIONS_FOLLOWED, *vocalization_targets)
-        crossing = belief_crossing(
-            params, p_agent, p_background, background_windows, target, followed
-        )
-        belief = {
-            "background_windows": background_windows,
-            "median_vocalizations": belief_median_vocalizations(crossing),
-            "p_crossed_by": {str(n): float(crossing[: n + 1].sum()) for n in vocalization_targets},
-            "p_agent_needed": {
-                str(n): agent_rate_the_belief_needs(
-                    params, p_background, background_windows, target, n
-                )
-                for n in vocalization_targets
-            },
-        }
+        belief = _belief_figures(params, rates, p_background, background_windows, target,
+                                 vocalization_targets, p_agent_lags is not None)  # fmt: skip
     return {
         "belief": belief,
         "p_agent": p_agent,
+        "p_agent_lags": None if p_agent_lags is None else list(rates),
         "p_background": p_background,
-        "nats_per_vocalization": evidence_per_vocalization(p_agent, p_background, windows),
+        "nats_per_vocalization": evidence_per_vocalization(rates, p_background, windows),
         "nats_needed": evidence_needed(params.pi, target),
         "vocalizations_bound": vocalizations_bound(
-            p_agent, p_background, windows, params.pi, target
+            rates, p_background, windows, params.pi, target
         ),
         "p_agent_needed": {
             str(n): agent_rate_needed(p_background, n, windows, params.pi, target)
+            for n in vocalization_targets
+        },
+    }
+
+
+def _belief_figures(params: ModelParams, rates: tuple[float, ...], p_background: float,
+                    background_windows: int, target: float, vocalization_targets: tuple[int, ...],
+                    keep_profile: bool) -> dict[str, object]:  # fmt: skip
+    """:func:`information_bound`'s ``belief``: the crossing followed as far as its median needs.
+
+    The first entries of a crossing do not depend on how far it is followed: a short one
+    first (to the targets and 2 more), the full :data:`CROSSING_VOCALIZATIONS_FOLLOWED`
+    only if its median lies beyond.
+    """
+    longest = max(CROSSING_VOCALIZATIONS_FOLLOWED, *vocalization_targets)
+    for followed in (min(max(vocalization_targets) + 2, longest), longest):
+        crossing = belief_crossing(params, rates, p_background, background_windows, target,
+                                   followed)  # fmt: skip
+        median = belief_median_vocalizations(crossing)
+        if median is not None:
+            break
+    return {
+        "background_windows": background_windows,
+        "median_vocalizations": median,
+        "p_crossed_by": {str(n): float(crossing[: n + 1].sum()) for n in vocalization_targets},
+        "p_agent_needed": {
+            str(n): agent_rate_the_belief_needs(params, p_background, background_windows,
+                                                target, n, rates if keep_profile else None)
             for n in vocalization_targets
         },
     }

@@ -104,6 +104,10 @@ def run_metrics(
         "correct_after_change": correct_after_change,
         "bits": {
             "agent": [int(run.y[agent].sum()), int(agent.sum())],
+            "agent_lags": [
+                [int(run.y[lag].sum()), int(lag.sum())]
+                for lag in (agent & (run.z == z) for z in range(params.ta1, params.ta2 + 1))
+            ],
             "background": [int(run.y[background].sum()), int(background.sum())],
             "self": [int(run.y[self_period].sum()), int(self_period.sum())],
         },

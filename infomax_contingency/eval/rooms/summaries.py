@@ -76,6 +76,10 @@ def summarise_room(rows: Sequence[dict], seed: int) -> dict[str, Any]:
             period: _rate([r["bits"][period] for r in rows])
             for period in ("agent", "background", "self")
         },
+        "p_active_agent_lags": [
+            _rate([r["bits"]["agent_lags"][lag] for r in rows])
+            for lag in range(len(rows[0]["bits"]["agent_lags"]))
+        ],
     }
 
 
@@ -122,10 +126,11 @@ def contrast_bounds(
 ) -> dict[str, Any]:
     """Per background with a ``+partner`` room: the information bound of its bit contrast.
 
-    P(active) in agent-period and background windows of the ``+partner`` runs
-    (:func:`~infomax_contingency.eval.information.information_bound`, to the posture's
-    ``attentive_above`` from the model's prior), and the model's own belief on independent
-    bits at those rates, with the runs' background windows per vocalization (rounded).
+    P(active) in agent-period (pooled, and per lag) and background windows of the
+    ``+partner`` runs (:func:`~infomax_contingency.eval.information.information_bound`, to
+    the posture's ``attentive_above`` from the model's prior), and the model's own belief
+    (one K2 per lag where ``params`` say so) on independent bits at those rates, with the
+    runs' background windows per vocalization (rounded).
     """
     out: dict[str, Any] = {}
     for background in config.backgrounds:
@@ -137,11 +142,14 @@ def contrast_bounds(
             continue
         vocalizations = summary["vocalizations_per_run"] * summary["runs"]
         per_vocalization = rates["background"]["windows"] / max(vocalizations, 1.0)
+        lags = [lag["p"] for lag in summary["p_active_agent_lags"]]
         out[background] = information_bound(
             rates["agent"]["p"],
             rates["background"]["p"],
             params,
             config.attentive_above,
             background_windows=min(round(per_vocalization), MAX_CROSSING_BACKGROUND_WINDOWS),
+            p_agent_lags=lags if all(lag["windows"] for lag in summary["p_active_agent_lags"])
+            else None,
         )
     return out
