@@ -29,6 +29,7 @@ from infomax_contingency.audio.playback import PlayEvent
 from infomax_contingency.audio.threshold import ThresholdFit, kmeans_split
 from infomax_contingency.audio.threshold_file import save_threshold
 from infomax_contingency.audio.windows import WavReplay
+from infomax_contingency.core.posture import BORED_BELOW
 from infomax_contingency.nodes import speaker_node
 from infomax_contingency.nodes.belief_node import BeliefNode
 from infomax_contingency.nodes.controller_node import ControllerNode
@@ -166,7 +167,7 @@ def test_a_live_set_is_checked_as_at_start_up(graph: Callable) -> None:
     [result] = set_remotely(probe, executor, "posture_node", bored_below=0.95)
     assert not result.successful
     assert "must be below 'attentive_above'" in result.reason
-    assert node.hysteresis.bored_below == 0.2
+    assert node.hysteresis.bored_below == BORED_BELOW
     [result] = set_remotely(probe, executor, "posture_node", bored_positions=[0.0])
     assert not result.successful and "one position per joint" in result.reason
 

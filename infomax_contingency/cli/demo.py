@@ -57,7 +57,7 @@ from infomax_contingency.cli.demo_checks import (
     recording_failure,
 )
 from infomax_contingency.cli.formatting import seed
-from infomax_contingency.core.posture import BORED, PostureHysteresis
+from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED, BORED_BELOW, PostureHysteresis
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.room_config import PRESETS
 
@@ -67,7 +67,6 @@ STALL_TIMEOUT_S = 30.0
 """Seconds the running graph may go without a single message before the demo gives up
 (a no-progress watchdog: a run of any length is fine while steps keep coming)."""
 
-ATTENTIVE_ABOVE, BORED_BELOW = 0.9, 0.2
 """The posture node's thresholds in the demo (as in config/robot.yaml)."""
 
 LOCKSTEP_TIMEOUT_S = 10.0

@@ -13,6 +13,13 @@ ATTENTIVE = "attentive"
 BORED = "bored"
 POSTURES = (ATTENTIVE, BORED)
 
+ATTENTIVE_ABOVE = 0.9
+"""The default upper threshold: attentive once 90 % sure that someone answers."""
+BORED_BELOW = 0.1
+"""The default lower threshold: bored again once 90 % sure that nobody does (symmetric
+to :data:`ATTENTIVE_ABOVE` in log odds). A belief that dips between the two, as it does
+while a partner's replies are masked for a while, keeps the posture."""
+
 
 class PostureHysteresis:
     """Two-threshold switch from belief to posture.
@@ -25,7 +32,8 @@ class PostureHysteresis:
     """
 
     def __init__(
-        self, attentive_above: float = 0.9, bored_below: float = 0.2, initial: str = BORED
+        self, attentive_above: float = ATTENTIVE_ABOVE, bored_below: float = BORED_BELOW,
+        initial: str = BORED,
     ) -> None:
         if not 0.0 <= bored_below < attentive_above <= 1.0:
             raise ValueError(

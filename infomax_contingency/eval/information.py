@@ -34,9 +34,8 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.special import betaln
 
-from infomax_contingency.core.model import ModelParams, log_odds
+from infomax_contingency.core.model import ModelParams, betaln, log_odds
 
 
 def _check_probability(value: float, name: str) -> float:

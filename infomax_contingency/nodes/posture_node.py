@@ -31,7 +31,14 @@ from std_msgs.msg import Float64, Int64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from infomax_contingency.core.flowcontrol import SOURCE_TIMEOUT_S, WriterFollower
-from infomax_contingency.core.posture import ATTENTIVE, BORED, POSTURES, PostureHysteresis
+from infomax_contingency.core.posture import (
+    ATTENTIVE,
+    ATTENTIVE_ABOVE,
+    BORED,
+    BORED_BELOW,
+    POSTURES,
+    PostureHysteresis,
+)
 from infomax_contingency.nodes.graph_node import ERROR, OK, GraphNode, count_only
 from infomax_contingency.nodes.parameters import ConfigError
 from infomax_contingency.nodes.qos import LATCHED_QOS, STREAM_QOS
@@ -54,7 +61,7 @@ class PostureNode(GraphNode):
         read = self.parameters
         attentive_above = read.number(
             "attentive_above",
-            0.9,
+            ATTENTIVE_ABOVE,
             "Turn attentive when the belief rises above this (live)",
             0.0,
             1.0,
@@ -62,7 +69,7 @@ class PostureNode(GraphNode):
         )
         bored_below = read.number(
             "bored_below",
-            0.2,
+            BORED_BELOW,
             "Turn bored when the belief falls below this (live)",
             0.0,
             1.0,

@@ -12,6 +12,7 @@ import numpy as np
 
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import RECEDING
+from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.eval.experiments.tables import obtain_table
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
 from infomax_contingency.eval.workers import check_workers
@@ -98,8 +99,8 @@ class RoomsConfig:
     seconds: float = 60.0
     seed: int = 0
     memory: int = 60
-    attentive_above: float = 0.9
-    bored_below: float = 0.2
+    attentive_above: float = ATTENTIVE_ABOVE
+    bored_below: float = BORED_BELOW
     curve_thresholds: tuple[float, ...] = (0.5, 0.7, 0.8, 0.9, 0.95, 0.99)
     curve_priors: tuple[float, ...] = (0.01, 0.05, 0.2, 0.5)
     jobs: int = 2
