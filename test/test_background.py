@@ -338,6 +338,38 @@ def test_reference_holds_agent_windows_to_the_window_the_robot_spoke_after() -> 
     assert start(reference=False).push(-40.0) is True
 
 
+def test_the_robots_own_sound_is_never_the_reference_of_a_background_window() -> None:
+    """The robot's chirp changes no bit outside its own windows (against it muted).
+
+    In a steady empty room the chirp (self-feedback windows, loud) must not silence the
+    background windows whose reference it would be: they are held to the window the
+    vocalization was decided on, as agent windows are.
+    """
+
+    def bits(chirp_db: float | None) -> list[bool | None]:
+        rng = np.random.default_rng(7)
+        rule = BackgroundThreshold(TS1, TS2, TA2, 0.05, reference_margin_db=3.0)
+        out, z = [], TA2 + 1
+        for t in range(6000):
+            level = float(rng.normal(-55.0, 3.0))
+            if chirp_db is not None and TS1 <= z <= TS2:
+                level = chirp_db
+            out.append(rule.push(level))
+            if out[-1] is not None:
+                u = int(t % 7 == 0)  # a vocalization every 7 windows: z = 5, 6 after each
+                rule.note_decision(u)
+                z = 0 if u else min(z + 1, TA2 + 1)
+        return out
+
+    played, muted = bits(-20.0), bits(None)
+    z_of = timers([int(t % 7 == 0) for t in range(6000)])
+    outside = [t for t, z in enumerate(z_of) if z > TS2 and played[t] is not None]
+    assert len(outside) > 4000
+    assert [played[t] for t in outside] == [muted[t] for t in outside]
+    background = [played[t] for t in outside if z_of[t] > TA2]
+    assert 0.02 < sum(background) / len(background) < 0.08
+
+
 def test_in_a_bursty_empty_room_agent_windows_are_not_more_active_than_background() -> None:
     """Bursts of sound of several windows and a controller that speaks after loud windows.
 

@@ -283,7 +283,7 @@ class BackgroundThreshold:
         if isinstance(least_rank, bool) or not isinstance(least_rank, int) or least_rank < 1:
             raise AudioError(f"least_rank must be a whole number >= 1, got {least_rank!r}")
         self.least_rank = least_rank
-        self._recent_levels: deque[float] = deque(maxlen=ta2 + 2)  # of the last windows
+        self._recent: deque[tuple[float, int | None]] = deque(maxlen=ta2 + ts2 + 3)  # level, z
         self.false_alarm = float(false_alarm)
         self.history = history
         self.warmup_windows = warmup_windows
@@ -384,10 +384,11 @@ class BackgroundThreshold:
         if threshold is not None and not self.range_guard.allows(threshold):
             threshold = None  # no bit rather than one decided on an impossible threshold
         bit = None if threshold is None else (False if silent else level > threshold)
+        timer = self._z if not self._waiting else None
         if bit and self.reference:
-            reference = self.reference_db(self._z if not self._waiting else None)
+            reference = self.reference_db(timer)
             bit = level > reference + self.reference_margin_db
-        self._recent_levels.append(level)
+        self._recent.append((level, timer))
         awaits = bit is not None and decision is None
         self._waiting.append((level, awaits, False, None if decision is None else int(decision)))
         self._index += 1
@@ -406,16 +407,23 @@ class BackgroundThreshold:
         must be louder than the room the robot spoke into. For any other window, the level
         ``j`` windows back with ``j`` running through ``ta1 + 1 .. ta2 + 1`` (the agent
         windows' lags) by the window's index, so background windows are held to the same
-        comparison. ``-inf`` when that window is not there (the first windows).
+        comparison; where that window held the robot's own sound (timer ``ts1 .. ts2``), the
+        window its vocalization was decided on, as for an agent window (else the robot's
+        sound, far louder than the room, would silence the background windows after it and
+        none of the agent windows: a contrast with nobody there). ``-inf`` when that window
+        is not there (the first windows).
         """
         if z is not None and self.ta1 <= z <= self.ta2:
             back = z + 1
         else:
             span = self.ta2 - self.ta1 + 1
             back = self.ta1 + 1 + self._index % span
-        if back > len(self._recent_levels):
+            held = self._recent[-back][1] if back <= len(self._recent) else None
+            if held is not None and self.ts1 <= held <= self.ts2:
+                back += held + 1  # not the robot's own sound: the window it was decided on
+        if back > len(self._recent):
             return -math.inf
-        return self._recent_levels[-back]
+        return self._recent[-back][0]
 
     @property
     def awaited_decisions(self) -> int:

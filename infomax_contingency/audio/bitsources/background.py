@@ -93,7 +93,8 @@ class BackgroundSettings:
     reference_margin_db: float = setting(
         3.0,
         "A window must also be this much louder than the window the robot's last sound"
-        " followed (background windows: as far back)", low=0.0, high=60.0, unit="dB",
+        " followed (background windows: as far back, never to the robot's own sound)",
+        low=0.0, high=60.0, unit="dB",
     )
     level_band: str = setting(
         "speech",
