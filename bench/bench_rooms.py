@@ -16,6 +16,7 @@ import argparse
 import time
 
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.eval.rooms import (
     CONTROLLER_NAMES,
     controller_specs,
@@ -56,7 +57,7 @@ def main() -> int:
         for run in range(args.runs):
             for _, spec in specs:
                 result = run_room(params, room, spec, args.binarizer, 60.0, 0, run, 60)
-                run_metrics(params, result, room, 60.0, 0.9, 0.2)
+                run_metrics(params, result, room, 60.0, ATTENTIVE_ABOVE, BORED_BELOW)
         rate = args.runs * len(specs) / (time.perf_counter() - started)
         print(f"{room:<24} {cost:>10.0f} {rate:>8.2f}")
     return 0

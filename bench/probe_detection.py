@@ -101,6 +101,7 @@ from infomax_contingency.core.model import (
     period_of,
 )
 from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.eval.rooms import controller_specs, run_room
 from infomax_contingency.eval.rooms import running as rooms_running
 from infomax_contingency.eval.rooms.config import RoomsConfig
@@ -183,10 +184,10 @@ def belief_log_odds(
 def outcome(run: RoomRun, log_odds: np.ndarray, partner_room: bool) -> int | bool | None:
     """Vocalizations to a settled posture (partner room; None: never), or ever attentive."""
     beliefs = belief_from_log_odds(log_odds)
-    attentive = postures(beliefs, 0.9, 0.2)
+    attentive = postures(beliefs, ATTENTIVE_ABOVE, BORED_BELOW)
     if not partner_room:
         return bool(attentive.any())
-    settled = settled_step(attentive, run.partner, beliefs, 0.2, 0)
+    settled = settled_step(attentive, run.partner, beliefs, BORED_BELOW, 0)
     return None if settled is None else int(run.u[:settled].sum())
 
 

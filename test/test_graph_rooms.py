@@ -19,6 +19,7 @@ from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.core.controllers import PolicyController
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
+from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.audio_loop import simulate_audio_loop
 from infomax_contingency.sim.fake_room import FakeRoom
@@ -176,7 +177,7 @@ def test_rooms_experiment_runs_equal_the_graph(room: str, run: int) -> None:
     spec = controller_specs(params, ["optimal"])[0][1]
     threshold = f"fixed:{FIXED_THRESHOLD['threshold_db']}"
     offline = run_room(params, room, spec, threshold, steps * 0.5, seed, run, memory)
-    attentive = offline_postures(offline.belief, 0.9, 0.2)  # posture_node's defaults
+    attentive = offline_postures(offline.belief, ATTENTIVE_ABOVE, BORED_BELOW)  # posture_node's
     expected = ["bored"]  # posture_node's initial posture, then every change
     for now in attentive:
         if ("attentive" if now else "bored") != expected[-1]:

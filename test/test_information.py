@@ -166,10 +166,21 @@ def test_lags_that_answer_apart_are_worth_more_to_a_belief_with_a_k2_per_lag() -
     below = belief_crossing(robot, tuple(min(1.0, (scale - 0.01) * p) for p in lags), 0.036, 5,
                             0.9, 4)  # fmt: skip
     assert at[:-1].sum() >= 0.5 > below[:-1].sum()
+    # the bound (known rates) keeps the profile too: its need meets the bound exactly
+    known = bound["p_agent_needed"]["4"]
+    assert known is not None and known < needed  # known rates need less than the belief
+    scale = known / (sum(lags) / 3)
+    assert (vocalizations_bound(tuple(min(1.0, scale * p) for p in lags), 0.036, 3, robot.pi, 0.9)
+            <= 4 < vocalizations_bound(tuple(min(1.0, (scale - 1e-4) * p) for p in lags), 0.036,
+                                       3, robot.pi, 0.9))  # fmt: skip
     with pytest.raises(ValueError, match="p_agent has 2 rates: give one per agent window"):
         belief_crossing(robot, (0.5, 0.5), 0.036, 5, 0.9, 4)
-    with pytest.raises(ValueError, match="count tuples to follow"):
-        belief_crossing(robot, lags, 0.036, 100, 0.9, 40)
+    with pytest.raises(ValueError, match="count tuples x windows to follow"):
+        belief_crossing(robot, lags, 0.036, 100, 0.9, 20)
+    # many background windows per vocalization: followed as far as the cost allows, or not
+    assert bound["belief"]["followed"] == 8  # its median within the short crossing
+    assert information_bound(0.4, 0.036, robot, 0.9, background_windows=60,
+                             p_agent_lags=lags)["belief"] is None  # fmt: skip
 
 
 def test_the_belief_needs_more_than_the_bound_and_its_need_is_met_exactly() -> None:

@@ -429,7 +429,11 @@ def test_posture_follows_the_belief_with_hysteresis(run: Callable) -> None:
     assert postures[0].data == "bored"
     belief = probe.talk("belief", Float64)
     graph.connected(belief)
-    for b in (0.5, 0.95, 0.5, 0.15, 0.05, 0.3):  # 0.15: still attentive (bored below 0.1)
+    for b in (0.5, 0.95, 0.5, 0.15):
+        belief.publish(Float64(data=b))
+    graph.run_until(lambda: node.belief == 0.15, "the belief 0.15 taken")
+    assert node.hysteresis.posture == "attentive"  # between the thresholds: bored below 0.1
+    for b in (0.05, 0.3):
         belief.publish(Float64(data=b))
     graph.run_until(lambda: len(postures) >= 3 and len(targets) >= 3, "two posture changes")
     assert [m.data for m in postures] == ["bored", "attentive", "bored"]

@@ -487,7 +487,14 @@ class BackgroundThreshold:
                     self._z = self.ta2 + 1
 
     def _file(self, level: float, z: int | None, index: int) -> None:
-        """Use a labelled window: background sets the threshold; self-feedback is watched."""
+        """Use a labelled window: background sets the threshold; self-feedback is watched.
+
+        Its timer is also kept with its level among the recent windows (a late decision:
+        it was not known when the window came), for the references of the windows after.
+        """
+        recent = index - (self._index - len(self._recent))
+        if 0 <= recent < len(self._recent):
+            self._recent[recent] = (self._recent[recent][0], z)
         if z is None:
             self.labelled["unknown"] += 1
         elif z > self.ta2:

@@ -67,8 +67,6 @@ STALL_TIMEOUT_S = 30.0
 """Seconds the running graph may go without a single message before the demo gives up
 (a no-progress watchdog: a run of any length is fine while steps keep coming)."""
 
-"""The posture node's thresholds in the demo (as in config/robot.yaml)."""
-
 LOCKSTEP_TIMEOUT_S = 10.0
 """Seconds the demo's clock node (room, or mic replaying a file) waits for a window's
 decision before it releases the next window anyway (config/robot.yaml: 2 s, for a robot

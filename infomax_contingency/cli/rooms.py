@@ -20,7 +20,6 @@ from infomax_contingency.cli.formatting import json_default, number, seed
 from infomax_contingency.eval import plots
 from infomax_contingency.eval import rooms as evaluation
 from infomax_contingency.eval.information import (
-    CROSSING_VOCALIZATIONS_FOLLOWED,
     VOCALIZATION_TARGETS,
 )
 from infomax_contingency.limits import check_output_files, written_atomically
@@ -134,9 +133,10 @@ def _print_information_bound(result: dict) -> None:
     config = result["config"]
     print(
         "\ninformation bound (known rates): per vocalization with the partner there,"
-        " agent windows x KL(Bern(P agent) || Bern(P background)) nats; vocalizations to"
-        f" P(S=1) = {config['attentive_above']:g} from the prior {result['params_pi']:g}"
-        f" at least; P(agent) the bound needs for {_TARGETS} vocalizations"
+        " the sum over the agent windows (lags) of KL(Bern(P lag) || Bern(P background))"
+        f" nats (P: pooled / background); vocalizations to P(S=1) ="
+        f" {config['attentive_above']:g} from the prior {result['params_pi']:g} at least;"
+        f" P(agent) the bound needs for {_TARGETS} vocalizations (the lags' profile kept)"
     )
     for label in result["controllers"]:
         for background, bound in result.get("information_bound", {}).get(label, {}).items():
@@ -164,13 +164,15 @@ def _print_belief_figures(result: dict) -> None:
         for background, bound in result.get("information_bound", {}).get(label, {}).items():
             belief = bound.get("belief")
             if not belief:
+                print(f"  {label[:22]:<22} {background:<15} not followed: too many background"
+                      " windows per vocalization")  # fmt: skip
                 continue
             chances = " / ".join(f"{p:.2f}" for p in belief["p_crossed_by"].values())
             needed = " / ".join(
                 "none" if p is None else f"{p:.2f}" for p in belief["p_agent_needed"].values()
             )
             median = belief["median_vocalizations"]
-            median_text = f"> {CROSSING_VOCALIZATIONS_FOLLOWED}" if median is None else median
+            median_text = f"> {belief['followed']}" if median is None else median
             targets = " / ".join(belief["p_crossed_by"])
             lags = bound.get("p_agent_lags")
             lag_text = "" if not lags else "; lags " + " / ".join(f"{p:.2f}" for p in lags)

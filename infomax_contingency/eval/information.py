@@ -4,7 +4,9 @@ With a partner, the bits of the agent-period windows after a vocalization are ac
 with probability ``p_agent`` (the model's K2); without one, with ``p_background`` (K3).
 Even an observer who knew both rates gains, per vocalization, in expectation
 
-    ``agent_windows * KL(Bern(p_agent) || Bern(p_background))``  nats
+    ``sum over the agent windows of KL(Bern(p_agent) || Bern(p_background))``  nats
+
+(``p_agent`` that window's: one per lag where the lags answer apart)
 
 of log odds for S = 1 when the partner is there (the windows of the agent period are the
 only ones whose distribution depends on S; natural logs throughout). The robot's belief
@@ -110,26 +112,37 @@ def agent_rate_needed(
     agent_windows: int,
     prior: float,
     target: float,
+    lag_profile: Sequence[float] | None = None,
 ) -> float | None:
     """The least P(active) in agent windows that allows ``target`` within ``vocalizations``.
 
     The smallest ``p_agent >= p_background`` whose bound (:func:`vocalizations_bound`) is
     at most ``vocalizations``, to 1e-6 (KL grows with ``p_agent`` above ``p_background``);
-    None if even ``p_agent = 1`` is not enough.
+    None if even ``p_agent = 1`` is not enough. With ``lag_profile`` (a room's rate per
+    lag) the rates keep its shape, ``min(1, c * profile)`` with c searched from where the
+    largest is ``p_background``, and their mean is returned.
     """
     if not vocalizations > 0:
         raise ValueError(f"vocalizations = {vocalizations!r}: must be > 0")
+    _check_probability(p_background, "p_background")
     needed = evidence_needed(prior, target) / vocalizations
-    if evidence_per_vocalization(1.0, p_background, agent_windows) < needed:
+    profile = lag_rates(agent_windows, 1.0 if lag_profile is None else lag_profile)
+    if not any(profile):
         return None
-    low, high = _check_probability(p_background, "p_background"), 1.0
-    while high - low > 1e-6:
+
+    def rates(scale: float) -> tuple[float, ...]:
+        return tuple(min(1.0, scale * p) for p in profile)
+
+    low, high = p_background / max(profile), 1.0 / min(p for p in profile if p > 0)
+    if evidence_per_vocalization(rates(high), p_background, agent_windows) < needed:
+        return None
+    while (high - low) * max(profile) > 1e-6:
         middle = 0.5 * (low + high)
-        if evidence_per_vocalization(middle, p_background, agent_windows) >= needed:
+        if evidence_per_vocalization(rates(middle), p_background, agent_windows) >= needed:
             high = middle
         else:
             low = middle
-    return high
+    return float(np.mean(rates(high)))
 
 
 VOCALIZATION_TARGETS = (3, 4, 6)
@@ -140,8 +153,12 @@ MAX_CROSSING_VOCALIZATIONS = 40
 """Most vocalizations :func:`belief_crossing` follows."""
 MAX_CROSSING_BACKGROUND_WINDOWS = 100
 """Most background windows per vocalization :func:`belief_crossing` takes (cost grows with it)."""
-MAX_CROSSING_STATES = 2**25
-"""Most count tuples :func:`belief_crossing` follows at once (8 bytes each, a few arrays)."""
+MAX_CROSSING_WORK = 5 * 10**8
+"""Most count tuples x windows :func:`belief_crossing` updates (about 26 ns each, so at
+most about 13 s; its arrays then hold at most about 2 * 10**7 tuples, 8 bytes each, about
+five arrays at once: under 1 GB)."""
+NEED_SEARCH_STEPS = 12
+"""About how many crossings :func:`agent_rate_the_belief_needs` computes (its bisection)."""
 CROSSING_VOCALIZATIONS_FOLLOWED = 20
 """Vocalizations :func:`information_bound` follows for the median (at least its targets)."""
 
@@ -181,23 +198,22 @@ def belief_crossing(
     if float(log_odds(params, 0, 0, 0, 0)) > threshold:  # the prior alone is past the target
         crossing[0] = 1.0
         return crossing
-    # axes: the active agent windows (one, or one per lag), then the background's
-    lags = len(rates) if params.k2_per_lag else 1
-    per_axis = vocalizations if params.k2_per_lag else len(rates) * vocalizations
-    shape = (per_axis + 1,) * lags + (background_windows * (vocalizations + 1) + 1,)
-    if math.prod(shape) > MAX_CROSSING_STATES:
-        raise ValueError(f"{math.prod(shape):,} count tuples to follow (at most"
-                         f" {MAX_CROSSING_STATES:,}): fewer vocalizations or background windows")
+    shape = crossing_shape(params, background_windows, vocalizations)
+    work = crossing_work(params, background_windows, vocalizations)
+    if work > MAX_CROSSING_WORK:
+        raise ValueError(f"{work:,} count tuples x windows to follow (at most"
+                         f" {MAX_CROSSING_WORK:,}): fewer vocalizations or background windows")
     mass = np.zeros(shape)  # P(these active counts so far and no crossing yet)
     mass[(0,) * len(shape)] = 1.0
     active = np.indices(shape, sparse=True)
     all_active = sum(active[1:], start=active[0])  # every counted window's, for S = 0
+    total = np.arange(all_active.max() + 1)
     counted = [0] * len(shape)
     for made, lag in _crossing_schedule(len(rates), background_windows, vocalizations):
         axis = len(shape) - 1 if lag is None else (lag if params.k2_per_lag else 0)
         mass = _count_window(mass, axis, p_background if lag is None else rates[lag])
         counted[axis] += 1
-        lam = _log_odds_of_counts(params, counted, active, all_active)
+        lam = _log_odds_of_counts(params, counted, active, all_active, total)
         crossed = lam > threshold
         crossing[made] += mass[crossed].sum()
         mass[crossed] = 0.0
@@ -205,8 +221,28 @@ def belief_crossing(
     return crossing
 
 
+def crossing_shape(params: ModelParams, background_windows: int,
+                   vocalizations: int) -> tuple[int, ...]:  # fmt: skip
+    """The shape of the count tuples :func:`belief_crossing` follows.
+
+    Its axes: the active agent windows (one axis, or one per lag with ``k2_per_lag``), then
+    the background's.
+    """
+    agent = agent_window_count(params)
+    lags = agent if params.k2_per_lag else 1
+    per_axis = vocalizations if params.k2_per_lag else agent * vocalizations
+    return (per_axis + 1,) * lags + (background_windows * (vocalizations + 1) + 1,)
+
+
+def crossing_work(params: ModelParams, background_windows: int, vocalizations: int) -> int:
+    """Count tuples x counted windows of :func:`belief_crossing` (its cost)."""
+    windows = background_windows + vocalizations * (agent_window_count(params)
+                                                     + background_windows)  # fmt: skip
+    return math.prod(crossing_shape(params, background_windows, vocalizations)) * windows
+
+
 def _log_odds_of_counts(params: ModelParams, counted: list[int], active: list[np.ndarray],
-                        all_active: np.ndarray) -> np.ndarray:  # fmt: skip
+                        all_active: np.ndarray, total: np.ndarray) -> np.ndarray:  # fmt: skip
     """The belief's log odds at every count tuple (``-inf`` where counts exceed ``counted``).
 
     Axes as in :func:`belief_crossing`: the agent's (a K2 each), then the background's; the
@@ -220,7 +256,7 @@ def _log_odds_of_counts(params: ModelParams, counted: list[int], active: list[np
         alpha, beta = ((params.b21, params.b22) if axis < len(agent)
                        else (params.b31, params.b32))  # fmt: skip
         lam = lam + _betaln_up_to(alpha, beta, active[axis], n)
-    total, every = np.arange(all_active.max() + 1), sum(counted)
+    every = sum(counted)
     with np.errstate(invalid="ignore"):
         odds_zero = np.where(total <= every, betaln(params.b31 + total, params.b32 + every - total),
                              np.inf)  # fmt: skip
@@ -333,8 +369,9 @@ def information_bound(
     agent windows, at ``p_agent_lags`` where given), ``nats_needed`` (from the model's
     prior ``params.pi`` to ``target``), ``vocalizations_bound``
     (:func:`vocalizations_bound`) and ``p_agent_needed``: per number of vocalizations in
-    ``vocalization_targets``, the least P(active), the same at every lag, that the bound
-    allows with this ``p_background`` (None: none suffices). With ``background_windows``
+    ``vocalization_targets``, the least P(active) (the lags' profile kept where given, else
+    the same at every lag) that the bound allows with this ``p_background`` (None: none
+    suffices). With ``background_windows``
     (background windows per vocalization), also ``belief``: the model's own belief
     (``params``) on independent bits at these rates (:func:`belief_crossing`, at
     ``p_agent_lags`` where given): its median vocalizations to ``target``, the chance of
@@ -361,7 +398,8 @@ def information_bound(
             rates, p_background, windows, params.pi, target
         ),
         "p_agent_needed": {
-            str(n): agent_rate_needed(p_background, n, windows, params.pi, target)
+            str(n): agent_rate_needed(p_background, n, windows, params.pi, target,
+                                      None if p_agent_lags is None else rates)  # fmt: skip
             for n in vocalization_targets
         },
     }
@@ -369,15 +407,23 @@ def information_bound(
 
 def _belief_figures(params: ModelParams, rates: tuple[float, ...], p_background: float,
                     background_windows: int, target: float, vocalization_targets: tuple[int, ...],
-                    keep_profile: bool) -> dict[str, object]:  # fmt: skip
+                    keep_profile: bool) -> dict[str, object] | None:  # fmt: skip
     """:func:`information_bound`'s ``belief``: the crossing followed as far as its median needs.
 
     The first entries of a crossing do not depend on how far it is followed: a short one
     first (to the targets and 2 more), the full :data:`CROSSING_VOCALIZATIONS_FOLLOWED`
-    only if its median lies beyond.
+    only if its median lies beyond (``followed``: how far it was). None where the targets'
+    crossings and searches would cost more than :data:`MAX_CROSSING_WORK` (many background
+    windows per vocalization: 30 or more with one K2 per lag).
     """
     longest = max(CROSSING_VOCALIZATIONS_FOLLOWED, *vocalization_targets)
-    for followed in (min(max(vocalization_targets) + 2, longest), longest):
+    shortest = max(vocalization_targets)
+    searches = 1 + NEED_SEARCH_STEPS * len(vocalization_targets)  # with the needs' searches
+    if searches * crossing_work(params, background_windows, shortest) > MAX_CROSSING_WORK:
+        return None  # too many background windows per vocalization to follow
+    lengths = [n for n in (min(shortest + 2, longest), longest)
+               if crossing_work(params, background_windows, n) <= MAX_CROSSING_WORK]  # fmt: skip
+    for followed in lengths or [shortest]:  # the median may lie beyond those followed
         crossing = belief_crossing(params, rates, p_background, background_windows, target,
                                    followed)  # fmt: skip
         median = belief_median_vocalizations(crossing)
@@ -385,6 +431,7 @@ def _belief_figures(params: ModelParams, rates: tuple[float, ...], p_background:
             break
     return {
         "background_windows": background_windows,
+        "followed": len(crossing) - 2,
         "median_vocalizations": median,
         "p_crossed_by": {str(n): float(crossing[: n + 1].sum()) for n in vocalization_targets},
         "p_agent_needed": {
