@@ -89,6 +89,24 @@ def test_the_parameter_reference_is_what_the_nodes_declare() -> None:
         f" ({parameter_reference.COMMAND}):\n{diff[:3000]}")
 
 
+def test_the_parameter_reference_is_written_whole_or_refused_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(parameter_reference, "generate", lambda: "# reference\n")
+    out = tmp_path / "PARAMETERS.md"
+    assert parameter_reference.main(["--out", str(out)]) == 0
+    assert out.read_text() == "# reference\n" and [p.name for p in tmp_path.iterdir()] == [
+        "PARAMETERS.md"]  # no temporary file left beside it
+
+    def never() -> str:
+        raise AssertionError("the nodes were started for a path that cannot be written")
+
+    monkeypatch.setattr(parameter_reference, "generate", never)
+    assert parameter_reference.main(["--out", str(tmp_path)]) == 2  # a directory
+    err = capsys.readouterr().err
+    assert err.startswith("parameter_reference: ") and err.count("\n") == 1, err
+
+
 SPECIAL_VALUE = re.compile(r"(?:^|[;(,] )(negative|-?\d+(?:\.\d+)?) = ")
 """A description's special value ("-1 = no partner", "negative = never", "0 = the whole")."""
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from infomax_contingency.limits import check_output_file, written_atomically
 from infomax_contingency.nodes.entry import NODES
 
 VALUES_TO_START: dict[str, dict[str, Any]] = {"recorder_node": {"directory": "{tmp}/bag"}}
@@ -260,11 +261,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, help="file to write (default: standard output)")
     args = parser.parse_args(argv)
-    text = generate()
-    if args.out is None:
-        sys.stdout.write(text)
-    else:
-        args.out.write_text(text)
+    try:
+        if args.out is not None:  # refused before the nodes are started, in one line
+            check_output_file(args.out, "--out", "parameter reference")
+        text = generate()
+        if args.out is None:
+            sys.stdout.write(text)
+            return 0
+        with written_atomically(args.out, "--out") as stream:  # whole, or the file as it was
+            stream.write(text.encode())
+    except (ValueError, OSError) as error:
+        print(f"parameter_reference: {error}", file=sys.stderr)
+        return 2
     return 0
 
 
