@@ -121,10 +121,10 @@ def log_odds(params: ModelParams, p2: Any, q2: Any, p3: Any, q3: Any) -> Any:
     """Log posterior odds ``lam = log P(S=1|a) / P(S=0|a)`` (natural log), exact."""
     p2, q2, p3, q3 = (np.asarray(v) for v in (p2, q2, p3, q3))
     agent = _betaln_of_counts(params.b21, params.b22, p2, q2)
-    return _log_odds_of_agent(params, agent, 1, p2, q2, p3, q3)
+    return log_odds_of_agent(params, agent, 1, p2, q2, p3, q3)
 
 
-def _log_odds_of_agent(params: ModelParams, agent_betaln: Any, rates: int, p2: Any, q2: Any,
+def log_odds_of_agent(params: ModelParams, agent_betaln: Any, rates: int, p2: Any, q2: Any,
                        p3: Any, q3: Any) -> Any:  # fmt: skip
     """The log posterior odds given the agent bits' evidence under S=1 (MODEL.md section 2).
 
@@ -181,7 +181,7 @@ def per_lag_log_odds(params: ModelParams, lags: tuple[int, ...], p2: int, q2: in
     """
     counts = np.asarray(lags, dtype=float).reshape(-1, 2)
     agent = np.sum(betaln(params.b21 + counts[:, 0], params.b22 + counts[:, 1]))
-    return float(_log_odds_of_agent(params, agent, len(counts), p2, q2, p3, q3))
+    return float(log_odds_of_agent(params, agent, len(counts), p2, q2, p3, q3))
 
 
 def _beta_mean_of_counts(alpha: float, beta: float, x: Any, y: Any) -> Any:
