@@ -5,7 +5,8 @@ espeak-ng (72 processes) and resamples it: about 1 s of CPU, cached per process.
 worker that builds a room with speech paid it again. Here the first worker to need the
 bank at a rate renders it (the package's own function, holding a lock the others wait on)
 and saves it under the run's shared temporary directory; the others load the same samples
-(``.npy``: float64, exact). Nothing is kept between runs.
+(``.npy``: float64, exact). Nothing is kept between runs. The children's bank of the
+playroom (:func:`~infomax_contingency.sim.tts.children_bank`) is shared the same way.
 """
 
 from __future__ import annotations
@@ -51,7 +52,11 @@ def shared_tts_bank(directory: Path, render: Callable[[int], Bank]) -> Callable[
 
 
 def install(base_temp: Path) -> None:
-    """Make ``tts.tts_bank`` the run's shared bank (rooms look it up at each use)."""
+    """Make ``tts.tts_bank`` and ``tts.children_bank`` the run's shared banks.
+
+    Rooms look them up at each use.
+    """
     if os.environ.get("PYTEST_XDIST_WORKER"):
         base_temp = base_temp.parent  # shared by the workers of this run
     tts.tts_bank = shared_tts_bank(base_temp / "tts_bank", tts.tts_bank)
+    tts.children_bank = shared_tts_bank(base_temp / "children_bank", tts.children_bank)

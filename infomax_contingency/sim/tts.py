@@ -10,7 +10,8 @@ Each voice of :data:`TTS_VOICES` (an espeak-ng voice with a variant, a speed in 
 minute and a pitch 0-99) reads all of :data:`TTS_SENTENCES` once, in an order of its own;
 its recording, resampled to the room's rate, normalised to unit RMS over its voiced
 parts' time (pauses included), is cached per process (rendering all voices takes well
-under a second).
+under a second). A second bank, :func:`children_bank`, holds children's voices (high
+pitch, fast) calling out :data:`CHILD_SENTENCES` for the ``playroom``.
 """
 
 from __future__ import annotations
@@ -52,6 +53,32 @@ TTS_VOICES = (
 PAUSE_BETWEEN_SENTENCES_S = 0.35
 """Silence between two sentences of a voice's recording, seconds."""
 
+CHILD_SENTENCES = (
+    "Look at me! I can jump really high!",
+    "My turn, my turn! Give it back!",
+    "Mummy, come and see what I made!",
+    "You're it! You can't catch me!",
+    "That's mine, I had it first!",
+    "Let's build a tower, a really big one!",
+    "Again! Do it again!",
+    "Where is the red car? I want the red car!",
+    "Ready or not, here I come!",
+    "Wow, look, the dinosaur is eating the train!",
+)
+"""What the children of :func:`children_bank` call out (each voice says every one)."""
+
+CHILD_VOICES = (
+    ("en-us+f5", 200, 95),
+    ("en+f3", 210, 99),
+    ("en-us+Alicia", 195, 90),
+    ("en-us+f2", 215, 97),
+)
+"""espeak-ng voices of the children's bank: (voice+variant, words per minute, pitch 0-99);
+their fundamental is about 300-400 Hz."""
+
+CHILD_PAUSE_S = 0.2
+"""Silence between two sentences of a child's recording, seconds."""
+
 
 class TtsUnavailableError(RuntimeError):
     """espeak-ng is missing or failed (one line: what to install)."""
@@ -88,18 +115,37 @@ def tts_bank(rate: int) -> tuple[NDArray[np.float64], ...]:
     Read-only arrays; made once per process and rate. Raises
     :class:`TtsUnavailableError` without espeak-ng.
     """
+    return _bank(rate, TTS_VOICES, TTS_SENTENCES, PAUSE_BETWEEN_SENTENCES_S)
+
+
+@functools.lru_cache(maxsize=4)
+def children_bank(rate: int) -> tuple[NDArray[np.float64], ...]:
+    """Every voice of :data:`CHILD_VOICES` saying :data:`CHILD_SENTENCES`, at ``rate``, unit RMS.
+
+    As :func:`tts_bank` (read-only, cached, deterministic), a bank of its own.
+    """
+    return _bank(rate, CHILD_VOICES, CHILD_SENTENCES, CHILD_PAUSE_S)
+
+
+def _bank(
+    rate: int,
+    voices: tuple[tuple[str, int, int], ...],
+    sentences: tuple[str, ...],
+    pause_s: float,
+) -> tuple[NDArray[np.float64], ...]:
+    """Voice k reads ``sentences`` in the order ``default_rng(k).permutation``, with pauses."""
     from infomax_contingency.audio.resample import resample
 
-    voices = []
-    for k, (voice, speed, pitch) in enumerate(TTS_VOICES):
-        order = np.random.default_rng(k).permutation(len(TTS_SENTENCES))
+    bank = []
+    for k, (voice, speed, pitch) in enumerate(voices):
+        order = np.random.default_rng(k).permutation(len(sentences))
         parts = []
         for index in order:
-            samples, native = _render(TTS_SENTENCES[index], voice, speed, pitch)
+            samples, native = _render(sentences[index], voice, speed, pitch)
             parts.append(resample(samples, native, rate))
-            parts.append(np.zeros(round(PAUSE_BETWEEN_SENTENCES_S * rate)))
+            parts.append(np.zeros(round(pause_s * rate)))
         x = np.concatenate(parts)
         x = x / np.sqrt(np.mean(x * x))
         x.setflags(write=False)
-        voices.append(x)
-    return tuple(voices)
+        bank.append(x)
+    return tuple(bank)
