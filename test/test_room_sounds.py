@@ -127,7 +127,9 @@ def test_rooms_are_reproducible_and_their_background_ignores_the_robot(backgroun
     run(robot_talks, 40, every=3)
     quiet_robot = FakeRoom(empty, 5, meter=True)
     run(quiet_robot, 40, every=10**9)
-    for source in ("floor", "babble", "tv", "event", "footstep", "door", "music", "hum", "traffic"):
+    sources = ("floor", "babble", "tv", "event", "footstep", "door", "music", "hum", "traffic")
+    sources += ("children", "toy", "bark", "washer", "spin", "vacuum")
+    for source in sources:
         assert robot_talks.measured_levels_db().get(source) == (
             quiet_robot.measured_levels_db().get(source)
         ), "the robot does not change the background"
@@ -197,6 +199,13 @@ def test_speech_like_sound_has_syllables_and_voice() -> None:
         ("reverb_rt60_s", 9.0, "reverb_rt60_s"),
         ("door_rate_hz", -0.1, "door_rate_hz"),
         ("babble_cutoff_hz", 0.0, "babble_cutoff_hz"),
+        ("children_talkers", 11, "children_talkers"),
+        ("children_talkers", True, "children_talkers"),
+        ("washer_on", 1, "washer_on"),
+        ("vacuum_on", "yes", "vacuum_on"),
+        ("bark_rate_hz", -0.1, "bark_rate_hz"),
+        ("toy_rate_hz", float("nan"), "toy_rate_hz"),
+        ("washer_spin_level_db", 3.0, "washer_spin_level_db"),
     ],
 )
 def test_bad_room_sound_parameters_are_refused(field: str, value: object, message: str) -> None:

@@ -4,7 +4,8 @@ Where :mod:`infomax_contingency.sim.world` draws bits, this module makes the sou
 microphone would pick up, so the whole audio path (energies, threshold, bits) runs as it
 would on a robot. Its sources, levels and timing are the settings of
 :class:`~infomax_contingency.sim.room_config.FakeRoomConfig` (described there); the sounds
-themselves are made in :mod:`infomax_contingency.sim.room_sounds`; the room heard through a
+themselves are made in :mod:`infomax_contingency.sim.room_sounds` (and, for the later
+held-out rooms, :mod:`infomax_contingency.sim.household_streams`); the room heard through a
 bit source, in the loop with a controller, is :mod:`infomax_contingency.sim.audio_loop`.
 """
 
@@ -20,6 +21,7 @@ import numpy as np
 from infomax_contingency.audio.energy import window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.sim import room_sounds
+from infomax_contingency.sim.household_streams import HOUSEHOLD_SOURCES, household_streams
 from infomax_contingency.sim.room_config import CONTINUOUS_SOURCES, ROBOT_SOUND_S, FakeRoomConfig
 from infomax_contingency.sim.room_sounds import NoiseFloor, rms_scaled
 
@@ -132,11 +134,12 @@ class FakeRoom:
         self.config = config
         self.rate = config.rate_hz
         self.window = window_samples(config.rate_hz, config.window_s)
-        # the first eight as ever, then the newer rooms' sources, then the robot's speech
-        streams = np.random.SeedSequence(seed).spawn(13)
+        # the first eight as ever, then the newer rooms' sources, then the robot's speech,
+        # then the later rooms' (spawned after: the first 13 streams stay as they were)
+        streams = np.random.SeedSequence(seed).spawn(13 + len(HOUSEHOLD_SOURCES))
         (noise, events, replies, doors, steps, babble, tv, reverb, music, traffic, typing,
          speech, chatter) = (
-            np.random.default_rng(stream) for stream in streams
+            np.random.default_rng(stream) for stream in streams[:13]
         )
         self._speech_rng = speech
         self._chatter_rng = chatter
@@ -167,6 +170,9 @@ class FakeRoom:
         self._sounds: list[_Sound] = []
         self._streams = self._background_streams(events, doors, steps, babble, tv)
         self._streams += _newer_streams(self, music, traffic, typing)
+        self._streams += [
+            _SoundStream(*spec) for spec in household_streams(config, self.rate, streams[13:])
+        ]
         self.windows_made = 0
         self.vocalizations = 0
         self.replies = 0
@@ -411,7 +417,7 @@ class FakeRoom:
         x = self._floor.next(self.window)
         if self._meter is not None:
             self._measure("floor", x, self.window)
-            for source in ("babble", "tv", "music", "hum"):  # continuous: every window counts
+            for source in CONTINUOUS_SOURCES[1:]:  # continuous: every window counts
                 if self._has(source):
                     self._measure(source, np.zeros(0), self.window)
         remaining = []
@@ -447,6 +453,7 @@ class FakeRoom:
             "tv": config.tv_on,
             "music": config.music_on,
             "hum": config.hum_on,
+            "washer": config.washer_on,
         }[source]
 
     def _measure(self, source: str, part: np.ndarray, covered: int) -> None:

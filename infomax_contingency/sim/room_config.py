@@ -25,6 +25,15 @@ up from them, one window at a time. The room holds (the sounds themselves are ma
   traffic passing (``traffic_rate_hz`` swells of 3-8 s at ``traffic_level_db``) and
   typing (``typing_rate_hz`` bursts of 2-8 s of key clicks at ``typing_level_db``); a
   partner who speaks espeak-ng sentences (``reply_voice`` ``tts``);
+* (the later held-out rooms, :mod:`infomax_contingency.sim.household_streams`)
+  ``children_talkers`` children (espeak-ng's children's voices) talking and shouting in
+  bursts of 0.4-2.5 s at ``children_level_db`` (+-4 dB a burst), toys squeaking or
+  rattling (``toy_rate_hz`` a second, at ``toy_level_db``), a dog barking in clusters of
+  1-5 barks of 0.1-0.3 s (``bark_rate_hz`` clusters a second, each bark at
+  ``bark_level_db``), a washing machine (``washer_on``: the motor's whine and the drum
+  turning at 0.8-1.2 Hz at a long-term ``washer_level_db``, and every 20-30 s a spin of
+  6-12 s, a rising whine at ``washer_spin_level_db`` over it) and a vacuum cleaner in the
+  next room (``vacuum_on``: on for 5-25 s, off for 5-20 s, at ``vacuum_level_db`` while on);
 * the robot hearing itself: after each vocalization, its 200 ms chirp
   (:func:`~infomax_contingency.audio.synth.synthesize_chirp`) starts ``self_delay_s`` after the
   start of the next window, at ``self_level_db``; with ``reverb_rt60_s > 0`` followed by
@@ -85,10 +94,11 @@ SPEECH_VOICES = ("synthetic", "tts")
 :func:`~infomax_contingency.sim.room_sounds.speech_bank`) or ``tts`` (sentences spoken by
 espeak-ng, :func:`~infomax_contingency.sim.room_sounds.tts_voices`)."""
 
-CONTINUOUS_SOURCES = ("floor", "babble", "tv", "music", "hum")
+CONTINUOUS_SOURCES = ("floor", "babble", "tv", "music", "hum", "washer")
 """Sources whose level is their long-term RMS (pauses included)."""
 TRANSIENT_SOURCES = (
-    "event", "door", "footstep", "self", "echo", "reply", "robot_speech", "traffic", "typing"
+    "event", "door", "footstep", "self", "echo", "reply", "robot_speech", "traffic", "typing",
+    "children", "toy", "bark", "spin", "vacuum"
 )
 """Sources whose level is the RMS over each sound's duration."""
 
@@ -150,6 +160,17 @@ class FakeRoomConfig:
     robot_speech_min_s: float = 0.6
     robot_speech_max_s: float = 1.0
     robot_speech_level_db: float = -20.0
+    children_talkers: int = 0
+    children_level_db: float = -33.0
+    toy_rate_hz: float = 0.0
+    toy_level_db: float = -38.0
+    bark_rate_hz: float = 0.0
+    bark_level_db: float = -30.0
+    washer_on: bool = False
+    washer_level_db: float = -40.0
+    washer_spin_level_db: float = -34.0
+    vacuum_on: bool = False
+    vacuum_level_db: float = -36.0
 
     def __post_init__(self) -> None:  # noqa: C901
         def fail(name: str, allowed: str) -> None:
@@ -157,13 +178,12 @@ class FakeRoomConfig:
 
         if isinstance(self.rate_hz, bool) or not isinstance(self.rate_hz, int) or self.rate_hz < 1:
             fail("rate_hz", "a positive whole number of Hz")
-        if (
-            isinstance(self.babble_talkers, bool)
-            or not isinstance(self.babble_talkers, int)
-            or not 0 <= self.babble_talkers <= 100
-        ):
-            fail("babble_talkers", "a whole number of talkers in 0 .. 100")
-        for name in ("tv_on", "music_on", "hum_on"):
+        counts = (("babble_talkers", "talkers", 100), ("children_talkers", "children", 10))
+        for name, who, most in counts:
+            count = getattr(self, name)
+            if isinstance(count, bool) or not isinstance(count, int) or not 0 <= count <= most:
+                fail(name, f"a whole number of {who} in 0 .. {most}")
+        for name in ("tv_on", "music_on", "hum_on", "washer_on", "vacuum_on"):
             if not isinstance(getattr(self, name), bool):
                 fail(name, "true or false")
         for name in ("babble_voice", "tv_voice"):
@@ -235,6 +255,8 @@ _NON_NEGATIVE_FIELDS = (
     "typing_rate_hz",
     "robot_speech_delay_s",
     "robot_speech_rate_hz",
+    "toy_rate_hz",
+    "bark_rate_hz",
 )
 """Fields of :class:`FakeRoomConfig` that must be >= 0."""
 
@@ -253,13 +275,19 @@ _LEVEL_FIELDS = (
     "traffic_level_db",
     "typing_level_db",
     "robot_speech_level_db",
+    "children_level_db",
+    "toy_level_db",
+    "bark_level_db",
+    "washer_level_db",
+    "washer_spin_level_db",
+    "vacuum_level_db",
 )
 """Fields of :class:`FakeRoomConfig` that are levels, dB FS (-150 .. 0)."""
 
 _NON_NUMBER_FIELDS = frozenset(
     {
         "rate_hz", "babble_talkers", "tv_on", "floor_spectrum", "reply_voice", "babble_voice",
-        "tv_voice", "music_on", "hum_on",
+        "tv_voice", "music_on", "hum_on", "children_talkers", "washer_on", "vacuum_on",
     }
 )
 """Fields checked on their own in :meth:`FakeRoomConfig.__post_init__` (not plain numbers)."""
@@ -271,9 +299,9 @@ PRESETS: dict[str, dict[str, Any]] = {
 """Named rooms (the registry's rooms with an audio-level preset): ``responsive`` (a
 partner in a fairly quiet room), ``silent`` (nobody, a quiet room), ``noisy`` (nobody, a
 busy room: about half the windows hold a sound), and the rooms that sound like rooms,
-``quiet``, ``office``, ``poster-session`` and ``tv-on`` with the partner absent, present
-(``+partner``), arriving (``+arriving``) or leaving (``+leaving``). See
-:data:`infomax_contingency.sim.rooms.ROOMS`."""
+``quiet``, ``office``, ``poster-session``, ``tv-on`` and the newer and held-out rooms
+with the partner absent, present (``+partner``), arriving (``+arriving``) or leaving
+(``+leaving``). See :data:`infomax_contingency.sim.rooms.ROOMS`."""
 
 
 def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
