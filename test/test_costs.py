@@ -37,6 +37,7 @@ from infomax_contingency.limits import (
     load_yaml,
     memory_budget,
 )
+from infomax_contingency.sim.rooms import ROOM_SOUNDS
 
 SESSION = Path(__file__).parent / "data" / "session_demo"
 
@@ -476,8 +477,9 @@ def test_an_experiment_whose_table_would_not_fit_is_refused_before_solving(argv,
     (("efficiency", "--named-runs", str(10**12)), "refusing to run experiment efficiency: 72,"),
     (("efficiency", "--workers", "100000"), "--workers 100000: give 1 .. "),
     # grew to the memory limit
+    # 10^12 runs x every room x 4 partner states x 4 controllers
     (("rooms", "--runs", str(10**12)),
-     "refusing to run experiment rooms: 192,000,000,000,000 runs: it needs about"),
+     f"refusing to run experiment rooms: {10**12 * len(ROOM_SOUNDS) * 16:,} runs: it needs about"),
     (("rooms", "--jobs", "100000"), "experiment rooms: --jobs 100000: give 1 .. "),
 ])
 def test_an_experiment_too_large_is_refused_before_any_work(argv, message, capsys, monkeypatch):
