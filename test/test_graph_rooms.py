@@ -162,12 +162,17 @@ def test_separate_processes_give_the_offline_run(make_graph: Callable[[], Graph]
     _assert_equals_offline(run, _offline(seed, steps), steps)
 
 
-@pytest.mark.parametrize(("room", "run"), [("office+partner", 0), ("quiet+leaving", 3)])
-def test_rooms_experiment_runs_equal_the_graph(room: str, run: int) -> None:
+@pytest.mark.parametrize(
+    ("room", "run", "binarizer"),
+    [("office+partner", 0, "fixed"), ("quiet+leaving", 3, "fixed"),
+     ("dog-home+partner", 0, "background"), ("laundry+leaving", 2, "background")],
+)  # fmt: skip
+def test_rooms_experiment_runs_equal_the_graph(room: str, run: int, binarizer: str) -> None:
     """Runs of ``experiment rooms`` equal the graph's (the pattern of the test above).
 
-    A sample run (fixed threshold, optimal table, belief memory 60) gives the graph's
-    bits, decisions, beliefs and postures.
+    A sample run (optimal table, belief memory 60; a fixed threshold, or mic_node's
+    default source in a room held out later) gives the graph's bits, decisions, beliefs
+    and postures.
     """
     from infomax_contingency.eval.rooms import controller_specs, room_seed, run_room
     from infomax_contingency.eval.rooms import postures as offline_postures
@@ -175,15 +180,20 @@ def test_rooms_experiment_runs_equal_the_graph(room: str, run: int) -> None:
     params = ModelParams.named("robot")
     steps, seed, memory = 80, 0, 60
     spec = controller_specs(params, ["optimal"])[0][1]
-    threshold = f"fixed:{FIXED_THRESHOLD['threshold_db']}"
+    fixed = binarizer == "fixed"
+    threshold = f"fixed:{FIXED_THRESHOLD['threshold_db']}" if fixed else binarizer
     offline = run_room(params, room, spec, threshold, steps * 0.5, seed, run, memory)
+    steps = len(offline.y)  # the default source's warm-up windows give no step
     attentive = offline_postures(offline.belief, ATTENTIVE_ABOVE, BORED_BELOW)  # posture_node's
     expected = ["bored"]  # posture_node's initial posture, then every change
     for now in attentive:
         if ("attentive" if now else "bored") != expected[-1]:
             expected.append("attentive" if now else "bored")
     fake_room = {"room": room, "seed": room_seed(seed, room, run)}
-    with stepped_graph(room_nodes(fake_room, steps, memory_steps=memory),
+    if not fixed:
+        fake_room["max_windows"] = 0  # more windows than steps
+    source = {} if fixed else {"bit_source": {}}
+    with stepped_graph(room_nodes(fake_room, steps, memory_steps=memory, **source),
                        "fake_audio_node") as graph:  # fmt: skip
         graph.run_steps(steps)
         rec = graph.recorder
