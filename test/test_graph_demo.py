@@ -573,3 +573,25 @@ def test_bringup_refuses_an_empty_record_directory(capsys: pytest.CaptureFixture
         bringup._parse(["bringup", "--fake-room", "--record", ""])
     assert ended.value.code == 2
     assert "the path is empty; name a new directory" in capsys.readouterr().err
+
+
+def test_a_named_room_keeps_its_own_partner_in_the_demo() -> None:
+    """``demo --room office+partner`` has a partner, ``office`` none.
+
+    config/fake_room.yaml's partner of the first 60 s is the responsive room's alone;
+    ``--leave-at`` moves the departure.
+    """
+    from infomax_contingency.cli.demo import partner_schedule
+
+    def schedule(room: str, leave_at: float | None = None) -> tuple[float, float]:
+        times = partner_schedule(room, leave_at)
+        return times["partner_arrive_s"], times["partner_leave_s"]
+
+    assert schedule("responsive") == (0.0, 60.0)
+    assert schedule("responsive", -1.0) == (0.0, -1.0)
+    assert schedule("office") == (-1.0, -1.0)
+    assert schedule("silent") == (-1.0, -1.0)
+    assert schedule("office+partner") == (0.0, -1.0)
+    assert schedule("playroom+arriving") == (20.0, -1.0)
+    assert schedule("dog-home+leaving") == (0.0, 20.0)
+    assert schedule("office+partner", 30.0) == (0.0, 30.0)

@@ -47,7 +47,9 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise ValueError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
     if not 0 <= args.seed <= MAX_SEED:
         raise ValueError(f"--seed must be in [0, {MAX_SEED}], got {args.seed}")
-    if not math.isfinite(args.leave_at) or args.leave_at > MAX_LEAVE_AT_S:
+    if args.leave_at is not None and (
+        not math.isfinite(args.leave_at) or args.leave_at > MAX_LEAVE_AT_S
+    ):
         raise ValueError(
             f"--leave-at must be at most {MAX_LEAVE_AT_S:g} s (negative: the partner stays),"
             f" got {args.leave_at}"
