@@ -5,6 +5,7 @@ Both read the shipped parameter files (config/robot.yaml, config/fake_room.yaml)
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import signal
@@ -581,17 +582,21 @@ def test_a_named_room_keeps_its_own_partner_in_the_demo() -> None:
     config/fake_room.yaml's partner of the first 60 s is the responsive room's alone;
     ``--leave-at`` moves the departure.
     """
-    from infomax_contingency.cli.demo import partner_schedule
+    from infomax_contingency.cli.demo import _nodes, register_demo
 
-    def schedule(room: str, leave_at: float | None = None) -> tuple[float, float]:
-        times = partner_schedule(room, leave_at)
+    def schedule(room: str, *leave_at: str) -> tuple[float, float]:
+        parser = argparse.ArgumentParser()
+        register_demo(parser.add_subparsers())
+        leave = ("--leave-at", *leave_at) if leave_at else ()
+        args = parser.parse_args(["demo", "--room", room, *leave])
+        times = _nodes(args)[0]["fake_audio_node"]
         return times["partner_arrive_s"], times["partner_leave_s"]
 
     assert schedule("responsive") == (0.0, 60.0)
-    assert schedule("responsive", -1.0) == (0.0, -1.0)
+    assert schedule("responsive", "-1") == (0.0, -1.0)
     assert schedule("office") == (-1.0, -1.0)
     assert schedule("silent") == (-1.0, -1.0)
     assert schedule("office+partner") == (0.0, -1.0)
     assert schedule("playroom+arriving") == (20.0, -1.0)
     assert schedule("dog-home+leaving") == (0.0, 20.0)
-    assert schedule("office+partner", 30.0) == (0.0, 30.0)
+    assert schedule("office+partner", "30") == (0.0, 30.0)

@@ -59,7 +59,7 @@ from infomax_contingency.cli.demo_checks import (
 from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED, BORED_BELOW, PostureHysteresis
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.room_config import PRESETS, FakeRoomConfig
+from infomax_contingency.sim.room_config import PRESETS, partner_times
 
 DEMO_LEAVE_S = 60.0
 """Room time the responsive room's partner leaves in the demo by default, s."""
@@ -199,21 +199,6 @@ def _choose_bit_source(mic: dict[str, Any], args: argparse.Namespace) -> None:
         mic["calibration_s"] = args.calibration_s
 
 
-def partner_schedule(room: str, leave_at: float | None) -> dict[str, float]:
-    """fake_audio_node's ``partner_arrive_s`` and ``partner_leave_s`` for the demo's room.
-
-    The room's own (``office+arriving``: 20 s; ``office``: never), over
-    config/fake_room.yaml's partner of the first 60 s; ``leave_at`` (s, negative: stays)
-    moves the departure; the responsive room's partner leaves at :data:`DEMO_LEAVE_S`
-    unless told otherwise.
-    """
-    preset = FakeRoomConfig.preset(room)
-    if leave_at is None:
-        leave_at = DEMO_LEAVE_S if room == "responsive" else preset.partner_leave_s
-    return {"partner_arrive_s": preset.partner_arrive_s,
-            "partner_leave_s": leave_at if leave_at >= 0 else -1.0}  # fmt: skip
-
-
 def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     """Per-node parameters (over the config files) and the node that sets the pace."""
     # controller, belief and this monitor, and the recorder: with the recorder counted,
@@ -254,7 +239,8 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     if args.record and not args.no_record_audio:
         room["wait_for_listeners"] = 2  # mic_node and the recorder, which subscribes to
         # 'audio' once it sees the room's publisher: no audio before it is lost
-    room.update(partner_schedule(args.room, args.leave_at))
+    leave_at = DEMO_LEAVE_S if args.leave_at is None and args.room == "responsive" else None
+    room.update(partner_times(args.room, args.leave_at if leave_at is None else leave_at))
     nodes["mic_node"] = {"source": "topic", "wait_for_listeners": listeners}
     _choose_bit_source(nodes["mic_node"], args)
     nodes["fake_audio_node"] = room

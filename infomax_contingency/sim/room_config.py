@@ -336,3 +336,14 @@ def timing_warnings(config: FakeRoomConfig, params: ModelParams) -> list[str]:
             f" agent period (ends at {(params.ta2 + 1) * dt:.2f} s)"
         )
     return warnings
+
+
+def partner_times(room: str, leave_s: float | None = None) -> dict[str, float]:
+    """A named room's ``partner_arrive_s`` and ``partner_leave_s`` (room time, s; -1: never).
+
+    ``leave_s`` moves the departure (negative: the partner stays); None keeps the room's.
+    """
+    preset = FakeRoomConfig.preset(room)
+    leave = preset.partner_leave_s if leave_s is None else max(leave_s, -1.0)
+    return {"partner_arrive_s": preset.partner_arrive_s,
+            "partner_leave_s": leave if leave >= 0 else -1.0}  # fmt: skip
