@@ -344,6 +344,6 @@ def partner_times(room: str, leave_s: float | None = None) -> dict[str, float]:
     ``leave_s`` moves the departure (negative: the partner stays); None keeps the room's.
     """
     preset = FakeRoomConfig.preset(room)
-    leave = preset.partner_leave_s if leave_s is None else max(leave_s, -1.0)
+    leave = preset.partner_leave_s if leave_s is None else leave_s
     return {"partner_arrive_s": preset.partner_arrive_s,
             "partner_leave_s": leave if leave >= 0 else -1.0}  # fmt: skip
