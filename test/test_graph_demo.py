@@ -583,13 +583,16 @@ def test_a_named_room_keeps_its_own_partner_in_the_demo() -> None:
     ``--leave-at`` moves the departure.
     """
     from infomax_contingency.cli.demo import _nodes, register_demo
+    from infomax_contingency.cli.demo_checks import check_arguments
 
-    def schedule(room: str, *leave_at: str) -> tuple[float, float]:
+    def parse(room: str, *leave_at: str) -> argparse.Namespace:
         parser = argparse.ArgumentParser()
         register_demo(parser.add_subparsers())
         leave = ("--leave-at", *leave_at) if leave_at else ()
-        args = parser.parse_args(["demo", "--room", room, *leave])
-        times = _nodes(args)[0]["fake_audio_node"]
+        return parser.parse_args(["demo", "--room", room, *leave])
+
+    def schedule(room: str, *leave_at: str) -> tuple[float, float]:
+        times = _nodes(parse(room, *leave_at))[0]["fake_audio_node"]
         return times["partner_arrive_s"], times["partner_leave_s"]
 
     assert schedule("responsive") == (0.0, 60.0)
@@ -600,3 +603,6 @@ def test_a_named_room_keeps_its_own_partner_in_the_demo() -> None:
     assert schedule("playroom+arriving") == (20.0, -1.0)
     assert schedule("dog-home+leaving") == (0.0, 20.0)
     assert schedule("office+partner", "30") == (0.0, 30.0)
+    with pytest.raises(ValueError, match="--leave-at 10 in room office\\+arriving: room parameter"
+                       " partner_leave_s = 10.0: must be > partner_arrive_s"):
+        check_arguments(parse("office+arriving", "10"))

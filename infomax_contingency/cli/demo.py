@@ -49,7 +49,9 @@ from typing import Any
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.cli.demo_checks import (
+    DEMO_LEAVE_S,
     check_arguments,
+    demo_partner_times,
     finite_number,
     log_messages,
     no_step,
@@ -59,10 +61,7 @@ from infomax_contingency.cli.demo_checks import (
 from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED, BORED_BELOW, PostureHysteresis
 from infomax_contingency.resources import resource_path
-from infomax_contingency.sim.room_config import PRESETS, partner_times
-
-DEMO_LEAVE_S = 60.0
-"""Room time the responsive room's partner leaves in the demo by default, s."""
+from infomax_contingency.sim.room_config import PRESETS
 
 CONNECT_TIMEOUT_S = 180.0
 """Seconds the nodes may take to come up and connect before the demo gives up."""
@@ -239,8 +238,7 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     if args.record and not args.no_record_audio:
         room["wait_for_listeners"] = 2  # mic_node and the recorder, which subscribes to
         # 'audio' once it sees the room's publisher: no audio before it is lost
-    leave_at = DEMO_LEAVE_S if args.leave_at is None and args.room == "responsive" else None
-    room.update(partner_times(args.room, args.leave_at if leave_at is None else leave_at))
+    room.update(demo_partner_times(args))
     nodes["mic_node"] = {"source": "topic", "wait_for_listeners": listeners}
     _choose_bit_source(nodes["mic_node"], args)
     nodes["fake_audio_node"] = room

@@ -18,6 +18,7 @@ from typing import Any
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.wav import open_wav_info
 from infomax_contingency.core.model import MAX_MEMORY_STEPS
+from infomax_contingency.sim.room_config import FakeRoomConfig, partner_times
 
 
 def finite_number(text: str) -> float:
@@ -40,6 +41,35 @@ MAX_LEAVE_AT_S = 1e9
 MAX_CALIBRATION_S = 3600.0
 """Largest ``--calibration-s``: mic_node's ``calibration_s`` parameter."""
 
+DEMO_LEAVE_S = 60.0
+"""Room time the responsive room's partner leaves in the demo by default, s."""
+
+
+def demo_partner_times(args: argparse.Namespace) -> dict[str, float]:
+    """fake_audio_node's ``partner_arrive_s`` and ``partner_leave_s`` for the demo's room.
+
+    The room's own (``office+arriving``: 20 s; ``office``: nobody), over
+    config/fake_room.yaml's partner of the first 60 s; ``--leave-at`` moves the departure;
+    the responsive room's partner leaves at :data:`DEMO_LEAVE_S` unless told otherwise.
+    ValueError (one line) for a departure out of range, or one the room refuses (before
+    the partner arrives).
+    """
+    leave_at = args.leave_at
+    if leave_at is not None and not (math.isfinite(leave_at) and leave_at <= MAX_LEAVE_AT_S):
+        raise ValueError(
+            f"--leave-at must be at most {MAX_LEAVE_AT_S:g} s (negative: the partner stays),"
+            f" got {leave_at}"
+        )
+    if leave_at is None and args.room == "responsive":
+        leave_at = DEMO_LEAVE_S
+    times = partner_times(args.room, leave_at)
+    try:
+        FakeRoomConfig.preset(args.room, **times)
+    except ValueError as error:
+        given = "" if args.leave_at is None else f"--leave-at {args.leave_at:g} in "
+        raise ValueError(f"{given}room {args.room}: {error}") from None
+    return times
+
 
 def check_arguments(args: argparse.Namespace) -> None:
     """Refuse what the graph cannot run, before a node starts (ValueError: one line)."""
@@ -47,13 +77,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise ValueError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
     if not 0 <= args.seed <= MAX_SEED:
         raise ValueError(f"--seed must be in [0, {MAX_SEED}], got {args.seed}")
-    if args.leave_at is not None and (
-        not math.isfinite(args.leave_at) or args.leave_at > MAX_LEAVE_AT_S
-    ):
-        raise ValueError(
-            f"--leave-at must be at most {MAX_LEAVE_AT_S:g} s (negative: the partner stays),"
-            f" got {args.leave_at}"
-        )
+    demo_partner_times(args)
     if not 0 <= args.memory <= MAX_MEMORY_STEPS:
         raise ValueError(f"--memory must be in [0, {MAX_MEMORY_STEPS}] (belief_node's"
                          f" memory_steps; 0 = all), got {args.memory}")
