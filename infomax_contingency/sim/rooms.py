@@ -46,7 +46,7 @@ where people speak up), answering 90 % of vocalizations 1.0 .. 1.4 s after them,
 are espeak-ng sentences (``reply_voice`` ``tts``).
 
 Four rooms held out later (:data:`HELD_OUT_LATER`, also in :data:`_NEWER_ROOMS`) are
-built from sources none of the others has
+each built around a source no other room has
 (:mod:`~infomax_contingency.sim.household_streams`); levels as above (children, toys,
 barks, spin and vacuum: RMS over each sound; the washer's wash over all time):
 
@@ -59,7 +59,7 @@ dog-home         -58 p  a dog: clusters of 1-5 barks -30, one per   -26     -36/
                         12-20 s; fridge hum -48
 laundry          -52 h  washing machine -40 (drum at 0.8-1.2 Hz);   -26     -34/0.6 s
                         a spin of 6-12 s every 20-30 s -34 over it
-                        (+7-8 dB at full speed)
+                        (+7-8 dB over the wash at full speed)
 vacuum-next-door -54 p  a vacuum next door -36, on 5-25 s, off      -26     -36/0.4 s
                         5-20 s; a radio talker -44 (2 kHz)
 ================ ====== =========================================== ======= =========
@@ -288,8 +288,8 @@ HELD_OUT_BACKGROUNDS = ("kitchen", "street", "home-office")
 """Rooms no setting of the self-calibrating detector was chosen on (reported apart)."""
 
 HELD_OUT_LATER = ("playroom", "dog-home", "laundry", "vacuum-next-door")
-"""A second held-out set, built after the detector's settings were chosen, from sources
-none of the other rooms has (children, toys, a dog, a washing machine, a vacuum cleaner):
+"""A second held-out set, built after the detector's settings were chosen, each around a
+source no other room has (children, toys, a dog, a washing machine, a vacuum cleaner):
 no detector setting was chosen on them, and they were not run through the detector while
 they were built (only their levels were measured)."""
 
