@@ -11,40 +11,11 @@ these sounds play is :mod:`infomax_contingency.sim.household_streams`.
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 from numpy.typing import NDArray
 
-
-@functools.lru_cache(maxsize=32)
-def _butter(band: float | tuple[float, float], rate: int) -> tuple[NDArray, NDArray]:
-    """Second-order Butterworth: a low-pass at ``band`` Hz, or a band-pass (low, high)."""
-    from scipy.signal import butter
-
-    return butter(2, band, btype="lowpass" if isinstance(band, float) else "bandpass", fs=rate)
-
-
-def _lowpass(x: NDArray[np.float64], cutoff_hz: float, rate: int) -> NDArray:
-    """Second-order Butterworth low-pass at ``cutoff_hz`` (as ``room_sounds.lowpass``)."""
-    from scipy.signal import lfilter
-
-    return lfilter(*_butter(float(cutoff_hz), rate), x)
-
-
-def _bandpass(x: NDArray[np.float64], low_hz: float, high_hz: float, rate: int) -> NDArray:
-    """Second-order Butterworth band-pass from ``low_hz`` to ``high_hz``."""
-    from scipy.signal import lfilter
-
-    return lfilter(*_butter((float(low_hz), float(min(high_hz, 0.45 * rate))), rate), x)
-
-
-def _resonance(x: NDArray[np.float64], freq_hz: float, bandwidth_hz: float, rate: int) -> NDArray:
-    """A two-pole resonance (a formant) at ``freq_hz`` of ``bandwidth_hz``."""
-    from scipy.signal import lfilter
-
-    r = math.exp(-math.pi * bandwidth_hz / rate)
-    return lfilter([1.0 - r], [1.0, -2.0 * r * math.cos(2.0 * math.pi * freq_hz / rate), r * r], x)
+from infomax_contingency.sim.room_sounds import bandpass, lowpass, resonator
 
 
 def _harmonics(phase: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -100,7 +71,7 @@ def toy_rattle(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
             if start < end:
                 out[start:end] += rng.uniform(0.4, 1.0) * click[: end - start]
         shake += half_period
-    return _bandpass(out, 2000.0, 6000.0, rate)
+    return bandpass(out, 2000.0, 6000.0, rate)
 
 
 def toy_sound(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -114,8 +85,8 @@ def toy_sound(rate: int, rng: np.random.Generator) -> NDArray[np.float64]:
 def dog_bark(rate: int, rng: np.random.Generator, f0_hz: float) -> NDArray[np.float64]:
     """One bark, 0.1 .. 0.3 s, of a dog whose voice is at ``f0_hz`` (400 .. 800 Hz).
 
-    Harmonics of a fundamental (``f0_hz`` x 0.9 .. 1.1) that rises 25 % to mid-bark and
-    ends 20 % lower, at 1/k, with harsh noise at half their RMS; two formants
+    Harmonics of a fundamental (``f0_hz`` x 0.9 .. 1.1) that rises 12.5 % by mid-bark and
+    ends 20 % below its start, at 1/k, with harsh noise at half their RMS; two formants
     (F1 800 .. 1200 Hz, F2 1800 .. 2800 Hz) over a third of the raw sound; a 5-15 ms
     attack and a decay to a tenth at the end.
     """
@@ -127,10 +98,11 @@ def dog_bark(rate: int, rng: np.random.Generator, f0_hz: float) -> NDArray[np.fl
     for k in range(1, int(0.45 * rate / (1.3 * f0_hz)) + 1):
         voiced += np.sin(k * phase + rng.uniform(0, 2 * np.pi)) / k
     source = voiced + 0.5 * float(np.std(voiced)) * rng.standard_normal(n)
-    shaped = _resonance(source, rng.uniform(800.0, 1200.0), 250.0, rate) + 0.6 * _resonance(
+    shaped = resonator(source, rng.uniform(800.0, 1200.0), 250.0, rate) + 0.6 * resonator(
         source, rng.uniform(1800.0, 2800.0), 350.0, rate
     )
-    shaped = shaped / max(1e-12, float(np.std(shaped))) + source / (3 * float(np.std(source)))
+    shaped = shaped / max(1e-12, float(np.std(shaped)))
+    shaped = shaped + source / max(1e-12, 3 * float(np.std(source)))  # none at a rate too low
     envelope = np.exp(-np.log(10.0) * u)
     attack = round(rng.uniform(0.005, 0.015) * rate)
     envelope[:attack] *= _ramp(attack)
@@ -166,13 +138,13 @@ def washer_turn(
     """
     rise = np.sin(np.pi * np.arange(n) / n)
     motor = _motor_second(rate, round(motor_hz))[(start + np.arange(n)) % rate]
-    slosh = _lowpass(rng.standard_normal(n), 600.0, rate) * (rise * rise)
+    slosh = lowpass(rng.standard_normal(n), 600.0, rate) * (rise * rise)
     out = 0.35 * motor * (1.0 + 0.15 * rise) + 2.0 * slosh / max(1e-12, float(np.std(slosh)))
     fall = round(rng.uniform(0.55, 0.75) * n)
     tail = np.arange(min(n - fall, round(0.3 * rate))) / rate
     out[fall : fall + tail.size] += (1.5 * np.exp(-tail / 0.04)) * (
         np.sin(2 * np.pi * rng.uniform(45.0, 80.0) * tail)
-        + 0.3 * _lowpass(rng.standard_normal(tail.size), 1500.0, rate)
+        + 0.3 * lowpass(rng.standard_normal(tail.size), 1500.0, rate)
     )
     return out
 
@@ -190,7 +162,7 @@ def spin_cycle(rate: int, rng: np.random.Generator, motor_hz: float) -> NDArray[
     f = motor_hz * (2.0 + rng.uniform(3.0, 5.0) * speed)
     phase = 2 * np.pi * np.cumsum(f) / rate
     whine = _harmonics(phase)
-    rush = _bandpass(rng.standard_normal(n), 250.0, 2500.0, rate)
+    rush = bandpass(rng.standard_normal(n), 250.0, 2500.0, rate)
     rush *= (0.3 + 0.7 * speed) / max(1e-12, float(np.std(rush)))
     envelope = np.ones(n)
     rise, fade = round(2.0 * rate), round(1.0 * rate)
@@ -202,6 +174,10 @@ def spin_cycle(rate: int, rng: np.random.Generator, motor_hz: float) -> NDArray[
 # --------------------------------------------------------------- the vacuum next door
 
 
+VACUUM_ON_S = (5.0, 25.0)
+"""Shortest and longest run of the vacuum cleaner, seconds (uniform)."""
+
+
 def vacuum_run(rate: int, rng: np.random.Generator, motor_hz: float) -> NDArray[np.float64]:
     """A vacuum cleaner in the next room running for 5 .. 25 s (heard through the wall).
 
@@ -210,7 +186,7 @@ def vacuum_run(rate: int, rng: np.random.Generator, motor_hz: float) -> NDArray[
     speed) and down over 0.3 s at each end, and the nozzle pushed back and forth makes it
     20 % louder and softer at 0.4 .. 0.8 Hz.
     """
-    n = round(rng.uniform(5.0, 25.0) * rate)
+    n = round(rng.uniform(*VACUUM_ON_S) * rate)
     edge = round(0.3 * rate)
     gain = np.ones(n)
     gain[:edge] = _ramp(edge)
@@ -218,7 +194,7 @@ def vacuum_run(rate: int, rng: np.random.Generator, motor_hz: float) -> NDArray[
     f = motor_hz * (0.5 + 0.5 * gain)
     phase = 2 * np.pi * np.cumsum(f) / rate
     tone = _harmonics(phase)
-    noise = _bandpass(rng.standard_normal(n), 120.0, rng.uniform(1200.0, 2000.0), rate)
+    noise = bandpass(rng.standard_normal(n), 120.0, rng.uniform(1200.0, 2000.0), rate)
     noise /= max(1e-12, float(np.std(noise)))
     strokes = 1.0 + 0.2 * np.sin(
         2 * np.pi * rng.uniform(0.4, 0.8) * np.arange(n) / rate + rng.uniform(0, 2 * np.pi)

@@ -45,7 +45,7 @@ BARK_GAP_S = (0.2, 0.6)
 """Shortest and longest silence between two barks of a cluster, seconds (uniform)."""
 DOG_F0_HZ = (400.0, 800.0)
 """Range of the dog's voice (its fundamental, drawn once per room), Hz."""
-CLUSTER_SPACING = (0.75, 1.25)
+BARK_CLUSTER_GAP_FACTOR = (0.75, 1.25)
 """Time from a cluster of barks to the next, times ``1 / bark_rate_hz`` (uniform)."""
 WASHER_TURN_S = (1.0 / 1.2, 1.0 / 0.8)
 """Time of one turn of the drum (drawn once per room, +-4 % per turn), seconds."""
@@ -57,7 +57,6 @@ VACUUM_OFF_S = (5.0, 20.0)
 """Shortest and longest time the vacuum cleaner is off, seconds (uniform)."""
 VACUUM_MOTOR_HZ = (250.0, 350.0)
 """Range of the vacuum motor's tone (drawn once per room), Hz."""
-_VACUUM_ON_MAX_S = 25.0
 
 
 def household_streams(
@@ -133,7 +132,7 @@ def _children(config: FakeRoomConfig, rate: int, rng: np.random.Generator) -> li
 
 
 def _dog(config: FakeRoomConfig, rate: int, rng: np.random.Generator) -> StreamSpec:
-    """Clusters of :data:`BARKS_PER_CLUSTER` barks, :data:`CLUSTER_SPACING` / rate apart."""
+    """Clusters of :data:`BARKS_PER_CLUSTER` barks, :data:`BARK_CLUSTER_GAP_FACTOR` / rate apart."""
     f0 = rng.uniform(*DOG_F0_HZ)
     spacing = rate / config.bark_rate_hz
 
@@ -147,7 +146,7 @@ def _dog(config: FakeRoomConfig, rate: int, rng: np.random.Generator) -> StreamS
         return parts
 
     def gap(_: list[Part]) -> float:
-        return rng.uniform(*CLUSTER_SPACING) * spacing
+        return rng.uniform(*BARK_CLUSTER_GAP_FACTOR) * spacing
 
     return ("bark", lambda: rng.uniform(0.0, spacing), cluster, gap)
 
@@ -182,7 +181,7 @@ def _washer(
 
 
 def _vacuum(config: FakeRoomConfig, rate: int, rng: np.random.Generator) -> StreamSpec:
-    """On for 5 .. 25 s (:func:`~household_sounds.vacuum_run`), off for :data:`VACUUM_OFF_S`.
+    """On for :data:`~household_sounds.VACUUM_ON_S`, off for :data:`VACUUM_OFF_S`.
 
     At time 0 it may be running already, or switch on up to 20 s later.
     """
@@ -195,5 +194,5 @@ def _vacuum(config: FakeRoomConfig, rate: int, rng: np.random.Generator) -> Stre
     def gap(parts: list[Part]) -> float:
         return parts[0][1].size + rng.uniform(*VACUUM_OFF_S) * rate
 
-    first = rng.uniform(-_VACUUM_ON_MAX_S, VACUUM_OFF_S[1]) * rate
+    first = rng.uniform(-household_sounds.VACUUM_ON_S[1], VACUUM_OFF_S[1]) * rate
     return ("vacuum", lambda: first, run, gap)

@@ -93,17 +93,41 @@ class NoiseFloor:
         return y * (self._gain * self.rms)
 
 
+@functools.lru_cache(maxsize=64)
+def _butterworth(band: float | tuple[float, float], rate: int) -> tuple[NDArray, NDArray]:
+    """Second-order Butterworth coefficients: a low-pass at ``band`` Hz, or a band-pass."""
+    from scipy.signal import butter
+
+    return butter(2, band, btype="lowpass" if isinstance(band, float) else "bandpass", fs=rate)
+
+
 def lowpass(x: NDArray[np.float64], cutoff_hz: float, rate: int) -> NDArray[np.float64]:
-    """Second-order Butterworth low-pass at ``cutoff_hz`` (sound heard from a distance)."""
+    """Second-order Butterworth low-pass at ``cutoff_hz`` (sound heard from a distance).
+
+    A cutoff at or above half the rate passes ``x`` as it is.
+    """
     if cutoff_hz >= rate / 2:
         return x
-    from scipy.signal import butter, lfilter
+    from scipy.signal import lfilter
 
-    b, a = butter(2, cutoff_hz, fs=rate)
-    return lfilter(b, a, x)
+    return lfilter(*_butterworth(float(cutoff_hz), rate), x)
 
 
-def _resonator(x: NDArray[np.float64], freq_hz: float, bandwidth_hz: float, rate: int) -> NDArray:
+def bandpass(x: NDArray[np.float64], low_hz: float, high_hz: float, rate: int) -> NDArray:
+    """Second-order Butterworth band-pass from ``low_hz`` to ``high_hz``.
+
+    The upper edge is kept below 0.45 of the rate; a band that leaves nothing then (a rate
+    too low for it) is a low-pass at ``low_hz``, as :func:`lowpass`.
+    """
+    high = min(high_hz, 0.45 * rate)
+    if not low_hz < high:
+        return lowpass(x, low_hz, rate)
+    from scipy.signal import lfilter
+
+    return lfilter(*_butterworth((float(low_hz), float(high)), rate), x)
+
+
+def resonator(x: NDArray[np.float64], freq_hz: float, bandwidth_hz: float, rate: int) -> NDArray:
     """A two-pole resonance (a formant) at ``freq_hz`` of ``bandwidth_hz``."""
     from scipy.signal import lfilter
 
@@ -148,8 +172,8 @@ def speech_like(
         f0 = pitch * rng.uniform(0.92, 1.08) * np.linspace(1.0, 0.9, length)
         phase = np.cumsum(f0 / rate) % 1.0
         source = (2.0 * phase - 1.0) + 0.1 * rng.standard_normal(length)
-        voiced = _resonator(source, rng.uniform(300.0, 800.0), 90.0, rate)
-        voiced = voiced + 0.7 * _resonator(source, rng.uniform(900.0, 2300.0), 120.0, rate)
+        voiced = resonator(source, rng.uniform(300.0, 800.0), 90.0, rate)
+        voiced = voiced + 0.7 * resonator(source, rng.uniform(900.0, 2300.0), 120.0, rate)
         envelope = syllable_envelope(length, rate, rng) * rng.uniform(0.5, 1.0)
         out[position : position + length] = voiced * envelope
         position += length
