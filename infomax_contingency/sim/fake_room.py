@@ -21,6 +21,7 @@ import numpy as np
 from infomax_contingency.audio.energy import window_samples
 from infomax_contingency.audio.synth import synthesize_chirp
 from infomax_contingency.sim import room_sounds
+from infomax_contingency.sim.household_sounds import toy_sound
 from infomax_contingency.sim.household_streams import HOUSEHOLD_SOURCES, household_streams
 from infomax_contingency.sim.room_config import CONTINUOUS_SOURCES, ROBOT_SOUND_S, FakeRoomConfig
 from infomax_contingency.sim.room_sounds import NoiseFloor, rms_scaled
@@ -170,9 +171,14 @@ class FakeRoom:
         self._sounds: list[_Sound] = []
         self._streams = self._background_streams(events, doors, steps, babble, tv)
         self._streams += _newer_streams(self, music, traffic, typing)
+        household = dict(zip(HOUSEHOLD_SOURCES, streams[13:], strict=True))
         self._streams += [
             _SoundStream(*spec) for spec in household_streams(config, self.rate, streams[13:])
         ]
+        if config.toy_rate_hz > 0:
+            toys = np.random.default_rng(household["toy"])
+            self._streams.append(_poisson_sounds(self, "toy", toys, config.toy_rate_hz,
+                                                 config.toy_level_db, toy_sound))  # fmt: skip
         self.windows_made = 0
         self.vocalizations = 0
         self.replies = 0

@@ -62,22 +62,15 @@ VACUUM_MOTOR_HZ = (250.0, 350.0)
 def household_streams(
     config: FakeRoomConfig, rate: int, seeds: Sequence[np.random.SeedSequence]
 ) -> list[StreamSpec]:
-    """The streams of the sources of :data:`HOUSEHOLD_SOURCES` the room has.
+    """The streams of the sources of :data:`HOUSEHOLD_SOURCES` the room has, but the toys.
 
-    ``seeds``: one per source, in that order; a source the room lacks draws nothing.
+    ``seeds``: one per source, in that order; a source the room lacks draws nothing. The
+    toys sound at Poisson times, as the knocks: FakeRoom schedules them itself.
     """
     rngs = dict(zip(HOUSEHOLD_SOURCES, seeds, strict=True))
     streams = []
     if config.children_talkers > 0:
         streams += _children(config, rate, np.random.default_rng(rngs["children"]))
-    if config.toy_rate_hz > 0:
-        rng = np.random.default_rng(rngs["toy"])
-        gap = _poisson_gap(rng, rate, config.toy_rate_hz)
-
-        def toy() -> list[Part]:
-            return [(0, rms_scaled(household_sounds.toy_sound(rate, rng), config.toy_level_db))]
-
-        streams.append(("toy", gap, toy, gap))
     if config.bark_rate_hz > 0:
         streams.append(_dog(config, rate, np.random.default_rng(rngs["bark"])))
     if config.washer_on:
@@ -86,15 +79,6 @@ def household_streams(
     if config.vacuum_on:
         streams.append(_vacuum(config, rate, np.random.default_rng(rngs["vacuum"])))
     return streams
-
-
-def _poisson_gap(rng: np.random.Generator, rate: int, rate_hz: float) -> Callable[..., float]:
-    """Samples from one sound's start to the next one's: exponential, mean 1 / rate."""
-
-    def gap(*_: object) -> float:
-        return rng.exponential(rate / rate_hz)
-
-    return gap
 
 
 def _children(config: FakeRoomConfig, rate: int, rng: np.random.Generator) -> list[StreamSpec]:
