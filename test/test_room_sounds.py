@@ -219,6 +219,11 @@ def test_speech_like_sound_has_syllables_and_voice() -> None:
         ("bark_rate_hz", -0.1, "bark_rate_hz"),
         ("toy_rate_hz", float("nan"), "toy_rate_hz"),
         ("washer_spin_level_db", 3.0, "washer_spin_level_db"),
+        ("bark_rate_hz", 1e9, "bark_rate_hz = 1000000000.0: must be at most 100 a second"),
+        ("traffic_rate_hz", 100.5, "traffic_rate_hz"),
+        ("syllable_rate_hz", 51.0, "syllable_rate_hz"),
+        ("reply_max_s", 1e6, "reply_max_s = 1000000.0: must be at most 60 s"),
+        ("robot_speech_delay_s", 61.0, "robot_speech_delay_s"),
     ],
 )
 def test_bad_room_sound_parameters_are_refused(field: str, value: object, message: str) -> None:

@@ -208,6 +208,14 @@ class FakeRoomConfig:
         for name in _NON_NEGATIVE_FIELDS:
             if getattr(self, name) < 0:
                 fail(name, ">= 0")
+        for name in _EVENT_RATE_FIELDS:
+            if getattr(self, name) > MAX_EVENT_RATE_HZ:
+                fail(name, f"at most {MAX_EVENT_RATE_HZ:g} a second")
+        if self.syllable_rate_hz > MAX_SYLLABLE_RATE_HZ:
+            fail("syllable_rate_hz", f"at most {MAX_SYLLABLE_RATE_HZ:g} a second")
+        for name in _ONE_SOUND_FIELDS:
+            if getattr(self, name) > MAX_ONE_SOUND_S:
+                fail(name, f"at most {MAX_ONE_SOUND_S:g} s")
         if not 0.0 <= self.reverb_rt60_s <= 5.0:
             fail("reverb_rt60_s", "a reverberation time in 0 .. 5 s (0: no echo)")
         if not 0.0 < self.babble_cutoff_hz:
@@ -259,6 +267,32 @@ _NON_NEGATIVE_FIELDS = (
     "bark_rate_hz",
 )
 """Fields of :class:`FakeRoomConfig` that must be >= 0."""
+
+MAX_EVENT_RATE_HZ = 100.0
+"""Most sounds a second of one kind (events, doors, walks, ...): the synthesis draws each."""
+
+MAX_SYLLABLE_RATE_HZ = 50.0
+"""Most syllables a second in a reply."""
+
+MAX_ONE_SOUND_S = 60.0
+"""s, the longest a single sound (an event, a reply, an utterance) or its delay may be."""
+
+_EVENT_RATE_FIELDS = tuple(name for name in _NON_NEGATIVE_FIELDS if name.endswith("_rate_hz"))
+"""Sounds a second, each at most :data:`MAX_EVENT_RATE_HZ`."""
+
+_ONE_SOUND_FIELDS = (
+    "event_min_s",
+    "event_max_s",
+    "self_delay_s",
+    "reply_delay_min_s",
+    "reply_delay_max_s",
+    "reply_min_s",
+    "reply_max_s",
+    "robot_speech_delay_s",
+    "robot_speech_min_s",
+    "robot_speech_max_s",
+)
+"""Lengths and delays of one sound, s, each at most :data:`MAX_ONE_SOUND_S`."""
 
 _LEVEL_FIELDS = (
     "noise_floor_db",
