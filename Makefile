@@ -153,7 +153,7 @@ demo: $(STAMP) bytecode
 # mic_node's default bit source, which calibrates itself on the room's background windows
 # (no calibration step; the first bit comes after about 6 s). LIVE_DEVICE /
 # LIVE_OUTPUT_DEVICE: an index or a part of the name; empty = the system default.
-# `infomax-contingency calibrate --seconds 10` still reports the room's levels.
+# `infomax-contingency calibrate --seconds 10` reports the threshold it would set there.
 LIVE_DEVICE ?=
 LIVE_OUTPUT_DEVICE ?=
 live: $(STAMP) bytecode

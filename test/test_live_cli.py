@@ -87,6 +87,38 @@ def test_calibrate_writes_over_nothing_but_a_regular_file(room_wav, tmp_path, ca
     assert not (tmp_path / "nowhere.txt").exists()
 
 
+def test_calibrate_reports_the_default_bit_source_as_a_replay_hears_it(tmp_path, capsys) -> None:
+    """Without --out: the threshold mic_node's default sets itself, the robot silent."""
+    wav = write_recording(tmp_path / "room.wav", 16000, seconds=20.0)
+    assert cli.main(["calibrate", "--wav", str(wav)]) == 0
+    text = capsys.readouterr().out
+    source = make_bit_source("background", 16000, 0.5)  # the replay's path, on samples
+    windows = load_mono(wav)[: 40 * 8000].reshape(40, 8000)
+    bits = [source.push_recorded(window, 0) for window in windows]
+    decided = [bit for bit in bits if bit is not None]
+    assert len(decided) == 40 - 12  # no bit in the first 12 windows (as mic_node says)
+    assert "heard 40 windows of 0.5 s from" in text and "(speech-band levels)" in text
+    assert f"threshold {source.threshold_db:.2f} dB at the end (room: the" in text
+    assert f"{sum(decided)} of {len(decided)} windows after its warm-up active" in text
+    assert f"threshold {source.threshold_db:.1f} dB" in text  # the histogram's marker
+    assert "nothing to write" in text and not list(tmp_path.glob("*.yaml"))
+    short = write_recording(tmp_path / "short.wav", 16000, seconds=5.0)
+    assert cli.main(["calibrate", "--wav", str(short)]) == 0
+    assert "would give no bit yet: it hears 4 s of the room first" in capsys.readouterr().out
+
+
+def test_calibrate_refuses_a_threshold_file_for_the_default_bit_source(
+    room_wav, tmp_path, capsys
+) -> None:
+    out = tmp_path / "t.yaml"
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--bit-source", "background",
+                     "--out", str(out)]) == 2  # fmt: skip
+    assert "needs no threshold file" in capsys.readouterr().err
+    assert cli.main(["calibrate", "--wav", str(room_wav), "--force"]) == 2
+    assert "--force writes a k-means threshold: it needs --out FILE" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
     out = tmp_path / "t.yaml"
     assert cli.main(["calibrate", "--wav", str(room_wav), "--device", "1", "--out", str(out)]) == 2
@@ -106,7 +138,7 @@ def test_calibrate_user_errors(room_wav, tmp_path, capsys) -> None:
         cli.main(["calibrate", "--wav", str(room_wav), "--window-s", "0.5", "--out", str(out)])
 
 
-def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) -> None:
+def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path, capsys) -> None:
     alsa = VirtualAlsa(tmp_path / "alsa")
     alsa.wav_microphone("fakemic", room_wav)
     alsa.write(default_capture="fakemic")
@@ -121,6 +153,14 @@ def test_calibrate_on_the_live_microphone_matches_the_wav(room_wav, tmp_path) ->
     assert yaml.safe_load(live.read_text())["source"] == "device:fakemic"
     assert "calibrated on 14 windows of 0.5 s from fakemic (16000 Hz)" in stdout
     assert "threshold" in stdout and " dB | " in stdout
+    rc, stdout, _ = run_cli(alsa, "calibrate", "--device", "fake", "--seconds", "7")
+    assert rc == 0, stdout
+    assert "let it hear the room as it is, the robot silent" in stdout
+    assert "heard 14 windows of 0.5 s from fakemic (16000 Hz) (speech-band levels)" in stdout
+    capsys.readouterr()
+    assert cli.main(["calibrate", "--wav", str(room_wav)]) == 0
+    offline_report = capsys.readouterr().out.splitlines()[1:]
+    assert offline_report and offline_report == stdout.splitlines()[-len(offline_report):]
 
 
 def test_calibrate_for_the_speech_band_on_a_wav_and_live_writes_its_level(

@@ -1,7 +1,9 @@
 """Command-line tools for live audio: ``devices``, ``calibrate`` and ``measure-latency``.
 
 Registered in :mod:`infomax_contingency.cli.main`; errors follow its rules (one line on stderr,
-exit status 2). ``calibrate`` exits with status 1, writing nothing, when the calibration
+exit status 2). ``calibrate`` reports the threshold mic_node's default bit source
+(``background``) sets itself in the room heard; with ``--out`` it fits a k-means threshold
+for ``threshold_mode: file`` instead, and exits with status 1, writing nothing, when the
 audio cannot separate sound from quiet (cluster means closer than
 ``--min-separation-db``), unless ``--force``.
 """
@@ -16,7 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.audio.bitsources import BIT_SOURCES
+from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
+from infomax_contingency.audio.bitsources.background import (
+    BackgroundSettings,
+    band_name,
+    silent_robot_report,
+)
 from infomax_contingency.audio.bitsources.level import LevelSource
 from infomax_contingency.audio.calibration import (
     dc_offset_note,
@@ -87,10 +94,9 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
         )
         return energies, f"wav:{args.wav}", str(args.wav)
     seconds = 10.0 if args.seconds is None else args.seconds
-    print(
-        f"recording {seconds:g} s from the microphone: let it hear the room quiet and with"
-        " sound (speech, claps) ..."
-    )
+    hear = ("the room as it is, the robot silent" if args.out is None
+            else "the room quiet and with sound (speech, claps)")  # fmt: skip
+    print(f"recording {seconds:g} s from the microphone: let it hear {hear} ...")
     recording = record_energies(
         args.device,
         seconds,
@@ -135,11 +141,31 @@ def _check_full_scale(energies: np.ndarray, threshold_db: float, what: str) -> N
     print(f"warning: {problem}")
 
 
-def _run_calibrate(args: argparse.Namespace) -> int:
-    """Fit, show and save the threshold; exit status 1 if the clusters do not separate."""
+def _check_calibrate_arguments(args: argparse.Namespace) -> None:
+    """ValueError for arguments that do not go together; sets the default ``--bit-source``."""
     if args.wav is not None and (args.device is not None or args.seconds is not None):
         raise ValueError("calibrate from --wav FILE or from --device/--seconds, not both")
-    args.window_s = ModelParams.load(args.params).dt  # one window is one step of the model
+    if args.bit_source is None:
+        args.bit_source = DEFAULT_BIT_SOURCE if args.out is None else "energy"
+    if args.force and args.out is None:
+        raise ValueError("--force writes a k-means threshold: it needs --out FILE")
+    if args.bit_source == DEFAULT_BIT_SOURCE and args.out is not None:
+        raise ValueError(f"--bit-source {DEFAULT_BIT_SOURCE} needs no threshold file: mic_node's"
+                         " default sets its threshold itself while it runs; --out writes one"
+                         " for --bit-source energy or speech_band")  # fmt: skip
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
+    """Report the room as the default bit source hears it, or fit and save a threshold.
+
+    With ``--out``: a k-means threshold, shown and saved; exit status 1 if its clusters
+    do not separate.
+    """
+    _check_calibrate_arguments(args)
+    params = ModelParams.load(args.params)
+    args.window_s = params.dt  # one window is one step of the model
+    if args.bit_source == DEFAULT_BIT_SOURCE:
+        return _report_background(args, params)
     check_output_file(args.out, "--out", "threshold file")  # before the audio is taken
     energies, source, what = _calibration_energies(args)
     if energies.size < 2:
@@ -184,6 +210,31 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _report_background(args: argparse.Namespace, params: ModelParams) -> int:
+    """What the default bit source makes of the room heard with the robot silent."""
+    settings = BackgroundSettings()
+    args.bit_source = "speech_band" if settings.level_band == "speech" else "energy"
+    levels, _, what = _calibration_energies(args)
+    report = silent_robot_report(levels, params, settings, PROCESSING_RATE_HZ)
+    band = band_name(settings.level_band)
+    print(f"heard {report.windows} windows of {args.window_s:g} s from {what} ({band} levels)")
+    for problem in report.problems:
+        print(f"warning: {problem}")
+    if report.threshold_db is None:
+        print(f"mic_node's default bit source ({DEFAULT_BIT_SOURCE}) would give no bit yet: it"
+              f" hears {settings.warmup_s:g} s of the room first; record longer to see its"
+              " threshold")  # fmt: skip
+        return 0
+    active, decided = sum(report.bits), len(report.bits)
+    print(f"mic_node's default bit source ({DEFAULT_BIT_SOURCE}), the robot silent: threshold"
+          f" {report.threshold_db:.2f} dB at the end ({report.origin}); {active} of {decided}"
+          f" windows after its warm-up active ({active / max(decided, 1):.3f}, set to"
+          f" {settings.false_alarm:g})")  # fmt: skip
+    print(energy_histogram(levels, report.threshold_db, bin_db=args.bin_db))
+    print("nothing to write: mic_node sets this threshold itself, and follows the room")
+    return 0
+
+
 def _non_negative(text: str) -> float:
     """An argparse type: a finite number >= 0."""
     try:
@@ -214,9 +265,11 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
     """``calibrate``: fit the sound threshold on a recording or on the live microphone."""
     parser = subparsers.add_parser(
         "calibrate",
-        help="fit the sound threshold (k-means) on a wav file or the live microphone",
-        description="Fit the sound/quiet threshold by two-cluster k-means of window energies, "
-        "print it with a histogram, and write a threshold file for mic_node.",
+        help="the room's levels and threshold, from a wav file or the live microphone",
+        description="Report the threshold mic_node's default bit source (background) sets"
+        " itself in the room, with a histogram of the levels; or, with --out, fit a"
+        " sound/quiet threshold by two-cluster k-means of window energies and write it for"
+        " mic_node's threshold_mode file.",
     )
     parser.add_argument("--wav", type=Path, help="calibrate on this WAV file")
     parser.add_argument(
@@ -253,13 +306,18 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--bit-source",
-        choices=LEVEL_SOURCES,
-        default="energy",
-        help="the level the threshold applies to: energy (the window energy, default) or"
-        " another bit source with a threshold (speech_band: the 300-3400 Hz band energy),"
-        " as mic_node's bit_source",
+        choices=(DEFAULT_BIT_SOURCE, *LEVEL_SOURCES),
+        help=f"{DEFAULT_BIT_SOURCE} (the default without --out): report the threshold"
+        " mic_node's default bit source sets itself in this room; energy (the default with"
+        " --out: the window energy) or speech_band (the 300-3400 Hz band energy): fit a"
+        " k-means threshold for that bit_source",
     )
-    parser.add_argument("--out", type=Path, required=True, help="threshold file to write (YAML)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="write the k-means threshold to this file (YAML) for mic_node's threshold_mode"
+        " file; not needed by the default bit source",
+    )
     parser.set_defaults(run=_run_calibrate)
 
 

@@ -291,3 +291,53 @@ class BackgroundSource(BitSource):
         values["last_level_db"] = self.last_level_db
         values["level_band"] = self.settings.level_band
         return values
+
+
+@dataclasses.dataclass(frozen=True)
+class SilentRobotReport:
+    """What ``background`` makes of a room heard with the robot silent (``calibrate``).
+
+    Every window is then a background window (its timer past the agent period).
+
+    Attributes:
+        windows: windows heard.
+        bits: the bits of the windows after the warm-up (1: active).
+        threshold_db: the threshold after the last window (its ``level_band`` level), dB;
+            None if the recording ended within the warm-up.
+        origin: where that threshold comes from (rank, windows, false-alarm share).
+        problems: lines about the input (clipping, DC offset, a threshold out of range).
+    """
+
+    windows: int
+    bits: list[int]
+    threshold_db: float | None
+    origin: str
+    problems: list[str]
+
+
+def silent_robot_report(
+    levels_db: ArrayLike,
+    params: ModelParams,
+    settings: BackgroundSettings | None = None,
+    rate_hz: int = 16000,
+) -> SilentRobotReport:
+    """Run the source's threshold over window levels heard with the robot silent.
+
+    ``levels_db``: one level per window (dB, ``level_band``'s), in order; each window is
+    decided on (silence) as it comes, as in a replay with its actions.
+    """
+    source = BackgroundSource(settings or BackgroundSettings(), rate_hz, params.dt)
+    source.follow_model(params)
+    bits = []
+    for level in np.asarray(levels_db, dtype=float):
+        bit = source.rule.push(float(level), decision=0)
+        if bit is not None:
+            bits.append(int(bit))
+    ready = source.threshold_db is not None
+    return SilentRobotReport(
+        windows=int(np.size(levels_db)),
+        bits=bits,
+        threshold_db=source.threshold_db,
+        origin=source.threshold_origin() if ready else "",
+        problems=source.problems(),
+    )
