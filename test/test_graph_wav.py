@@ -108,7 +108,7 @@ def test_recorded_interaction_replays_like_the_offline_bit_source(
 
 
 def test_self_calibrating_threshold_in_the_graph_equals_the_offline_loop(tmp_path: Path) -> None:
-    """threshold_mode background: the decisions label the windows; graph == offline loop."""
+    """bit_source background: the decisions label the windows; graph == offline loop."""
     from infomax_contingency.audio.wav import write_wav_int16
     from infomax_contingency.core.controllers import PolicyController
     from infomax_contingency.core.policy_table import PolicyTable

@@ -10,7 +10,9 @@ which turns it into a parameter file for ``solve``.
 seconds; its reply delays are those of config/fake_room.yaml); without it the graph runs
 live: the microphone (``--device``, the threshold from ``--threshold-file`` or calibrated
 on the first ``--calibration-s`` seconds) and the loudspeaker, in real time, and the
-session ends after ``--minutes``. The launch file does the same with
+session ends after ``--minutes``. The bits are the paper's (energy against that
+threshold), not mic_node's default ``background``, which labels windows by the very
+periods this session measures. The launch file does the same with
 ``record:=true controller:=interval:MIN_S-MAX_S``.
 """
 

@@ -93,7 +93,7 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
                         " channel:N the lowest channel other than N)")
     parser.add_argument("--threshold-db", type=float, default=None,
                         help="wav: a fixed sound threshold, dB (default: the self-calibrating"
-                        " threshold of mic_node, threshold_mode background)")
+                        " threshold of mic_node, bit_source background)")
     parser.add_argument("--calibrate", action="store_true",
                         help="wav: the k-means threshold of the first --calibration-s seconds"
                         " instead")

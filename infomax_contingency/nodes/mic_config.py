@@ -32,9 +32,10 @@ are parameters of the same names, declared once in the source's settings datacla
 (description, range, whether live); another source's settings are not parameters of the
 node. ``sound_energy`` is the full-band window
 energy whatever the source. The source sees the audio at ``audio_rate_hz`` (topic and
-bag) or at 16 kHz (wav, sounddevice). A wav file or a session bag is calibrated by
-reading its first seconds ahead, so every window gets a bit; a stream's calibration
-windows are consumed (their ``sound_energy`` is published, but no ``sound``). A bag
+bag) or at 16 kHz (wav, sounddevice). With a k-means calibration a wav file or a session
+bag is calibrated by reading its first seconds ahead, so every window gets a bit; a
+stream's calibration windows, and the default ``background``'s warm-up in any source, are
+consumed (their ``sound_energy`` is published, but no ``sound``). A bag
 without audio replays its recorded bits whatever the bit source.
 
 Live: only the settings declared live (``threshold_db``, in threshold_mode fixed);
