@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ
@@ -201,21 +202,7 @@ class FakeRoomConfig:
                 fail(name, "a number")
             if not math.isfinite(value):
                 fail(name, "finite")
-        for name in ("window_s", "event_min_s", "reply_min_s", "syllable_rate_hz",
-                     "robot_speech_min_s"):
-            if getattr(self, name) <= 0:
-                fail(name, "> 0")
-        for name in _NON_NEGATIVE_FIELDS:
-            if getattr(self, name) < 0:
-                fail(name, ">= 0")
-        for name in _EVENT_RATE_FIELDS:
-            if getattr(self, name) > MAX_EVENT_RATE_HZ:
-                fail(name, f"at most {MAX_EVENT_RATE_HZ:g} a second")
-        if self.syllable_rate_hz > MAX_SYLLABLE_RATE_HZ:
-            fail("syllable_rate_hz", f"at most {MAX_SYLLABLE_RATE_HZ:g} a second")
-        for name in _ONE_SOUND_FIELDS:
-            if getattr(self, name) > MAX_ONE_SOUND_S:
-                fail(name, f"at most {MAX_ONE_SOUND_S:g} s")
+        self._check_bounds(fail)
         if not 0.0 <= self.reverb_rt60_s <= 5.0:
             fail("reverb_rt60_s", "a reverberation time in 0 .. 5 s (0: no echo)")
         if not 0.0 < self.babble_cutoff_hz:
@@ -236,6 +223,24 @@ class FakeRoomConfig:
                 fail(high, f">= {low} (= {getattr(self, low)})")
         if self.partner_arrive_s >= 0 and 0 <= self.partner_leave_s <= self.partner_arrive_s:
             fail("partner_leave_s", f"> partner_arrive_s (= {self.partner_arrive_s}) or negative")
+
+    def _check_bounds(self, fail: Callable[[str, str], None]) -> None:
+        """Signs and upper bounds of the rates, lengths and delays (``fail``: the error)."""
+        for name in ("window_s", "event_min_s", "reply_min_s", "syllable_rate_hz",
+                     "robot_speech_min_s"):
+            if getattr(self, name) <= 0:
+                fail(name, "> 0")
+        for name in _NON_NEGATIVE_FIELDS:
+            if getattr(self, name) < 0:
+                fail(name, ">= 0")
+        for name in _EVENT_RATE_FIELDS:
+            if getattr(self, name) > MAX_EVENT_RATE_HZ:
+                fail(name, f"at most {MAX_EVENT_RATE_HZ:g} a second")
+        if self.syllable_rate_hz > MAX_SYLLABLE_RATE_HZ:
+            fail("syllable_rate_hz", f"at most {MAX_SYLLABLE_RATE_HZ:g} a second")
+        for name in _ONE_SOUND_FIELDS:
+            if getattr(self, name) > MAX_ONE_SOUND_S:
+                fail(name, f"at most {MAX_ONE_SOUND_S:g} s")
 
     @classmethod
     def preset(cls, name: str, **overrides: Any) -> FakeRoomConfig:
