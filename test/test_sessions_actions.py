@@ -7,6 +7,7 @@ channel carrying the robot's own output; and their bad input.
 from __future__ import annotations
 
 import json
+import re
 import struct
 from pathlib import Path
 
@@ -321,6 +322,9 @@ def test_time_mapping_convention() -> None:
     assert decisions_from_times([0.5, 1.0, 1.99], 5, 0.5, "x") == [True, True, True, False, False]
     with pytest.raises(ValueError, match="two sounds commanded"):
         decisions_from_times([0.6, 0.9], 4, 0.5, "x")
+    for huge in (1e20, 1e308):  # 1e308 / 0.5 overflows: still the one line, not a traceback
+        with pytest.raises(ValueError, match=re.escape(f"time_s {huge:g} lies beyond the")):
+            decisions_from_times([huge], 4, 0.5, "x")
 
 
 @pytest.mark.parametrize("csv_text, message", [

@@ -371,7 +371,10 @@ def decisions_from_times(times: Sequence[float], windows: int, dt: float, what: 
     """
     decisions = [False] * windows
     for t in times:
-        window = math.floor(t / dt + 1e-9)
+        if t >= windows * dt:  # before the division: a huge time overflows it
+            window = windows
+        else:
+            window = math.floor(t / dt + 1e-9)
         if window >= windows:
             raise ValueError(f"{what}: time_s {t:g} lies beyond the recording"
                              f" ({windows * dt:g} s, {windows} windows of {dt:g} s)")
