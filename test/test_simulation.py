@@ -160,6 +160,10 @@ def test_rooms() -> None:
         ("responsive:k9=0.1", "unknown option"),
         ("baby9:reply=7", "agent period"),
         ("silent:k3", "key=value"),
+        ("prior:pi=2", "pi must be a probability in \\[0, 1\\], got 2"),
+        ("prior:pi=nan", "pi must be a probability"),
+        ("prior:pi=0.5,pi=0.9", "pi is given twice"),
+        ("noisy:k3=inf", "k3 must be a probability"),  # the key typed, though it sets k2 too
     ]:
         with pytest.raises(ValueError, match=message):
             make_room(spec, ROBOT, rng)

@@ -76,19 +76,24 @@ def _parse_options(spec: str) -> tuple[str, dict[str, str]]:
         key, sep, value = item.partition("=")
         if not sep:
             raise ValueError(f"room option {item!r} in {spec!r} must look like key=value")
+        if key.strip() in options:
+            raise ValueError(f"room {spec!r}: {key.strip()} is given twice")
         options[key.strip()] = value.strip()
     return name.strip(), options
 
 
 def _float_option(options: dict[str, str], key: str, default: float, spec: str) -> float:
-    """The number option ``key`` of a specification, or ``default`` when it is not given."""
+    """The probability option ``key`` of a specification, or ``default`` when it is not given."""
     text = options.get(key)
     if text is None:
         return default
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         raise ValueError(f"room {spec!r}: {key} must be a number, got {text!r}") from None
+    if not 0.0 <= value <= 1.0:  # NaN too
+        raise ValueError(f"room {spec!r}: {key} must be a probability in [0, 1], got {text}")
+    return value
 
 
 def _prior_room(params: ModelParams, spec: str, pi: float, rng: np.random.Generator) -> Room:
