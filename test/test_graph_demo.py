@@ -300,6 +300,7 @@ def described(pid: int) -> str:
     [
         ("SIGINT", 130, "SIGINT"),
         ("SIGTERM", 143, "SIGTERM"),
+        ("SIGHUP", 129, "SIGHUP"),  # the terminal closed
         ("Ctrl-C", 130, "SIGINT"),  # SIGINT to the whole process group, as a terminal does
     ],
 )
@@ -337,15 +338,17 @@ def test_a_signal_stops_the_demo_and_every_node(how: str, status: int, name: str
 
 @NODE_GRAPHS
 @pytest.mark.slow
-def test_the_nodes_of_a_demo_killed_with_sigkill_end_too() -> None:
+def test_the_nodes_of_a_demo_killed_with_sigkill_end_too(tmp_path: Path) -> None:
     """A demo killed with SIGKILL leaves no node running the graph on.
 
     An OOM kill or a CI timeout gives the demo no chance to stop its nodes: they end on
-    their own (the kernel's parent-death signal).
+    their own (the kernel's parent-death signal). Nor to remove its directory of node
+    logs: that one is made under the test's own directory.
     """
     process = subprocess.Popen(
         [sys.executable, "-m", "infomax_contingency.cli", "demo", "--steps", "10000000"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)},
     )  # fmt: skip
     nodes: set[int] = set()
     try:

@@ -16,9 +16,9 @@ calibration of the first ``--calibration-s`` seconds. The table shows each step 
 time of its window.
 
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
-arrived for :data:`STALL_TIMEOUT_S`. SIGINT or SIGTERM (Ctrl-C) stop every node process
-(each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C)
-and end the demo with status 130 or 143 and "interrupted". A demo killed outright (SIGKILL,
+arrived for :data:`STALL_TIMEOUT_S`. SIGINT (Ctrl-C), SIGTERM or SIGHUP stop every node
+(each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C),
+end the demo with status 128 + the signal and "interrupted". A demo killed outright (SIGKILL,
 an OOM kill) leaves no node running: each ends with it (the kernel's parent-death signal,
 :func:`~infomax_contingency.nodes.runtime.end_with_parent`).
 
@@ -245,8 +245,11 @@ def _nodes(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], str]:
     return nodes, "fake_audio_node"
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # SIGHUP: a terminal closed
+
+
 class Interrupted(BaseException):
-    """SIGINT or SIGTERM reached the demo: stop the nodes, exit 128 + the signal number."""
+    """A stop signal reached the demo: stop the nodes, exit 128 + the signal number."""
 
     def __init__(self, signum: int) -> None:
         super().__init__(signal.Signals(signum).name)
@@ -255,7 +258,7 @@ class Interrupted(BaseException):
 
 @contextlib.contextmanager
 def interrupted_by_signals() -> Iterator[None]:
-    """Turn the first SIGINT or SIGTERM into :class:`Interrupted`; ignore later ones.
+    """Turn the first of :data:`STOP_SIGNALS` into :class:`Interrupted`; ignore later ones.
 
     Later signals are ignored so that stopping the nodes is not itself interrupted.
     The previous handlers come back on leaving.
@@ -267,7 +270,7 @@ def interrupted_by_signals() -> Iterator[None]:
             received.append(signum)
             raise Interrupted(signum)
 
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
         yield
     finally:
@@ -278,8 +281,8 @@ def interrupted_by_signals() -> Iterator[None]:
 def run_demo(args: argparse.Namespace) -> int:
     """Run the graph, print one line per step and the verdict; returns the exit status.
 
-    Exit status 0 after a run, 1 if the graph failed, 2 for bad arguments, 130 / 143
-    after SIGINT / SIGTERM (every node process is stopped first).
+    Exit status 0 after a run, 1 if the graph failed, 2 for bad arguments, 130 / 143 / 129
+    after SIGINT / SIGTERM / SIGHUP (every node process is stopped first).
     """
     check_arguments(args)
     domain = isolate_dds()
@@ -396,15 +399,14 @@ def _stop_graph(processes: Any, recorder: Any) -> None:
     """
     import rclpy
 
-    stop_signals = {signal.SIGINT, signal.SIGTERM}
-    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
     try:
         processes.stop_all()
         if recorder is not None:
             recorder.destroy_node()
         rclpy.try_shutdown()
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
 
 
 def _wait_for_run(args: argparse.Namespace, processes: Any, recorder: Any,
