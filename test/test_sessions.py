@@ -65,6 +65,9 @@ def test_the_bag_reads_the_same_with_rosbags_and_with_mcap() -> None:
     (["replay", "/nonexistent/session"], "cannot read the session"),
     (["replay", str(SESSION), "--actions", "channel:1"], "goes with a wav file"),
     (["replay", str(SESSION), "--memory", "-1"], "--memory must be >= 0"),
+    (["replay", str(SESSION), "--threshold-db", "-30"], "--threshold-db applies to a wav file"),
+    (["replay", str(SESSION), "--mic-channel", "1"], "--mic-channel applies to a wav file"),
+    (["replay", str(SESSION), "--calibrate"], "--calibrate applies to a wav file"),
 ])
 def test_bad_replay_input_is_one_line_and_status_2(arguments, message, capsys) -> None:
     assert main(arguments) == 2

@@ -371,7 +371,9 @@ def test_bad_channels_and_combinations_are_one_line_and_status_2(stereo_wav: Pat
         ([str(WAV), "--actions", str(tmp_path / "none.csv")], "does not exist"),
         ([str(WAV), "--actions", "policy:/nonexistent.npz"], "nonexistent.npz"),
         ([str(WAV), "--actions", "bogus"], "unknown controller"),
-        ([str(WAV), "--actions", "fixed:3", "--calibration-s", "0"], "--calibration-s"),
+        ([str(WAV), "--actions", "fixed:3", "--calibrate", "--calibration-s", "0"],
+         "--calibration-s must be > 0"),
+        ([str(WAV), "--actions", "fixed:3", "--calibration-s", "3"], "give --calibrate too"),
         ([str(WAV), "--actions", "fixed:3", "--threshold-db", "5"], "--threshold-db"),
     ]
     for arguments, message in cases:

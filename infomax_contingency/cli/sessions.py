@@ -57,6 +57,9 @@ from infomax_contingency.limits import check_output_files, written_atomically
 from infomax_contingency.sim.actions import read_actions_csv
 from infomax_contingency.sim.simulation import RunSummary, StepRecord
 
+DEFAULT_CALIBRATION_S = 10.0
+"""s at a wav file's start that ``replay --calibrate`` calibrates its threshold on."""
+
 ACTION_KINDS = ("recorded", "policy:FILE", "rule[:C]", "FILE.csv", "channel:N")
 """The ``--actions`` values: recorded (a bag's own), a controller (policy:FILE, or any
 ``simulate --controller``), an actions CSV file or a reference channel (a wav file)."""
@@ -97,9 +100,9 @@ def register_replay(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--calibrate", action="store_true",
                         help="wav: the k-means threshold of the first --calibration-s seconds"
                         " instead")
-    parser.add_argument("--calibration-s", type=float, default=10.0,
+    parser.add_argument("--calibration-s", type=float, default=None,
                         help="wav: seconds at its start to calibrate the threshold on"
-                        " (--calibrate; default 10)")
+                        f" (--calibrate; default {DEFAULT_CALIBRATION_S:g})")
     parser.add_argument("--false-alarm", type=float,
                         help="wav: the share of background windows above the self-calibrating"
                         " threshold (mic_node's false_alarm; default 0.05)")
@@ -114,6 +117,18 @@ def _check_replay(args: argparse.Namespace, is_wav: bool) -> str:  # noqa: C901
     """The ``--actions`` kind after checking the arguments (ValueError: one line)."""
     if args.memory is not None and args.memory < 0:
         raise ValueError(f"--memory must be >= 0 (0 = all), got {args.memory}")
+    wav_only = [option for option, value in (("--mic-channel", args.mic_channel),
+                                             ("--threshold-db", args.threshold_db),
+                                             ("--calibrate", args.calibrate or None))
+                if value is not None]
+    if wav_only and not is_wav:
+        raise ValueError(f"{wav_only[0]} applies to a wav file: a recorded session replays the"
+                         " bits it recorded")  # fmt: skip
+    if args.calibration_s is not None and not args.calibrate:
+        raise ValueError("--calibration-s is the length of --calibrate's k-means calibration:"
+                         " give --calibrate too")  # fmt: skip
+    if args.calibration_s is None:
+        args.calibration_s = DEFAULT_CALIBRATION_S
     if not args.calibration_s > 0:
         raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
     if args.threshold_db is not None and not -150.0 <= args.threshold_db <= 0.0:
