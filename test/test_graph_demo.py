@@ -512,6 +512,14 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
                                         " memory_steps; 0 = all), got 1000000000000"),
         (["--record", "/proc/x"], "--record /proc/x: cannot create it: "),
         (["--wav", "/dev/zero"], "--wav /dev/zero: not a regular file (a device or a FIFO)"),
+        # options the run would not use: refused, not ignored
+        (["--wav", str(WAV), "--room", "office"], "set the simulated room: not"),
+        (["--wav", str(WAV), "--seed", "5"], "set the simulated room: not with"),
+        (["--wav", str(WAV), "--leave-at", "10"], "set the simulated room: not"),
+        (["--room", "office", "--leave-at", "10"], "--leave-at 10: room office has no partner"),
+        (["--calibration-s", "5"], "--calibration-s is the length of a k-means calibration"),
+        (["--wav", str(WAV), "--calibration-s", "5"], "it needs --wav and"),
+        (["--no-record-audio"], "--no-record-audio leaves the audio out of a recording"),
     ],
 )
 def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(

@@ -49,6 +49,7 @@ from typing import Any
 
 from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.cli.demo_checks import (
+    DEMO_CALIBRATION_S,
     DEMO_LEAVE_S,
     check_arguments,
     demo_partner_times,
@@ -109,9 +110,8 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--calibration-s",
         type=finite_number,
-        default=10.0,
-        help="--wav with --bit-source energy or speech_band: seconds of the wav file to"
-        " calibrate the threshold on (default 10)",
+        default=DEMO_CALIBRATION_S,
+        help="--wav, --bit-source energy or speech_band: s to calibrate on (default 10)",
     )
     parser.add_argument(
         "--bit-source",

@@ -63,12 +63,30 @@ def demo_partner_times(args: argparse.Namespace) -> dict[str, float]:
     if leave_at is None and args.room == "responsive":
         leave_at = DEMO_LEAVE_S
     times = partner_times(args.room, leave_at)
+    if args.leave_at is not None and times.get("partner_arrive_s", 0.0) < 0:
+        raise ValueError(f"--leave-at {args.leave_at:g}: room {args.room} has no partner")
     try:
         FakeRoomConfig.preset(args.room, **times)
     except ValueError as error:
         given = "" if args.leave_at is None else f"--leave-at {args.leave_at:g} in "
         raise ValueError(f"{given}room {args.room}: {error}") from None
     return times
+
+
+DEMO_CALIBRATION_S = 10.0
+"""s of a wav file a k-means threshold is calibrated on (``--calibration-s``)."""
+
+
+def _check_options_used(args: argparse.Namespace) -> None:
+    """Refuse an option the run would not use (ValueError: one line), not ignore it."""
+    if args.wav and (args.room != "responsive" or args.seed != 1 or args.leave_at is not None):
+        raise ValueError("--room, --seed and --leave-at set the simulated room: not with --wav")
+    k_means = args.wav and args.bit_source in ("energy", "speech_band")
+    if args.calibration_s != DEMO_CALIBRATION_S and not k_means:
+        raise ValueError("--calibration-s is the length of a k-means calibration: it needs --wav"
+                         " and --bit-source energy or speech_band")  # fmt: skip
+    if args.no_record_audio and args.record is None:
+        raise ValueError("--no-record-audio leaves the audio out of a recording: give --record")
 
 
 def check_arguments(args: argparse.Namespace) -> None:
@@ -98,6 +116,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         )
     if args.record is not None:  # "" too: it recorded nothing, without a word
         check_record_directory(args.record)
+    _check_options_used(args)
 
 
 def check_record_directory(directory: str | Path, option: str = "--record") -> None:
