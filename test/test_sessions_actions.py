@@ -421,3 +421,20 @@ def test_a_what_if_on_a_wav_times_its_steps_by_the_files_windows(capsys, tmp_pat
     write_wav_int16(late, np.concatenate([np.zeros(4 * 16000), load_mono(WAV, 16000)]), 16000)
     assert main(["replay", str(late), "--actions", f"policy:{ROBOT_TABLE}", "--json"]) == 0
     assert [row["time_s"] for row in _rows(capsys)] == [row["time_s"] + 4.0 for row in rows]
+
+
+def test_a_wav_whose_header_claims_an_absurd_rate_is_named_before_its_actions(
+    tmp_path: Path, capsys
+) -> None:
+    """4 GHz in the header: 3 s of samples last microseconds; said of the file, in one line."""
+    wav = tmp_path / "rate.wav"
+    write_wav_int16(wav, np.zeros(3 * 16000), 16000)
+    header = bytearray(wav.read_bytes())
+    header[24:28] = struct.pack("<I", 4_000_000_000)  # the fmt chunk's sample rate
+    wav.write_bytes(bytes(header))
+    actions = tmp_path / "a.csv"
+    actions.write_text("time_s\n1.5\n")
+    assert main(["replay", str(wav), "--actions", str(actions)]) == 2
+    error = capsys.readouterr().err
+    assert f"{wav} lasts 0.000 s, shorter than one window" in error, error
+    assert len(error.strip().splitlines()) == 1

@@ -228,6 +228,7 @@ def _wav_background_records(args: argparse.Namespace, kind: str, params: ModelPa
         records = wav_background_loop(path, params, mic, controller, memory, problems, **options)
         return records, (f"controller {controller.name} deciding on the recorded bits (what-if);"
                          f" self-calibrating sound threshold ({levels} levels)"), problems
+    WavReplay(path, params.dt, mic)  # the file, its rate and channel first (one-line errors)
     windows = wav_window_count(open_wav_info(path), params.dt)
     if kind == "csv":
         decisions = decisions_from_times(read_actions_csv(Path(args.actions)), windows,
