@@ -21,7 +21,7 @@ import pytest
 from graph_harness import Graph, assert_every_step_recorded, graph_fixture
 from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.cli import demo as demo_module
-from infomax_contingency.cli import demo_checks
+from infomax_contingency.cli import demo_checks, demo_output
 from infomax_contingency.testing.graph import wait_until
 from processes import read_until, readline_within
 from stepped_graph import stepped_graph
@@ -462,11 +462,41 @@ class LatePostures:
 def test_the_table_waits_for_the_posture_changes_the_beliefs_call_for() -> None:
     recorder = LatePostures(arrive_at=5)
     received = [posture for _, posture in recorder.posture]
-    assert demo_module._postures(recorder.belief, received) == []  # not yet: arrival order
+    assert demo_output.step_postures(recorder.belief, received) == []  # not yet: arrival order
     demo_module._wait_for_postures(recorder, steps=4, poll_s=0.0)
     received = [posture for _, posture in recorder.posture]
-    assert demo_module._postures(recorder.belief, received) == [
+    assert demo_output.step_postures(recorder.belief, received) == [
         "bored", "attentive", "attentive", "bored"]
+
+
+class Recorded:
+    """What the demo's monitor holds after 3 complete steps and a 4th still in flight."""
+
+    sound = [0, 1, 1, 0]
+    vocalize = [True, False, False]
+    belief = [0.01, 0.5, 0.95]
+    posture = [(0, "bored"), (3, "attentive")]
+    partner_present = [True] * 20
+    no_step: list[int] = []
+
+    def step_windows(self, steps: int) -> list[int]:
+        return [12 + k for k in range(steps)]
+
+
+def test_an_interrupted_demo_prints_the_steps_it_completed(capsys) -> None:
+    """Ctrl-C in a long demo keeps its table: the steps whose bit, decision and belief came."""
+    demo_output.print_run_so_far(Recorded(), 0.5, truth=True)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("# the first 12 windows (6 s) gave no bit")
+    assert lines[1].split() == ["step", "time_s", "bit", "vocalize", "belief", "posture", "partner"]
+    assert [line.split() for line in lines[2:5]] == [
+        ["1", "6.0", "0", "yes", "0.0100", "bored", "present"],
+        ["2", "6.5", "1", "-", "0.5000", "bored", "present"],
+        ["3", "7.0", "1", "-", "0.9500", "attentive", "present"],
+    ]
+    assert lines[5:] == ["# interrupted after 3 steps"]
+    demo_output.print_run_so_far(None, 0.5, truth=True)  # interrupted before the monitor
+    assert capsys.readouterr().out == ""
 
 
 def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile(

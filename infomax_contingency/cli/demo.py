@@ -18,7 +18,8 @@ time of its window.
 A run may be as long as ``--steps`` asks: the demo gives up only when no message has
 arrived for :data:`STALL_TIMEOUT_S`. SIGINT (Ctrl-C), SIGTERM or SIGHUP stop every node
 (each runs in a process group of its own, so only the demo receives a terminal's Ctrl-C),
-end the demo with status 128 + the signal and "interrupted". A demo killed outright (SIGKILL,
+end the demo with status 128 + the signal and "interrupted", after the table of the steps
+complete. A demo killed outright (SIGKILL,
 an OOM kill) leaves no node running: each ends with it (the kernel's parent-death signal,
 :func:`~infomax_contingency.nodes.runtime.end_with_parent`).
 
@@ -59,8 +60,14 @@ from infomax_contingency.cli.demo_checks import (
     node_failure,
     recording_failure,
 )
+from infomax_contingency.cli.demo_output import (
+    print_run,
+    print_run_so_far,
+    print_verdict,
+    step_postures,
+)
 from infomax_contingency.cli.formatting import seed
-from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED, BORED_BELOW, PostureHysteresis
+from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.room_config import PRESETS
 
@@ -300,6 +307,7 @@ def run_demo(args: argparse.Namespace) -> int:
         with interrupted_by_signals():
             outcome = _run_graph(args, nodes, clock)
     except (Interrupted, KeyboardInterrupt) as stop:
+        print_run_so_far(getattr(stop, "recorder", None), WINDOW_S, truth=not args.wav)
         signum = stop.signum if isinstance(stop, Interrupted) else signal.SIGINT
         name = signal.Signals(signum).name
         print(f"infomax-contingency demo: interrupted ({name}); nodes stopped", file=sys.stderr)
@@ -308,9 +316,9 @@ def run_demo(args: argparse.Namespace) -> int:
         print(f"infomax-contingency demo: error: {outcome}", file=sys.stderr)
         return 1
     recorder, steps, elapsed, released, mic_warnings = outcome
-    _print_run(recorder, steps, WINDOW_S, truth=not args.wav)
+    print_run(recorder, steps, WINDOW_S, truth=not args.wav)
     print_notes(clock, released, mic_warnings)
-    _print_verdict(recorder, steps, WINDOW_S, args, elapsed)
+    print_verdict(recorder, steps, WINDOW_S, args, elapsed)
     return 0
 
 
@@ -380,6 +388,9 @@ def _run_graph(
                 _wait_with_watchdog(lambda: len(recorder.posture) >= 1, recorder, 5.0)
                 _wait_for_postures(recorder, steps)
             released = processes.log(clock).count(RELEASED_WINDOW)
+        except Interrupted as stop:
+            stop.recorder = recorder  # the steps so far are printed
+            raise
         finally:
             _stop_graph(processes, recorder)
         mic_warnings = log_messages(processes.log("mic_node"), "WARN")
@@ -501,100 +512,6 @@ def _wait_for_postures(recorder: Any, steps: int, poll_s: float = 0.02) -> None:
     from infomax_contingency.nodes.runtime import REPAIR_WAIT_S
     from infomax_contingency.testing.graph import wait_until
 
-    wait_until(lambda: bool(_postures(recorder.belief[:steps],
+    wait_until(lambda: bool(step_postures(recorder.belief[:steps],
                                       [p for _, p in list(recorder.posture)])),
                REPAIR_WAIT_S, poll_s=poll_s)  # fmt: skip
-
-
-def _postures(beliefs: list[float], received: list[str]) -> list[str]:
-    """The posture after each step.
-
-    The posture node publishes a change in answer to the belief that crossed a
-    threshold; the same hysteresis on the recorded beliefs says which step that was. If
-    the changes it finds are not the ones the node published (other thresholds in a
-    parameter file), the node's changes are shown at the steps the monitor received them.
-    """
-    hysteresis = PostureHysteresis(ATTENTIVE_ABOVE, BORED_BELOW, received[0] if received else BORED)
-    per_step = []
-    for belief in beliefs:
-        hysteresis.update(belief)
-        per_step.append(hysteresis.posture)
-    changes = [p for i, p in enumerate(per_step) if i == 0 or p != per_step[i - 1]]
-    return per_step if changes[1:] == received[1:] else []
-
-
-def _print_run(recorder: Any, steps: int, window_s: float, truth: bool) -> None:
-    windows = recorder.step_windows(steps)
-    if windows and windows[0] > 0:
-        print(f"# the first {windows[0]} windows ({windows[0] * window_s:g} s) gave no bit:"
-              " mic_node's bit source heard the room's background first")  # fmt: skip
-    beliefs = recorder.belief[:steps]
-    received = [posture for _, posture in recorder.posture]
-    postures = _postures(beliefs, received)
-    if not postures:  # fall back to the arrival order
-        postures, current, changes = [], received[0] if received else "?", list(recorder.posture)
-        for step in range(1, steps + 1):
-            while changes and changes[0][0] <= step:
-                current = changes.pop(0)[1]
-            postures.append(current)
-    header = f"{'step':>5} {'time_s':>7} {'bit':>3} {'vocalize':>8} {'belief':>9}  {'posture':<9}"
-    print((header + (" partner" if truth else "")).rstrip())
-    for k in range(steps):
-        line = (
-            f"{k + 1:>5} {windows[k] * window_s:>7.1f} {int(recorder.sound[k]):>3}"
-            f" {'yes' if recorder.vocalize[k] else '-':>8} {beliefs[k]:>9.4f}  {postures[k]:<9}"
-        )
-        if truth:
-            line += " present" if recorder.partner_present[windows[k]] else " absent"
-        print(line.rstrip())
-
-
-def _print_verdict(
-    recorder: Any, steps: int, window_s: float, args: argparse.Namespace, elapsed: float
-) -> None:
-    beliefs = recorder.belief[:steps]
-    final = beliefs[-1]
-    thinks = "partner present" if final > 0.5 else "no partner"
-    received = [t for t, _ in recorder.times["belief"][:steps]]
-    run_s = (received[-1] - received[0]) / 1e9 if len(received) > 1 else 0.0
-    rate = f" ({(steps - 1) / run_s:.0f} steps/s)" if run_s > 0 else ""
-    audio_s = (steps + len(recorder.no_step)) * window_s
-    print(
-        f"# {steps} steps ({audio_s:g} s of audio) in {run_s:.2f} s{rate}, after"
-        f" {elapsed - run_s:.1f} s of start-up; {sum(recorder.vocalize[:steps])} vocalizations;"
-        f" final P(S=1) = {final:.4f} -> {thinks}"
-    )
-    if args.wav:
-        print(f"# verdict: the robot thinks: {thinks} (a recording has no ground truth)")
-        return
-    windows = recorder.step_windows(steps)  # of each step; the truth is the window's
-    truth = recorder.partner_present[: windows[-1] + 1]
-    present = [w for w, here in enumerate(truth) if here]
-    verdicts = []
-    if present:
-        arrive, leave = present[0], present[-1] + 1  # windows
-        found = next((k for k in range(steps)
-                      if arrive <= windows[k] < leave and beliefs[k] > ATTENTIVE_ABOVE), None)
-        if found is None:
-            verdicts.append("MISSED the partner")
-        else:
-            delay = (windows[found] - arrive + 1) * window_s
-            verdicts.append(
-                f"found the partner {delay:.1f} s after they arrived (step {found + 1})"
-            )
-        if leave < len(truth):
-            gone = next((k for k in range(steps)
-                         if windows[k] >= leave and beliefs[k] < BORED_BELOW), None)
-            if gone is None:
-                verdicts.append("did NOT notice that the partner left")
-            else:
-                delay = (windows[gone] - leave + 1) * window_s
-                verdicts.append(f"noticed they left {delay:.1f} s later (step {gone + 1})")
-    else:
-        ok = max(beliefs) <= ATTENTIVE_ABOVE
-        verdicts.append(
-            "never took the room for a partner" if ok else "WRONGLY took the room for a partner"
-        )
-    right = (final > 0.5) == bool(truth[-1])
-    verdicts.append(f"final answer {'correct' if right else 'WRONG'}")
-    print("# verdict: " + "; ".join(verdicts))
