@@ -497,6 +497,10 @@ def test_an_interrupted_demo_prints_the_steps_it_completed(capsys) -> None:
     assert lines[5:] == ["# interrupted after 3 steps"]
     demo_output.print_run_so_far(None, 0.5, truth=True)  # interrupted before the monitor
     assert capsys.readouterr().out == ""
+    lagging = Recorded()
+    lagging.partner_present = [True] * 13  # the truth of window 13 (step 2) not yet in
+    demo_output.print_run_so_far(lagging, 0.5, truth=True)
+    assert capsys.readouterr().out.splitlines()[-1] == "# interrupted after 1 steps"
 
 
 def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile(

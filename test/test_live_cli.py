@@ -102,9 +102,29 @@ def test_calibrate_reports_the_default_bit_source_as_a_replay_hears_it(tmp_path,
     assert f"{sum(decided)} of {len(decided)} windows after its warm-up active" in text
     assert f"threshold {source.threshold_db:.1f} dB" in text  # the histogram's marker
     assert "nothing to write" in text and not list(tmp_path.glob("*.yaml"))
-    short = write_recording(tmp_path / "short.wav", 16000, seconds=5.0)
+    short = write_recording(tmp_path / "short.wav", 16000, seconds=6.0)  # 12 windows
     assert cli.main(["calibrate", "--wav", str(short)]) == 0
-    assert "would give no bit yet: it hears 4 s of the room first" in capsys.readouterr().out
+    assert "would give no bit yet: its first bit comes after 12 windows" in (
+        capsys.readouterr().out)
+
+
+def test_calibrate_reports_what_mic_node_would_warn_of(tmp_path, capsys) -> None:
+    """Clipping, a DC offset and digital silence: the source's own warnings, no made-up bits."""
+    rng = np.random.default_rng(0)
+    clipped = tmp_path / "clipped.wav"
+    write_wav_int16(clipped, np.clip(3.0 * rng.standard_normal(16000 * 10), -1, 1), 16000)
+    assert cli.main(["calibrate", "--wav", str(clipped)]) == 0
+    assert "warning: 20 windows were clipped (samples at full scale)" in capsys.readouterr().out
+    offset = tmp_path / "offset.wav"
+    write_wav_int16(offset, 0.3 + 0.01 * rng.standard_normal(16000 * 10), 16000)
+    assert cli.main(["calibrate", "--wav", str(offset)]) == 0
+    assert "warning: 20 windows had a DC offset" in capsys.readouterr().out
+    silent = tmp_path / "silent.wav"
+    write_wav_int16(silent, np.zeros(16000 * 10), 16000)
+    assert cli.main(["calibrate", "--wav", str(silent)]) == 1
+    text = capsys.readouterr().out
+    assert "warning: 20 of 20 windows were digital silence" in text
+    assert "would give no bit here" in text and " dB | " not in text  # no made-up threshold
 
 
 def test_calibrate_refuses_a_threshold_file_for_the_default_bit_source(
@@ -115,7 +135,13 @@ def test_calibrate_refuses_a_threshold_file_for_the_default_bit_source(
                      "--out", str(out)]) == 2  # fmt: skip
     assert "needs no threshold file" in capsys.readouterr().err
     assert cli.main(["calibrate", "--wav", str(room_wav), "--force"]) == 2
-    assert "--force writes a k-means threshold: it needs --out FILE" in capsys.readouterr().err
+    assert "--force is for a k-means threshold written to a file: give --out FILE" in (
+        capsys.readouterr().err)
+    for options, named in ((["--bit-source", "speech_band"], "--bit-source speech_band"),
+                           (["--bit-source", "energy"], "--bit-source energy"),
+                           (["--min-separation-db", "3"], "--min-separation-db")):
+        assert cli.main(["calibrate", "--wav", str(room_wav), *options]) == 2, options
+        assert f"{named} is for a k-means threshold" in capsys.readouterr().err
     assert not out.exists()
 
 

@@ -374,6 +374,10 @@ def test_bad_channels_and_combinations_are_one_line_and_status_2(stereo_wav: Pat
         ([str(WAV), "--actions", "fixed:3", "--calibrate", "--calibration-s", "0"],
          "--calibration-s must be > 0"),
         ([str(WAV), "--actions", "fixed:3", "--calibration-s", "3"], "give --calibrate too"),
+        ([str(WAV), "--actions", "fixed:3", "--calibrate", "--calibration-s", "inf"],
+         "--calibration-s must be > 0 seconds, got inf"),
+        ([str(WAV), "--actions", "fixed:3", "--calibrate", "--threshold-db", "-30"],
+         "--calibrate or --threshold-db"),
         ([str(WAV), "--actions", "fixed:3", "--threshold-db", "5"], "--threshold-db"),
     ]
     for arguments, message in cases:

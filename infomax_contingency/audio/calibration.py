@@ -11,6 +11,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,15 +32,16 @@ def energies_from_wav(
     rate: int = PROCESSING_RATE_HZ,
     max_windows: int | None = None,
     bit_source: str = "energy",
+    meter: WindowMeter | None = None,
 ) -> NDArray[np.float64]:
     """Window levels (dB) of a WAV file, exactly as the wav source computes them.
 
     The file is read block by block (:func:`~infomax_contingency.audio.energy.iter_wav_windows`),
     so memory does not grow with its length; ``max_windows`` stops after the first ones.
     The level is ``bit_source``'s (:class:`~infomax_contingency.audio.bitsources.WindowLevels`):
-    the window energy for ``energy``, the speech band's for ``speech_band``.
+    the window energy for ``energy``, the speech band's for ``speech_band``; or ``meter``'s.
     """
-    levels = WindowLevels(bit_source, rate)
+    levels = meter or WindowLevels(bit_source, rate)
     parts: list[NDArray[np.float64]] = []
     count = 0
     for windows in iter_wav_windows(path, window_s, channel, rate):
@@ -49,6 +51,12 @@ def energies_from_wav(
             break
     out = np.concatenate(parts) if parts else np.empty(0)
     return out if max_windows is None else out[:max_windows]
+
+
+class WindowMeter(Protocol):
+    """What gives calibration audio its levels: windows in order (one per row) to dB."""
+
+    def levels_db(self, windows: ArrayLike) -> NDArray[np.float64]: ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +88,7 @@ def record_energies(
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], None] | None = None,
     bit_source: str = "energy",
+    meter: WindowMeter | None = None,
 ) -> Recording:
     """Record ``seconds`` of live audio and return its window energies.
 
@@ -87,7 +96,8 @@ def record_energies(
     recording, so a slow reader loses nothing.
 
     ``clock`` and ``sleep`` go to the :class:`~infomax_contingency.audio.capture.MicrophoneStream`.
-    ``bit_source`` ``speech_band``: the windows' speech-band levels instead of their energies.
+    ``bit_source`` ``speech_band``: the windows' speech-band levels instead of their energies;
+    ``meter``: its levels.
 
     Raises:
         AudioDeviceError: the device is missing, or delivers no audio for more than
@@ -105,7 +115,8 @@ def record_energies(
         clock=clock,
         sleep=sleep,
     )
-    levels = None if bit_source == "energy" else WindowLevels(bit_source, PROCESSING_RATE_HZ)
+    levels = meter or (None if bit_source == "energy"
+                       else WindowLevels(bit_source, PROCESSING_RATE_HZ))  # fmt: skip
     energies: list[float] = []
     with mic:
         deadline = clock() + n * window_s + 5.0

@@ -307,7 +307,8 @@ def run_demo(args: argparse.Namespace) -> int:
         with interrupted_by_signals():
             outcome = _run_graph(args, nodes, clock)
     except (Interrupted, KeyboardInterrupt) as stop:
-        print_run_so_far(getattr(stop, "recorder", None), WINDOW_S, truth=not args.wav)
+        with contextlib.suppress(OSError):  # a closed terminal (SIGHUP) takes no table
+            print_run_so_far(getattr(stop, "recorder", None), WINDOW_S, truth=not args.wav)
         signum = stop.signum if isinstance(stop, Interrupted) else signal.SIGINT
         name = signal.Signals(signum).name
         print(f"infomax-contingency demo: interrupted ({name}); nodes stopped", file=sys.stderr)

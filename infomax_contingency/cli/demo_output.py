@@ -121,8 +121,14 @@ def complete_steps(recorder: Any) -> int:
 
 
 def print_run_so_far(recorder: Any, window_s: float, truth: bool) -> None:
-    """The table of the steps complete when the demo was interrupted (nothing if none)."""
+    """The table of the steps complete when the demo was interrupted (nothing if none).
+
+    With ``truth``, only the steps whose window's truth has come too (it may lag).
+    """
     steps = 0 if recorder is None else complete_steps(recorder)
+    if steps and truth:
+        known = len(recorder.partner_present)
+        steps = sum(1 for window in recorder.step_windows(steps) if window < known)
     if steps:
         print_run(recorder, steps, window_s, truth)
-        print(f"# interrupted after {steps} steps")
+        print(f"# interrupted after {steps} steps", flush=True)

@@ -21,11 +21,11 @@ import numpy as np
 from infomax_contingency.audio.bitsources import BIT_SOURCES, DEFAULT_BIT_SOURCE
 from infomax_contingency.audio.bitsources.background import (
     BackgroundSettings,
-    band_name,
-    silent_robot_report,
+    SilentRobotMeter,
 )
 from infomax_contingency.audio.bitsources.level import LevelSource
 from infomax_contingency.audio.calibration import (
+    WindowMeter,
     dc_offset_note,
     energies_from_wav,
     energy_histogram,
@@ -80,8 +80,12 @@ def register_devices(subparsers: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- calibrate
 
 
-def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, str]:
+def _calibration_energies(
+    args: argparse.Namespace, meter: WindowMeter | None = None
+) -> tuple[np.ndarray, str, str]:
     """The calibration window energies (dB), from ``--wav`` or the live microphone.
+
+    ``meter``: what gives each window its level instead of ``--bit-source``'s.
 
     Returns:
         ``(energies, source, what)``: the energies, the source written to the threshold
@@ -90,7 +94,7 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
     if args.wav is not None:
         # read block by block: a 10-hour file costs the memory of a 10-second one
         energies = energies_from_wav(
-            args.wav, args.window_s, args.channel, bit_source=args.bit_source
+            args.wav, args.window_s, args.channel, bit_source=args.bit_source, meter=meter
         )
         return energies, f"wav:{args.wav}", str(args.wav)
     seconds = 10.0 if args.seconds is None else args.seconds
@@ -104,6 +108,7 @@ def _calibration_energies(args: argparse.Namespace) -> tuple[np.ndarray, str, st
         channel=args.channel,
         log=_print_log,
         bit_source=args.bit_source,
+        meter=meter,
     )
     if recording.lost_samples or recording.gaps:
         print(
@@ -145,10 +150,18 @@ def _check_calibrate_arguments(args: argparse.Namespace) -> None:
     """ValueError for arguments that do not go together; sets the default ``--bit-source``."""
     if args.wav is not None and (args.device is not None or args.seconds is not None):
         raise ValueError("calibrate from --wav FILE or from --device/--seconds, not both")
+    k_means_only = [option for option, given in (
+        ("--force", args.force),
+        ("--min-separation-db", args.min_separation_db is not None),
+        (f"--bit-source {args.bit_source}", args.bit_source in LEVEL_SOURCES),
+    ) if given]  # fmt: skip
+    if k_means_only and args.out is None:
+        raise ValueError(f"{k_means_only[0]} is for a k-means threshold written to a file: give"
+                         " --out FILE (without it: the default bit source's report)")
     if args.bit_source is None:
         args.bit_source = DEFAULT_BIT_SOURCE if args.out is None else "energy"
-    if args.force and args.out is None:
-        raise ValueError("--force writes a k-means threshold: it needs --out FILE")
+    if args.min_separation_db is None:
+        args.min_separation_db = DEFAULT_MIN_SEPARATION_DB
     if args.bit_source == DEFAULT_BIT_SOURCE and args.out is not None:
         raise ValueError(f"--bit-source {DEFAULT_BIT_SOURCE} needs no threshold file: mic_node's"
                          " default sets its threshold itself while it runs; --out writes one"
@@ -211,26 +224,31 @@ def _run_calibrate(args: argparse.Namespace) -> int:
 
 
 def _report_background(args: argparse.Namespace, params: ModelParams) -> int:
-    """What the default bit source makes of the room heard with the robot silent."""
+    """What the default bit source makes of the room heard with the robot silent.
+
+    Exit status 1 when it would give no bit in a recording long enough for one.
+    """
     settings = BackgroundSettings()
-    args.bit_source = "speech_band" if settings.level_band == "speech" else "energy"
-    levels, _, what = _calibration_energies(args)
-    report = silent_robot_report(levels, params, settings, PROCESSING_RATE_HZ)
-    band = band_name(settings.level_band)
-    print(f"heard {report.windows} windows of {args.window_s:g} s from {what} ({band} levels)")
-    for problem in report.problems:
+    meter = SilentRobotMeter(params, PROCESSING_RATE_HZ, settings)
+    levels, _, what = _calibration_energies(args, meter)
+    source = meter.source
+    print(f"heard {meter.windows} windows of {args.window_s:g} s from {what}"
+          f" ({source.band_name} levels)")  # fmt: skip
+    for problem in source.problems():
         print(f"warning: {problem}")
-    if report.threshold_db is None:
-        print(f"mic_node's default bit source ({DEFAULT_BIT_SOURCE}) would give no bit yet: it"
-              f" hears {settings.warmup_s:g} s of the room first; record longer to see its"
-              " threshold")  # fmt: skip
+    before = f"mic_node's default bit source ({DEFAULT_BIT_SOURCE}), the robot silent"
+    if meter.windows <= meter.windows_without_bit:
+        print(f"{before}, would give no bit yet: its first bit comes after"
+              f" {meter.windows_without_bit} windows; record longer to see its threshold")
         return 0
-    active, decided = sum(report.bits), len(report.bits)
-    print(f"mic_node's default bit source ({DEFAULT_BIT_SOURCE}), the robot silent: threshold"
-          f" {report.threshold_db:.2f} dB at the end ({report.origin}); {active} of {decided}"
-          f" windows after its warm-up active ({active / max(decided, 1):.3f}, set to"
-          f" {settings.false_alarm:g})")  # fmt: skip
-    print(energy_histogram(levels, report.threshold_db, bin_db=args.bin_db))
+    if not meter.bits or source.threshold_db is None:
+        print(f"{before}, would give no bit here: {source.problem or 'no threshold'}")
+        return 1
+    active, decided = sum(meter.bits), len(meter.bits)
+    print(f"{before}: threshold {source.threshold_db:.2f} dB at the end"
+          f" ({source.threshold_origin()}); {active} of {decided} windows after its warm-up"
+          f" active ({active / decided:.3f}, set to {settings.false_alarm:g})")  # fmt: skip
+    print(energy_histogram(levels, source.threshold_db, bin_db=args.bin_db))
     print("nothing to write: mic_node sets this threshold itself, and follows the room")
     return 0
 
@@ -294,7 +312,7 @@ def register_calibrate(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--min-separation-db",
         type=_non_negative,
-        default=DEFAULT_MIN_SEPARATION_DB,
+        default=None,
         help="least distance between the quiet and sound cluster means, dB (default:"
         f" {DEFAULT_MIN_SEPARATION_DB:g}); closer clusters cannot separate sound from quiet",
     )

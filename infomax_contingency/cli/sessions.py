@@ -129,8 +129,10 @@ def _check_replay(args: argparse.Namespace, is_wav: bool) -> str:  # noqa: C901
                          " give --calibrate too")  # fmt: skip
     if args.calibration_s is None:
         args.calibration_s = DEFAULT_CALIBRATION_S
-    if not args.calibration_s > 0:
+    if not (math.isfinite(args.calibration_s) and args.calibration_s > 0):
         raise ValueError(f"--calibration-s must be > 0 seconds, got {args.calibration_s}")
+    if args.calibrate and args.threshold_db is not None:
+        raise ValueError("--calibrate or --threshold-db: a wav file's threshold is one of them")
     if args.threshold_db is not None and not -150.0 <= args.threshold_db <= 0.0:
         raise ValueError(f"--threshold-db must lie in -150 .. 0 dB, got {args.threshold_db}")
     if args.mic_channel is not None and args.mic_channel < 0:

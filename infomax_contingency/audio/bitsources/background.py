@@ -293,51 +293,36 @@ class BackgroundSource(BitSource):
         return values
 
 
-@dataclasses.dataclass(frozen=True)
-class SilentRobotReport:
-    """What ``background`` makes of a room heard with the robot silent (``calibrate``).
+class SilentRobotMeter:
+    """The default source on a room heard with the robot silent (``calibrate``).
 
-    Every window is then a background window (its timer past the agent period).
-
-    Attributes:
-        windows: windows heard.
-        bits: the bits of the windows after the warm-up (1: active).
-        threshold_db: the threshold after the last window (its ``level_band`` level), dB;
-            None if the recording ended within the warm-up.
-        origin: where that threshold comes from (rank, windows, false-alarm share).
-        problems: lines about the input (clipping, DC offset, a threshold out of range).
+    Every window is then a background window, decided on (silence) as it comes, as in a
+    replay with its actions. Its :meth:`levels_db` gives the windows' levels as the source
+    computes them (``level_band``; digital silence, clipping and DC offset counted) and
+    keeps their bits.
     """
 
-    windows: int
-    bits: list[int]
-    threshold_db: float | None
-    origin: str
-    problems: list[str]
+    def __init__(self, params: ModelParams, rate_hz: int,
+                 settings: BackgroundSettings | None = None) -> None:
+        self.source = BackgroundSource(settings or BackgroundSettings(), rate_hz, params.dt)
+        self.source.follow_model(params)
+        self.bits: list[int] = []
+        """The bits of the windows after the warm-up (1: active)."""
+        self.windows = 0
 
+    def levels_db(self, windows: ArrayLike) -> NDArray[np.float64]:
+        """The next windows' levels (one window per row), dB; their bits are kept."""
+        levels = []
+        for window in np.atleast_2d(np.asarray(windows, dtype=np.float64)):
+            bit = self.source.push_recorded(window, 0)
+            if bit is not None:
+                self.bits.append(int(bit))
+            levels.append(self.source.last_level_db)
+            self.windows += 1
+        return np.asarray(levels)
 
-def silent_robot_report(
-    levels_db: ArrayLike,
-    params: ModelParams,
-    settings: BackgroundSettings | None = None,
-    rate_hz: int = 16000,
-) -> SilentRobotReport:
-    """Run the source's threshold over window levels heard with the robot silent.
-
-    ``levels_db``: one level per window (dB, ``level_band``'s), in order; each window is
-    decided on (silence) as it comes, as in a replay with its actions.
-    """
-    source = BackgroundSource(settings or BackgroundSettings(), rate_hz, params.dt)
-    source.follow_model(params)
-    bits = []
-    for level in np.asarray(levels_db, dtype=float):
-        bit = source.rule.push(float(level), decision=0)
-        if bit is not None:
-            bits.append(int(bit))
-    ready = source.threshold_db is not None
-    return SilentRobotReport(
-        windows=int(np.size(levels_db)),
-        bits=bits,
-        threshold_db=source.threshold_db,
-        origin=source.threshold_origin() if ready else "",
-        problems=source.problems(),
-    )
+    @property
+    def windows_without_bit(self) -> int:
+        """Windows heard before the first bit can come (warm-up and the threshold's delay)."""
+        rule = self.source.rule
+        return rule.warmup_windows + rule.delay - 1
