@@ -96,8 +96,7 @@ def record_energies(
     recording, so a slow reader loses nothing.
 
     ``clock`` and ``sleep`` go to the :class:`~infomax_contingency.audio.capture.MicrophoneStream`.
-    ``bit_source`` ``speech_band``: the windows' speech-band levels instead of their energies;
-    ``meter``: its levels.
+    ``bit_source`` ``speech_band``: the speech-band levels instead; ``meter``: its levels.
 
     Raises:
         AudioDeviceError: the device is missing, or delivers no audio for more than
@@ -115,8 +114,8 @@ def record_energies(
         clock=clock,
         sleep=sleep,
     )
-    levels = meter or (None if bit_source == "energy"
-                       else WindowLevels(bit_source, PROCESSING_RATE_HZ))  # fmt: skip
+    speech = bit_source != "energy"
+    levels = meter or (WindowLevels(bit_source, PROCESSING_RATE_HZ) if speech else None)
     energies: list[float] = []
     with mic:
         deadline = clock() + n * window_s + 5.0
