@@ -125,14 +125,14 @@ def record_energies(
                     f"recorded only {len(energies)} of {n} windows from {mic.status().device}"
                     f" in {n * window_s + 5.0:g} s: {mic.status().last_error or 'no audio'}"
                 )
-            windows = mic.read_windows(0.1)
+            windows = mic.read_windows(0.1)[: n - len(energies)]  # a meter sees only these
             if levels is None:
                 energies.extend(w.energy_db for w in windows)
             elif windows:
                 energies.extend(levels.levels_db([w.samples for w in windows]).tolist())
         status = mic.status()
     return Recording(
-        energies_db=np.asarray(energies[:n]),
+        energies_db=np.asarray(energies),
         device=status.device,
         device_rate=status.device_rate,
         lost_samples=status.lost_samples,
