@@ -348,6 +348,11 @@ class BackgroundThreshold:
         return kth + self.margin_db
 
     @property
+    def windows_before_first_bit(self) -> int:
+        """Windows that give no bit when every one is background: the warm-up, then the delay."""
+        return self.warmup_windows + self.delay - 1
+
+    @property
     def calibrating(self) -> bool:
         """True until ``warmup_windows`` background windows are known."""
         return len(self.background) < self.warmup_windows

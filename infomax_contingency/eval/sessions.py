@@ -284,7 +284,7 @@ def wav_background_bits(
 def _why_no_threshold(rule: BackgroundThreshold) -> str:
     """Why a recording's windows never set a ``background`` threshold (one clause)."""
     heard = len(rule.background)
-    if rule.windows < rule.warmup_windows + rule.delay:
+    if rule.windows <= rule.windows_before_first_bit:
         return (f"the recording's {rule.windows} windows are fewer than the warm-up's"
                 f" {rule.warmup_windows} background windows and {rule.delay} more")  # fmt: skip
     return (f"only {heard} of its windows were background (timer past the agent period),"

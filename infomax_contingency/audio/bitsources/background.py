@@ -324,5 +324,4 @@ class SilentRobotMeter:
     @property
     def windows_without_bit(self) -> int:
         """Windows heard before the first bit can come (warm-up and the threshold's delay)."""
-        rule = self.source.rule
-        return rule.warmup_windows + rule.delay - 1
+        return self.source.rule.windows_before_first_bit
