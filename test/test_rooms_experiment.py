@@ -228,6 +228,31 @@ def test_room_wav_writes_the_sound_and_its_actions(capsys, tmp_path: Path) -> No
     assert "must end in .wav" in capsys.readouterr().err
 
 
+def test_room_wav_replaces_only_an_actions_file_it_was_not_told_of(
+        capsys, tmp_path: Path, monkeypatch) -> None:
+    """The csv beside ``--out`` is replaced if it is an actions file or empty, else kept."""
+    monkeypatch.setattr(rooms_evaluation, "render_room", lambda *a: pytest.fail("rendered"))
+    wav, beside = tmp_path / "r.wav", tmp_path / "r.csv"
+    beside.write_text("name,score\nann,3\n")
+    assert main(["room-wav", "quiet", "--seconds", "5", "--out", str(wav)]) == 2
+    assert capsys.readouterr().err == (
+        f"infomax-contingency room-wav: error: {beside} exists and is not an actions file:"
+        " nothing is written; give --actions to name where the robot's vocalization times"
+        " go\n")
+    assert beside.read_text() == "name,score\nann,3\n" and not wav.exists()
+    rendered = (np.zeros(16000 * 5, dtype=np.float32), [1.0], 16000)
+    monkeypatch.setattr(rooms_evaluation, "render_room", lambda *a: rendered)
+    for earlier in ("time_s\n0.500000\n", ""):
+        beside.write_text(earlier)
+        assert main(["room-wav", "quiet", "--seconds", "5", "--out", str(wav)]) == 0
+        assert read_actions_csv(beside) == [1.0]
+    capsys.readouterr()
+    beside.write_text("name,score\n")  # named with --actions: replaced, as every --out is
+    assert main(["room-wav", "quiet", "--seconds", "5", "--out", str(wav), "--actions",
+                 str(beside)]) == 0
+    assert read_actions_csv(beside) == [1.0]
+
+
 @contextlib.contextmanager
 def fifo_with_a_reader(path: Path):
     """A FIFO at ``path`` whose read end is open: a write into it would not block."""

@@ -23,6 +23,7 @@ from infomax_contingency.eval.information import (
     VOCALIZATION_TARGETS,
 )
 from infomax_contingency.limits import check_output_files, written_atomically
+from infomax_contingency.sim.actions import HEADER as ACTIONS_HEADER
 from infomax_contingency.sim.actions import write_actions_csv
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES
 
@@ -284,12 +285,32 @@ def add_experiment_rooms_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument("--plot", help="write the operating curves to this PNG")
 
 
+def _refuse_overwriting_other_than_actions(path: Path) -> None:
+    """Refuse to replace ``path``, the actions file implied by ``--out``, unless it is one.
+
+    An existing file there is overwritten only if it starts with the actions file's
+    header (an earlier ``room-wav``'s) or is empty: a file the user never named is not
+    lost.
+    """
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+    with path.open("rb") as existing:
+        first_line = existing.readline(len(ACTIONS_HEADER) + 8).decode("utf-8", "replace")
+    if first_line.lstrip("\ufeff").strip() != ACTIONS_HEADER:
+        raise ValueError(
+            f"{path} exists and is not an actions file: nothing is written; give --actions"
+            " to name where the robot's vocalization times go"
+        )
+
+
 def _run_room_wav(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".wav":
         raise ValueError(f"--out {out}: the file name must end in .wav")
     actions = args.actions if args.actions is not None else out.with_suffix(".csv")
     check_output_files(("--out", out, "wav file"), ("--actions", actions, "actions file"))
+    if args.actions is None:
+        _refuse_overwriting_other_than_actions(actions)
     samples, times, rate = evaluation.render_room(
         args.room, args.seconds, args.seed, args.controller, args.binarizer, args.params
     )
@@ -317,7 +338,8 @@ def register_room_wav(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--actions",
         help="actions file to write (CSV, column time_s: when the robot's sound was"
-        " commanded); default: the wav's name with .csv",
+        " commanded); default: the wav's name with .csv, replaced there only if it is an"
+        " actions file",
     )
     parser.add_argument(
         "--controller",
