@@ -224,8 +224,41 @@ def test_solve_refuses_above_max_memory(capsys, tmp_path, no_solving) -> None:
     assert status == 2
     assert "5.43M statistics, about 73.9 MiB of memory" in stderr
     assert "more memory than 20 MiB (--max-memory)" in stderr
-    status, _, stderr = run_cli(capsys, *SOLVE_40, "--max-memory", "lots", "--out", "t.npz")
-    assert status == 2 and "give bytes or a size such as 500M or 4G" in stderr
+
+
+def refused_arguments(capsys, *argv: str) -> str:
+    """The error line of arguments argparse refuses (status 2), before the command runs."""
+    with pytest.raises(SystemExit) as ended:
+        main(list(argv))
+    assert ended.value.code == 2
+    return capsys.readouterr().err.splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["info", "{table}"],  # the option was read only by --verify, else ignored
+        ["info", "/nonexistent/table.npz"],  # refused before the table is read
+        ["info", "--verify", "{table}"],
+        [*SOLVE_40, "--out", "{tmp}/t.npz"],
+        ["solve", "--params", "/nonexistent.yaml", "--mode", "episodic", "--horizon", "40",
+         "--out", "{tmp}/t.npz"],  # refused before the parameters are read
+    ],
+)
+def test_a_malformed_max_memory_is_refused_by_every_command_that_takes_it(
+    capsys, tmp_path, no_solving, argv: list[str]
+) -> None:
+    """``info --max-memory abc`` (without ``--verify``) was accepted and ignored."""
+    table = tmp_path / "table.npz"
+    solve_receding(ModelParams.named("robot"), 4, 6).save(table)
+    argv = [word.format(table=table, tmp=tmp_path) for word in argv]
+    for size in ("abc", "lots", "1.5.G", "-4G", ""):
+        error = refused_arguments(capsys, *argv, f"--max-memory={size}")
+        assert error == (
+            f"infomax-contingency {argv[0]}: error: argument --max-memory: give bytes or a"
+            f" size such as 500M or 4G, got {size!r}"
+        )
+    assert not (tmp_path / "t.npz").exists()
 
 
 @pytest.mark.parametrize(

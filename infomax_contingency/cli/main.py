@@ -62,11 +62,26 @@ PROGRESS_EVERY_S = 1.0
 
 
 def parse_size(text: str) -> int:
-    """Bytes from ``4G``, ``500M``, ``64k``, ``1.5GiB`` or a plain number of bytes."""
+    """Bytes from ``4G``, ``500M``, ``64k``, ``1.5GiB`` or a plain number of bytes.
+
+    ValueError (one line, without the option's name) for anything else.
+    """
     match = re.fullmatch(r"\s*(\d+(?:\.\d*)?)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", text)
     if not match:
-        raise ValueError(f"--max-memory {text!r}: give bytes or a size such as 500M or 4G")
+        raise ValueError(f"give bytes or a size such as 500M or 4G, got {text!r}")
     return int(float(match[1]) * SIZE_UNITS[match[2].upper()])
+
+
+def memory_size(text: str) -> int:
+    """A ``--max-memory`` option's value in bytes (:func:`parse_size`).
+
+    An option type: a malformed size is argparse's one-line error naming the option, for
+    every command that takes it, before the command does anything else.
+    """
+    try:
+        return parse_size(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def format_count(count: int) -> str:
@@ -98,15 +113,13 @@ def describe_cost(cost: SolveCost) -> str:
 def memory_limit(args: argparse.Namespace) -> tuple[int, str]:
     """The memory a solve may use (bytes) and where that figure comes from.
 
-    ``--max-memory``, but never more than the process may take
-    (:func:`~infomax_contingency.limits.memory_budget`: available memory, ``ulimit -v``,
-    the cgroup's limit).
+    ``--max-memory`` (bytes, :func:`memory_size`), but never more than the process may
+    take (:func:`~infomax_contingency.limits.memory_budget`: available memory,
+    ``ulimit -v``, the cgroup's limit).
     """
     budget = memory_budget()
-    if args.max_memory is not None:
-        asked = parse_size(args.max_memory)
-        if asked <= budget.bytes:
-            return asked, "--max-memory"
+    if args.max_memory is not None and args.max_memory <= budget.bytes:
+        return args.max_memory, "--max-memory"
     return budget.bytes, f"{budget.source}; --max-memory sets a lower limit"
 
 
@@ -178,6 +191,7 @@ def _run_solve(args: argparse.Namespace) -> int:
 def _max_memory_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-memory",
+        type=memory_size,
         metavar="SIZE",
         help="refuse a solve expected to need more memory than this, e.g. 500M or 4G"
         " (default: the memory available now)",
