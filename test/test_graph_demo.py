@@ -590,6 +590,42 @@ def test_the_demo_refuses_a_wav_file_mic_node_would_refuse_before_starting_a_nod
     assert "0 Hz" in error and "\n" not in error
 
 
+@pytest.mark.parametrize("bad", ["all NaN", "one NaN in the second block", "one inf"])
+def test_the_demo_refuses_a_wav_file_of_bad_samples_before_starting_a_node(
+    bad: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A float wav of NaN or infinite samples: mic_node's message, one line, status 2.
+
+    mic_node refused it only once the whole graph was up (about 5 s); the demo now reads
+    the samples first, block by block, with the readers' own check.
+    """
+    from scipy.io import wavfile
+
+    from infomax_contingency.audio.common import AudioError
+    from infomax_contingency.audio.energy import iter_wav_energies
+    from infomax_contingency.audio.wav import DEFAULT_BLOCK_FRAMES
+    from infomax_contingency.cli.main import main
+
+    def no_graph() -> None:
+        raise AssertionError("the demo went on to start its node graph")
+
+    monkeypatch.setattr(demo_module, "isolate_dds", no_graph)
+    samples = np.zeros(2 * DEFAULT_BLOCK_FRAMES, dtype=np.float32)
+    if bad == "all NaN":
+        samples[:] = np.nan
+    else:
+        samples[DEFAULT_BLOCK_FRAMES + 5] = np.nan if "NaN" in bad else np.inf
+    wav = tmp_path / "bad.wav"
+    wavfile.write(wav, 16000, samples)
+    with pytest.raises(AudioError) as mic:  # what mic_node's reader says of it
+        for _ in iter_wav_energies(wav, demo_module.WINDOW_S):
+            pass
+    assert main(["demo", "--wav", str(wav)]) == 2
+    error = capsys.readouterr().err
+    assert error == f"infomax-contingency demo: error: --wav {wav}: {mic.value}\n"
+    assert "contain NaN or infinite values" in error
+
+
 def test_the_record_check_leaves_nothing_behind(tmp_path: Path) -> None:
     demo_checks.check_record_directory(tmp_path / "bag")
     assert not (tmp_path / "bag").exists()  # the recorder must create it itself

@@ -296,6 +296,25 @@ class WavReader:
             yield _decode(raw, info)
 
 
+def check_samples(path: str | os.PathLike[str]) -> WavInfo:
+    """Refuse a WAV file any reader would refuse, its samples too; returns its header.
+
+    Every sample of a float file is decoded block by block as every reader decodes it
+    (:meth:`WavReader.blocks`, :data:`DEFAULT_BLOCK_FRAMES` frames at a time: the memory
+    of one block whatever the file's length), so NaN, infinite or absurd samples are
+    refused by the readers' one check (``audio.common.float_samples``) with their
+    message. Integer PCM holds no such sample: only its header is read.
+
+    Raises:
+        AudioError: as :func:`open_wav_info`, or a float sample the readers refuse.
+    """
+    with WavReader(path) as reader:
+        if reader.info.encoding == "float":
+            for _ in reader.blocks():
+                pass
+        return reader.info
+
+
 def read_wav(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], int]:
     """Read a whole WAV file as float samples (see the module docstring for formats).
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.audio.common import AudioError
-from infomax_contingency.audio.wav import open_wav_info
+from infomax_contingency.audio.wav import check_samples
 from infomax_contingency.core.model import MAX_MEMORY_STEPS
 from infomax_contingency.sim.room_config import FakeRoomConfig, partner_times
 
@@ -105,8 +105,8 @@ def check_arguments(args: argparse.Namespace) -> None:
                 if not wav.exists() else "not a regular file (a device or a FIFO)")
         raise ValueError(f"--wav {args.wav}: {what}")
     if args.wav:
-        try:
-            open_wav_info(args.wav)  # its header: a file mic_node would refuse stops here
+        try:  # its header and samples: a file mic_node would refuse stops here
+            check_samples(args.wav)
         except AudioError as error:
             raise ValueError(f"--wav {args.wav}: {error}") from None
     if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
