@@ -590,9 +590,19 @@ def test_the_demo_refuses_a_wav_file_mic_node_would_refuse_before_starting_a_nod
     assert "0 Hz" in error and "\n" not in error
 
 
+@pytest.fixture
+def no_node_graph(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fail the test if the demo goes past its checks (to its DDS domain and its nodes)."""
+
+    def no_graph() -> None:
+        raise AssertionError("the demo went on to start its node graph")
+
+    monkeypatch.setattr(demo_module, "isolate_dds", no_graph)
+
+
 @pytest.mark.parametrize("bad", ["all NaN", "one NaN in the second block", "one inf"])
 def test_the_demo_refuses_a_wav_file_of_bad_samples_before_starting_a_node(
-    bad: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    bad: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], no_node_graph: None
 ) -> None:
     """A float wav of NaN or infinite samples: mic_node's message, one line, status 2.
 
@@ -606,10 +616,6 @@ def test_the_demo_refuses_a_wav_file_of_bad_samples_before_starting_a_node(
     from infomax_contingency.audio.wav import DEFAULT_BLOCK_FRAMES
     from infomax_contingency.cli.main import main
 
-    def no_graph() -> None:
-        raise AssertionError("the demo went on to start its node graph")
-
-    monkeypatch.setattr(demo_module, "isolate_dds", no_graph)
     samples = np.zeros(2 * DEFAULT_BLOCK_FRAMES, dtype=np.float32)
     if bad == "all NaN":
         samples[:] = np.nan
@@ -624,6 +630,42 @@ def test_the_demo_refuses_a_wav_file_of_bad_samples_before_starting_a_node(
     error = capsys.readouterr().err
     assert error == f"infomax-contingency demo: error: --wav {wav}: {mic.value}\n"
     assert "contain NaN or infinite values" in error
+
+
+@pytest.mark.parametrize(
+    "given",
+    [["--room", "responsive"], ["--seed", "1"], ["--room=responsive", "--seed=1"],
+     ["--se", "1"], ["--leave-at", "60"]],
+)
+def test_the_rooms_options_are_refused_with_a_wav_file_even_at_their_default_values(
+    given: list[str], capsys: pytest.CaptureFixture[str], no_node_graph: None
+) -> None:
+    """``demo --wav F --room responsive --seed 1`` was accepted and ignored.
+
+    The options were told by their values (different from the defaults), not by being given.
+    """
+    from infomax_contingency.cli.main import main
+
+    assert main(["demo", "--wav", str(WAV), *given]) == 2
+    assert capsys.readouterr().err == ("infomax-contingency demo: error: --room, --seed and"
+                                       " --leave-at set the simulated room: not with --wav\n")
+
+
+def test_the_rooms_options_not_given_keep_their_defaults() -> None:
+    """Given to the simulated room they are taken; not given, their values are the defaults."""
+    from infomax_contingency.cli.main import build_parser
+
+    parser = build_parser()
+    typed = parser.parse_args(["demo", "--room", "responsive", "--seed", "1", "--leave-at", "60"])
+    demo_checks.check_arguments(typed)
+    assert (typed.room, typed.seed, typed.leave_at) == ("responsive", 1, 60.0)
+    assert typed.given == {"room", "seed", "leave_at"}
+    for argv in (["demo"], ["demo", "--wav", str(WAV)]):  # the same parser: nothing carried over
+        plain = parser.parse_args(argv)
+        demo_checks.check_arguments(plain)
+        assert (plain.room, plain.seed, plain.leave_at, plain.given) == (
+            "responsive", 1, None, frozenset()
+        )
 
 
 def test_the_record_check_leaves_nothing_behind(tmp_path: Path) -> None:

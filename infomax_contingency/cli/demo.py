@@ -52,6 +52,7 @@ from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.cli.demo_checks import (
     DEMO_CALIBRATION_S,
     DEMO_LEAVE_S,
+    GivenOption,
     check_arguments,
     demo_partner_times,
     finite_number,
@@ -92,13 +93,16 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__.split("\n\n")[0] + " " + __doc__.split("\n\n")[1],
     )
     parser.add_argument("--steps", type=int, default=240, help="windows of room time (default 240)")
-    parser.add_argument("--seed", type=seed, default=1, help="seed of the room (default 1)")
-    parser.add_argument(
-        "--room", choices=tuple(PRESETS), default="responsive", help="room (default responsive)"
-    )
+    # The simulated room's options note that they were given (GivenOption): with --wav
+    # they are refused, their default values typed out too.
+    parser.add_argument("--seed", type=seed, default=1, action=GivenOption,
+                        help="seed of the room (default 1)")  # fmt: skip
+    parser.add_argument("--room", choices=tuple(PRESETS), default="responsive",
+                        action=GivenOption, help="room (default responsive)")  # fmt: skip
     parser.add_argument(
         "--leave-at",
         type=finite_number,
+        action=GivenOption,
         default=None,
         metavar="SECONDS",
         help=f"room time the partner leaves; negative: stays (default {DEMO_LEAVE_S:g} in the"
@@ -137,7 +141,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="with --record: leave the 'audio' topic out of the bag (a bag of a few KB)",
     )
-    parser.set_defaults(run=run_demo)
+    parser.set_defaults(run=run_demo, given=frozenset())
 
 
 def isolate_dds() -> str:
