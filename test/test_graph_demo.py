@@ -553,11 +553,13 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--room", "office", "--leave-at", "10"], "--leave-at 10: room office has no partner"),
         (["--calibration-s", "5"], "--calibration-s is the length of a k-means calibration"),
         (["--wav", str(WAV), "--calibration-s", "5"], "it needs --wav and"),
+        (["--calibration-s", "10"], "--calibration-s is the length of a k-means calibration"),
+        (["--wav", str(WAV), "--bit-source", "vad", "--calibration-s=10"], "it needs --wav and"),
         (["--no-record-audio"], "--no-record-audio leaves the audio out of a recording"),
     ],
 )
 def test_the_demo_refuses_what_it_cannot_run_before_starting_a_node(
-    arguments: list[str], message: str, capsys: pytest.CaptureFixture[str]
+    arguments: list[str], message: str, capsys: pytest.CaptureFixture[str], no_node_graph: None
 ) -> None:
     """One line and status 2, before any node starts.
 

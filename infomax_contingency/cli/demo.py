@@ -121,6 +121,7 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--calibration-s",
         type=finite_number,
+        action=GivenOption,  # refused without a k-means calibration, its default typed too
         default=DEMO_CALIBRATION_S,
         help="--wav, --bit-source energy or speech_band: s to calibrate on (default 10)",
     )

@@ -35,9 +35,9 @@ def finite_number(text: str) -> float:
 class GivenOption(argparse.Action):
     """Store an option's value as ``store`` does, and note that it was given.
 
-    ``args.given`` is the set of the destinations (``room``, ``seed``) of the options of
-    this kind typed on the command line, whatever their value: a default typed out counts
-    as given. The value of an option not given is its real default, as ``--help`` says.
+    ``args.given`` is the set of the destinations (``room``, ``calibration_s``) of the
+    options of this kind typed on the command line, whatever their value: a default typed
+    out counts as given. The value of an option not given is its real default, as ``--help`` says.
     The parser must start the set empty (``set_defaults(given=frozenset())``).
     """
 
@@ -101,7 +101,7 @@ def _check_options_used(args: argparse.Namespace) -> None:
     if args.wav and args.given & {"room", "seed", "leave_at"}:
         raise ValueError("--room, --seed and --leave-at set the simulated room: not with --wav")
     k_means = args.wav and args.bit_source in ("energy", "speech_band")
-    if args.calibration_s != DEMO_CALIBRATION_S and not k_means:
+    if "calibration_s" in args.given and not k_means:
         raise ValueError("--calibration-s is the length of a k-means calibration: it needs --wav"
                          " and --bit-source energy or speech_band")  # fmt: skip
     if args.no_record_audio and args.record is None:
