@@ -590,7 +590,8 @@ def test_mic_bit_source_parameters_are_read_only_and_vad_has_no_live_threshold(
     assert result.reason == (
         "parameter 'threshold_db' is a setting of bit_source energy or speech_band, and"
         " /mic_node runs bit_source vad: not a parameter of it (start the node with"
-        " -p bit_source:=energy -p threshold_db:=... to use it)"
+        " bit_source energy and threshold_db in its parameter file, or after the file"
+        " -p mic_node:bit_source:=energy -p mic_node:threshold_db:=...)"
     )
     assert node.bits.threshold_db is None and node.bits.name == "vad"
     for name in ("threshold_db", "threshold_mode", "noise_margin_db"):

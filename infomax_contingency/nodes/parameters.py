@@ -161,9 +161,11 @@ class ParameterReader:
             return (f"parameter '{name}' is not a parameter of {node} (`ros2 param list"
                     f" {node}` lists them)")  # fmt: skip
         running = self._node.get_parameter("bit_source").value
+        short = self._node.get_name()
         return (f"parameter '{name}' is a setting of bit_source {' or '.join(owners)}, and"
                 f" {node} runs bit_source {running}: not a parameter of it (start the node with"
-                f" -p bit_source:={owners[0]} -p {name}:=... to use it)")  # fmt: skip
+                f" bit_source {owners[0]} and {name} in its parameter file, or after the file"
+                f" -p {short}:bit_source:={owners[0]} -p {short}:{name}:=...)")  # fmt: skip
 
     def _stand_in(self) -> Parameter:
         """``use_sim_time`` (every node's, never read-only) at its value: holds a name's place.
