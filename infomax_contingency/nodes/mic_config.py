@@ -171,11 +171,11 @@ def _read_sources(read: ParameterReader) -> dict[str, Any]:
         ),
         "loop": read.flag("loop", False, "Replay the file again and again (source wav)"),
         "lockstep": read.flag(
-            "lockstep", True, "Release each window after the 'vocalize' on the previous one"
+            "lockstep", True, "Release each window after the 'vocalize_step' on the previous one"
         ),
         "lockstep_timeout_s": read.number(
             "lockstep_timeout_s", 2.0,
-            "Release the next window anyway after this long without a 'vocalize'",
+            "Release the next window anyway after this long without a 'vocalize_step'",
             0.01, 3600.0, "s",
         ),
         "exit_at_end": read.flag(

@@ -44,7 +44,8 @@ class VadSettings:
         unit="ms",
     )
     vad_min_voiced_s: float = setting(
-        0.1, "Voiced time that makes a window active (bit_source vad; at most window_s)",
+        0.1, "Voiced time that makes a window active (bit_source vad; at most the window,"
+        " the params' dt)",
         low=0.001, high=10.0, unit="s",
     )
 
