@@ -64,12 +64,13 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
      " longer), got 1e+308"),
     (["--threshold-file", "/nonexistent.yaml"], "no such file"),
     (["--threshold-file", "/dev/zero"], "--threshold-file /dev/zero: not a regular file"),
-    (["--calibration-s", "-1"], "--calibration-s must be in (0, 3600] seconds"),
+    (["--calibration-s", "-1"], "--calibration-s must be in [0.02, 3600] seconds"),
     # sizes the nodes refuse are refused before any node starts
     (["--fake-room", "--minutes", "1e12"], "--minutes must be at most 1.79e+07 (2147483647"
                                            " windows of 0.5 s: the nodes' max_windows)"),
     (["--fake-room", "--seed", "99999999999"], "--seed must be in [0, 2147483647]"),
-    (["--calibration-s", "1e9"], "--calibration-s must be in (0, 3600] seconds"),
+    (["--calibration-s", "1e9"], "--calibration-s must be in [0.02, 3600] seconds"),
+    (["--calibration-s", "0.01"], "--calibration-s must be in [0.02, 3600] seconds, got 0.01"),
 ])
 def test_bad_calibration_session_arguments_are_one_line(arguments, message, tmp_path: Path,
                                                         capsys) -> None:

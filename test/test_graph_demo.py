@@ -538,7 +538,9 @@ def test_the_demo_graph_announces_itself_quickly_unless_the_user_chose_a_profile
         (["--leave-at", "inf"], "argument --leave-at: expected a finite number, got 'inf'"),
         (["--leave-at", "1e10"], "--leave-at must be at most 1e+09 s"),
         (["--calibration-s", "inf"], "argument --calibration-s: expected a finite number"),
-        (["--calibration-s", "4000"], "--calibration-s must be in (0, 3600] seconds"),
+        (["--calibration-s", "4000"], "--calibration-s must be in [0.02, 3600] seconds"),
+        (["--wav", str(WAV), "--bit-source", "energy", "--calibration-s", "0.01"],
+         "--calibration-s must be in [0.02, 3600] seconds, got 0.01"),  # mic_node's range
         (["--steps", str(2**31)], "--steps must be in [1, 2147483647]"),
         (["--seed", "-1"], "argument --seed: expected a whole number >= 0, got '-1'"),
         (["--seed", str(2**31)], "--seed must be in [0, 2147483647]"),

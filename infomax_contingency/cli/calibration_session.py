@@ -12,8 +12,9 @@ live: the microphone (``--device``, the threshold from ``--threshold-file`` or c
 on the first ``--calibration-s`` seconds) and the loudspeaker, in real time, and the
 session ends after ``--minutes``. The bits are the paper's (energy against that
 threshold), not mic_node's default ``background``, which labels windows by the very
-periods this session measures. The launch file does the same with
-``record:=true controller:=interval:MIN_S-MAX_S``.
+periods this session measures. The launch file records the same protocol with
+``record:=true controller:=interval:MIN_S-MAX_S`` and a ``params_file`` that sets
+mic_node's ``bit_source: energy`` and its threshold.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ from typing import Any
 
 from infomax_contingency.cli import demo
 from infomax_contingency.cli.demo_checks import (
-    MAX_CALIBRATION_S,
     MAX_SEED,
     MAX_STEPS,
+    check_calibration_s,
     check_record_directory,
 )
 from infomax_contingency.cli.formatting import seed
@@ -87,9 +88,7 @@ def _check(args: argparse.Namespace) -> int:
     # the steps controller_node will draw: its check, before any node starts
     interval_steps(ModelParams.named("robot"), args.min_interval_s, args.max_interval_s,
                    ("--min-interval-s", "--max-interval-s"))
-    if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
-        raise ValueError(f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds, got"
-                         f" {args.calibration_s:g}")
+    check_calibration_s(args.calibration_s)
     if args.threshold_file and args.fake_room:
         raise ValueError("--threshold-file is read by live audio only: the simulated room's"
                          " mic_node uses config/fake_room.yaml's fixed threshold")

@@ -15,6 +15,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from infomax_contingency.audio.bitsources.base import setting_specs
+from infomax_contingency.audio.bitsources.level import ThresholdSettings
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.wav import check_samples
 from infomax_contingency.core.model import MAX_MEMORY_STEPS
@@ -53,8 +55,16 @@ MAX_STEPS = MAX_SEED = 2**31 - 1
 MAX_LEAVE_AT_S = 1e9
 """Largest ``--leave-at``: the room's ``partner_leave_s`` parameter."""
 
-MAX_CALIBRATION_S = 3600.0
-"""Largest ``--calibration-s``: mic_node's ``calibration_s`` parameter."""
+def check_calibration_s(seconds: float) -> None:
+    """Refuse a ``--calibration-s`` (s) that mic_node's ``calibration_s`` would refuse.
+
+    The range is the setting's own declaration (:class:`ThresholdSettings`), so the
+    command and the node refuse the same values, the first before any node starts.
+    """
+    [spec] = [s for s in setting_specs(ThresholdSettings) if s.name == "calibration_s"]
+    if not (math.isfinite(seconds) and spec.low <= seconds <= spec.high):
+        raise ValueError(f"--calibration-s must be in [{spec.low:g}, {spec.high:g}] seconds,"
+                         f" got {seconds:g}")  # fmt: skip
 
 DEMO_LEAVE_S = 60.0
 """Room time the responsive room's partner leaves in the demo by default, s."""
@@ -128,11 +138,7 @@ def check_arguments(args: argparse.Namespace) -> None:
             check_samples(args.wav)
         except AudioError as error:
             raise ValueError(f"--wav {args.wav}: {error}") from None
-    if not (math.isfinite(args.calibration_s) and 0 < args.calibration_s <= MAX_CALIBRATION_S):
-        raise ValueError(
-            f"--calibration-s must be in (0, {MAX_CALIBRATION_S:g}] seconds,"
-            f" got {args.calibration_s}"
-        )
+    check_calibration_s(args.calibration_s)
     if args.record is not None:  # "" too: it recorded nothing, without a word
         check_record_directory(args.record)
     _check_options_used(args)
