@@ -242,7 +242,7 @@ class BackgroundThreshold:
         timer_known: False for a rule made in a session (a recalibration): the timer is
             unknown until a vocalization or ``ta2 + 1`` silent decisions.
 
-    It has the attributes of :class:`~infomax_contingency.audio.binarizer.Binarizer` a
+    It has the attributes of :class:`~infomax_contingency.audio.bitsources.rules.Binarizer` a
     node reports (``threshold_db``, ``state``, ``calibrating``, ``calibration_problem``,
     refit and failure counts, which stay 0).
     """
