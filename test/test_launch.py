@@ -16,6 +16,7 @@ import shutil
 import signal
 import subprocess
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -134,6 +135,75 @@ class Launch:
             os.killpg(self.process.pid, signal.SIGKILL)
             self.process.wait()
         self._file.close()
+
+
+def dds_teardown_livelock(output: str) -> str | None:
+    """The node process that failed a launch only by Fast DDS 2.14's teardown livelock, or None.
+
+    Destroying a process's last node deletes its DDS participant, whose
+    ``set_listener(nullptr)`` spins, holding a lock, until a discovery callback in flight
+    leaves; that callback needs the lock to leave (docs/ENVIRONMENT.md, with a native
+    stack). Now and then, when every node stops at once, this outlasts the node's stop
+    deadline, and its hard deadline ends it with its stacks and status 1, as designed. The
+    launch then fails for a reason of the middleware, not of the graph: it is recognised
+    here only if that is the launch's one error, the node's main thread stuck in rclpy's
+    ``destroy_node``.
+    """
+    failed = re.findall(r"launch stopped: ([\w.]+-\d+) exited with status 1 \(its error is above\)",
+                        output)  # fmt: skip
+    if len(failed) != 1:
+        return None
+    [node] = failed
+    stacks = [line for line in output.splitlines() if line.startswith(f"[{node}] ")]
+    deadline = any(re.match(rf"\[{re.escape(node)}\] Timeout \(0:00:\d", line) for line in stacks)
+    main_thread = "\n".join(stacks).rsplit("(most recent call first):", 1)[-1]
+    first_frame = next((line for line in main_thread.splitlines() if "File " in line), "")
+    errors = [line for line in output.splitlines() if line.startswith("[ERROR]")]
+    if (deadline and 'rclpy/node.py", line' in first_frame and "in destroy_node" in first_frame
+            and len(errors) == 2):  # "process has died" and "launch stopped", both of it
+        return node.rsplit("-", 1)[0]
+    return None
+
+
+HUNG_TEARDOWN = """\
+[INFO] [posture_node-5]: sending signal 'SIGINT' to process[posture_node-5]
+[INFO] [belief_node-4]: process has finished cleanly [pid 23708]
+[posture_node-5] Timeout (0:00:24.999812)!
+[posture_node-5] Thread 0x00007fb3a2bfd6c0 (most recent call first):
+[posture_node-5]   File "/ws/infomax_contingency/nodes/runtime.py", line 188 in _watch
+[posture_node-5]   File "/usr/lib/python3.11/threading.py", line 975 in run
+[posture_node-5]
+[posture_node-5] Thread 0x00007fb3ad9c0740 (most recent call first):
+[posture_node-5]   File "/venv/site-packages/rclpy/node.py", line 1965 in destroy_node
+[posture_node-5]   File "/ws/infomax_contingency/nodes/runtime.py", line 441 in run_nodes
+[ERROR] [posture_node-5]: process has died [pid 23710, exit code 1, cmd '...'].
+[ERROR] [launch]: Caught exception in launch (see debug for traceback): launch stopped:\
+ posture_node-5 exited with status 1 (its error is above)
+"""
+"""A launch's end as it was seen once in about 60 runs (abridged): posture_node's teardown."""
+
+
+def test_only_the_dds_teardown_livelock_is_recognised() -> None:
+    assert dds_teardown_livelock(HUNG_TEARDOWN) == "posture_node"
+    assert dds_teardown_livelock(HUNG_TEARDOWN + "[ERROR] [mic_node-1]: no bits\n") is None
+    assert dds_teardown_livelock(HUNG_TEARDOWN.replace("in destroy_node", "in spin_once")) is None
+    assert dds_teardown_livelock(HUNG_TEARDOWN.replace("Timeout (0:00:24", "Stopped (")) is None
+    assert dds_teardown_livelock(HUNG_TEARDOWN.replace("status 1", "status 2")) is None
+
+
+def wait_for_launch_end(graph: Launch, timeout_s: float) -> tuple[int, str | None]:
+    """The launch's exit status, and the node that only :func:`dds_teardown_livelock` failed.
+
+    The status is 0 or 1 with that node named (a warning says so); anything else fails.
+    """
+    status = graph.wait(timeout_s)
+    output = graph.output()
+    hung = dds_teardown_livelock(output) if status == 1 else None
+    assert status == 0 or hung is not None, output[-3000:]
+    if hung is not None:
+        warnings.warn(f"{hung}'s DDS participant teardown hung (Fast DDS 2.14): the launch"
+                      " exited 1 by its node's deadline, as designed", stacklevel=2)
+    return status, hung
 
 
 @pytest.fixture
@@ -330,15 +400,16 @@ def test_max_windows_ends_the_whole_launch(workspace: Path, launch, tmp_path: Pa
         f"contingency.launch.py use_fake_room:=true realtime:=false params_file:={params}"
         f" record_dir:={tmp_path / 'unused'}"
     )
-    assert graph.wait(120) == 0, graph.output()[-3000:]
+    _, hung = wait_for_launch_end(graph, 120)
     output = graph.output()
     assert "[mic_node]: 8 bits published (max_windows): stopping" in output
     assert "record_dir:=" in output and "is ignored: it is for record:=true" in output
     assert not (tmp_path / "unused").exists()
     assert f"{MIC_ENDED}: stopping" in output
     for node in ("fake_audio_node-2", "controller_node-3", "belief_node-4"):
-        assert f"[{node}]: process has finished cleanly" in output
-    assert output.strip().splitlines()[-1].endswith(f"launch ended: {MIC_ENDED}")
+        assert f"[{node}]: process has finished cleanly" in output or node.startswith(f"{hung}-")
+    if hung is None:
+        assert output.strip().splitlines()[-1].endswith(f"launch ended: {MIC_ENDED}")
     assert "Traceback" not in output and "while the graph runs" not in output
 
 
@@ -387,10 +458,11 @@ def test_a_node_stopped_alone_is_named_with_what_stops_and_how_to_restart_it(
         assert restarted.wait(timeout=60) == 0, (tmp_path / "restarted.log").read_text()
         values_file.unlink()
     os.kill(int(pids["mic_node"]), signal.SIGTERM)
-    assert graph.wait(120) == 0, graph.output()[-3000:]
+    _, hung = wait_for_launch_end(graph, 120)
     output = graph.output()
     assert f"{MIC_ENDED}: stopping the other nodes" in output
-    assert output.strip().splitlines()[-1].endswith(f"launch ended: {MIC_ENDED}")
+    if hung is None:
+        assert output.strip().splitlines()[-1].endswith(f"launch ended: {MIC_ENDED}")
     assert output.count("while the graph runs") == 1, output[-3000:]
 
 
