@@ -16,7 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Bool
 
 from infomax_contingency.audio.energy import window_energies_db
-from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.controllers import PolicyController, default_check_in
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.stepfields import bit_of
@@ -115,7 +115,7 @@ def assert_offline_run(recorder: StepRecorder, samples: np.ndarray,
     bits = [bool(e > threshold_db) for e in energies]
     assert [y for _, _, y, *_ in recorder.sound_step] == bits
     controller = PolicyController(PolicyTable.load(resource_path(
-        "policies", "robot_receding_H24_M60.npz")))  # fmt: skip
+        "policies", "robot_receding_H24_M60.npz")), ROBOT, default_check_in(ROBOT))  # the node's
     decisions = [bool(controller.step(int(y))) for y in bits]
     assert [bool(u) for _, _, u, _ in recorder.vocalize_step] == decisions
     expected = offline_beliefs([(list(zip(bits, decisions, strict=True)), "start")])

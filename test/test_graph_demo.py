@@ -99,7 +99,7 @@ def test_demo_finds_the_partner_notices_they_left_and_records_every_step(tmp_pat
 def _offline_demo(seed: int, leave_s: float, steps: int) -> list:
     """The demo's run offline: the responsive room, mic_node's default source, the table."""
     from infomax_contingency.audio.bitsources import DEFAULT_BIT_SOURCE, make_bit_source
-    from infomax_contingency.core.controllers import PolicyController
+    from infomax_contingency.core.controllers import PolicyController, default_check_in
     from infomax_contingency.core.model import ModelParams
     from infomax_contingency.core.policy_table import PolicyTable
     from infomax_contingency.resources import resource_path
@@ -113,7 +113,8 @@ def _offline_demo(seed: int, leave_s: float, steps: int) -> list:
     bits = make_bit_source(DEFAULT_BIT_SOURCE, 16000, 0.5)
     bits.follow_model(params)
     room = FakeRoom(FakeRoomConfig.preset("responsive", partner_leave_s=leave_s), seed)
-    return simulate_audio_loop(PolicyController(table, params), room, bits, steps, memory=60)
+    controller = PolicyController(table, params, default_check_in(params))  # controller_node's
+    return simulate_audio_loop(controller, room, bits, steps, memory=60)
 
 
 @NODE_GRAPHS

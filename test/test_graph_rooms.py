@@ -16,7 +16,7 @@ import pytest
 
 from graph_harness import FIXED_THRESHOLD, Graph, graph_fixture, room_nodes
 from infomax_contingency.audio.bitsources import make_bit_source
-from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.controllers import PolicyController, default_check_in
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
@@ -100,7 +100,8 @@ def _offline(seed: int, steps: int, bit_source: str = "energy") -> list:
     else:
         binarizer = make_bit_source(bit_source, 16000, 0.5)
         binarizer.follow_model(params)  # as mic_node does
-    return simulate_audio_loop(PolicyController(table, params), room, binarizer, steps)
+    return simulate_audio_loop(PolicyController(table, params, default_check_in(params)), room,
+                               binarizer, steps)  # fmt: skip
 
 
 def _assert_equals_offline(run: tuple[list, list, list], offline: list, steps: int) -> None:
@@ -182,7 +183,8 @@ def test_rooms_experiment_runs_equal_the_graph(room: str, run: int, binarizer: s
     spec = controller_specs(params, ["optimal"])[0][1]
     fixed = binarizer == "fixed"
     threshold = f"fixed:{FIXED_THRESHOLD['threshold_db']}" if fixed else binarizer
-    offline = run_room(params, room, spec, threshold, steps * 0.5, seed, run, memory)
+    offline = run_room(params, room, spec, threshold, steps * 0.5, seed, run, memory,
+                       default_check_in(params))  # controller_node's
     steps = len(offline.y)  # the default source's warm-up windows give no step
     attentive = offline_postures(offline.belief, ATTENTIVE_ABOVE, BORED_BELOW)  # posture_node's
     expected = ["bored"]  # posture_node's initial posture, then every change

@@ -20,7 +20,7 @@ from std_msgs.msg import Float64, Int64MultiArray
 from graph_harness import FIXED_THRESHOLD, room_nodes
 from infomax_contingency.audio.bag_replay import BagReplay
 from infomax_contingency.audio.bitsources import make_bit_source
-from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.controllers import PolicyController, default_check_in
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.core.selfsound import NS_PER_S
@@ -51,7 +51,8 @@ def offline(declare: bool) -> list:
                              expected_params=params)  # fmt: skip
     config = FakeRoomConfig.preset("silent", robot_speech_probability=1.0)
     bits = make_bit_source("energy", 16000, 0.5, **FIXED_THRESHOLD)
-    return simulate_audio_loop(PolicyController(table, params), FakeRoom(config, SEED), bits, STEPS,
+    return simulate_audio_loop(PolicyController(table, params, default_check_in(params)),
+                               FakeRoom(config, SEED), bits, STEPS,
                                memory=MEMORY, declare_self_sound=declare)  # fmt: skip
 
 

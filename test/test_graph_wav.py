@@ -110,7 +110,7 @@ def test_recorded_interaction_replays_like_the_offline_bit_source(
 def test_self_calibrating_threshold_in_the_graph_equals_the_offline_loop(tmp_path: Path) -> None:
     """bit_source background: the decisions label the windows; graph == offline loop."""
     from infomax_contingency.audio.wav import write_wav_int16
-    from infomax_contingency.core.controllers import PolicyController
+    from infomax_contingency.core.controllers import PolicyController, default_check_in
     from infomax_contingency.core.policy_table import PolicyTable
     from infomax_contingency.eval.rooms import render_room
     from infomax_contingency.eval.sessions import wav_background_loop
@@ -124,7 +124,8 @@ def test_self_calibrating_threshold_in_the_graph_equals_the_offline_loop(tmp_pat
     table = PolicyTable.load(
         resource_path("policies", "robot_receding_H24_M60.npz"), expected_params=params
     )
-    offline = list(wav_background_loop(wav, params, None, PolicyController(table, params)))
+    offline = list(wav_background_loop(wav, params, None,
+                                       PolicyController(table, params, default_check_in(params))))
     steps = len(offline)
     assert 20 <= steps < 40, "the first windows only hear the room"
     assert any(r.u for r in offline) and 0 < sum(r.y for r in offline) < steps

@@ -33,7 +33,7 @@ from infomax_contingency.audio.bitsources import make_bit_source
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import window_energies_db
 from infomax_contingency.audio.threshold import kmeans_split
-from infomax_contingency.core.controllers import PolicyController
+from infomax_contingency.core.controllers import CheckIn, PolicyController, default_check_in
 from infomax_contingency.core.model import ModelParams, StatisticTracker
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.nodes.belief_node import BeliefNode
@@ -117,8 +117,8 @@ def test_controller_answers_every_bit_like_the_offline_controller(run: Callable)
     for message in bits_of(STREAM, bits):
         sound.publish(message)
     graph.run_until(lambda: len(steps) == 80 and len(decisions) == 80, "80 decisions")
-    offline = PolicyController(PolicyTable.load(resource_path("policies",
-                                                               "robot_receding_H24_M60.npz")))
+    offline = PolicyController(PolicyTable.load(resource_path(
+        "policies", "robot_receding_H24_M60.npz")), ROBOT, default_check_in(ROBOT))  # the node's
     expected = [bool(offline.step(int(y))) for y in bits]
     assert [m.data for m in decisions] == expected
     answered = [parse_decision(m) for m in steps]
@@ -170,6 +170,19 @@ def test_controller_takes_a_table_by_name_and_matching_params(run: Callable) -> 
     node, _, _ = run(ControllerNode, params="paper", policy_file="paper_episodic_T40.npz",
                      window_s=0.8)  # fmt: skip
     assert node.controller.table.mode == "episodic" and node.controller.table.horizon == 40
+    assert node.controller.check_in == CheckIn(5, 0.9), "4 s of 0.8-s windows"
+
+
+@pytest.mark.parametrize(("overrides", "expected"), [
+    ({}, CheckIn(8, 0.9)),
+    ({"check_in_every_s": 0.0}, CheckIn(0, 0.9)),
+    ({"check_in_every_s": 2.0, "check_in_above": 0.99}, CheckIn(4, 0.99)),
+])
+def test_controller_checks_in_as_its_parameters_say(run: Callable, overrides: dict,
+                                                    expected: CheckIn) -> None:
+    node, _, _ = run(ControllerNode, **overrides)
+    assert node.controller.check_in == expected
+    assert dict(node.diagnostic_status()[2])["check_ins"] == 0
 
 
 @pytest.mark.parametrize("node_class", [ControllerNode, BeliefNode, MicNode])

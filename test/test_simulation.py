@@ -17,7 +17,10 @@ import pytest
 
 from infomax_contingency.cli import main as cli
 from infomax_contingency.core.controllers import (
+    CHECK_IN_ABOVE,
+    CHECK_IN_EVERY_S,
     MAX_INTERVAL_STEPS,
+    CheckIn,
     FixedIntervalController,
     GreedyController,
     PolicyController,
@@ -119,6 +122,51 @@ def test_receding_policy_controller_keeps_its_memory() -> None:
         controller.step(y)  # would leave the table without the sliding memory
         counts = controller.tracker.statistic.counts
         assert sum(counts) <= 4
+
+
+def test_a_check_in_is_whole_steps_and_refuses_what_is_not_a_duration() -> None:
+    assert CheckIn.from_seconds(ROBOT, CHECK_IN_EVERY_S, CHECK_IN_ABOVE) == CheckIn(8, 0.9)
+    assert CheckIn.from_seconds(PAPER, 4.0, 0.9).every_steps == 5  # 0.8-s windows
+    assert CheckIn.from_seconds(ROBOT, 0.0, 0.9).every_steps == 0  # off
+    assert CheckIn.from_seconds(ROBOT, 0.1, 0.9).every_steps == 1
+    for every_s, above in ((-1.0, 0.9), (float("nan"), 0.9), (float("inf"), 0.9), (4.0, 1.0),
+                           (4.0, 0.0)):  # fmt: skip
+        with pytest.raises(ValueError, match="check-in"):
+            CheckIn.from_seconds(ROBOT, every_s, above)
+
+
+def _answered(controller: PolicyController, steps: int, partner: bool = True,
+              ) -> tuple[list[int], list[float], list[int]]:  # fmt: skip
+    """Decisions, beliefs and check-in steps; a partner answers every agent window (or nobody)."""
+    decisions, beliefs, check_ins = [], [], []
+    for k in range(steps):
+        z = controller.tracker.statistic.z
+        before = getattr(controller, "check_ins", 0)
+        decisions.append(controller.step(int(partner and ROBOT.ta1 <= z <= ROBOT.ta2)))
+        beliefs.append(controller.tracker.statistic.belief(ROBOT))
+        if controller.check_ins > before:
+            assert z > ROBOT.ta2, "a check-in never cuts into a reply's period"
+            check_ins.append(k)
+    return decisions, beliefs, check_ins
+
+
+def test_check_ins_keep_asking_a_partner_the_belief_is_sure_of_and_change_nothing_before() -> None:
+    """Below the threshold the table alone decides; above it no silence outlasts the check-in."""
+    table = PolicyTable.load(resource_path("policies", "robot_receding_H24_M60.npz"))
+    plain, plain_beliefs, _ = _answered(PolicyController(table, ROBOT), 200)
+    checked, beliefs, check_ins = _answered(PolicyController(table, ROBOT, CheckIn(8, 0.9)), 200)
+    sure = next(k for k, belief in enumerate(plain_beliefs) if belief > 0.9)
+    assert checked[: sure + 1] == plain[: sure + 1], "the same search for a partner"
+    assert check_ins and min(check_ins) > sure
+    assert all(beliefs[k - 1] > 0.9 for k in check_ins)
+    silences = "".join(map(str, checked[sure + 1:])).split("1")
+    assert max(map(len, silences)) <= 8, silences
+    assert max(map(len, "".join(map(str, plain[sure + 1:])).split("1"))) > 8, (
+        "the table alone asks a partner it is sure of less often: nothing to check otherwise")
+    nobody, _, none = _answered(PolicyController(table, ROBOT, CheckIn(8, 0.9)), 200, False)
+    assert nobody == _answered(PolicyController(table, ROBOT), 200, False)[0] and not none
+    off, _, none = _answered(PolicyController(table, ROBOT, CheckIn(0, 0.9)), 200)
+    assert off == plain and not none
 
 
 def test_make_controller_specs(tmp_path) -> None:

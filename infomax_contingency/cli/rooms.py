@@ -67,6 +67,7 @@ def print_rooms(result: dict) -> None:
     print(
         f"experiment rooms: {config['runs']} runs of {config['seconds']:g} s per room and"
         f" controller; binarizer {config['binarizer']}; belief memory {config['memory']} steps;"
+        f" check-ins every {config['check_in_every_s']:g} s above {config['check_in_above']:g};"
         f" posture attentive above {config['attentive_above']:g}, bored below"
         f" {config['bored_below']:g}; partner arrives / leaves at {result['room_change_s']:g} s;"
         f" seed {config['seed']}"
@@ -196,6 +197,8 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
         seconds=args.seconds,
         seed=args.seed,
         memory=args.memory,
+        check_in_every_s=args.check_in_every_s,
+        check_in_above=args.check_in_above,
         attentive_above=args.attentive_above,
         bored_below=args.bored_below,
         curve_thresholds=args.curve_thresholds,
@@ -262,6 +265,10 @@ def add_experiment_rooms_arguments(sub: argparse.ArgumentParser) -> None:
         ("--seconds", float, d.seconds, "room time per run, s"),
         ("--seed", seed, d.seed, "master seed"),
         ("--memory", int, d.memory, "belief memory, steps (belief_node memory_steps)"),
+        ("--check-in-every-s", float, d.check_in_every_s, "the optimal table's check-ins, s;"
+         " 0 = the table alone (controller_node check_in_every_s)"),
+        ("--check-in-above", float, d.check_in_above, "P(S=1) above which they apply"
+         " (controller_node check_in_above)"),
         ("--attentive-above", float, d.attentive_above, "posture_node's upper threshold"),
         ("--bored-below", float, d.bored_below, "posture_node's lower threshold"),
         ("--jobs", int, d.jobs, "processes"),

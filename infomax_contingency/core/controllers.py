@@ -21,6 +21,7 @@ is driven by the step clock: :meth:`Controller.step` takes the bit ``y_t`` and r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -118,14 +119,69 @@ class Controller:
         self.tracker.reset()
 
 
-class PolicyController(Controller):
-    """Decisions looked up in a solved :class:`PolicyTable`."""
+CHECK_IN_EVERY_S = 4.0
+"""controller_node's default longest silence, s, before it checks in with a partner it is
+sure of (:class:`CheckIn`): 8 windows of 0.5 s, the fixed interval that detected fastest
+in the efficiency experiment (docs/RESULTS.md section 6)."""
 
-    def __init__(self, table: PolicyTable, params: ModelParams | None = None):
+CHECK_IN_ABOVE = 0.9
+"""controller_node's default P(S=1) above which it checks in: posture_node's attentive
+threshold, so that the check-ins begin where the robot shows it has found someone."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckIn:
+    """Keep asking a partner the belief is sure of, whatever the table says.
+
+    The table is solved for counts that only grow, but the robot's belief forgets all
+    but its last M counted windows. Sure of a partner, the table asks less (the answer
+    tells it little), so the memory holds fewer questions; where a room masks the
+    replies, the few heard then leave it and the belief falls back to the prior with
+    the partner still there. A check-in adds a vocalization after ``every_steps`` steps
+    without one, on a background window (never inside an answer's period), while
+    P(S=1) > ``above``; below it the table alone decides, so a partner is found
+    exactly as before. The belief stays exact: it is computed on the decisions made.
+
+    Attributes:
+        every_steps: longest silence, steps (windows of ``dt``); 0 = never check in.
+        above: P(S=1) above which the check-ins apply, in (0, 1).
+    """
+
+    every_steps: int
+    above: float
+
+    @classmethod
+    def from_seconds(cls, params: ModelParams, every_s: float, above: float) -> CheckIn:
+        """The check-in of ``every_s`` seconds (0 = off: rounded to whole steps, at least one)."""
+        if not (math.isfinite(every_s) and every_s >= 0):
+            raise ValueError(f"check-in interval must be a finite number >= 0 s, got {every_s:g}")
+        if not 0 < above < 1:
+            raise ValueError(f"check-in threshold must be in (0, 1), got {above:g}")
+        steps = 0 if every_s == 0 else max(1, round(every_s / params.dt))
+        return cls(min(steps, MAX_INTERVAL_STEPS), float(above))
+
+    def due(self, params: ModelParams, statistic: Statistic, silent_steps: int) -> bool:
+        """Whether to vocalize now, after ``silent_steps`` steps without a vocalization."""
+        return (self.every_steps > 0 and silent_steps >= self.every_steps
+                and statistic.z > params.ta2 and statistic.belief(params) > self.above)
+
+
+def default_check_in(params: ModelParams) -> CheckIn:
+    """controller_node's check-ins by default (:data:`CHECK_IN_EVERY_S`, :data:`CHECK_IN_ABOVE`)."""
+    return CheckIn.from_seconds(params, CHECK_IN_EVERY_S, CHECK_IN_ABOVE)
+
+
+class PolicyController(Controller):
+    """Decisions looked up in a solved :class:`PolicyTable` (and a :class:`CheckIn`, if given)."""
+
+    def __init__(self, table: PolicyTable, params: ModelParams | None = None,
+                 check_in: CheckIn | None = None):
         """Look up ``table``; keep the statistic for ``params`` (its belief).
 
         ``params`` default to the table's; a table is solved for one K2, so they may
-        differ from its own in ``k2_per_lag`` only (ValueError otherwise).
+        differ from its own in ``k2_per_lag`` only (ValueError otherwise). ``check_in``
+        adds vocalizations to the table's while the belief is sure of a partner (None:
+        the table alone).
         """
         if params is not None and params.for_table() != table.params:
             raise ValueError("the table was solved for other model parameters: "
@@ -135,6 +191,11 @@ class PolicyController(Controller):
         self.table = table
         self.name = f"policy:{table.mode}"
         self.episode_step = 0
+        self.check_in = check_in
+        self.silent_steps = 0
+        """Steps since the last vocalization (or since the start)."""
+        self.check_ins = 0
+        """Vocalizations the check-in added to the table's."""
 
     def step(self, y: int | Withheld) -> int:
         """As :meth:`Controller.step`; an episodic table starts a new episode at its horizon."""
@@ -144,23 +205,32 @@ class PolicyController(Controller):
                 z = self.tracker.statistic.z
                 self.tracker.statistic = Statistic(z)
                 self.episode_step = 1
-        return super().step(y)
+        u = super().step(y)
+        self.silent_steps = 0 if u else self.silent_steps + 1
+        return u
 
     def missed(self, steps: int) -> None:
         """As :meth:`Controller.missed`; the episode clock goes on over the missed steps."""
         super().missed(steps)
+        self.silent_steps += max(steps, 0)
         if self.table.mode == EPISODIC and steps > 0:
             self.episode_step = (self.episode_step + steps) % self.table.horizon
 
     def decide(self, statistic: Statistic) -> int:
-        """Table lookup."""
+        """Table lookup; a check-in where the table is silent and one is due."""
         step = self.episode_step if self.table.mode == EPISODIC else None
-        return self.table.action(statistic, step=step)
+        u = self.table.action(statistic, step=step)
+        if not u and self.check_in is not None and self.check_in.due(self.params, statistic,
+                                                                     self.silent_steps):
+            self.check_ins += 1
+            return 1
+        return u
 
     def reset(self) -> None:
         """Forget the history and start a new episode."""
         super().reset()
         self.episode_step = 0
+        self.silent_steps = 0
 
 
 def check_rule_constant(c: float) -> float:

@@ -6,7 +6,10 @@ the name of a table in the package's ``policies/`` directory (default: the commi
 robot table, found through the share directory). A table solved for other model
 parameters than ``params`` is refused at start-up with the differences named. Episodic
 tables restart an episode at their horizon; receding tables keep a sliding memory of M
-counted observations. ``controller: interval:MIN_S-MAX_S`` replaces the table by the
+counted observations. Sure of a partner (P(S=1) > ``check_in_above``), the node also
+vocalizes after ``check_in_every_s`` without one
+(:class:`~infomax_contingency.core.controllers.CheckIn`: the memory forgets, the table
+does not know it). ``controller: interval:MIN_S-MAX_S`` replaces the table by the
 paper's calibration protocol: vocalize at random intervals, uniform over MIN_S .. MAX_S
 seconds, whatever is heard (seeded by the controller id, which is logged);
 ``controller: recorded:BAG`` answers step t of the stream with the decision the robot
@@ -48,6 +51,9 @@ from std_msgs.msg import Bool, Int64MultiArray
 
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.core.controllers import (
+    CHECK_IN_ABOVE,
+    CHECK_IN_EVERY_S,
+    CheckIn,
     Controller,
     PolicyController,
     ReplayedDecisions,
@@ -127,6 +133,22 @@ def _other_controller(spec: str, params: ModelParams, seed: int,
                       " session bag's decisions)")
 
 
+def _check_in(read: Any, params: ModelParams) -> CheckIn:
+    """The check-ins of parameters ``check_in_every_s`` and ``check_in_above``."""
+    every_s = read.number(
+        "check_in_every_s", CHECK_IN_EVERY_S,
+        "With the policy table: sure of a partner (P(S=1) > check_in_above), vocalize after"
+        " this long without a vocalization, as the belief forgets; 0 = the table alone",
+        0.0, 3600.0, "s",
+    )
+    above = read.number(
+        "check_in_above", CHECK_IN_ABOVE,
+        "P(S=1) above which check_in_every_s applies (below it the table alone decides)",
+        0.5, 0.9999,
+    )
+    return CheckIn.from_seconds(params, every_s, above)
+
+
 class ControllerNode(GraphNode):
     """Controller: decides after every window whether to vocalize."""
 
@@ -160,6 +182,7 @@ class ControllerNode(GraphNode):
             " intervals, uniform over MIN_S .. MAX_S seconds (the calibration protocol);"
             " recorded:BAG: answer each step with a session bag's recorded decision",
         )
+        check_in = _check_in(read, params)
         self.controller_id = new_source_id()
         self.table_path = _table_path(path)
         if spec:
@@ -167,7 +190,7 @@ class ControllerNode(GraphNode):
                                                 self.get_logger().warning)
         else:
             table = PolicyTable.load(self.table_path, expected_params=params)
-            self.controller = PolicyController(table, params)
+            self.controller = PolicyController(table, params, check_in)
         self.window_us = window_us(params.dt)
         self.streams = SourceLock(timeout_s)
         self.writer = WriterSequence()
@@ -321,7 +344,8 @@ class ControllerNode(GraphNode):
             values["controller"] = self.controller.name
         else:
             values.update(policy_file=self.table_path, mode=table.mode,
-                          horizon=table.horizon, memory=table.memory)
+                          horizon=table.horizon, memory=table.memory,
+                          check_ins=self.controller.check_ins)
         if self.intruders or self.foreign.recent(now) or self.bad.recent(now):
             return ERROR, "a second stream on 'sound_step', or refused messages", values
         if self.jumps.recent(now):

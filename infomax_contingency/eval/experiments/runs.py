@@ -16,7 +16,12 @@ from typing import Any
 import numpy as np
 
 from infomax_contingency.core import model
-from infomax_contingency.core.controllers import Controller, PolicyController, make_controller
+from infomax_contingency.core.controllers import (
+    CheckIn,
+    Controller,
+    PolicyController,
+    make_controller,
+)
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import PolicyTable
 from infomax_contingency.eval.workers import worker_pool
@@ -81,14 +86,16 @@ def _load_table(path: str, params: ModelParams) -> PolicyTable:
     return PolicyTable.load(path, expected_params=params)
 
 
-def experiment_controller(spec: str, params: ModelParams, rng: np.random.Generator) -> Controller:
+def experiment_controller(spec: str, params: ModelParams, rng: np.random.Generator,
+                          check_in: CheckIn | None = None) -> Controller:
     """A controller from its spec (``make_controller``'s, or ``policy:FILE``).
 
-    Policy tables are read once per process.
+    Policy tables are read once per process; ``check_in`` is given to a table's
+    controller (controller_node's check-ins), ignored by the others.
     """
     kind, _, argument = spec.partition(":")
     if kind == "policy":
-        return PolicyController(_load_table(argument, params), params)
+        return PolicyController(_load_table(argument, params), params, check_in)
     return make_controller(spec, params, rng)
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.core.controllers import CHECK_IN_ABOVE, CHECK_IN_EVERY_S, CheckIn
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import RECEDING
 from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
@@ -83,6 +84,10 @@ class RoomsConfig:
         seed: master seed (a run's room seed depends on it, the room and the run number,
             not on the controller: every controller hears the same rooms).
         memory: the belief's sliding memory, steps (belief_node's ``memory_steps``).
+        check_in_every_s: the optimal table's check-ins, s (controller_node's
+            ``check_in_every_s``; 0 = the table alone).
+        check_in_above: P(S=1) above which they apply (controller_node's
+            ``check_in_above``).
         attentive_above: posture_node's upper threshold.
         bored_below: posture_node's lower threshold.
         curve_thresholds: upper thresholds of the operating curves.
@@ -99,6 +104,8 @@ class RoomsConfig:
     seconds: float = 60.0
     seed: int = 0
     memory: int = 60
+    check_in_every_s: float = CHECK_IN_EVERY_S
+    check_in_above: float = CHECK_IN_ABOVE
     attentive_above: float = ATTENTIVE_ABOVE
     bored_below: float = BORED_BELOW
     curve_thresholds: tuple[float, ...] = (0.5, 0.7, 0.8, 0.9, 0.95, 0.99)
@@ -136,6 +143,10 @@ class RoomsConfig:
             fail("seed", "a whole number >= 0")
         if self.memory < 0:
             fail("memory", ">= 0 steps (0: the whole history)")
+        if not (math.isfinite(self.check_in_every_s) and 0 <= self.check_in_every_s <= 3600):
+            fail("check_in_every_s", "in [0, 3600] s (0: the table alone)")
+        if not 0.5 <= self.check_in_above < 1:
+            fail("check_in_above", "in [0.5, 1)")
         if not 0.0 <= self.bored_below < self.attentive_above <= 1.0:
             fail("attentive_above", f"in ({self.bored_below}, 1] above bored_below >= 0")
         for value in self.curve_thresholds:
@@ -145,6 +156,10 @@ class RoomsConfig:
             if not 0.0 < value < 1.0:
                 fail("curve_priors", "probabilities in (0, 1)")
         check_workers(self.jobs, "experiment rooms: --jobs")
+
+    def check_in(self, params: ModelParams) -> CheckIn:
+        """The optimal table's check-ins (controller_node's, by default)."""
+        return CheckIn.from_seconds(params, self.check_in_every_s, self.check_in_above)
 
     def room_names(self) -> list[str]:
         """Every room of the experiment, each background in each of its partner states."""

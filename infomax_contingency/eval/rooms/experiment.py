@@ -58,6 +58,7 @@ def _run_batch(
                 config.seed,
                 run,
                 config.memory,
+                config.check_in(params),
             )
             rows.append(
                 {

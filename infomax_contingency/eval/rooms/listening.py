@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from infomax_contingency.core.controllers import default_check_in
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.experiments.runs import experiment_controller
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
@@ -54,8 +55,8 @@ def render_room(
 
     The same closed loop as a run of the experiment (``seed`` is the fake room's own
     seed, as fake_audio_node's ``seed`` parameter). ``controller`` is a name of
-    :data:`CONTROLLER_NAMES` or any controller specification of
-    :func:`~infomax_contingency.core.controllers.make_controller`.
+    :data:`CONTROLLER_NAMES` (``optimal``: controller_node's table and check-ins) or any
+    controller specification of :func:`~infomax_contingency.core.controllers.make_controller`.
 
     Returns:
         float32 samples, the room times at which the robot's sound was commanded
@@ -76,7 +77,9 @@ def render_room(
     samples = windows * round(config.window_s * config.rate_hz)
     refuse_over_budget(RENDER_BASE_BYTES + 2 * 4 * samples, f"render {seconds:g} s of room sound",
                        "give fewer --seconds")
-    chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]))
+    # "optimal" is controller_node's table with its check-ins; policy:FILE the table alone
+    check_in = default_check_in(params) if controller == "optimal" else None
+    chosen = experiment_controller(spec, params, np.random.default_rng([seed, 1]), check_in)
     recording = _RecordingRoom(config, seed)
     bits = make_binarizer(binarizer, config.window_s, config.rate_hz, params)
     world = TimedWorld(AudioWorld(recording, bits, gap_steps=params.ta2 + 1), windows)

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 
+from infomax_contingency.core.controllers import CheckIn
 from infomax_contingency.core.model import ModelParams, belief_from_log_odds
 from infomax_contingency.eval.experiments.runs import experiment_controller
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
@@ -77,12 +78,16 @@ def run_room(
     seed: int,
     run: int,
     memory: int,
+    check_in: CheckIn | None = None,
 ) -> RoomRun:
-    """One run of ``controller_spec`` in ``room`` for ``seconds`` of room time."""
+    """One run of ``controller_spec`` in ``room`` for ``seconds`` of room time.
+
+    ``check_in``: a policy table's check-ins (controller_node's; None: the table alone).
+    """
     config = FakeRoomConfig.preset(room)
     fake_room = FakeRoom(config, room_seed(seed, room, run))
     rng = np.random.default_rng([seed, 1, run])
-    controller = experiment_controller(controller_spec, params, rng)
+    controller = experiment_controller(controller_spec, params, rng, check_in)
     world = TimedWorld(
         AudioWorld(fake_room, make_binarizer(binarizer, config.window_s, config.rate_hz, params),
                    gap_steps=params.ta2 + 1),
