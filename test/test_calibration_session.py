@@ -7,6 +7,7 @@ back: every step of every topic from step 1, and ``analyze`` reads the session
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -49,7 +50,12 @@ def test_a_calibration_session_sounds_at_random_intervals_and_analyze_reads_it(
     assert main(["analyze", str(bag)]) == (1 if len(sounds) < 20 else 0)
     text = capsys.readouterr().out
     assert "self-feedback period (ts1, ts2): (0, 0)" in text  # the room's 150 ms chirp
-    assert "reply period (ta1, ta2): (2," in text
+    # The room's replies start 1.0-1.4 s after the sound and last 0.6-1.0 s: every one is
+    # heard in lag 3 (1.5-2.0 s) and nearly every one in lag 2; from about 20 vocalizations
+    # at random intervals the study's edges may move by a lag (once in CI, not (2, ...)).
+    [(ta1, ta2)] = [tuple(map(int, found)) for found in
+                    re.findall(r"reply period \(ta1, ta2\): \((\d+), (\d+)\)", text)]
+    assert 1 <= ta1 <= 3 <= ta2 <= 5, text
 
 
 @pytest.mark.parametrize("arguments, message", [
