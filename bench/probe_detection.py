@@ -1,5 +1,9 @@
 """Seven probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
+Every run here is the table alone (``run_room`` without controller_node's check-ins), as
+when these probes were measured; ``straddle`` goes through ``experiment rooms`` and so has
+the check-ins unless given ``--check-in-every-s 0``.
+
 ``levels``: an observation richer than one bit. Each window of the default runs gets one
 of three levels, referenced to the room's background windows like the default bit
 source: 2 = the default bit is active; 1 = not, but the window is louder than all but a
@@ -520,10 +524,11 @@ def gated_tables() -> Iterator[None]:
     """Within the block, the rooms experiment's table controllers are quiet-gated."""
     make = rooms_running.experiment_controller
 
-    def gated(spec: str, params: ModelParams, rng: np.random.Generator) -> Controller:
-        controller = make(spec, params, rng)
+    def gated(spec: str, params: ModelParams, rng: np.random.Generator,
+              check_in: object = None) -> Controller:
+        controller = make(spec, params, rng)  # the table alone, as when this was measured
         if isinstance(controller, PolicyController):
-            return QuietGatedController(controller.table)
+            return QuietGatedController(controller.table, params)
         return controller
 
     rooms_running.experiment_controller = gated  # type: ignore[assignment]

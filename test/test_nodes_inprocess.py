@@ -176,7 +176,8 @@ def test_controller_takes_a_table_by_name_and_matching_params(run: Callable) -> 
 @pytest.mark.parametrize(("overrides", "expected"), [
     ({}, CheckIn(8, 0.9)),
     ({"check_in_every_s": 0.0}, CheckIn(0, 0.9)),
-    ({"check_in_every_s": 2.0, "check_in_above": 0.99}, CheckIn(4, 0.99)),
+    ({"check_in_every_s": 6.0, "check_in_above": 0.99}, CheckIn(12, 0.99)),
+    ({"check_in_every_s": 1.0}, CheckIn(5, 0.9)),  # at least the reply period, ta2 + 1
 ])
 def test_controller_checks_in_as_its_parameters_say(run: Callable, overrides: dict,
                                                     expected: CheckIn) -> None:

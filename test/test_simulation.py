@@ -128,7 +128,7 @@ def test_a_check_in_is_whole_steps_and_refuses_what_is_not_a_duration() -> None:
     assert CheckIn.from_seconds(ROBOT, CHECK_IN_EVERY_S, CHECK_IN_ABOVE) == CheckIn(8, 0.9)
     assert CheckIn.from_seconds(PAPER, 4.0, 0.9).every_steps == 5  # 0.8-s windows
     assert CheckIn.from_seconds(ROBOT, 0.0, 0.9).every_steps == 0  # off
-    assert CheckIn.from_seconds(ROBOT, 0.1, 0.9).every_steps == 1
+    assert CheckIn.from_seconds(ROBOT, 0.1, 0.9).every_steps == 5  # at least the reply period
     for every_s, above in ((-1.0, 0.9), (float("nan"), 0.9), (float("inf"), 0.9), (4.0, 1.0),
                            (4.0, 0.0)):  # fmt: skip
         with pytest.raises(ValueError, match="check-in"):
@@ -158,7 +158,7 @@ def test_check_ins_keep_asking_a_partner_the_belief_is_sure_of_and_change_nothin
     sure = next(k for k, belief in enumerate(plain_beliefs) if belief > 0.9)
     assert checked[: sure + 1] == plain[: sure + 1], "the same search for a partner"
     assert check_ins and min(check_ins) > sure
-    assert all(beliefs[k - 1] > 0.9 for k in check_ins)
+    assert all(beliefs[k] > 0.9 for k in check_ins)  # the belief after the bit it decides on
     silences = "".join(map(str, checked[sure + 1:])).split("1")
     assert max(map(len, silences)) <= 8, silences
     assert max(map(len, "".join(map(str, plain[sure + 1:])).split("1"))) > 8, (

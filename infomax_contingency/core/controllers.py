@@ -121,8 +121,8 @@ class Controller:
 
 CHECK_IN_EVERY_S = 4.0
 """controller_node's default longest silence, s, before it checks in with a partner it is
-sure of (:class:`CheckIn`): 8 windows of 0.5 s, the fixed interval that detected fastest
-in the efficiency experiment (docs/RESULTS.md section 6)."""
+sure of (:class:`CheckIn`): 8 windows of 0.5 s, about the table's own spacing of questions
+while it is still searching (one in 7.4 windows in the TV room)."""
 
 CHECK_IN_ABOVE = 0.9
 """controller_node's default P(S=1) above which it checks in: posture_node's attentive
@@ -143,7 +143,8 @@ class CheckIn:
     exactly as before. The belief stays exact: it is computed on the decisions made.
 
     Attributes:
-        every_steps: longest silence, steps (windows of ``dt``); 0 = never check in.
+        every_steps: longest silence, steps (windows of ``dt``), at least ``ta2 + 1`` (a
+            check-in waits for a background window); 0 = never check in.
         above: P(S=1) above which the check-ins apply, in (0, 1).
     """
 
@@ -152,12 +153,16 @@ class CheckIn:
 
     @classmethod
     def from_seconds(cls, params: ModelParams, every_s: float, above: float) -> CheckIn:
-        """The check-in of ``every_s`` seconds (0 = off: rounded to whole steps, at least one)."""
+        """The check-in of ``every_s`` seconds (0 = off), rounded to whole steps.
+
+        At least ``ta2 + 1`` steps: a check-in comes on a background window, so a shorter
+        silence could never be kept (2.5 s for the robot set).
+        """
         if not (math.isfinite(every_s) and every_s >= 0):
             raise ValueError(f"check-in interval must be a finite number >= 0 s, got {every_s:g}")
         if not 0 < above < 1:
             raise ValueError(f"check-in threshold must be in (0, 1), got {above:g}")
-        steps = 0 if every_s == 0 else max(1, round(every_s / params.dt))
+        steps = 0 if every_s == 0 else max(params.ta2 + 1, round(every_s / params.dt))
         return cls(min(steps, MAX_INTERVAL_STEPS), float(above))
 
     def due(self, params: ModelParams, statistic: Statistic, silent_steps: int) -> bool:

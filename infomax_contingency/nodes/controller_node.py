@@ -138,7 +138,8 @@ def _check_in(read: Any, params: ModelParams) -> CheckIn:
     every_s = read.number(
         "check_in_every_s", CHECK_IN_EVERY_S,
         "With the policy table: sure of a partner (P(S=1) > check_in_above), vocalize after"
-        " this long without a vocalization, as the belief forgets; 0 = the table alone",
+        " this long without a vocalization (at least the reply period), as the belief forgets;"
+        " 0 = the table alone",
         0.0, 3600.0, "s",
     )
     above = read.number(
@@ -345,7 +346,9 @@ class ControllerNode(GraphNode):
         else:
             values.update(policy_file=self.table_path, mode=table.mode,
                           horizon=table.horizon, memory=table.memory,
-                          check_ins=self.controller.check_ins)
+                          check_ins=self.controller.check_ins,
+                          check_in_every_steps=self.controller.check_in.every_steps,
+                          check_in_above=self.controller.check_in.above)
         if self.intruders or self.foreign.recent(now) or self.bad.recent(now):
             return ERROR, "a second stream on 'sound_step', or refused messages", values
         if self.jumps.recent(now):

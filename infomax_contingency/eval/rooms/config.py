@@ -145,8 +145,8 @@ class RoomsConfig:
             fail("memory", ">= 0 steps (0: the whole history)")
         if not (math.isfinite(self.check_in_every_s) and 0 <= self.check_in_every_s <= 3600):
             fail("check_in_every_s", "in [0, 3600] s (0: the table alone)")
-        if not 0.5 <= self.check_in_above < 1:
-            fail("check_in_above", "in [0.5, 1)")
+        if not 0.5 <= self.check_in_above <= 0.9999:
+            fail("check_in_above", "in [0.5, 0.9999] (controller_node's range)")
         if not 0.0 <= self.bored_below < self.attentive_above <= 1.0:
             fail("attentive_above", f"in ({self.bored_below}, 1] above bored_below >= 0")
         for value in self.curve_thresholds:
