@@ -309,3 +309,14 @@ def test_actions_file_round_trip_and_bad_files(tmp_path: Path) -> None:
         path.write_text(text)
         with pytest.raises(ValueError, match=message):
             read_actions_csv(path)
+
+
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("--check-in-every-s", "nan", "check-in interval must be in [0, 3600] s"),
+    ("--check-in-above", "1", "check-in threshold must be in [0.5, 0.9999], got 1"),
+])
+def test_rooms_refuse_check_ins_the_node_would_refuse(capsys, option: str, value: str,
+                                                      message: str) -> None:
+    assert main(["experiment", "rooms", "--rooms", "quiet", "--runs", "1", option, value]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and message in error, error

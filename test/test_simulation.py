@@ -130,7 +130,7 @@ def test_a_check_in_is_whole_steps_and_refuses_what_is_not_a_duration() -> None:
     assert CheckIn.from_seconds(ROBOT, 0.0, 0.9).every_steps == 0  # off
     assert CheckIn.from_seconds(ROBOT, 0.1, 0.9).every_steps == 5  # at least the reply period
     for every_s, above in ((-1.0, 0.9), (float("nan"), 0.9), (float("inf"), 0.9), (4.0, 1.0),
-                           (4.0, 0.0)):  # fmt: skip
+                           (4.0, 0.0), (4.0, 0.3), (5000.0, 0.9)):  # fmt: skip
         with pytest.raises(ValueError, match="check-in"):
             CheckIn.from_seconds(ROBOT, every_s, above)
 

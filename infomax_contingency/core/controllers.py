@@ -128,6 +128,22 @@ CHECK_IN_ABOVE = 0.9
 """controller_node's default P(S=1) above which it checks in: posture_node's attentive
 threshold, so that the check-ins begin where the robot shows it has found someone."""
 
+CHECK_IN_MAX_S = 3600.0
+"""Longest check-in interval, s (controller_node's ``check_in_every_s``, ``experiment rooms``)."""
+
+CHECK_IN_ABOVE_RANGE = (0.5, 0.9999)
+"""Allowed ``check_in_above``: a belief that favours a partner, short of certainty."""
+
+
+def check_check_in(every_s: float, above: float) -> None:
+    """Refuse check-in settings outside their ranges (ValueError, one line naming the value)."""
+    if not (math.isfinite(every_s) and 0 <= every_s <= CHECK_IN_MAX_S):
+        raise ValueError(f"check-in interval must be in [0, {CHECK_IN_MAX_S:g}] s (0: the table"
+                         f" alone), got {every_s:g}")  # fmt: skip
+    low, high = CHECK_IN_ABOVE_RANGE
+    if not low <= above <= high:
+        raise ValueError(f"check-in threshold must be in [{low:g}, {high:g}], got {above:g}")
+
 
 @dataclasses.dataclass(frozen=True)
 class CheckIn:
@@ -145,7 +161,7 @@ class CheckIn:
     Attributes:
         every_steps: longest silence, steps (windows of ``dt``), at least ``ta2 + 1`` (a
             check-in waits for a background window); 0 = never check in.
-        above: P(S=1) above which the check-ins apply, in (0, 1).
+        above: P(S=1) above which the check-ins apply, in :data:`CHECK_IN_ABOVE_RANGE`.
     """
 
     every_steps: int
@@ -158,10 +174,7 @@ class CheckIn:
         At least ``ta2 + 1`` steps: a check-in comes on a background window, so a shorter
         silence could never be kept (2.5 s for the robot set).
         """
-        if not (math.isfinite(every_s) and every_s >= 0):
-            raise ValueError(f"check-in interval must be a finite number >= 0 s, got {every_s:g}")
-        if not 0 < above < 1:
-            raise ValueError(f"check-in threshold must be in (0, 1), got {above:g}")
+        check_check_in(every_s, above)
         steps = 0 if every_s == 0 else max(params.ta2 + 1, round(every_s / params.dt))
         return cls(min(steps, MAX_INTERVAL_STEPS), float(above))
 

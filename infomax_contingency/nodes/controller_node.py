@@ -52,7 +52,9 @@ from std_msgs.msg import Bool, Int64MultiArray
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.core.controllers import (
     CHECK_IN_ABOVE,
+    CHECK_IN_ABOVE_RANGE,
     CHECK_IN_EVERY_S,
+    CHECK_IN_MAX_S,
     CheckIn,
     Controller,
     PolicyController,
@@ -140,12 +142,12 @@ def _check_in(read: Any, params: ModelParams) -> CheckIn:
         "With the policy table: sure of a partner (P(S=1) > check_in_above), vocalize after"
         " this long without a vocalization (at least the reply period), as the belief forgets;"
         " 0 = the table alone",
-        0.0, 3600.0, "s",
+        0.0, CHECK_IN_MAX_S, "s",
     )
     above = read.number(
         "check_in_above", CHECK_IN_ABOVE,
         "P(S=1) above which check_in_every_s applies (below it the table alone decides)",
-        0.5, 0.9999,
+        *CHECK_IN_ABOVE_RANGE,
     )
     return CheckIn.from_seconds(params, every_s, above)
 

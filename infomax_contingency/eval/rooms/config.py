@@ -10,7 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.core.controllers import CHECK_IN_ABOVE, CHECK_IN_EVERY_S, CheckIn
+from infomax_contingency.core.controllers import (
+    CHECK_IN_ABOVE,
+    CHECK_IN_EVERY_S,
+    CheckIn,
+    check_check_in,
+)
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.core.policy_table import RECEDING
 from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
@@ -143,10 +148,10 @@ class RoomsConfig:
             fail("seed", "a whole number >= 0")
         if self.memory < 0:
             fail("memory", ">= 0 steps (0: the whole history)")
-        if not (math.isfinite(self.check_in_every_s) and 0 <= self.check_in_every_s <= 3600):
-            fail("check_in_every_s", "in [0, 3600] s (0: the table alone)")
-        if not 0.5 <= self.check_in_above <= 0.9999:
-            fail("check_in_above", "in [0.5, 0.9999] (controller_node's range)")
+        try:
+            check_check_in(self.check_in_every_s, self.check_in_above)
+        except ValueError as error:
+            raise ValueError(f"experiment rooms: {error}") from None
         if not 0.0 <= self.bored_below < self.attentive_above <= 1.0:
             fail("attentive_above", f"in ({self.bored_below}, 1] above bored_below >= 0")
         for value in self.curve_thresholds:
