@@ -45,6 +45,34 @@ def test_windows_other_than_the_params_dt_are_refused_naming_both(tmp_path: Path
     assert (f"windows of different lengths ({robot}: 0.5 s, {paper}: 0.8 s)" in error)
 
 
+
+def test_every_restarted_belief_node_is_replayed_from_its_join(tmp_path: Path, capsys) -> None:
+    """Two restarts: steps 1-8 by the first node, 11-19 by the second, 22-30 by the third.
+
+    The second published a step past the last it reported (19 against 18); a belief
+    changed in the third one's part is found, not left uncompared.
+    """
+    bits, decisions = _fields(7, range(1, STEPS + 1))
+    pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
+    parts = [offline_beliefs([(pairs[:8], "start")]),
+             offline_beliefs([(pairs[10:19], "joined")]),
+             offline_beliefs([(pairs[21:], "joined")])]  # fmt: skip
+    instances = ((11, 8, 8), (22, 18, 8), (33, 25, 4))  # joined at 18 - 8 + 1, 25 - 4 + 1
+    bag = _session(tmp_path / "twice", bits, decisions, sum(parts, []), instances=instances)
+    assert main(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert ("compared the first one's 8 beliefs; and the new one's 9 beliefs, replayed from"
+            " step 11 with zero counts (the one before published 8); the new one's 9 beliefs,"
+            " replayed from step 22 with zero counts (the one before published 9))") in out, out
+    beliefs = sum(parts, [])
+    beliefs[8 + 9 + 4] += 0.125  # the third one's fifth
+    other = _session(tmp_path / "changed", bits, decisions, beliefs, instances=instances)
+    assert main(["replay", str(other)]) == 1
+    out = capsys.readouterr().out
+    assert ("DIFFERS from the recorded one after the belief_node restart: no split of the 26"
+            " recorded beliefs gives the first one's and those of a new one from steps 11, 22"
+            " with zero counts") in out, out
+
 def _session(directory: Path, bits: list[list[int]], decisions: list[list[int]],
              beliefs: list[float], resets: int = 0,
              instances: tuple[tuple[int, int, int], ...] = ()) -> Path:

@@ -34,9 +34,9 @@ from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.controllers import ReplayedDecisions, make_controller
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.fig4 import Rate, fig4_study_of_runs, trial_raster
+from infomax_contingency.eval.session_verdict import replay_with_its_model, restarted_belief_nodes
 from infomax_contingency.eval.sessions import (
     RecordedSession,
-    belief_model,
     check_belief_model,
     check_same_windows,
     check_window,
@@ -51,11 +51,10 @@ from infomax_contingency.eval.sessions import (
     wav_background_bits,
     wav_background_loop,
     wav_bits,
-    with_session_model,
 )
 from infomax_contingency.limits import check_output_files, written_atomically
 from infomax_contingency.sim.actions import read_actions_csv
-from infomax_contingency.sim.simulation import RunSummary, StepRecord
+from infomax_contingency.sim.simulation import RunSummary
 
 DEFAULT_CALIBRATION_S = 10.0
 """s at a wav file's start that ``replay --calibrate`` calibrates its threshold on."""
@@ -266,188 +265,13 @@ def run_replay(args: argparse.Namespace) -> int:
         records = replay_bits(recorded_bits(session), controller, memory)
         return _print_what_if(args, records, f"controller {controller.name} deciding on the"
                               " recorded bits (what-if)")
-    params, records, same, verdict = _replay_with_its_model(session, params, args.memory)
+    params, records, same, verdict = replay_with_its_model(session, params, args.memory)
     for record in records if args.json else ():
         _write_line(json.dumps(record.__dict__))
-    if same and len(session.belief_restarts) == 1:
-        same, verdict = _new_belief_node(session, params, args.memory, records, verdict)
+    if same and session.belief_restarts:
+        same, verdict = restarted_belief_nodes(session, params, args.memory, records, verdict)
     print(f"# replay {args.session}: {verdict}", file=sys.stderr if args.json else sys.stdout)
     return 0 if same else 1
-
-
-def _replay_with_its_model(session: RecordedSession, params: ModelParams, memory: int | None
-                           ) -> tuple[ModelParams, list[StepRecord], bool, str]:
-    """The replay with ``params`` or the session's other belief model, and its verdict.
-
-    The model: :func:`~infomax_contingency.eval.sessions.with_session_model`. Returns the
-    parameters replayed with, the records, whether they equal, the verdict.
-    """
-    def replay(model: ModelParams) -> tuple[bool, tuple[list[StepRecord], bool, str]]:
-        records, resets = _replay_locating_resets(session, model, memory)
-        same, verdict = belief_verdict(session, [(r.t, r.belief) for r in records], resets)
-        return same, (records, same, verdict)
-
-    chosen, (records, same, verdict), told = with_session_model(session, params, replay)
-    if told:
-        verdict += (f", with {belief_model(chosen.k2_per_lag)} (k2_per_lag"
-                    f" {str(chosen.k2_per_lag).lower()}: the session does not say its belief"
-                    " model, and its beliefs are that one's)")
-    return chosen, records, same, verdict
-
-
-def _new_belief_node(session: RecordedSession, params: ModelParams, memory: int | None,
-                     records: list[StepRecord], verdict: str) -> tuple[bool, str]:
-    """The verdict with a restarted belief_node's own beliefs compared too.
-
-    The new one joined at step ``join`` with zero counts (replayed so: ``from_step``); the
-    one before published the beliefs of steps 1 .. K, K from the last step it reported
-    to the step before the join. The recorded beliefs are those K, then the new one's: the
-    K for which both agree is the split (none: the new one's beliefs differ).
-    """
-    join, last = session.belief_restarts[0]
-    later = [r.belief for r in replay_recorded(session, params, memory, from_step=join)]
-    first, recorded = [r.belief for r in records], session.beliefs
-    pairs = zip(first, recorded, strict=False)
-    agree = next((i for i, (a, b) in enumerate(pairs) if a != b),
-                 min(len(first), len(recorded)))  # the first one's beliefs end by here
-    for kept in range(max(last, 0), min(join, agree + 1)):  # bounded: forged steps too
-        tail = recorded[kept:]
-        if len(tail) <= len(later) and tail == later[:len(tail)]:
-            return True, (f"{verdict.removesuffix(')')}; and the new one's {len(tail)} beliefs,"
-                          f" replayed from step {join} with zero counts (the one before"
-                          f" published {kept}))")  # fmt: skip
-    return False, (f"replayed belief DIFFERS from the recorded one after the belief_node"
-                   f" restart: no split of the {len(recorded)} recorded beliefs gives the"
-                   f" first one's and those of a new one from step {join} with zero counts")
-
-
-def _replay_locating_resets(session: RecordedSession, params: ModelParams,
-                            memory: int | None) -> tuple[list[StepRecord], list[int]]:
-    """The replayed steps, with belief_node's resets where the recorded beliefs show them.
-
-    A reset (``~/reset``, counted in the diagnostics) falls between two steps: the first
-    step whose recorded belief differs is taken as the one after it when the replay with
-    the history forgotten there agrees further on. Returns the steps and the resets
-    located (indices of the steps after them, from 0).
-    """
-    resets: list[int] = []
-    records = list(replay_recorded(session, params, memory))
-    while len(resets) < session.resets:
-        at = _first_difference(session, records)
-        if at is None:
-            break
-        trial = list(replay_recorded(session, params, memory, [*resets, at]))
-        later = _first_difference(session, trial)
-        if later is not None and later <= at:
-            break
-        resets.append(at)
-        records = trial
-    return records, resets
-
-
-def _first_difference(session: RecordedSession, records: list[StepRecord]) -> int | None:
-    """The index of the first replayed step whose belief differs from the recorded one."""
-    recorded, _ = _aligned_beliefs(session, [(r.t, r.belief) for r in records])
-    if recorded is None:
-        return None
-    return next((i for i, (r, b) in enumerate(zip(records, recorded, strict=False))
-                 if r.belief != b), None)
-
-
-def _aligned_beliefs(session: RecordedSession, replayed: list[tuple[int, float]]
-                     ) -> tuple[list[float] | None, list[str]]:
-    """The recorded belief of each replayed step (None: they cannot be matched), and notes.
-
-    Beliefs carry no step: a bag whose first bit is step ``s > 1`` of its stream (the
-    recorder joined late) is matched when its beliefs are those of the last steps, from
-    step ``s`` or earlier (the recorder heard belief_node before mic_node).
-    """
-    beliefs, count = session.beliefs, len(replayed)
-    first = min(step for step, _ in session.bits)
-    if first == 1 and session.belief_restarts:
-        join, last = session.belief_restarts[0]  # the first one's beliefs: steps 1 .. last
-        kept = min(last, len(beliefs))
-        return beliefs[:kept], [f"belief_node restarted (a new one joined at step {join} with"
-                                f" zero counts, the one before reported step {last} last, its"
-                                f" diagnostics say): compared the first one's {kept}"
-                                " beliefs"]
-    if first == 1:
-        if session.cut and count > len(beliefs):  # the cut took the last beliefs
-            return beliefs, [f"the last {count - len(beliefs)} replayed steps have no"
-                             " recorded belief (cut): compared up to the last one recorded"]
-        if count > len(beliefs):
-            return beliefs, [f"{count - len(beliefs)} replayed steps have no recorded belief"
-                             " (the recorder missed belief_node's first beliefs or its last):"
-                             f" compared the first {len(beliefs)}, from step 1"]
-        return beliefs, []
-    late = (f"the recorder joined late: the bag's first bit is step {first} of its stream"
-            f" (steps 1-{first - 1} not recorded: the replay starts without their history)")
-    offset = replayed[-1][0] - len(beliefs) if replayed else -1  # beliefs: steps offset+1..
-    if session.cut or not 0 <= offset <= first - 1:
-        return None, [f"{late}; its {len(beliefs)} recorded beliefs cannot be matched to the"
-                      f" {count} replayed steps"]
-    matched = [beliefs[step - 1 - offset] for step, _ in replayed]
-    skipped = f", after the {first - 1 - offset} beliefs of the steps not recorded" if (
-        first - 1 > offset) else ""
-    return matched, [f"{late}; compared from step {first}{skipped}"]
-
-
-def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]],
-                   resets: Sequence[int] = ()) -> tuple[bool, str]:
-    """Do the replayed ``(step, belief)`` equal the recorded beliefs, and the verdict line.
-
-    True only when at least one step was compared and every one compared is equal.
-    ``resets``: the indices of the steps before which belief_node's resets were applied.
-    """
-    recorded, notes = _aligned_beliefs(session, replayed)
-    if session.resets:
-        located = ", ".join(str(replayed[i][0]) for i in resets)
-        notes.append(f"belief_node was reset during the session (diagnostics: resets"
-                     f" {session.resets})" + (f": replayed with the history forgotten before"
-                                              f" step(s) {located}, where the recorded"
-                                              " belief shows it" if located else ""))
-    values = [belief for _, belief in replayed]
-    counts = f"{len(values)} steps replayed, {len(session.beliefs)} beliefs recorded"
-    if not values or not session.beliefs:
-        what = "no step was replayed" if not values else "no belief was recorded"
-        return False, f"nothing was compared: {what} ({counts})"
-    if recorded is None:
-        return False, f"nothing was compared ({counts}; {'; '.join(notes)})"
-    compared = min(len(values), len(recorded))
-    first_difference = next((i for i in range(compared) if values[i] != recorded[i]), None)
-    extra = len(recorded) - len(values)
-    if session.restart is not None:
-        stream, step = session.restart
-        notes.append(f"mic_node restarted (stream {stream} after step {step}): replayed"
-                     " across it as belief_node follows it (counts kept, the timer forgotten)")
-    if extra > 0:
-        notes.append(f"{extra} more beliefs than steps were recorded: a second publisher on"
-                     " /belief (a forged message?) or a restarted belief_node")
-    detail = "".join(f"; {note}" for note in notes)
-    if first_difference is None and extra <= 0:
-        return True, (f"replayed belief equals the recorded belief at all {compared} steps"
-                      f" compared ({counts}{detail})")
-    if first_difference is None:
-        where, equal = f"after step {replayed[-1][0]}: more beliefs were recorded", compared
-    else:
-        where, equal = f"at step {replayed[first_difference][0]}", first_difference
-        if len(resets) < session.resets:
-            detail += (f"; {session.resets - len(resets)} reset(s) not located: compared up"
-                       f" to step {replayed[first_difference][0]}")
-        detail += "".join(f"; {note}" for note in
-                          _second_writer(session, replayed[first_difference][0]))
-    return False, (f"replayed belief DIFFERS from the recorded one {where} ({counts},"
-                   f" {compared} compared, the first {equal} equal{detail})")
-
-
-def _second_writer(session: RecordedSession, step: int) -> list[str]:
-    """The note on steps recorded twice or out of order up to ``step`` (none: [])."""
-    doubtful = [what for at, what in session.doubtful if at <= step]
-    if not doubtful:
-        return []
-    return [f"{', '.join(doubtful)}: a second writer (forged?); the live nodes ignored its"
-            " messages by their DDS numbers, which the bag does not hold: the replay"
-            " cannot tell which was the true one"]
 
 
 def warn(message: str) -> None:
