@@ -1,4 +1,4 @@
-"""Seven probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+"""Eight probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
 Every run here is the table alone (``run_room`` without controller_node's check-ins), as
 when these probes were measured; ``straddle`` goes through ``experiment rooms`` and so has
@@ -56,6 +56,12 @@ It runs ``experiment rooms`` on ``--rooms`` (room names without a partner state)
 partner states ``--partner-states``, its table printed as that command prints it;
 ``--least-rank``: the threshold's least rank (the source's 2).
 
+``peak``: the default bit source, but the speech band's level of a window is that of its
+loudest ``--frame-ms`` (frames every half frame), or with ``--peak-weight`` below 1 that
+weight of it plus the rest of the window's own level (dB); every window alike, so the
+threshold still sets the false-alarm share. It runs ``experiment rooms`` as ``straddle``
+does (``--seed``: its master seed).
+
 Run from the repository root::
 
     .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
@@ -71,6 +77,8 @@ Run from the repository root::
     .venv/bin/python bench/probe_detection.py gate [--rooms ...] [--runs 100]
     .venv/bin/python bench/probe_detection.py straddle [--rooms quiet,...] [--runs 100]
         [--partner-states absent,partner,arriving,leaving] [--least-rank 2]
+    .venv/bin/python bench/probe_detection.py peak [--rooms quiet,...] [--runs 100]
+        [--partner-states absent,partner] [--frame-ms 100] [--peak-weight 1] [--seed 0]
 """
 
 from __future__ import annotations
@@ -89,7 +97,10 @@ from scipy.special import gammaln, logit
 import infomax_contingency.audio.bitsources.background as background_source
 from infomax_contingency.audio.background import BackgroundThreshold, level_and_faults
 from infomax_contingency.audio.bitsources.background import LEAST_RANK, BackgroundSource
+from infomax_contingency.audio.bitsources.base import window_energy_db
+from infomax_contingency.audio.bitsources.level import SpeechBandLevel
 from infomax_contingency.audio.common import AudioError
+from infomax_contingency.audio.energy import ENERGY_FLOOR
 from infomax_contingency.cli.main import main as command_line
 from infomax_contingency.core.controllers import Controller, PolicyController
 from infomax_contingency.core.model import (
@@ -603,7 +614,48 @@ ALL_ROOMS = (
     "quiet,office,open-office,poster-session,cafe,tv-on,living-room,tv-switched-on,crowd-grows,"
     "kitchen,street,home-office"
 )
-"""Rooms of the ``straddle`` probe by default: every room of RESULTS.md section 7."""
+"""Rooms of the ``straddle`` probe by default: RESULTS.md section 7's first twelve."""
+PEAK_ROOMS = f"{ALL_ROOMS},playroom,dog-home,laundry,vacuum-next-door"
+"""Rooms of the ``peak`` probe by default: every room of RESULTS.md section 7."""
+
+
+@contextlib.contextmanager
+def peak_levels(frame_ms: float, weight: float) -> Iterator[None]:
+    """Within the block, the speech band's level is the ``peak`` probe's (dB)."""
+    own_level_db = SpeechBandLevel.level_db
+
+    def peak_level_db(self: SpeechBandLevel, x: np.ndarray) -> float:
+        if x.size == 0:
+            return own_level_db(self, x)
+        state = self._steady_state * float(np.mean(x)) if self._state is None else self._state
+        y, self._state = self._sosfilt(self._sos, x, zi=state)
+        frame = max(1, round(self.rate_hz * frame_ms / 1000.0))
+        window_db = window_energy_db(y)
+        if y.size <= frame:
+            return window_db
+        sums = np.concatenate(([0.0], np.cumsum(y * y)))
+        starts = np.arange(0, y.size - frame + 1, max(1, frame // 2))
+        loudest_db = 10.0 * math.log10(float(np.max(sums[starts + frame] - sums[starts])) / frame
+                                       + ENERGY_FLOOR)  # fmt: skip
+        return weight * loudest_db + (1.0 - weight) * window_db
+
+    SpeechBandLevel.level_db = peak_level_db  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        SpeechBandLevel.level_db = own_level_db  # type: ignore[method-assign]
+
+
+def probe_peak(rooms: str, runs: int, partner_states: str, frame_ms: float, weight: float,
+               seed: int) -> None:  # fmt: skip
+    """Print the ``peak`` probe: ``experiment rooms`` with the loudest frame's level."""
+    with peak_levels(frame_ms, weight):
+        status = command_line([
+            "experiment", "rooms", "--rooms", rooms, "--partner-states", partner_states,
+            "--controllers", "optimal", "--runs", str(runs), "--seed", str(seed),
+        ])  # fmt: skip
+    if status:
+        raise SystemExit(status)
 
 
 LEVELS_ROOMS = "tv-on+partner,living-room+partner,open-office+partner,street,home-office"
@@ -679,7 +731,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "probe",
-        choices=("levels", "timer", "table", "decisions", "context", "gate", "straddle"),
+        choices=("levels", "timer", "table", "decisions", "context", "gate", "straddle", "peak"),
     )
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
@@ -717,11 +769,16 @@ def main() -> None:
     parser.add_argument(
         "--partner-states",
         default="absent,partner,arriving,leaving",
-        help="straddle: the partner states (as experiment rooms takes them)",
+        help="straddle, peak: the partner states (as experiment rooms takes them)",
     )
     parser.add_argument(
         "--least-rank", type=int, default=LEAST_RANK, help="straddle: the threshold's least rank"
     )
+    parser.add_argument("--frame-ms", type=float, default=100.0, help="peak: the frame, ms")
+    parser.add_argument(
+        "--peak-weight", type=float, default=1.0, help="peak: the loudest frame's weight, 0-1"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="peak: experiment rooms' seed")
     args = parser.parse_args()
     if args.runs < 1:
         parser.error(f"--runs must be at least 1, got {args.runs}")
@@ -734,6 +791,12 @@ def main() -> None:
 def run_probe(args: argparse.Namespace) -> None:
     """Run the probe ``args`` name (ValueError or AudioError for a bad room, share, controller)."""
     params = ModelParams.named("robot")
+    if args.probe == "peak":
+        if not (10.0 <= args.frame_ms <= 500.0 and 0.0 <= args.peak_weight <= 1.0):
+            raise ValueError("--frame-ms must lie in [10, 500] and --peak-weight in [0, 1]")
+        probe_peak(args.rooms or PEAK_ROOMS, args.runs, args.partner_states, args.frame_ms,
+                   args.peak_weight, args.seed)  # fmt: skip
+        return
     if args.probe == "straddle":
         if args.least_rank < 1:
             raise ValueError(f"--least-rank must be at least 1, got {args.least_rank}")
