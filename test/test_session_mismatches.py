@@ -63,7 +63,8 @@ def test_every_restarted_belief_node_is_replayed_from_its_join(tmp_path: Path, c
     out = capsys.readouterr().out
     assert ("compared the first one's 8 beliefs; and the new one's 9 beliefs, replayed from"
             " step 11 with zero counts (the one before published 8); the new one's 9 beliefs,"
-            " replayed from step 22 with zero counts (the one before published 9))") in out, out
+            " replayed from step 22 with zero counts (the one before published 9); 26 recorded"
+            " beliefs compared in all)") in out, out
     beliefs = sum(parts, [])
     beliefs[8 + 9 + 4] += 0.125  # the third one's fifth
     other = _session(tmp_path / "changed", bits, decisions, beliefs, instances=instances)
@@ -200,7 +201,7 @@ def test_a_restarted_belief_node_is_named_and_both_replayed(tmp_path: Path, caps
     assert ("belief_node restarted (a new one joined at step 16 with zero counts, the one"
             " before reported step 12 last, its diagnostics say): compared the first one's 12"
             " beliefs; and the new one's 15 beliefs, replayed from step 16 with zero counts"
-            " (the one before published 12)") in out, out
+            " (the one before published 12); 27 recorded beliefs compared in all)") in out, out
     for wrong, where in ((first[5] + 0.125, 5), (later[3] + 0.125, 12 + 3)):
         beliefs = first + later
         beliefs[where] = wrong

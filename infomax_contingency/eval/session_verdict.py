@@ -68,7 +68,8 @@ def restarted_belief_nodes(session: RecordedSession, params: ModelParams, memory
     parts = [f"the new one's {count} beliefs, replayed from step {join} with zero counts (the"
              f" one before published {before})"
              for count, join, before in zip(published[1:], firsts[1:], published[:-1], strict=True)]
-    return True, f"{verdict.removesuffix(')')}; and {'; '.join(parts)})"
+    return True, (f"{verdict.removesuffix(')')}; and {'; '.join(parts)}; {sum(published)}"
+                  " recorded beliefs compared in all)")
 
 
 def _split_beliefs(recorded: list[float], replays: list[list[float]], firsts: list[int],
