@@ -211,3 +211,38 @@ def test_a_restarted_belief_node_is_named_and_both_replayed(tmp_path: Path, caps
         out = capsys.readouterr().out
         assert "DIFFERS" in out and ("at step 6" in out if where == 5 else
                                      "after the belief_node restart" in out), out
+
+
+def test_a_split_among_many_claimed_restarts_is_found_without_recursion() -> None:
+    """A new belief_node claimed at every step (forged diagnostics, or a node crashing in a loop).
+
+    The split is found, or refused, with no recursion: the most restarts a replay
+    compares, each node allowed to have published nothing.
+    """
+    from infomax_contingency.eval.session_verdict import MOST_RESTARTS_COMPARED, _split_beliefs
+
+    nodes = MOST_RESTARTS_COMPARED + 1
+    recorded = [0.5] * nodes
+    replays = [[0.5] * 3 for _ in range(nodes)]  # each agrees for as far as it could go
+    firsts = list(range(1, nodes + 1))
+    counts = _split_beliefs(recorded, replays, firsts, [0] * (nodes - 1))
+    assert counts is not None and sum(counts) == nodes and all(c in (0, 1, 2, 3) for c in counts)
+    recorded[-1] = 0.25  # the last belief changed: no node's replay has it
+    assert _split_beliefs(recorded, replays, firsts, [0] * (nodes - 1)) is None
+
+
+def test_more_restarts_than_compared_are_named(tmp_path: Path, capsys) -> None:
+    """Diagnostics claiming more belief_node restarts than a replay splits: said, not tried."""
+    from infomax_contingency.eval.session_verdict import MOST_RESTARTS_COMPARED
+
+    bits, decisions = _fields(7, range(1, STEPS + 1))
+    pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
+    restarts = MOST_RESTARTS_COMPARED + 1
+    instances = ((11, STEPS, STEPS),) + tuple((100 + k, STEPS, 1) for k in range(restarts))
+    bag = _session(tmp_path / "looping", bits, decisions, offline_beliefs([(pairs, "start")]),
+                   instances=instances)  # fmt: skip
+    assert main(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert f"compared the first one's {STEPS} beliefs" in out, out
+    assert (f"belief_node restarted {restarts} times, more than the {MOST_RESTARTS_COMPARED}"
+            " whose beliefs the replay splits: the later ones' not compared") in out, out
