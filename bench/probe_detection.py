@@ -1,4 +1,4 @@
-"""Eight probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
+"""Nine probes behind docs/RESULTS.md section 7's "what was tried": detection figures, printed.
 
 Every run here is the table alone (``run_room`` without controller_node's check-ins), as
 when these probes were measured; ``straddle`` goes through ``experiment rooms`` and so has
@@ -62,6 +62,12 @@ weight of it plus the rest of the window's own level (dB); every window alike, s
 threshold still sets the false-alarm share. It runs ``experiment rooms`` as ``straddle``
 does (``--seed``: its master seed).
 
+``alarms``: the empty rooms' false alarms traced. The default runs (with controller_node's
+check-ins, as ``experiment rooms`` runs them) of each room in ``--rooms`` whose belief
+ever passes the attentive threshold, how long the robot had been silent there, and on which
+window; for an empty room each such run: the step, the timer, the windows since the robot
+last vocalized, and the belief ten steps before (a room with a partner: the summary only).
+
 Run from the repository root::
 
     .venv/bin/python bench/probe_detection.py levels [--rooms tv-on+partner,...] [--runs 100]
@@ -79,11 +85,13 @@ Run from the repository root::
         [--partner-states absent,partner,arriving,leaving] [--least-rank 2]
     .venv/bin/python bench/probe_detection.py peak [--rooms quiet,...] [--runs 100]
         [--partner-states absent,partner] [--frame-ms 100] [--peak-weight 1] [--seed 0]
+    .venv/bin/python bench/probe_detection.py alarms [--rooms street,street+partner] [--runs 300]
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import contextlib
 import dataclasses
 import functools
@@ -102,7 +110,7 @@ from infomax_contingency.audio.bitsources.level import SpeechBandLevel
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.energy import ENERGY_FLOOR
 from infomax_contingency.cli.main import main as command_line
-from infomax_contingency.core.controllers import Controller, PolicyController
+from infomax_contingency.core.controllers import Controller, PolicyController, default_check_in
 from infomax_contingency.core.model import (
     AGENT,
     BACKGROUND,
@@ -573,6 +581,44 @@ def probe_gate(params: ModelParams, rooms: list[str], runs: int) -> None:
                   f" background {np.mean(bits[name][BACKGROUND]):.3f}")  # fmt: skip
 
 
+def _crossing_of_run(args: tuple[ModelParams, str, str, int]) -> tuple[int, int, int, str] | None:
+    """Where one run's belief first passes the attentive threshold (None: never).
+
+    Returns the step (from 1), the timer there, the windows since the robot last vocalized
+    and the run in words.
+    """
+    params, room, spec, k = args
+    run = run_room(params, room, spec, "background", 60.0, 0, k, BELIEF_MEMORY,
+                   default_check_in(params))  # fmt: skip
+    above = np.flatnonzero(run.belief > ATTENTIVE_ABOVE)
+    if not above.size:
+        return None
+    step = int(above[0])
+    asked = np.flatnonzero(run.u[:step])
+    silent = step - int(asked[-1]) if asked.size else step + 1
+    return step + 1, int(run.z[step]), silent, (
+        f"{room:<16} run {k:3d}: P(S=1) {run.belief[step]:.3f} at step {step + 1}, timer"
+        f" {int(run.z[step])}, {silent} windows after the last vocalization; ten steps before"
+        f" {run.belief[max(step - 10, 0)]:.2f}")  # fmt: skip
+
+
+def probe_alarms(params: ModelParams, rooms: list[str], runs: int) -> None:
+    """Print the ``alarms`` probe (the module's docstring)."""
+    spec = controller_specs(params, ["optimal"])[0][1]
+    with concurrent.futures.ProcessPoolExecutor(2) as pool:
+        for room in rooms:
+            tasks = [(params, room, spec, k) for k in range(runs)]
+            crossed = [c for c in pool.map(_crossing_of_run, tasks, chunksize=10) if c]
+            silent = np.array([c[2] for c in crossed])
+            on_background = np.mean([c[1] > params.ta2 for c in crossed]) if crossed else 0.0
+            print(f"{room}: {len(crossed)} of {runs} runs ever attentive; windows after the last"
+                  f" vocalization there: median {np.median(silent) if crossed else 0:g}, 10 or more"
+                  f" in {np.mean(silent >= 10) if crossed else 0:.2f}; on a background window in"
+                  f" {on_background:.2f}")  # fmt: skip
+            for *_, words in crossed if "+" not in room else ():
+                print(f"  {words}")
+
+
 @contextlib.contextmanager
 def straddled_levels(least_rank: int) -> Iterator[None]:
     """Within the block, the default source's level is the ``straddle`` probe's."""
@@ -731,7 +777,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "probe",
-        choices=("levels", "timer", "table", "decisions", "context", "gate", "straddle", "peak"),
+        choices=("levels", "timer", "table", "decisions", "context", "gate", "straddle", "peak",
+                 "alarms"),
     )
     parser.add_argument("--rooms", default="")
     parser.add_argument("--runs", type=int, default=30)
@@ -791,6 +838,9 @@ def main() -> None:
 def run_probe(args: argparse.Namespace) -> None:
     """Run the probe ``args`` name (ValueError or AudioError for a bad room, share, controller)."""
     params = ModelParams.named("robot")
+    if args.probe == "alarms":
+        probe_alarms(params, (args.rooms or "street,tv-switched-on").split(","), args.runs)
+        return
     if args.probe == "peak":
         if not (10.0 <= args.frame_ms <= 500.0 and 0.0 <= args.peak_weight <= 1.0):
             raise ValueError("--frame-ms must lie in [10, 500] and --peak-weight in [0, 1]")
