@@ -218,8 +218,13 @@ def _mcap_string(text: str) -> bytes:
     return struct.pack("<I", len(text)) + text.encode()
 
 
-def _zstd_session(directory: Path, messages: int) -> Path:
-    """A bag of one zstd chunk: ``messages`` /sound_step messages (compressible)."""
+def _zstd_session(directory: Path, messages: int, declared: int | None = None,
+                  padding: int = 0) -> Path:
+    """A bag of one zstd chunk: ``messages`` /sound_step messages (compressible).
+
+    ``declared``: the uncompressed size the chunk claims (default: its true size);
+    ``padding``: zero bytes after the messages (a frame that expands far).
+    """
     import zstandard
 
     from infomax_contingency.audio.bag import encode
@@ -232,8 +237,9 @@ def _zstd_session(directory: Path, messages: int) -> Path:
                      + _mcap_string("cdr") + struct.pack("<I", 0)),
         *[_mcap_record(5, struct.pack("<HIQQ", 1, 0, 10**18 + j, 10**18 + j) + data)
           for j in range(messages)]])
-    packed = zstandard.ZstdCompressor().compress(inner)
-    chunk = (struct.pack("<QQQI", 0, 0, len(inner), 0) + _mcap_string("zstd")
+    packed = zstandard.ZstdCompressor().compress(inner + bytes(padding))
+    size = len(inner) + padding if declared is None else declared
+    chunk = (struct.pack("<QQQI", 0, 0, size, 0) + _mcap_string("zstd")
              + struct.pack("<Q", len(packed)) + packed)
     directory.mkdir()
     magic = b"\x89MCAP0\r\n"
@@ -259,6 +265,34 @@ def test_a_bag_is_read_and_decoded_only_within_the_memory_budget(tmp_path, monke
                         lambda: MemoryBudget(1 << 20, "ulimit -v 1024"))
     with pytest.raises(BagReadError, match="refusing to decode the session .* more than 1 MiB"):
         read_topics(bag, ["/sound_step"])
+
+
+def test_a_zstd_chunk_is_never_expanded_past_what_it_declares(tmp_path):
+    """A decompression bomb, or bytes that are not zstd: the scan stops there, saying why.
+
+    The bomb: a frame whose own header claims 64 MB in a chunk declaring 2 KB. No more
+    than the declared size is ever decompressed.
+    """
+    import resource
+
+    from infomax_contingency.audio.mcap_scan import scan_mcap
+
+    bomb = _zstd_session(tmp_path / "bomb", 20, declared=2048, padding=64 << 20)
+    assert (bomb / "s.mcap").stat().st_size < 8192
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB
+    scan, stopped = scan_mcap(bomb / "s.mcap")
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 32 << 10
+    assert stopped == "a zstd chunk holds more bytes than the 2,048 it declares"
+    assert not scan.messages
+    garbage = _zstd_session(tmp_path / "garbage", 20)
+    mcap = garbage / "s.mcap"
+    data = bytearray(mcap.read_bytes())
+    start = data.index(b"zstd") + 4 + 8  # the compressed bytes, after their length
+    data[start:start + 16] = bytes(range(16))
+    mcap.write_bytes(bytes(data))
+    scan, stopped = scan_mcap(mcap)
+    assert stopped is not None and stopped.startswith("a zstd chunk cannot be decompressed (")
+    assert not scan.messages
 
 
 def test_a_plotted_session_file_is_a_regular_file(tmp_path, capsys):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 from infomax_contingency.limits import refuse_over_budget
 
@@ -120,12 +121,31 @@ def _read_chunk(body: _Records, scan: Scan) -> None:
         refuse_over_budget(CHUNK_COPIES * uncompressed_size,
                            f"decompress a chunk of {body.what} that declares"
                            f" {uncompressed_size:,} bytes", _ADVICE, _OverBudgetError)
-        data = memoryview(zstandard.ZstdDecompressor().decompress(
-            bytes(data), max_output_size=uncompressed_size))
+        data = memoryview(_decompressed(zstandard, bytes(data), uncompressed_size))
     elif compression:
         raise ValueError(f"a chunk is compressed with {compression}, which is not read here")
     # a chunk is written whole: a message cut inside it is damage, not a cut file
     _read_records(_Records(data, "a chunk"), scan, in_chunk=True)
+
+
+def _decompressed(zstandard: Any, data: bytes, size: int) -> bytes:
+    """A zstd chunk's bytes, exactly ``size`` of them (ValueError otherwise).
+
+    Streamed, never more than ``size + 1`` bytes out: a frame whose own header claims
+    more than the chunk declares (a decompression bomb) is refused, not expanded.
+    """
+    pieces, total = [], 0
+    try:
+        with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+            while total <= size and (piece := reader.read(size + 1 - total)):
+                pieces.append(piece)
+                total += len(piece)
+    except zstandard.ZstdError as error:
+        raise ValueError(f"a zstd chunk cannot be decompressed ({error})") from None
+    if total != size:
+        more = "more" if total > size else f"only {total:,}"
+        raise ValueError(f"a zstd chunk holds {more} bytes than the {size:,} it declares")
+    return b"".join(pieces)
 
 
 def scan_mcap(path: Path) -> tuple[Scan, str | None]:
