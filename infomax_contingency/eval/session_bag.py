@@ -339,8 +339,11 @@ def _belief_restarts(diagnostics: list, namespace: str) -> list[tuple[int, int]]
             values = {pair.key: pair.value for pair in status.values}
             try:
                 current, newest = int(values["listener_id"]), int(values["last_step"])
-                joined = newest - int(values["steps"]) + 1
+                steps = int(values["steps"])
             except (KeyError, ValueError):
+                continue
+            joined = newest - steps + 1
+            if steps < 1 or joined < 1:  # not joined a stream yet (or forged): no step known
                 continue
             if listener is not None and current != listener:
                 restarts.append((joined, last))

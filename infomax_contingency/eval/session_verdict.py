@@ -58,10 +58,10 @@ def restarted_belief_nodes(session: RecordedSession, params: ModelParams, memory
     replay (none: a later one's beliefs differ).
     """
     restarts = session.belief_restarts
-    if len(restarts) > MOST_RESTARTS_COMPARED:
-        return True, (f"{verdict.removesuffix(')')}; belief_node restarted {len(restarts)} times,"
-                      f" more than the {MOST_RESTARTS_COMPARED} whose beliefs the replay"
-                      " splits: the later ones' not compared)")  # fmt: skip
+    if len(restarts) > MOST_RESTARTS_COMPARED:  # not shown equal: exit status 1
+        return False, (f"{verdict.removesuffix(')')}; belief_node restarted {len(restarts)}"
+                       f" times, more than the {MOST_RESTARTS_COMPARED} whose beliefs the replay"
+                       " splits: the later ones' not compared)")  # fmt: skip
     replays = [[r.belief for r in records]] + [
         [r.belief for r in replay_recorded(session, params, memory, from_step=join)]
         for join, _ in restarts]  # fmt: skip
@@ -212,6 +212,8 @@ def belief_verdict(session: RecordedSession, replayed: list[tuple[int, float]],
     if recorded is None:
         return False, f"nothing was compared ({counts}; {'; '.join(notes)})"
     compared = min(len(values), len(recorded))
+    if not compared and not session.belief_restarts:  # restarted: the split compares them
+        return False, f"nothing was compared ({counts}; {'; '.join(notes)})"
     first_difference = next((i for i in range(compared) if values[i] != recorded[i]), None)
     extra = len(recorded) - len(values)
     if session.restart is not None:
