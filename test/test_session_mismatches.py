@@ -76,11 +76,12 @@ def test_every_restarted_belief_node_is_replayed_from_its_join(tmp_path: Path, c
 
 def _session(directory: Path, bits: list[list[int]], decisions: list[list[int]],
              beliefs: list[float], resets: int = 0,
-             instances: tuple[tuple[int, int, int], ...] = ()) -> Path:
+             instances: tuple[tuple[int, int, int], ...] = (), memory: str = str(MEMORY),
+             node: str = "belief_node") -> Path:
     """A session bag: ``sound_step`` and ``vocalize_step`` fields in the order given.
 
     Message ``k`` of each topic is received at ``k`` x 0.5 s (a bit, then its decision,
-    then a belief); /diagnostics of belief_node: memory 60 (the yardstick's) and ``resets``,
+    then a belief); /diagnostics of ``node``: ``memory`` (60, the yardstick's) and ``resets``,
     and one more report per ``(listener_id, last_step, steps)`` of ``instances``.
     """
     from rosbags.typesys import Stores, get_typestore
@@ -103,10 +104,10 @@ def _session(directory: Path, bits: list[list[int]], decisions: list[list[int]],
                        ("steps", str(steps))) for listener, last, steps in instances]
     for k, more in enumerate(reports):
         pairs = [types.types["diagnostic_msgs/msg/KeyValue"](key=key, value=value)
-                 for key, value in (("memory_steps", str(MEMORY)), ("resets", str(resets)),
+                 for key, value in (("memory_steps", memory), ("resets", str(resets)),
                                     *more)]  # fmt: skip
         status = types.types["diagnostic_msgs/msg/DiagnosticStatus"](
-            level=0, name="belief_node: P(S=1)", message="", hardware_id="/belief_node",
+            level=0, name=f"{node}: P(S=1)", message="", hardware_id=f"/{node}",
             values=pairs)
         array = types.types[DIAGNOSTICS](header=header, status=[status])
         writer.write("/diagnostics", bytes(types.serialize_cdr(array, DIAGNOSTICS)),
@@ -250,3 +251,26 @@ def test_more_restarts_than_compared_are_named(tmp_path: Path, capsys) -> None:
     assert f"compared the first one's {STEPS} beliefs" in out, out
     assert (f"belief_node restarted {restarts} times, more than the {MOST_RESTARTS_COMPARED}"
             " whose beliefs the replay splits: the later ones' not compared") in out, out
+
+
+def test_a_memory_that_is_no_whole_number_is_named_and_another_robots_ignored(
+        tmp_path: Path, capsys) -> None:
+    """belief_node's memory_steps as text, a fraction, negative or of 19 digits.
+
+    Named in one line (give --memory); another robot's belief_node saying so disturbs nothing.
+    """
+    bits, decisions = _fields(7, range(1, STEPS + 1))
+    pairs = [(b[2] == 1, bool(d[2])) for b, d in zip(bits, decisions, strict=True)]
+    beliefs = offline_beliefs([(pairs, "start")])
+    for memory in ("sixty", "60.0", "-5", "1" * 19):
+        bag = _session(tmp_path / f"m{len(memory)}{memory[0]}", bits, decisions, beliefs,
+                       memory=memory)  # fmt: skip
+        error = _one_line_error(capsys, "replay", str(bag))
+        assert (f"the diagnostics of belief_node report memory_steps '{memory}', not one whole"
+                " number of steps (0 or more, at most 18 digits): its memory cannot be told:"
+                " give --memory N") in error, error
+        assert main(["replay", str(bag), "--memory", str(MEMORY)]) == 0
+        capsys.readouterr()
+    other = _session(tmp_path / "other", bits, decisions, beliefs, memory="sixty",
+                     node="robot2/belief_node")  # fmt: skip
+    assert main(["replay", str(other), "--memory", str(MEMORY)]) == 0

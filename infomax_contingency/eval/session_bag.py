@@ -130,8 +130,9 @@ def load_session(directory: Path, warn: Callable[[str], None] | None = None
     return RecordedSession(bits, decisions, beliefs, memory, cut=bool(cut),
                            window_us=first.window_us, memory_problem=problem, stream=stream,
                            doubtful=doubtful, restart=_restart(bit_messages, decision_messages),
-                           resets=max(_own_values(topics["/diagnostics"], topics.namespace,
-                                                  "resets")[1], default=0),
+                           resets=max((v for v in _own_values(topics["/diagnostics"],
+                                                              topics.namespace, "resets")[1]
+                                       if isinstance(v, int)), default=0),  # fmt: skip
                            belief_restarts=_belief_restarts(topics["/diagnostics"],
                                                             topics.namespace),
                            later_streams=_later_streams(bit_messages, decision_messages,
@@ -288,8 +289,12 @@ def _belief_memory(diagnostics: list, namespace: str) -> tuple[int, str]:
     """
     own, values = _own_values(diagnostics, namespace, "memory_steps")
     reported = _belief_node_values(diagnostics, "memory_steps")
-    if len(values) == 1:
+    if len(values) == 1 and isinstance(values[0], int):
         return values[0], ""
+    if any(isinstance(value, str) for value in values):
+        return 0, (f"the diagnostics of {own} report memory_steps"
+                   f" {' and '.join(map(str, values))}, not one whole number of steps (0 or"
+                   " more, at most 18 digits): its memory cannot be told")
     if len(values) > 1:
         return 0, (f"the diagnostics of {own} report memory_steps"
                    f" {' and '.join(map(str, values))} (two belief_nodes of one name on the"
@@ -309,15 +314,21 @@ def _belief_model(diagnostics: list, namespace: str) -> bool | None:
     return {"True": True, "False": False}.get(said.pop()) if len(said) == 1 else None
 
 
-def _belief_node_values(diagnostics: list, key: str) -> dict[str, set[int]]:
-    """``node -> values of key`` that every belief_node (of any namespace) reported."""
-    reported: dict[str, set[int]] = {}
+def _belief_node_values(diagnostics: list, key: str) -> dict[str, set[int | str]]:
+    """``node -> values of key`` that every belief_node (of any namespace) reported.
+
+    A value that is not a whole number >= 0 (another robot's, a forged one) is kept as
+    its text, cut to 40 characters, for the one who reads it to name.
+    """
+    reported: dict[str, set[int | str]] = {}
     for _, array in diagnostics:
         for status in array.status:
             node = status.name.split(":", 1)[0]  # robot1/belief_node: P(S=1) = ...
             for pair in status.values:
                 if pair.key == key and node.rsplit("/", 1)[-1] == "belief_node":
-                    reported.setdefault(node, set()).add(int(pair.value))
+                    text = str(pair.value)
+                    whole = text.isascii() and text.isdigit() and len(text) <= 18
+                    reported.setdefault(node, set()).add(int(text) if whole else text[:40])
     return reported
 
 
@@ -351,10 +362,15 @@ def _belief_restarts(diagnostics: list, namespace: str) -> list[tuple[int, int]]
     return restarts
 
 
-def _own_values(diagnostics: list, namespace: str, key: str) -> tuple[str, list[int]]:
-    """The session's belief_node (of ``namespace``) and the values of ``key`` it reported."""
+def _own_values(diagnostics: list, namespace: str, key: str) -> tuple[str, list[int | str]]:
+    """The session's belief_node (of ``namespace``) and the values of ``key`` it reported.
+
+    Whole numbers first, then the texts of any that are not.
+    """
     own = f"{namespace.strip('/')}/belief_node".lstrip("/")
-    return own, sorted(_belief_node_values(diagnostics, key).get(own, ()))
+    values = _belief_node_values(diagnostics, key).get(own, set())
+    return own, sorted(v for v in values if isinstance(v, int)) + sorted(
+        repr(v) for v in values if isinstance(v, str))
 
 
 def session_memory(session: RecordedSession, memory: int | None) -> int:
