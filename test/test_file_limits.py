@@ -119,7 +119,8 @@ def _bag(tmp_path: Path, relative_file_paths: str) -> Path:
     ("[sub]", "is not a regular file"),
     ("[[a, b]]", "is not a list of names"),
     (_bomb(), "aliases expand"),
-], ids=["absolute", "parent", "symlink", "fifo", "directory", "nested", "bomb"])
+    ("[s.mcap, t.mcap, s.mcap]", r"lists \['s.mcap'\] more than once"),
+], ids=["absolute", "parent", "symlink", "fifo", "directory", "nested", "bomb", "twice"])
 def test_a_bag_names_only_regular_files_inside_it(tmp_path, listed, message):
     (tmp_path / "outside.mcap").write_bytes(b"")
     bag = _bag(tmp_path, listed)

@@ -17,6 +17,7 @@ QoS profiles are given as plain dicts of rmw values (``history``, ``depth``,
 from __future__ import annotations
 
 import functools
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from io import BytesIO
 from pathlib import Path
@@ -258,6 +259,10 @@ def _bag_files(directory: Path, info: dict[str, Any] | None) -> list[Path]:
     if not isinstance(listed, list) or not all(isinstance(name, str) for name in listed):
         raise BagReadError(f"cannot read the session {directory}: its metadata.yaml's"
                            f" relative_file_paths is not a list of names: {short_repr(listed)}")
+    twice = sorted(name for name, count in Counter(listed).items() if count > 1)[:3]
+    if twice:  # each file read once: its messages would count twice
+        raise BagReadError(f"cannot read the session {directory}: its metadata.yaml's"
+                           f" relative_file_paths lists {short_repr(twice)} more than once")
     files = [directory / name for name in listed] or sorted(directory.glob("*.mcap"))
     inside = directory.resolve()
     for path, name in zip(files, listed or [p.name for p in files], strict=True):
