@@ -11,6 +11,7 @@ no printing.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import islice
 
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.sessions import (
@@ -42,6 +43,9 @@ def replay_with_its_model(session: RecordedSession, params: ModelParams, memory:
     return chosen, records, same, verdict
 
 
+MOST_RESETS_LOCATED = 20
+"""belief_node resets a replay locates (one replay of the session each); beyond, the rest
+are named as not located and the comparison stops at the first difference."""
 MOST_RESTARTS_COMPARED = 100
 """belief_node restarts whose beliefs a replay compares; beyond (a node crashing in a loop,
 forged diagnostics) only the first node's are (the split's work grows with their square)."""
@@ -62,10 +66,11 @@ def restarted_belief_nodes(session: RecordedSession, params: ModelParams, memory
         return False, (f"{verdict.removesuffix(')')}; belief_node restarted {len(restarts)}"
                        f" times, more than the {MOST_RESTARTS_COMPARED} whose beliefs the replay"
                        " splits: the later ones' not compared)")  # fmt: skip
-    replays = [[r.belief for r in records]] + [
-        [r.belief for r in replay_recorded(session, params, memory, from_step=join)]
-        for join, _ in restarts]  # fmt: skip
     firsts = [1] + [join for join, _ in restarts]
+    ends = [max(later - first, 0) for first, later in zip(firsts[1:], firsts[2:], strict=False)]
+    replays = [[r.belief for r in records]] + [  # each up to the next one's join at most
+        [r.belief for r in islice(replay_recorded(session, params, memory, from_step=join), end)]
+        for join, end in zip(firsts[1:], [*ends, None], strict=True)]  # fmt: skip
     published = _split_beliefs(session.beliefs, replays, firsts, [last for _, last in restarts])
     if published is None:
         joins = ", ".join(str(join) for join in firsts[1:])
@@ -130,7 +135,7 @@ def _replay_locating_resets(session: RecordedSession, params: ModelParams,
     """
     resets: list[int] = []
     records = list(replay_recorded(session, params, memory))
-    while len(resets) < session.resets:
+    while len(resets) < min(session.resets, MOST_RESETS_LOCATED):
         at = _first_difference(session, records)
         if at is None:
             break
