@@ -159,6 +159,9 @@ def test_a_restarted_mic_node_is_named_and_replayed_across(tmp_path: Path, capsy
     assert ("mic_node restarted (stream 8 after step 20): replayed across it as belief_node"
             " follows it (counts kept, the timer forgotten)") in out, out
     assert "second publisher" not in out
+    figure = tmp_path / "restart.png"  # its figure: the same replay, the timer forgotten there
+    assert main(["plot", "--session", str(bag), "--out", str(figure)]) == 0, capsys.readouterr()
+    assert figure.stat().st_size > 0 and "30 steps" in capsys.readouterr().out
 
 
 def test_a_reset_belief_node_is_replayed_with_its_reset(tmp_path: Path, capsys) -> None:

@@ -174,6 +174,10 @@ def _check_record(record: dict, previous_t: Any, where: str) -> None:
 def session_counts(params: ModelParams, records: Sequence[dict], memory: int = 0) -> np.ndarray:
     """Counts ``(p2, q2, p3, q3)`` after each step, replayed from the records' z, y and u.
 
+    A step numbered no higher than the one before begins a new stream (a restarted
+    mic_node, as a session's replay has it): the timer is forgotten there, as the replay
+    and belief_node forget it (counts kept).
+
     Raises :class:`PlotError` when a record's timer disagrees with the replay (the session
     was recorded with other parameters, or steps are missing).
     """
@@ -182,8 +186,11 @@ def session_counts(params: ModelParams, records: Sequence[dict], memory: int = 0
         raise PlotError(f"step t={first['t']}: the record's timer z={first['z']} is not one of"
                         f" the parameters' 0 .. {params.timer_long_ago} (use --params)")
     tracker = StatisticTracker(params, memory=memory, z_initial=int(first["z"]))
-    counts = []
+    counts, previous_t = [], first["t"] - 1
     for record in records:
+        if record["t"] <= previous_t:  # a new stream (a restarted mic_node), numbered anew:
+            tracker.forget_timer()  # as belief_node and the replay follow it
+        previous_t = record["t"]
         if tracker.statistic.z != record["z"]:
             raise PlotError(
                 f"step t={record['t']}: the record's timer z={record['z']} differs from the"
