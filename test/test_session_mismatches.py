@@ -218,11 +218,12 @@ def test_a_restarted_belief_node_is_named_and_both_replayed(tmp_path: Path, caps
                                      "after the belief_node restart" in out), out
 
 
-def test_a_split_among_many_claimed_restarts_is_found_without_recursion() -> None:
+def test_a_split_among_the_most_restarts_compared_is_found_or_refused() -> None:
     """A new belief_node claimed at every step (forged diagnostics, or a node crashing in a loop).
 
-    The split is found, or refused, with no recursion: the most restarts a replay
-    compares, each node allowed to have published nothing.
+    As many restarts as a replay compares, each node allowed to have published nothing:
+    a split that accounts for every recorded belief is found, and none when the last
+    belief matches no node's replay.
     """
     from infomax_contingency.eval.session_verdict import MOST_RESTARTS_COMPARED, _split_beliefs
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
 
 from infomax_contingency.limits import refuse_over_budget
 
@@ -114,26 +113,26 @@ def _read_chunk(body: _Records, scan: Scan) -> None:
     compression = body.string()
     data = body.take(body.uint(8))
     if compression == "zstd":
-        import zstandard
-
         if uncompressed_size > 16 * len(data) + 2**20 or uncompressed_size > 2**31:
             raise ValueError(f"a chunk declares {uncompressed_size:,} bytes once uncompressed")
         refuse_over_budget(CHUNK_COPIES * uncompressed_size,
                            f"decompress a chunk of {body.what} that declares"
                            f" {uncompressed_size:,} bytes", _ADVICE, _OverBudgetError)
-        data = memoryview(_decompressed(zstandard, bytes(data), uncompressed_size))
+        data = memoryview(_decompressed(bytes(data), uncompressed_size))
     elif compression:
         raise ValueError(f"a chunk is compressed with {compression}, which is not read here")
     # a chunk is written whole: a message cut inside it is damage, not a cut file
     _read_records(_Records(data, "a chunk"), scan, in_chunk=True)
 
 
-def _decompressed(zstandard: Any, data: bytes, size: int) -> bytes:
+def _decompressed(data: bytes, size: int) -> bytes:
     """A zstd chunk's bytes, exactly ``size`` of them (ValueError otherwise).
 
     Streamed, never more than ``size + 1`` bytes out: a frame whose own header claims
     more than the chunk declares (a decompression bomb) is refused, not expanded.
     """
+    import zstandard
+
     pieces, total = [], 0
     try:
         with zstandard.ZstdDecompressor().stream_reader(data) as reader:
