@@ -159,8 +159,8 @@ def test_the_stop_deadline_starts_once_with_the_first_stop(
     began = stop.stopping_since
     stop._handle(signal.SIGINT, None)
     assert not armed  # a signal handler only sets flags
-    stop.start_deadline()
-    stop.start_deadline()
+    stop.arm_stop_deadline()
+    stop.arm_stop_deadline()
     assert stop.requested and stop.stopping_since == began
     assert len(armed) == 1 and 0 < armed[0] <= 0.3 + runtime.HARD_DEADLINE_MARGIN_S
     stop._watchdog.join(30)
@@ -212,12 +212,88 @@ def test_a_node_process_whose_teardown_holds_the_interpreter_still_ends() -> Non
         "from infomax_contingency.nodes import runtime\n"
         "runtime.HARD_DEADLINE_MARGIN_S = 1.0\n"
         "stop = runtime.StopSignals('stuck_node', deadline_s=1.0).install()\n"
-        "stop.start_deadline()  # the spin ended; the teardown begins and hangs\n"
+        "stop.arm_stop_deadline()  # the spin ended; the teardown begins and hangs\n"
         "ctypes.PyDLL(None).sleep(120)  # libc's sleep, the interpreter held throughout\n"
     )
     status, err = _stuck_process(program)
     assert status == 1
     assert err.startswith("Timeout (0:00:0") and "line 6 in <module>" in err, err  # ~2 s
+
+
+def test_a_start_that_never_spins_ends_by_the_start_deadline(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Nodes not spinning by the start deadline end the process; spinning, nothing happens."""
+    monkeypatch.setattr(runtime, "DEADLINE_POLL_S", 0.01)
+    ended: list[tuple[str, float]] = []
+    armed: list[float] = []
+    stop = runtime.StopSignals("probe", start_deadline_s=0.2, arm_hard_deadline=armed.append,
+                               on_start_deadline=lambda *named: ended.append(named))  # fmt: skip
+    before = {s: signal.getsignal(s) for s in entry.STOP_SIGNALS}
+    try:
+        stop.install()
+    finally:
+        for signum, handler in before.items():  # not restore(): that ends the start deadline
+            signal.signal(signum, handler)
+    assert armed == [0.2 + runtime.HARD_DEADLINE_MARGIN_S]
+    stop._watchdog.join(30)
+    assert not stop._watchdog.is_alive() and ended == [("probe", 0.2)]
+
+    spun = runtime.StopSignals("probe", start_deadline_s=0.2, arm_hard_deadline=armed.append,
+                               on_start_deadline=lambda *named: ended.append(named))  # fmt: skip
+    spun._watchdog.start()
+    spun.starting_since = runtime.time.monotonic()  # as install() does
+    spun.spinning()
+    spun._watchdog.join(0.5)
+    assert spun._watchdog.is_alive() and len(ended) == 1  # no start deadline once spinning
+    assert armed[-1] < 0  # the hard one cancelled
+
+
+def test_a_stop_while_starting_is_left_to_the_stop_deadline(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A stop signal during a start hands the process to the stop deadline, not the start's."""
+    monkeypatch.setattr(runtime, "DEADLINE_POLL_S", 0.01)
+    ended: list[str] = []
+    stop = runtime.StopSignals("probe", deadline_s=0.3, arm_hard_deadline=lambda s: None,
+                               on_deadline=lambda *named: ended.append("stop"),
+                               start_deadline_s=0.2,
+                               on_start_deadline=lambda *named: ended.append("start"))  # fmt: skip
+    stop.starting_since = runtime.time.monotonic()  # as install() does
+    stop._handle(signal.SIGTERM, None)
+    stop._watchdog.start()
+    stop._watchdog.join(30)
+    assert ended == ["stop"]
+
+
+START_HANGS = (
+    "import sys, time, ctypes\n"
+    "from infomax_contingency.nodes import runtime\n"
+    "runtime.START_DEADLINE_S = 1.0\n"
+    "runtime.HARD_DEADLINE_MARGIN_S = 1.0\n"
+    "def factory():\n"
+    "    {hang}\n"
+    "sys.exit(runtime.run_nodes([('stuck_node', factory)], 'stuck_node', []))\n"
+)
+"""A node process whose node creation never returns (``{hang}``: how), after ``rclpy.init``."""
+
+
+def test_a_node_whose_creation_never_returns_ends_by_the_start_deadline() -> None:
+    """A node stuck in its creation (once seen in Fast DDS) ends in one line, status 1.
+
+    Before, it never spun and never ended: a launch waited on it until stopped.
+    """
+    status, err = _stuck_process(START_HANGS.format(hang="time.sleep(120)"))
+    assert status == 1
+    assert err.startswith("stuck_node: not started 1 s after the process began (creating"), err
+    assert err.count("\n") == 1, err
+
+
+def test_a_node_whose_creation_holds_the_interpreter_still_ends() -> None:
+    """Node creation stuck in a C call that keeps the interpreter: the stacks, status 1."""
+    status, err = _stuck_process(START_HANGS.format(hang="ctypes.PyDLL(None).sleep(120)"))
+    assert status == 1
+    assert err.startswith("Timeout (0:00:0") and "in factory" in err, err  # ~2 s
 
 
 def test_the_entry_module_names_its_nodes_when_asked_for_another() -> None:

@@ -118,8 +118,16 @@ itself takes at most :data:`STOP_BUDGET_S` and the teardown about a second more;
 process still there (a DDS teardown stuck on a loaded machine, a parent's SIGKILL that
 left it alone) then ends at once, with one line and status 1, rather than run on."""
 
+START_DEADLINE_S = 30.0
+"""Seconds from a node process's start (its main taking the signals) to its nodes spinning,
+whatever hangs: a start takes well under a few seconds, even with a launch's six nodes
+starting at once on a loaded machine; one still not spinning then (node creation stuck
+in the middleware: Fast DDS's participant creation has known hangs, docs/ENVIRONMENT.md)
+ends at once, with one line and status 1, so that its launch ends naming it (or a
+``respawn`` starts it again) rather than wait on it for ever."""
+
 DEADLINE_POLL_S = 0.5
-"""Seconds between two looks of the stop deadline's watchdog at whether a stop began."""
+"""Seconds between two looks of the deadlines' watchdog at whether one passed."""
 
 HARD_DEADLINE_MARGIN_S = 5.0
 """Seconds after the stop deadline at which a process whose main thread holds the
@@ -138,9 +146,27 @@ def _end_now(program: str, deadline_s: float) -> None:
         os._exit(1)
 
 
+def _not_started(program: str, deadline_s: float) -> None:
+    """The start deadline passed: one line on stderr, then end without any teardown."""
+    try:
+        sys.stderr.write(f"{program}: not started {deadline_s:g} s after the process began"
+                         " (creating its node did not return: the middleware may be stuck,"
+                         " docs/ENVIRONMENT.md); ending now\n")  # fmt: skip
+        sys.stderr.flush()
+    finally:
+        os._exit(1)
+
+
 def _arm_hard_deadline(seconds: float) -> None:
-    """End the process ``seconds`` from now, even if no Python code can run by then."""
-    faulthandler.dump_traceback_later(seconds, exit=True)
+    """End the process ``seconds`` from now, even if no Python code can run by then.
+
+    One such deadline at a time: a later call replaces the earlier one; a negative
+    ``seconds`` cancels it.
+    """
+    if seconds < 0:
+        faulthandler.cancel_dump_traceback_later()
+    else:
+        faulthandler.dump_traceback_later(seconds, exit=True)
 
 
 class StopSignals:
@@ -151,55 +177,80 @@ class StopSignals:
     callback, a second one during the shutdown changes nothing, and the process ends with
     status 0 after destroying its nodes.
 
-    :meth:`install` also starts a watchdog thread (daemon): once a stop began (a signal,
-    or :meth:`start_deadline` when the node finished), a process that has not ended
-    ``deadline_s`` (:data:`STOP_DEADLINE_S`) later is ended by ``on_deadline``
-    (:func:`_end_now`); one whose main thread holds the interpreter, so that the
-    watchdog cannot run, :data:`HARD_DEADLINE_MARGIN_S` later by :mod:`faulthandler`. The
-    thread is started here, never from the signal handler or while the interpreter shuts
-    down; the handler only sets flags.
+    :meth:`install` also starts a watchdog thread (daemon) for two deadlines. The start
+    deadline: a process whose nodes are not spinning (:meth:`spinning`) ``start_deadline_s``
+    (:data:`START_DEADLINE_S`) after :meth:`install`, and that was not asked to stop, is
+    ended by ``on_start_deadline`` (:func:`_not_started`). The stop deadline: once a stop
+    began (a signal, or :meth:`arm_stop_deadline` when the node finished), a process that
+    has not ended ``deadline_s`` (:data:`STOP_DEADLINE_S`) later is ended by
+    ``on_deadline`` (:func:`_end_now`). A process whose main thread holds the interpreter,
+    so that the watchdog cannot run, is ended :data:`HARD_DEADLINE_MARGIN_S` after either
+    by :mod:`faulthandler`. The thread is started here, never from the signal handler or
+    while the interpreter shuts down; the handler only sets flags.
 
     Args:
-        program: the process's name in the deadline's line.
+        program: the process's name in the deadlines' lines.
         deadline_s: seconds from the stop to ``on_deadline``.
         on_deadline: ends the process: ``(program, deadline_s)``.
-        arm_hard_deadline: ends the process ``seconds`` from now without the interpreter.
+        arm_hard_deadline: ends the process ``seconds`` from now without the interpreter
+            (a later call replaces an earlier one; a negative ``seconds`` cancels it).
+        start_deadline_s: seconds from :meth:`install` to ``on_start_deadline`` (None:
+            :data:`START_DEADLINE_S` as it is when the instance is made).
+        on_start_deadline: ends the process: ``(program, start_deadline_s)``.
     """
 
     def __init__(self, program: str = "node", deadline_s: float = STOP_DEADLINE_S,
                  on_deadline: Callable[[str, float], None] = _end_now,
-                 arm_hard_deadline: Callable[[float], None] = _arm_hard_deadline) -> None:
+                 arm_hard_deadline: Callable[[float], None] = _arm_hard_deadline,
+                 start_deadline_s: float | None = None,
+                 on_start_deadline: Callable[[str, float], None] = _not_started) -> None:
         self.requested = False
         self.stopping_since: float | None = None
         """``time.monotonic()`` when the stop began (None: running)."""
+        self.starting_since: float | None = None
+        """``time.monotonic()`` when :meth:`install` was called (None: spinning, or not yet)."""
         self._previous: dict[int, Any] = {}
         self._program = program
         self._deadline_s = deadline_s
         self._on_deadline = on_deadline
         self._arm_hard_deadline = arm_hard_deadline
         self._hard_deadline_armed = False
-        self._watchdog = threading.Thread(target=self._watch, name="stop-deadline",
-                                          daemon=True)  # fmt: skip
+        self._start_deadline_s = START_DEADLINE_S if start_deadline_s is None else start_deadline_s
+        self._on_start_deadline = on_start_deadline
+        self._watchdog = threading.Thread(target=self._watch, name="deadlines", daemon=True)
 
     def _watch(self) -> None:
-        while self.stopping_since is None or (
-            time.monotonic() - self.stopping_since < self._deadline_s
-        ):
+        while True:
+            now = time.monotonic()
+            if self.stopping_since is not None and now - self.stopping_since >= self._deadline_s:
+                faulthandler.cancel_dump_traceback_later()  # this thread runs: it ends it
+                self._on_deadline(self._program, self._deadline_s)
+                return
+            starting_since = self.starting_since
+            if (self.stopping_since is None and starting_since is not None
+                    and now - starting_since >= self._start_deadline_s):  # fmt: skip
+                faulthandler.cancel_dump_traceback_later()
+                self._on_start_deadline(self._program, self._start_deadline_s)
+                return
             time.sleep(DEADLINE_POLL_S)
-        faulthandler.cancel_dump_traceback_later()  # this thread runs: on_deadline ends it
-        self._on_deadline(self._program, self._deadline_s)
 
     def install(self) -> StopSignals:
-        """Take over SIGINT and SIGTERM (main thread only; elsewhere a no-op); the watchdog."""
+        """Take over SIGINT and SIGTERM (main thread only; elsewhere a no-op); the watchdog.
+
+        The start deadline begins: :meth:`spinning` ends it.
+        """
         for signum in (signal.SIGINT, signal.SIGTERM):
             try:
                 self._previous[signum] = signal.signal(signum, self._handle)
             except ValueError:  # not the main thread
                 pass
-        if not self._watchdog.is_alive():
-            self._watchdog.start()
         if stop_came_while_starting():  # a stop that came before, its exit lost
             self._handle(signal.SIGINT, None)
+        if self.stopping_since is None and self.starting_since is None:
+            self.starting_since = time.monotonic()
+            self._arm_hard_deadline(self._start_deadline_s + HARD_DEADLINE_MARGIN_S)
+        if not self._watchdog.is_alive():
+            self._watchdog.start()
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
@@ -207,7 +258,13 @@ class StopSignals:
         if self.stopping_since is None:
             self.stopping_since = time.monotonic()
 
-    def start_deadline(self) -> None:
+    def spinning(self) -> None:
+        """The nodes were created and spin now: the start deadline no longer applies."""
+        if self.starting_since is not None and not self._hard_deadline_armed:
+            self._arm_hard_deadline(-1.0)
+        self.starting_since = None
+
+    def arm_stop_deadline(self) -> None:
         """The process is stopping (a signal, or its node finished): it ends by the deadline.
 
         Called by the spin loop's caller once it stopped spinning, before any teardown:
@@ -221,7 +278,8 @@ class StopSignals:
             self._arm_hard_deadline(max(left_s, 0.0) + HARD_DEADLINE_MARGIN_S)
 
     def restore(self) -> None:
-        """Give the signals back to their previous handlers."""
+        """Give the signals back to their previous handlers; no start deadline any more."""
+        self.spinning()
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
@@ -417,8 +475,9 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
         current = program
         warn_undeclared_parameters(nodes, program, sys.argv if args is None else args)
         any_finished = first_to_finish(nodes)
+        stop.spinning()
         spin_until_done(executor, any_finished, stop)
-        stop.start_deadline()
+        stop.arm_stop_deadline()
         stop_by = time.monotonic() + STOP_BUDGET_S
         await_acknowledgments(nodes, min(ACK_BUDGET_S, STOP_BUDGET_S))
         drain_queued_messages(executor, nodes, max(0.0, stop_by - time.monotonic()))
@@ -435,7 +494,7 @@ def run_nodes(factories: Sequence[tuple[str, Callable[[], Node]]], program: str,
             return 0
         raise
     finally:
-        stop.start_deadline()  # whatever ended the spin: the teardown ends by the deadline
+        stop.arm_stop_deadline()  # whatever ended the spin: the teardown ends by the deadline
         for node in nodes:
             try:
                 node.destroy_node()
