@@ -118,11 +118,12 @@ itself takes at most :data:`STOP_BUDGET_S` and the teardown about a second more;
 process still there (a DDS teardown stuck on a loaded machine, a parent's SIGKILL that
 left it alone) then ends at once, with one line and status 1, rather than run on."""
 
-START_DEADLINE_S = 30.0
+START_DEADLINE_S = 60.0
 """Seconds from a node process's start (its main taking the signals) to its nodes spinning,
-whatever hangs: a start takes well under a few seconds, even with a launch's six nodes
-starting at once on a loaded machine; one still not spinning then (node creation stuck
-in the middleware: Fast DDS's participant creation has known hangs, docs/ENVIRONMENT.md)
+whatever hangs: a start (rclpy.init, node creation, the libraries a node loads then) takes
+a few seconds at most here, even with a launch's six nodes starting at once on a loaded
+machine, and the rest is a slower robot computer's margin; one still not spinning (stuck
+in node creation: Fast DDS's participant creation has known hangs, docs/ENVIRONMENT.md)
 ends at once, with one line and status 1, so that its launch ends naming it (or a
 ``respawn`` starts it again) rather than wait on it for ever."""
 
