@@ -167,15 +167,23 @@ def test_the_stop_deadline_starts_once_with_the_first_stop(
     assert not stop._watchdog.is_alive() and ended == [("probe", 0.3)]
 
 
-def _stuck_process(program: str, stop_signal: int | None = None) -> tuple[int, str]:
-    """Run ``program`` (``-c``), send ``stop_signal`` once it printed "ready": status, stderr."""
-    process = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+def _stuck_process(program: str, stop_signal: int | None = None, stderr_closed: bool = False
+                   ) -> tuple[int, str]:  # fmt: skip
+    """Run ``program`` (``-c``), send ``stop_signal`` once it printed "ready": status, stderr.
+
+    ``stderr_closed``: the program starts without a standard error (``2>&-``; "" returned).
+    """
+    process = subprocess.Popen(
+        [sys.executable, "-c", program], stdout=subprocess.PIPE, text=True,
+        stderr=None if stderr_closed else subprocess.PIPE,
+        preexec_fn=(lambda: os.close(2)) if stderr_closed else None,
+    )  # fmt: skip
     try:
         if stop_signal is not None:
             assert process.stdout.readline() == "ready\n"
             process.send_signal(stop_signal)
         _, err = process.communicate(timeout=60)
+        err = err or ""
     finally:
         if process.poll() is None:
             process.kill()
@@ -285,8 +293,57 @@ def test_a_node_whose_creation_never_returns_ends_by_the_start_deadline() -> Non
     """
     status, err = _stuck_process(START_HANGS.format(hang="time.sleep(120)"))
     assert status == 1
-    assert err.startswith("stuck_node: not started 1 s after the process began (creating"), err
+    assert err.startswith("stuck_node: not started within 1 s (creating its node did not"), err
     assert err.count("\n") == 1, err
+
+
+SPINS_PAST_THE_START_DEADLINE = (
+    "import sys\n"
+    "from rclpy.node import Node\n"
+    "from infomax_contingency.nodes import runtime\n"
+    "runtime.START_DEADLINE_S = 1.0\n"
+    "runtime.HARD_DEADLINE_MARGIN_S = 1.0\n"
+    "def factory():\n"
+    "    node = Node('spinning_node')\n"
+    "    node.create_timer(2.5, lambda: print('ready', flush=True))  # past both\n"
+    "    return node\n"
+    "sys.exit(runtime.run_nodes([('spinning_node', factory)], 'spinning_node', []))\n"
+)
+"""A node process that prints "ready" once it has spun past both start deadlines."""
+
+
+def test_a_node_that_spins_past_the_start_deadline_runs_on_and_stops_cleanly() -> None:
+    """Once spinning, neither start deadline (the watchdog's, faulthandler's) applies."""
+    status, err = _stuck_process(SPINS_PAST_THE_START_DEADLINE, stop_signal=signal.SIGINT)
+    assert status == 0, err
+    assert "not started" not in err and "Timeout" not in err, err
+
+
+def test_a_node_started_without_a_standard_error_runs_and_stops_cleanly() -> None:
+    """``2>&-``: the deadlines that need no interpreter have nowhere to write; no matter."""
+    status, _ = _stuck_process(SPINS_PAST_THE_START_DEADLINE, stop_signal=signal.SIGINT,
+                               stderr_closed=True)  # fmt: skip
+    assert status == 0
+
+
+def test_a_stop_while_a_slow_start_goes_on_ends_quietly_when_the_start_ends() -> None:
+    """A stop signal during a start slower than the start deadline: status 0, no stacks.
+
+    The stop deadline takes over from the start's, the one that needs no interpreter too.
+    """
+    program = (
+        "import sys, time\n"
+        "from infomax_contingency.nodes import runtime\n"
+        "runtime.START_DEADLINE_S = runtime.HARD_DEADLINE_MARGIN_S = 2.0\n"
+        "runtime.DEADLINE_POLL_S = 0.05\n"
+        "def factory():\n"
+        "    print('ready', flush=True)\n"
+        "    time.sleep(6)  # past both start deadlines (4 s), the interpreter free\n"
+        "sys.exit(runtime.run_nodes([('slow_node', factory)], 'slow_node', []))\n"
+    )
+    status, err = _stuck_process(program, stop_signal=signal.SIGINT)
+    assert status == 0, err
+    assert "Timeout" not in err and "not started" not in err, err
 
 
 def test_a_node_whose_creation_holds_the_interpreter_still_ends() -> None:

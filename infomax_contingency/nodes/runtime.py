@@ -150,24 +150,35 @@ def _end_now(program: str, deadline_s: float) -> None:
 def _not_started(program: str, deadline_s: float) -> None:
     """The start deadline passed: one line on stderr, then end without any teardown."""
     try:
-        sys.stderr.write(f"{program}: not started {deadline_s:g} s after the process began"
-                         " (creating its node did not return: the middleware may be stuck,"
-                         " docs/ENVIRONMENT.md); ending now\n")  # fmt: skip
+        sys.stderr.write(f"{program}: not started within {deadline_s:g} s (creating its node"
+                         " did not return: the middleware may be stuck, docs/ENVIRONMENT.md);"
+                         " ending now\n")  # fmt: skip
         sys.stderr.flush()
     finally:
         os._exit(1)
+
+
+_NO_STDERR: list[Any] = []
+"""Where the hard deadline writes the stacks of a process without a standard error (kept
+open: faulthandler holds only its file descriptor)."""
 
 
 def _arm_hard_deadline(seconds: float) -> None:
     """End the process ``seconds`` from now, even if no Python code can run by then.
 
     One such deadline at a time: a later call replaces the earlier one; a negative
-    ``seconds`` cancels it.
+    ``seconds`` cancels it. The threads' stacks go to standard error, or nowhere in a
+    process started with it closed (which still ends).
     """
     if seconds < 0:
         faulthandler.cancel_dump_traceback_later()
-    else:
+        return
+    try:
         faulthandler.dump_traceback_later(seconds, exit=True)
+    except (RuntimeError, ValueError, AttributeError):  # sys.stderr None or closed
+        if not _NO_STDERR:
+            _NO_STDERR.append(open(os.devnull, "w"))  # open while the process runs
+        faulthandler.dump_traceback_later(seconds, exit=True, file=_NO_STDERR[0])
 
 
 class StopSignals:
@@ -181,7 +192,8 @@ class StopSignals:
     :meth:`install` also starts a watchdog thread (daemon) for two deadlines. The start
     deadline: a process whose nodes are not spinning (:meth:`spinning`) ``start_deadline_s``
     (:data:`START_DEADLINE_S`) after :meth:`install`, and that was not asked to stop, is
-    ended by ``on_start_deadline`` (:func:`_not_started`). The stop deadline: once a stop
+    ended by ``on_start_deadline`` (:func:`_not_started`); a stop signal during the start
+    hands it to the stop deadline. The stop deadline: once a stop
     began (a signal, or :meth:`arm_stop_deadline` when the node finished), a process that
     has not ended ``deadline_s`` (:data:`STOP_DEADLINE_S`) later is ended by
     ``on_deadline`` (:func:`_end_now`). A process whose main thread holds the interpreter,
@@ -216,6 +228,7 @@ class StopSignals:
         self._on_deadline = on_deadline
         self._arm_hard_deadline = arm_hard_deadline
         self._hard_deadline_armed = False
+        self._arming = threading.Lock()  # the watchdog may arm the stop's, beside the main thread
         self._start_deadline_s = START_DEADLINE_S if start_deadline_s is None else start_deadline_s
         self._on_start_deadline = on_start_deadline
         self._watchdog = threading.Thread(target=self._watch, name="deadlines", daemon=True)
@@ -228,6 +241,8 @@ class StopSignals:
                 self._on_deadline(self._program, self._deadline_s)
                 return
             starting_since = self.starting_since
+            if self.stopping_since is not None and starting_since is not None:
+                self.arm_stop_deadline()  # a stop while starting: the start's hard one goes
             if (self.stopping_since is None and starting_since is not None
                     and now - starting_since >= self._start_deadline_s):  # fmt: skip
                 faulthandler.cancel_dump_traceback_later()
@@ -261,9 +276,10 @@ class StopSignals:
 
     def spinning(self) -> None:
         """The nodes were created and spin now: the start deadline no longer applies."""
-        if self.starting_since is not None and not self._hard_deadline_armed:
-            self._arm_hard_deadline(-1.0)
-        self.starting_since = None
+        with self._arming:
+            if self.starting_since is not None and not self._hard_deadline_armed:
+                self._arm_hard_deadline(-1.0)
+            self.starting_since = None
 
     def arm_stop_deadline(self) -> None:
         """The process is stopping (a signal, or its node finished): it ends by the deadline.
@@ -273,10 +289,11 @@ class StopSignals:
         """
         if self.stopping_since is None:
             self.stopping_since = time.monotonic()
-        if not self._hard_deadline_armed:
-            self._hard_deadline_armed = True
-            left_s = self._deadline_s - (time.monotonic() - self.stopping_since)
-            self._arm_hard_deadline(max(left_s, 0.0) + HARD_DEADLINE_MARGIN_S)
+        with self._arming:
+            if not self._hard_deadline_armed:
+                self._hard_deadline_armed = True
+                left_s = self._deadline_s - (time.monotonic() - self.stopping_since)
+                self._arm_hard_deadline(max(left_s, 0.0) + HARD_DEADLINE_MARGIN_S)
 
     def restore(self) -> None:
         """Give the signals back to their previous handlers; no start deadline any more."""
