@@ -209,14 +209,15 @@ class StopSignals:
             (a later call replaces an earlier one; a negative ``seconds`` cancels it).
         start_deadline_s: seconds from :meth:`install` to ``on_start_deadline`` (None:
             :data:`START_DEADLINE_S` as it is when the instance is made).
-        on_start_deadline: ends the process: ``(program, start_deadline_s)``.
+        on_start_deadline: ends the process: ``(program, start_deadline_s)`` (None:
+            :func:`_not_started` as it is when the instance is made).
     """
 
     def __init__(self, program: str = "node", deadline_s: float = STOP_DEADLINE_S,
                  on_deadline: Callable[[str, float], None] = _end_now,
                  arm_hard_deadline: Callable[[float], None] = _arm_hard_deadline,
                  start_deadline_s: float | None = None,
-                 on_start_deadline: Callable[[str, float], None] = _not_started) -> None:
+                 on_start_deadline: Callable[[str, float], None] | None = None) -> None:
         self.requested = False
         self.stopping_since: float | None = None
         """``time.monotonic()`` when the stop began (None: running)."""
@@ -230,19 +231,19 @@ class StopSignals:
         self._hard_deadline_armed = False
         self._arming = threading.Lock()  # the watchdog may arm the stop's, beside the main thread
         self._start_deadline_s = START_DEADLINE_S if start_deadline_s is None else start_deadline_s
-        self._on_start_deadline = on_start_deadline
+        self._on_start_deadline = _not_started if on_start_deadline is None else on_start_deadline
         self._watchdog = threading.Thread(target=self._watch, name="deadlines", daemon=True)
 
     def _watch(self) -> None:
         while True:
+            starting_since = self.starting_since
+            if self.stopping_since is not None and starting_since is not None:
+                self.arm_stop_deadline()  # a stop while starting: the start's hard one goes
             now = time.monotonic()
             if self.stopping_since is not None and now - self.stopping_since >= self._deadline_s:
                 faulthandler.cancel_dump_traceback_later()  # this thread runs: it ends it
                 self._on_deadline(self._program, self._deadline_s)
                 return
-            starting_since = self.starting_since
-            if self.stopping_since is not None and starting_since is not None:
-                self.arm_stop_deadline()  # a stop while starting: the start's hard one goes
             if (self.stopping_since is None and starting_since is not None
                     and now - starting_since >= self._start_deadline_s):  # fmt: skip
                 faulthandler.cancel_dump_traceback_later()
