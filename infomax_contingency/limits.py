@@ -36,6 +36,7 @@ import os
 import reprlib
 import resource
 import stat
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -298,12 +299,28 @@ def read_text_capped(path: str | Path, what: str, max_bytes: int = MAX_YAML_BYTE
                          f" {error.start:,} is 0x{data[error.start]:02x})") from None
 
 
+def finite(value: Any) -> bool:
+    """``math.isfinite(value)``, but False (not OverflowError) for an integer beyond a float.
+
+    YAML and JSON read any number of digits as an int; ``10**400`` is no more finite as
+    a rate, a prior or a level than ``inf`` is.
+    """
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def short_repr(value: Any, limit: int = 80) -> str:
     """``repr`` of ``value`` cut to about ``limit`` characters, in bounded time.
 
     Nested and aliased YAML values would otherwise print gigabytes: :mod:`reprlib` shows
-    only the first few items of each level and a few levels.
+    only the first few items of each level and a few levels. An integer of more digits
+    than ``limit`` is named by its size (Python refuses to print one of 4,300 or more).
     """
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 3 * limit:
+        digits = math.floor(value.bit_length() * math.log10(2)) + 1
+        return f"{'-' if value < 0 else ''}an integer of about {digits:,} digits"
     shortener = reprlib.Repr()
     shortener.maxlevel, shortener.maxstring, shortener.maxother = 3, limit, limit
     shortener.maxlist = shortener.maxdict = shortener.maxtuple = shortener.maxset = 6
@@ -358,6 +375,11 @@ def load_yaml(path: str | Path, what: str, max_depth: int = MAX_YAML_DEPTH,
     except (yaml.YAMLError, RecursionError) as error:
         detail = " ".join(str(error).split())[:300]
         raise ValueError(f"cannot read {what} {path}: not valid YAML: {detail}") from None
+    except ValueError as error:  # an int Python will not convert (4,300 digits and more)
+        if "integer string conversion" not in str(error):
+            raise
+        raise ValueError(f"cannot read {what} {path}: it holds a number of more than"
+                         f" {sys.get_int_max_str_digits():,} digits") from None
     if yaml_nodes(value) > MAX_YAML_NODES:
         raise ValueError(f"{what} {path} is refused: its aliases expand to more than"
                          f" {MAX_YAML_NODES:,} values (write the values out, without"

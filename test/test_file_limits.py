@@ -102,6 +102,29 @@ def test_values_quoted_in_messages_are_cut_short(tmp_path):
     assert MAX_YAML_NODES > (1 << 16)  # more than a 64 KiB file can hold written out
 
 
+def test_integers_beyond_a_float_are_not_finite_and_are_named_by_their_size(tmp_path):
+    """YAML reads any number of digits as an int: refused in one line, no OverflowError.
+
+    Before, a prior of 400 digits ended solve, simulate, calibrate and info with a
+    traceback, a threshold of 400 digits room-wav; one of 5,000 quoted Python's limit.
+    """
+    params = tmp_path / "params.yaml"
+    params.write_text("{dt: 0.5, ts1: 0, ts2: 1, ta1: 2, ta2: 4, pi: 0.01, b11: 1" + "0" * 400
+                      + "}\n")
+    with pytest.raises(ParameterError, match="b11 must be finite, got an integer of about 401"):
+        ModelParams.load(params)
+    threshold = tmp_path / "threshold.yaml"
+    threshold.write_text("format_version: 1\nthreshold_db: -1" + "0" * 400 + "\n")
+    with pytest.raises(AudioError, match="threshold_db must be finite, got -an integer of about"):
+        load_threshold(threshold)
+    params.write_text("{dt: 0.5, ts1: 0, ts2: 1, ta1: 2, ta2: 4, pi: 0.01, b11: 1" + "0" * 5000
+                      + "}\n")
+    with pytest.raises(ValueError, match="holds a number of more than 4,300 digits"):
+        ModelParams.load(params)
+    assert short_repr(10**5000) == "an integer of about 5,001 digits"
+    assert short_repr(-(10**50)).startswith("-10000")  # within 3 x 80 bits: its digits
+
+
 def _bag(tmp_path: Path, relative_file_paths: str) -> Path:
     bag = tmp_path / "bag"
     bag.mkdir()

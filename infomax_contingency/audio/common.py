@@ -8,10 +8,10 @@ Conventions (all audio modules):
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from infomax_contingency.limits import finite, short_repr
 
 PROCESSING_RATE_HZ = 16000
 """Sample rate (Hz) at which audio is windowed and measured."""
@@ -25,8 +25,8 @@ def check_rate(rate: int, name: str = "rate") -> int:
     """Return ``rate`` as an int, or raise AudioError unless it is a positive integer (Hz)."""
     if isinstance(rate, bool) or not isinstance(rate, int | float | np.integer | np.floating):
         raise AudioError(f"{name} must be a positive integer in Hz, got {rate!r}")
-    if not math.isfinite(rate) or rate <= 0 or int(rate) != rate:
-        raise AudioError(f"{name} must be a positive integer in Hz, got {rate!r}")
+    if not finite(rate) or rate <= 0 or int(rate) != rate:
+        raise AudioError(f"{name} must be a positive integer in Hz, got {short_repr(rate)}")
     return int(rate)
 
 
@@ -34,8 +34,8 @@ def check_positive_seconds(value: float, name: str) -> float:
     """Return ``value`` as a float, or raise AudioError unless it is finite and > 0 (s)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise AudioError(f"{name} must be a positive number of seconds, got {value!r}")
-    if not math.isfinite(value) or value <= 0:
-        raise AudioError(f"{name} must be a positive number of seconds, got {value!r}")
+    if not finite(value) or value <= 0:
+        raise AudioError(f"{name} must be a positive number of seconds, got {short_repr(value)}")
     return float(value)
 
 
@@ -43,8 +43,8 @@ def check_positive(value: float, name: str) -> float:
     """Return ``value`` as a float, or raise AudioError unless it is a finite number > 0."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
         raise AudioError(f"{name} must be a positive number, got {value!r}")
-    if not math.isfinite(value):
-        raise AudioError(f"{name} must be finite, got {value!r}")
+    if not finite(value):
+        raise AudioError(f"{name} must be finite, got {short_repr(value)}")
     return float(value)
 
 

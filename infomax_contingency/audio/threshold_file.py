@@ -17,7 +17,7 @@ import yaml
 
 from infomax_contingency.audio.common import AudioError, check_positive_seconds, check_rate
 from infomax_contingency.audio.threshold import ThresholdFit, check_threshold_db
-from infomax_contingency.limits import load_yaml, short_repr, written_atomically
+from infomax_contingency.limits import finite, load_yaml, short_repr, written_atomically
 
 THRESHOLD_FORMAT_VERSION = 1
 """Version of the threshold file layout written by :func:`save_threshold`."""
@@ -127,7 +127,7 @@ def load_threshold(path: str | os.PathLike[str], level: str = "energy") -> float
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise AudioError(f"threshold file {path}: threshold_db must be a number,"
                          f" got {short_repr(value)}")
-    if not math.isfinite(value):
+    if not finite(value):
         raise AudioError(f"threshold file {path}: threshold_db must be finite,"
                          f" got {short_repr(value)}")
     return check_threshold_db(value, f"threshold file {path}")

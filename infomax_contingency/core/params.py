@@ -10,14 +10,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from infomax_contingency.limits import load_yaml, short_repr
+from infomax_contingency.limits import finite, load_yaml, short_repr
 
 BETA_FIELDS = ("b11", "b12", "b21", "b22", "b31", "b32")
 
@@ -82,7 +81,7 @@ class ModelParams:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
                 raise ParameterError(f"{name} must be a number, got {short_repr(value)}")
-            if not math.isfinite(float(value)):
+            if not finite(value):
                 raise ParameterError(f"{name} must be finite, got {short_repr(value)}")
             object.__setattr__(self, name, float(value))
         if not isinstance(self.k2_per_lag, bool | np.bool_):

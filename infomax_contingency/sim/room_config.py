@@ -81,6 +81,7 @@ from typing import Any
 
 from infomax_contingency.audio.common import PROCESSING_RATE_HZ
 from infomax_contingency.core.model import ModelParams
+from infomax_contingency.limits import finite
 from infomax_contingency.sim.room_sounds import FLOOR_SPECTRA
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES, ROOMS
 
@@ -200,7 +201,7 @@ class FakeRoomConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
                 fail(name, "a number")
-            if not math.isfinite(value):
+            if not finite(value):
                 fail(name, "finite")
         self._check_bounds(fail)
         if not 0.0 <= self.reverb_rt60_s <= 5.0:
