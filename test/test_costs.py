@@ -475,6 +475,8 @@ def test_an_experiment_whose_table_would_not_fit_is_refused_before_solving(argv,
     (("efficiency", "--steps", str(10**12)),
      "refusing to run experiment efficiency: 11,800 runs of 1,000,000,000,000 steps in 2"),
     (("efficiency", "--named-runs", str(10**12)), "refusing to run experiment efficiency: 72,"),
+    (("efficiency", "--named-runs", "0"), "--named-runs must be >= 1, got 0"),  # was a KeyError
+    (("efficiency", "--switch-runs", "0"), "--switch-runs must be >= 1, got 0"),
     (("efficiency", "--workers", "100000"), "--workers 100000: give 1 .. "),
     # grew to the memory limit
     # 10^12 runs x every room x 4 partner states x 4 controllers

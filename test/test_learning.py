@@ -109,3 +109,8 @@ def test_learn_command(capsys: pytest.CaptureFixture, tmp_path) -> None:
         assert capsys.readouterr().err.startswith(
             f"infomax-contingency learn: error: --target must be a score in (0, 1], got"
             f" {float(target)}: ")
+    for growth in ("inf", "nan", "-0.5"):  # inf was an OverflowError traceback
+        assert cli.main(["learn", "--horizon", "4", "--budget", "10",
+                         "--evaluate-growth", growth]) == 2  # fmt: skip
+        assert capsys.readouterr().err == ("infomax-contingency learn: error: evaluation growth"
+                                           f" must be a finite number >= 0, got {float(growth)}\n")

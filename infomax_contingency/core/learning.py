@@ -37,6 +37,7 @@ Learning is counted in vocalizations made (exploratory ones included). ``plain``
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -281,8 +282,10 @@ def learn(  # noqa: C901
         name, settings = method, METHODS[method]
     else:
         name, settings = "custom", method
-    if budget < 1 or evaluate_every < 1 or evaluate_growth < 0:
-        raise ValueError("budget and evaluation interval must be >= 1 vocalization, growth >= 0")
+    if budget < 1 or evaluate_every < 1:
+        raise ValueError("budget and evaluation interval must be >= 1 vocalization")
+    if not (math.isfinite(evaluate_growth) and evaluate_growth >= 0):
+        raise ValueError(f"evaluation growth must be a finite number >= 0, got {evaluate_growth}")
     scorer = scorer or Scorer(params, horizon)
     learner = TDLearner(params, horizon, settings, np.random.default_rng(seed))
     started = time.perf_counter()

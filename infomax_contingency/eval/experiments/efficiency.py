@@ -112,9 +112,10 @@ def refuse_oversized_efficiency(config: EfficiencyConfig) -> None:
     twice (a worker's are copied to this process at once).
     """
     check_workers(config.workers, "--workers")
-    for name in ("prior_rooms", "named_runs", "switch_runs", "tuning_rooms"):
-        if (count := getattr(config, name)) < 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {count}")
+    for name, least in (("prior_rooms", 0), ("named_runs", 1), ("switch_runs", 1),
+                        ("tuning_rooms", 0)):  # fmt: skip
+        if (count := getattr(config, name)) < least:  # the report compares named rooms
+            raise ValueError(f"--{name.replace('_', '-')} must be >= {least}, got {count}")
     if config.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {config.steps}")
     runs = efficiency_runs(config)
