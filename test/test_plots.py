@@ -207,6 +207,18 @@ def test_titles_with_bytes_that_are_not_utf8_are_drawn(tmp_path, capsys) -> None
     assert plots.drawable_text("bag\udcff\udcfe \ud800") == "bag\ufffd\ufffd \ufffd"
 
 
+@pytest.mark.parametrize("title", ["$" + "{" * 45 + "x" + "}" * 45 + "$", "$\\foo$", "$"])
+def test_a_title_is_drawn_as_written_never_parsed_as_math(tmp_path, title: str) -> None:
+    """Dollar signs are text, never mathtext.
+
+    A deeply nested $...$ was a RecursionError (3,000 lines of traceback), an unknown
+    command an error starting "error: ".
+    """
+    out = tmp_path / "t.png"
+    assert cli.main(["plot", "--steps", "5", "--title", title, "--out", str(out)]) == 0
+    assert out.read_bytes().startswith(PNG_MAGIC)
+
+
 def test_plot_a_session_bag(tmp_path, capsys: pytest.CaptureFixture) -> None:
     bag = Path(__file__).parent / "data" / "session_demo"
     out = tmp_path / "bag.png"

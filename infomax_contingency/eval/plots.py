@@ -263,7 +263,10 @@ def _draw_raster(axis: Any, columns: dict[str, np.ndarray], dt: float, title: st
     axis.set_yticks([0.5, 1.7], ["sound", "robot"])
     axis.set_ylim(-0.3, 2.3)
     axis.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    axis.set_title(title or f"session: {len(start)} windows of {dt:g} s", fontsize=10)
+    # the user's title as written: matplotlib's mathtext would parse $...$ (and recurse
+    # without bound on a deeply nested one)
+    axis.set_title(title or f"session: {len(start)} windows of {dt:g} s", fontsize=10,
+                   parse_math=False)  # fmt: skip
 
 
 def _draw_belief(axis: Any, columns: dict[str, np.ndarray]) -> None:

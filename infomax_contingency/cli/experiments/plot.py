@@ -121,5 +121,5 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
         help="sliding memory of the replayed counts (and of rule/greedy); 0 = all (default;"
         " for a bag: belief_node's memory, from the bag)",
     )
-    parser.add_argument("--title", help="figure title")
+    parser.add_argument("--title", help="figure title, shown as written ($ is no math)")
     parser.set_defaults(run=_run_plot)
