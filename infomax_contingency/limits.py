@@ -456,6 +456,40 @@ def check_output_files(*outputs: tuple[str, str | Path | None, str]) -> None:
                                  " give each its own")
 
 
+def spec_file(spec: str | Path | None, prefixes: tuple[str, ...] = ("file:", "policy:")
+              ) -> str | Path | None:  # fmt: skip
+    """The file a specification names (``file:T``, ``policy:F``), a path itself, else None."""
+    if spec is None or isinstance(spec, Path):
+        return spec
+    for prefix in prefixes:
+        if spec.startswith(prefix):
+            return spec[len(prefix):]
+    return spec
+
+
+def refuse_writing_over_inputs(outputs: tuple[tuple[str, str | Path | None], ...],
+                               inputs: tuple[tuple[str, str | Path | None], ...]) -> None:
+    """ValueError (one line) when an output names a file the command reads, however spelled.
+
+    ``outputs`` and ``inputs``: ``(option, path)``; None, or an input that is no existing
+    file (a parameter set's name, a controller's), is skipped. The output would replace
+    the input (``calibrate --wav in.wav --out in.wav`` wrote the threshold over the
+    recording).
+    """
+    for out_what, out in outputs:
+        if out is None:
+            continue
+        out_path = Path(out)
+        for in_what, source in inputs:
+            if source is None or not Path(source).is_file():
+                continue
+            in_path = Path(source)
+            if out_path.resolve() == in_path.resolve() or (
+                    out_path.exists() and os.path.samefile(out_path, in_path)):
+                raise ValueError(f"{out_what} {out_path} is the file {in_what} {in_path} reads:"
+                                 " writing it would destroy the input; give another file")
+
+
 @contextlib.contextmanager
 def written_atomically(path: str | Path, what: str,
                        make_parents: bool = False) -> Iterator[BinaryIO]:

@@ -20,7 +20,7 @@ import yaml
 from infomax_contingency.audio.bag import BagReadError, read_topics
 from infomax_contingency.audio.common import AudioError
 from infomax_contingency.audio.threshold_file import load_threshold
-from infomax_contingency.audio.wav import open_wav_info
+from infomax_contingency.audio.wav import open_wav_info, write_wav_int16
 from infomax_contingency.core.model import ModelParams, ParameterError
 from infomax_contingency.limits import (
     MAX_YAML_NODES,
@@ -344,3 +344,37 @@ def test_a_file_written_atomically_replaces_only_a_regular_file(tmp_path):
         os.mkfifo(path)  # a FIFO put there while the file is written
     assert stat.S_ISFIFO(path.lstat().st_mode)
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+@pytest.mark.parametrize(("argv", "source"), [
+    (["calibrate", "--wav", "in.wav", "--out", "in.wav"], "in.wav"),
+    (["calibrate", "--wav", "in.wav", "--bit-source", "speech_band", "--out", "./in.wav"],
+     "in.wav"),
+    (["solve", "--params", "p.yaml", "--mode", "episodic", "--horizon", "2", "--out", "p.yaml"],
+     "p.yaml"),
+    (["plot", "--session", "s.png", "--out", "s.png"], "s.png"),
+    (["room-wav", "quiet", "--seconds", "5", "--out", "r.wav", "--binarizer", "file:t.yaml",
+      "--actions", "t.yaml"], "t.yaml"),
+    (["experiment", "rooms", "--params", "p.yaml", "--out", "p.yaml", "--rooms", "quiet",
+      "--partner-states", "absent", "--controllers", "fixed", "--runs", "1"], "p.yaml"),
+])
+def test_an_output_that_names_an_input_is_refused_and_the_input_kept(
+        tmp_path, monkeypatch, capsys, argv, source):
+    """An output that would replace an input file: one line, status 2, the input as it was.
+
+    Before, calibrate wrote its threshold over the recording it read, solve its table
+    over the parameter file, plot its figure over the session, room-wav its actions over
+    the threshold file: exit status 0 and the input gone.
+    """
+    from infomax_contingency.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    write_wav_int16(tmp_path / "in.wav", np.full(16000, 0.01), 16000)
+    (tmp_path / "p.yaml").write_text("{dt: 0.5, ts1: 0, ts2: 1, ta1: 2, ta2: 4, pi: 0.01}\n")
+    (tmp_path / "s.png").write_text('{"step": 1, "y": 0, "u": 0, "z": 5, "time_s": 0.5}\n')
+    (tmp_path / "t.yaml").write_text("format_version: 1\nthreshold_db: -40\n")
+    before = (tmp_path / source).read_bytes()
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "writing it would destroy the input" in error, error
+    assert (tmp_path / source).read_bytes() == before

@@ -45,7 +45,7 @@ from infomax_contingency.audio.threshold import (
 )
 from infomax_contingency.audio.threshold_file import save_threshold
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.limits import check_output_file
+from infomax_contingency.limits import check_output_file, refuse_writing_over_inputs
 
 FULL_SCALE_SLACK_DB = 0.01
 """Windows louder than 0 dB by more than this hold samples outside [-1, 1] (a full-scale
@@ -180,6 +180,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.bit_source == DEFAULT_BIT_SOURCE:
         return _report_background(args, params)
     check_output_file(args.out, "--out", "threshold file")  # before the audio is taken
+    refuse_writing_over_inputs((("--out", args.out),),
+                               (("--wav", args.wav), ("--params", args.params)))  # fmt: skip
     energies, source, what = _calibration_energies(args)
     if energies.size < 2:
         raise AudioError(

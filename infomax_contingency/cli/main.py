@@ -41,6 +41,7 @@ from infomax_contingency.limits import (
     format_bytes,
     format_number,
     memory_budget,
+    refuse_writing_over_inputs,
 )
 from infomax_contingency.sim.simulation import RunSummary, StepRecord, iter_simulate
 from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
@@ -174,6 +175,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     refuse_if_too_big(cost, args, f"solve horizon {args.horizon}")
     out = Path(args.out)
     check_output_file(out, "--out", "table file")
+    refuse_writing_over_inputs((("--out", out),), (("--params", args.params),))
     print(f"solve: {describe_cost(cost)} (estimate)", flush=True)
     start = time.perf_counter()
     table = solve(params, args.mode, args.horizon, memory, ProgressPrinter(cost.seconds))

@@ -22,7 +22,12 @@ from infomax_contingency.eval import rooms as evaluation
 from infomax_contingency.eval.information import (
     VOCALIZATION_TARGETS,
 )
-from infomax_contingency.limits import check_output_files, written_atomically
+from infomax_contingency.limits import (
+    check_output_files,
+    refuse_writing_over_inputs,
+    spec_file,
+    written_atomically,
+)
 from infomax_contingency.sim.actions import HEADER as ACTIONS_HEADER
 from infomax_contingency.sim.actions import write_actions_csv
 from infomax_contingency.sim.rooms import AUDIO_ROOM_NAMES
@@ -206,6 +211,8 @@ def run_experiment_rooms(args: argparse.Namespace) -> int:
         jobs=args.jobs,
     )
     check_output_files(("--out", args.out, "result file"), ("--plot", args.plot, "figure"))
+    refuse_writing_over_inputs((("--out", args.out), ("--plot", args.plot)),
+                               (("--params", args.params),))  # fmt: skip
     started = time.perf_counter()
     result = evaluation.experiment_rooms(config, Path(args.cache_dir) if args.cache_dir else None)
     elapsed = time.perf_counter() - started
@@ -316,6 +323,11 @@ def _run_room_wav(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {out}: the file name must end in .wav")
     actions = args.actions if args.actions is not None else out.with_suffix(".csv")
     check_output_files(("--out", out, "wav file"), ("--actions", actions, "actions file"))
+    refuse_writing_over_inputs(
+        (("--out", out), ("--actions", actions)),
+        (("--params", args.params), ("--binarizer", spec_file(args.binarizer)),
+         ("--controller", spec_file(args.controller))),
+    )  # fmt: skip
     if args.actions is None:
         _refuse_overwriting_other_than_actions(actions)
     samples, times, rate = evaluation.render_room(

@@ -52,7 +52,11 @@ from infomax_contingency.eval.sessions import (
     wav_background_loop,
     wav_bits,
 )
-from infomax_contingency.limits import check_output_files, written_atomically
+from infomax_contingency.limits import (
+    check_output_files,
+    refuse_writing_over_inputs,
+    written_atomically,
+)
 from infomax_contingency.sim.actions import read_actions_csv
 from infomax_contingency.sim.simulation import RunSummary
 
@@ -366,6 +370,10 @@ def run_analyze(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be a number of seconds > 0, got {value}")
     _refuse_twice(args.sessions)
     check_output_files(("--out", args.out, "parameter file"), ("--plot", args.plot, "figure"))
+    refuse_writing_over_inputs(
+        (("--out", args.out), ("--plot", args.plot)),
+        (("--params", args.params), *(("a session", name) for name in args.sessions)),
+    )  # fmt: skip
     params = ModelParams.load(args.params)
     sessions = [(name, load_session(Path(name), warn=warn)) for name in args.sessions]
     check_same_windows(sessions)

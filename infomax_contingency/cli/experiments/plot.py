@@ -14,7 +14,11 @@ from infomax_contingency.cli.formatting import seed
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
 from infomax_contingency.eval import plots
-from infomax_contingency.limits import check_output_file, refuse_over_budget
+from infomax_contingency.limits import (
+    check_output_file,
+    refuse_over_budget,
+    refuse_writing_over_inputs,
+)
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.simulation import simulate
 from infomax_contingency.sim.world import BIT_ROOM_NAMES, make_room
@@ -37,6 +41,8 @@ def _default_controller(params: ModelParams) -> str:
 
 def _run_plot(args: argparse.Namespace) -> int:
     check_output_file(args.out, "--out", "figure")  # before the work
+    inputs = (("--session", args.session), ("--params", args.params))
+    refuse_writing_over_inputs((("--out", args.out),), inputs)
     params = ModelParams.load(args.params)
     memory = args.memory
     if args.session and Path(args.session).is_dir():  # a recorded session (bag)
