@@ -521,5 +521,5 @@ def test_learn_and_room_wav_refuse_before_work_what_would_not_fit(capsys, monkey
     monkeypatch.setattr(limits, "memory_budget", lambda: limits.MemoryBudget(2**30, "a test"))
     error = _one_line_error(capsys, "room-wav", "quiet", "--seconds", "86400", "--out",
                             "never.wav")
-    assert "refusing to render 86400 s of room sound: it needs about 10.5 GiB" in error
+    assert "refusing to render 86400 s of room sound: it needs about 51.7 GiB" in error
     assert not Path("never.wav").exists()
