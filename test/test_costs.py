@@ -483,6 +483,8 @@ def test_an_experiment_whose_table_would_not_fit_is_refused_before_solving(argv,
     (("rooms", "--runs", str(10**12)),
      f"refusing to run experiment rooms: {10**12 * len(ROOM_SOUNDS) * 16:,} runs: it needs about"),
     (("rooms", "--jobs", "100000"), "experiment rooms: --jobs 100000: give 1 .. "),
+    # the model's periods on the rooms' 0.5-s windows, unsaid
+    (("rooms", "--params", "paper"), "--params paper: dt = 0.8 s, but the rooms' windows are"),
 ])
 def test_an_experiment_too_large_is_refused_before_any_work(argv, message, capsys, monkeypatch):
     def no_work(*_args, **_kwargs):

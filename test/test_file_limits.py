@@ -378,3 +378,14 @@ def test_an_output_that_names_an_input_is_refused_and_the_input_kept(
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "writing it would destroy the input" in error, error
     assert (tmp_path / source).read_bytes() == before
+
+
+def test_room_wav_refuses_a_parameter_set_of_another_window(tmp_path, capsys):
+    """--params paper (dt 0.8 s) ran its periods on the rooms' 0.5-s windows, unsaid."""
+    from infomax_contingency.cli.main import main
+
+    out = tmp_path / "r.wav"
+    assert main(["room-wav", "quiet", "--seconds", "5", "--out", str(out), "--params",
+                 "paper"]) == 2  # fmt: skip
+    assert "dt = 0.8 s, but the rooms' windows are 0.5 s" in capsys.readouterr().err
+    assert not out.exists()

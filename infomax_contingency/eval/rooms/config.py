@@ -22,6 +22,7 @@ from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.eval.experiments.tables import obtain_table
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
 from infomax_contingency.eval.workers import check_workers
+from infomax_contingency.sim.room_config import FakeRoomConfig
 from infomax_contingency.sim.rooms import (
     PARTNER_STATES,
     ROOM_CHANGE_S,
@@ -175,6 +176,19 @@ class RoomsConfig:
             for name, state in zip(audio_room_names(background), PARTNER_STATES, strict=True)
             if state in chosen
         ]
+
+
+def check_room_windows(params: ModelParams, params_name: str | Path) -> None:
+    """ValueError (one line) unless ``params`` step in the rooms' windows (dt 0.5 s).
+
+    The rooms' sound comes in windows of :attr:`FakeRoomConfig.window_s`; a set of
+    another dt would run its periods on them unsaid (``--params paper``: 0.8 s).
+    """
+    window_s = FakeRoomConfig.window_s
+    if not math.isclose(params.dt, window_s):
+        raise ValueError(f"--params {params_name}: dt = {params.dt:g} s, but the rooms'"
+                         f" windows are {window_s:g} s: give a parameter set with dt ="
+                         f" {window_s:g} (robot)")
 
 
 def room_seed(seed: int, room: str, run: int) -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from infomax_contingency.core.model import ModelParams
-from infomax_contingency.eval.rooms.config import RoomsConfig, controller_specs
+from infomax_contingency.eval.rooms.config import RoomsConfig, check_room_windows, controller_specs
 from infomax_contingency.eval.rooms.running import run_room
 from infomax_contingency.eval.rooms.scoring import curve_points, run_metrics
 from infomax_contingency.eval.rooms.summaries import (
@@ -106,6 +106,7 @@ def simulate_room_runs(config: RoomsConfig, controllers: list[tuple[str, str]]) 
 def experiment_rooms(config: RoomsConfig, cache_dir: Path | None = None) -> dict[str, Any]:
     """The rooms experiment (the package's docstring): summaries per room and controller, curves."""
     params = ModelParams.load(config.params_name)
+    check_room_windows(params, config.params_name)
     for name in config.room_names():
         room_kind(name)  # every name is in the one registry
     refuse_oversized_rooms(config)

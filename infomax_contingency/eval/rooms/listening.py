@@ -11,7 +11,12 @@ from infomax_contingency.core.controllers import default_check_in
 from infomax_contingency.core.model import ModelParams
 from infomax_contingency.eval.experiments.runs import experiment_controller
 from infomax_contingency.eval.rooms.binarizers import make_binarizer
-from infomax_contingency.eval.rooms.config import CONTROLLER_NAMES, RoomsConfig, controller_specs
+from infomax_contingency.eval.rooms.config import (
+    CONTROLLER_NAMES,
+    RoomsConfig,
+    check_room_windows,
+    controller_specs,
+)
 from infomax_contingency.eval.rooms.running import RoomTimeUpError, TimedWorld
 from infomax_contingency.limits import refuse_over_budget
 from infomax_contingency.sim.audio_loop import AudioWorld
@@ -68,6 +73,7 @@ def render_room(
         (seconds, the start of the window after each vocalizing decision), the rate (Hz).
     """
     params = ModelParams.load(params_name)
+    check_room_windows(params, params_name)
     config = FakeRoomConfig.preset(room)
     if not (math.isfinite(seconds) and config.window_s <= seconds <= 24 * 3600):
         raise ValueError(f"seconds = {seconds!r}: must be at least one window, at most a day")
