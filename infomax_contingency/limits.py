@@ -406,10 +406,15 @@ def refuse_unless_regular(path: str | Path, what: str) -> None:
                          " nothing is written over it; give a new name or a regular file")
 
 
+OUTPUT_SUFFIXES = {"figure": ".png"}
+"""The ending a file of these ``contents`` must have (matplotlib writes PNG only here)."""
+
+
 def check_output_file(path: str | Path, what: str, contents: str = "file") -> None:
     """Refuse, before any work, a path a command could not write ``contents`` to.
 
-    Refused in one line starting with ``what`` (the option, ``--out``): a path under
+    Refused in one line starting with ``what`` (the option, ``--out``): a name without
+    the ending of :data:`OUTPUT_SUFFIXES` (a figure that is no ``.png``); a path under
     :data:`UNWRITABLE_ROOTS`; anything there but a regular file
     (:func:`refuse_unless_regular`); a directory that cannot be made or written in (tried
     for real: a file is made there and removed); a file that is not writable. Missing
@@ -422,6 +427,9 @@ def check_output_file(path: str | Path, what: str, contents: str = "file") -> No
     if not str(path):
         raise ValueError(f"{what}: the path is empty; give a file name")
     path = Path(path)
+    suffix = OUTPUT_SUFFIXES.get(contents)
+    if suffix is not None and (path.suffix.lower() != suffix or path.name == suffix):
+        raise ValueError(f"{what} {path}: a {contents} file's name must end in {suffix}")
     resolved = path.resolve()
     if any(resolved.is_relative_to(root) for root in UNWRITABLE_ROOTS):
         raise OSError(f"{what} {path}: /{resolved.parts[1]} is no place for a {contents}")

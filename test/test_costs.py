@@ -517,6 +517,8 @@ def test_learn_and_room_wav_refuse_before_work_what_would_not_fit(capsys, monkey
                         no_work)
     monkeypatch.setattr(importlib.import_module("infomax_contingency.eval.rooms.listening"),
                         "run_loop", no_work)
+    error = _one_line_error(capsys, "learn", "--plot", "curves.txt")  # after 8.5 s of work before
+    assert "--plot curves.txt: a figure file's name must end in .png" in error
     error = _one_line_error(capsys, "learn", "--budget", str(10**12))
     assert "refusing to learn with horizon 12 and 1,000,000,001 evaluations" in error
     assert "a larger --evaluate-every" in error
