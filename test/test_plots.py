@@ -125,7 +125,13 @@ def test_a_deeply_nested_line_is_no_session(tmp_path, capsys) -> None:
     (2, "u", 2, "u must be 0 or 1, got 2"),
     (1, "z", -1, "z must be a whole number >= 0, got -1"),
     (1, "z", 0.5, "z must be a whole number >= 0, got 0.5"),
-    (4, "time_s", float("inf"), "time_s must be a finite number of seconds, got inf"),
+    (4, "time_s", float("inf"), "time_s must be a number of seconds in [0, 1e+09], got inf"),
+    # drawn before, as if fine: a figure over itself, or spanning 1e308 s
+    (4, "time_s", 0.5, "time_s 0.5 does not come after the previous step's 1 s (time must"
+                       " increase)"),
+    (1, "time_s", -1e308, "time_s must be a number of seconds in [0, 1e+09], got -1e+308"),
+    (2, "time_s", 10**400, "time_s must be a number of seconds in [0, 1e+09], got an integer"
+                           " of about 401 digits"),
 ])
 def test_tampered_session_values_are_refused_naming_line_and_field(
         tmp_path, capsys, line, field, value, message) -> None:

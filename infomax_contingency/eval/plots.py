@@ -23,6 +23,7 @@ import numpy as np
 from infomax_contingency.core.model import AGENT, SELF, ModelParams, StatisticTracker, period_of
 from infomax_contingency.limits import (
     bracket_depth,
+    finite,
     read_text_capped,
     short_repr,
     written_atomically,
@@ -123,7 +124,7 @@ def read_session(path: str | Path) -> list[dict]:
         missing = [field for field in SESSION_FIELDS if field not in record]
         if missing:
             raise PlotError(f"{path} line {number} lacks the field(s) {missing}")
-        _check_record(record, records[-1]["t"] if records else None, f"{path} line {number}")
+        _check_record(record, records[-1] if records else None, f"{path} line {number}")
         records.append(record)
     if not records:
         raise PlotError(f"session file {path} holds no step records")
@@ -138,15 +139,21 @@ def _whole(value: Any) -> bool:
 
 
 def _finite(value: Any) -> bool:
-    """A finite JSON number (not true / false, NaN or infinity)."""
+    """A finite JSON number (not true / false, NaN, infinity or an int beyond a float)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         return False
-    return isinstance(value, int) or math.isfinite(value)
+    return finite(value)
+
+
+LATEST_TIME_S = 1e9
+"""Latest ``time_s`` of a step record drawn, s (some 30 years: beyond, a figure's axis is
+no time line)."""
 
 
 SESSION_FIELD_RULES: dict[str, tuple[Any, str]] = {
     "t": (_whole, "a whole number"),
-    "time_s": (_finite, "a finite number of seconds"),
+    "time_s": (lambda v: _finite(v) and 0 <= v <= LATEST_TIME_S,
+               f"a number of seconds in [0, {LATEST_TIME_S:g}]"),
     "z": (lambda v: _whole(v) and v >= 0, "a whole number >= 0"),
     "y": (lambda v: _whole(v) and v in (0, 1), "0 or 1"),
     "u": (lambda v: _whole(v) and v in (0, 1), "0 or 1"),
@@ -157,18 +164,24 @@ SESSION_FIELD_RULES: dict[str, tuple[Any, str]] = {
 """What each field of a step record drawn must hold: (test, what it says when it fails)."""
 
 
-def _check_record(record: dict, previous_t: Any, where: str) -> None:
+def _check_record(record: dict, previous: dict | None, where: str) -> None:
     """Refuse a step record whose fields the figure cannot be drawn from (one line).
 
-    ``previous_t``: the step before's ``t`` (None for the first); ``t`` must grow.
+    ``previous``: the step record before (None for the first); ``t`` and ``time_s`` must
+    grow (a time that goes back drew the figure over itself).
     """
     for field, (test, allowed) in SESSION_FIELD_RULES.items():
         if not test(record[field]):
             raise PlotError(f"{where}: {field} must be {allowed}, got"
                             f" {short_repr(record[field], 40)}")
-    if previous_t is not None and not record["t"] > previous_t:
+    if previous is None:
+        return
+    if not record["t"] > previous["t"]:
         raise PlotError(f"{where}: t {record['t']} does not come after the previous step's"
-                        f" {previous_t} (t must increase, each step once)")
+                        f" {previous['t']} (t must increase, each step once)")
+    if not record["time_s"] > previous["time_s"]:
+        raise PlotError(f"{where}: time_s {record['time_s']:g} does not come after the previous"
+                        f" step's {previous['time_s']:g} s (time must increase)")
 
 
 def session_counts(params: ModelParams, records: Sequence[dict], memory: int = 0) -> np.ndarray:
