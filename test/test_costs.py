@@ -517,6 +517,13 @@ def test_learn_and_room_wav_refuse_before_work_what_would_not_fit(capsys, monkey
                         no_work)
     monkeypatch.setattr(importlib.import_module("infomax_contingency.eval.rooms.listening"),
                         "run_loop", no_work)
+    for argv in (("baby9", "--replies", ","), ("greedy", "--params", ""),
+                 ("horizon", "--params", " , ")):  # ran nothing, exit 0 before
+        with pytest.raises(SystemExit) as ended:  # argparse's usage, then its error line
+            main(["experiment", *argv])
+        assert ended.value.code == 2
+        assert "error: argument " + argv[1] + ": expected at least one name" in (
+            capsys.readouterr().err)
     error = _one_line_error(capsys, "learn", "--plot", "curves.txt")  # after 8.5 s of work before
     assert "--plot curves.txt: a figure file's name must end in .png" in error
     error = _one_line_error(capsys, "learn", "--budget", str(10**12))

@@ -24,8 +24,11 @@ def int_list(text: str) -> list[int]:
 
 
 def name_list(text: str) -> list[str]:
-    """``a,b`` as names, blanks dropped."""
-    return [item.strip() for item in text.split(",") if item.strip()]
+    """``a,b`` as names, blanks dropped; at least one (an empty list ran nothing, exit 0)."""
+    names = [item.strip() for item in text.split(",") if item.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected at least one name, got {text!r}")
+    return names
 
 
 def step_range(text: str) -> tuple[int, int]:
