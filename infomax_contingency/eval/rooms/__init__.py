@@ -48,6 +48,7 @@ from infomax_contingency.eval.rooms.config import (
     FIXED_INTERVAL,
     PARTNER_STATE_NAMES,
     RoomsConfig,
+    check_room_windows,
     controller_specs,
     room_seed,
 )
@@ -62,6 +63,7 @@ from infomax_contingency.eval.rooms.experiment import (
 from infomax_contingency.eval.rooms.listening import (
     LISTENING_BINARIZER,
     RENDER_BASE_BYTES,
+    RENDER_SAMPLE_BYTES,
     render_room,
 )
 from infomax_contingency.eval.rooms.running import (
@@ -93,6 +95,7 @@ __all__ = [
     "PARTNER_STATE_NAMES",
     "RECOVERY_S",
     "RENDER_BASE_BYTES",
+    "RENDER_SAMPLE_BYTES",
     "ROOMS_BASE_BYTES",
     "ROOMS_CURVE_POINT_BYTES",
     "ROOMS_ROW_BYTES",
@@ -104,6 +107,7 @@ __all__ = [
     "TimedWorld",
     "binarizer_options",
     "change_time_s",
+    "check_room_windows",
     "contrast_bounds",
     "controller_specs",
     "curve_points",
