@@ -225,6 +225,20 @@ def test_a_title_is_drawn_as_written_never_parsed_as_math(tmp_path, title: str) 
     assert out.read_bytes().startswith(PNG_MAGIC)
 
 
+def test_a_session_file_refuses_the_simulations_options(tmp_path, capsys) -> None:
+    """--steps, --world, --controller, --seed with --session: ignored before, unsaid."""
+    path = tmp_path / "s.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in _session(6)))
+    out = tmp_path / "x.png"
+    argv = ["plot", "--session", str(path), "--out", str(out)]
+    assert cli.main([*argv, "--steps", "120", "--controller", "rule"]) == 2  # a default too
+    assert capsys.readouterr().err == (
+        "infomax-contingency plot: error: --controller, --steps: for a simulated session"
+        f" only; --session {path} is drawn as it was recorded\n")
+    assert not out.exists()
+    assert cli.main(argv) == 0
+
+
 def test_plot_a_session_bag(tmp_path, capsys: pytest.CaptureFixture) -> None:
     bag = Path(__file__).parent / "data" / "session_demo"
     out = tmp_path / "bag.png"

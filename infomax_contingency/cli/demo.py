@@ -52,7 +52,6 @@ from infomax_contingency.audio.bitsources import BIT_SOURCES
 from infomax_contingency.cli.demo_checks import (
     DEMO_CALIBRATION_S,
     DEMO_LEAVE_S,
-    GivenOption,
     check_arguments,
     demo_partner_times,
     finite_number,
@@ -67,7 +66,7 @@ from infomax_contingency.cli.demo_output import (
     print_verdict,
     step_postures,
 )
-from infomax_contingency.cli.formatting import seed
+from infomax_contingency.cli.formatting import GivenOption, seed
 from infomax_contingency.core.posture import ATTENTIVE_ABOVE, BORED_BELOW
 from infomax_contingency.resources import resource_path
 from infomax_contingency.sim.room_config import PRESETS

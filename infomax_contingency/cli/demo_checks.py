@@ -34,21 +34,6 @@ def finite_number(text: str) -> float:
     return value
 
 
-class GivenOption(argparse.Action):
-    """Store an option's value as ``store`` does, and note that it was given.
-
-    ``args.given`` is the set of the destinations (``room``, ``calibration_s``) of the
-    options of this kind typed on the command line, whatever their value: a default typed
-    out counts as given. The value of an option not given is its real default, as ``--help`` says.
-    The parser must start the set empty (``set_defaults(given=frozenset())``).
-    """
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:  # fmt: skip
-        setattr(namespace, self.dest, values)
-        namespace.given = frozenset(getattr(namespace, "given", frozenset()) | {self.dest})
-
-
 MAX_STEPS = MAX_SEED = 2**31 - 1
 """Largest ``--steps`` and ``--seed``: the room's ``max_windows`` and ``seed`` parameters."""
 
@@ -105,8 +90,9 @@ DEMO_CALIBRATION_S = 10.0
 def _check_options_used(args: argparse.Namespace) -> None:
     """Refuse an option the run would not use (ValueError: one line), not ignore it.
 
-    An option counts when it is given (``args.given``, :class:`GivenOption`), its default
-    value typed out too.
+    An option counts when it is given (``args.given``,
+    :class:`~infomax_contingency.cli.formatting.GivenOption`), its default value typed out
+    too.
     """
     if args.wav and args.given & {"room", "seed", "leave_at"}:
         raise ValueError("--room, --seed and --leave-at set the simulated room: not with --wav")

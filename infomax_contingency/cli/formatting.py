@@ -40,3 +40,18 @@ def seed(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
     return value
+
+
+class GivenOption(argparse.Action):
+    """Store an option's value as ``store`` does, and note that it was given.
+
+    ``args.given`` is the set of the destinations (``room``, ``calibration_s``) of the
+    options of this kind typed on the command line, whatever their value: a default typed
+    out counts as given. The value of an option not given is its real default, as ``--help`` says.
+    The parser must start the set empty (``set_defaults(given=frozenset())``).
+    """
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:  # fmt: skip
+        setattr(namespace, self.dest, values)
+        namespace.given = frozenset(getattr(namespace, "given", frozenset()) | {self.dest})

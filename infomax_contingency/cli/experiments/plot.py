@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from infomax_contingency.cli.formatting import seed
+from infomax_contingency.cli.formatting import GivenOption, seed
 from infomax_contingency.core.controllers import CONTROLLER_KINDS, make_controller
 from infomax_contingency.core.model import NAMED_PARAMS, ModelParams
 from infomax_contingency.eval import plots
@@ -41,6 +41,10 @@ def _default_controller(params: ModelParams) -> str:
 
 def _run_plot(args: argparse.Namespace) -> int:
     check_output_file(args.out, "--out", "figure")  # before the work
+    if args.session and args.given:
+        options = ", ".join(f"--{name}" for name in sorted(args.given))
+        raise ValueError(f"{options}: for a simulated session only; --session {args.session}"
+                         " is drawn as it was recorded")
     inputs = (("--session", args.session), ("--params", args.params))
     refuse_writing_over_inputs((("--out", args.out),), inputs)
     params = ModelParams.load(args.params)
@@ -108,18 +112,24 @@ def register_plot(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--params", default="robot", help="parameter set of the session (default: robot)"
     )
+    # the simulation's options note that they were given: with --session they are refused
+    parser.set_defaults(given=frozenset())
     parser.add_argument(
         "--controller",
+        action=GivenOption,
         help=f"controller to simulate: {', '.join(CONTROLLER_KINDS)} (default: the committed"
         " optimal table of the paper or robot set, else the rule)",
     )
     parser.add_argument(
         "--world",
         default="responsive",
+        action=GivenOption,
         help=f"room to simulate: {' | '.join(BIT_ROOM_NAMES)}[:key=value,...] (default responsive)",
     )
-    parser.add_argument("--steps", type=int, default=120, help="steps to simulate (default 120)")
-    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    parser.add_argument("--steps", type=int, default=120, action=GivenOption,
+                        help="steps to simulate (default 120)")  # fmt: skip
+    parser.add_argument("--seed", type=seed, default=0, action=GivenOption,
+                        help="random seed (default 0)")  # fmt: skip
     parser.add_argument(
         "--memory",
         type=int,
