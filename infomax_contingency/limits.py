@@ -428,7 +428,7 @@ def check_output_file(path: str | Path, what: str, contents: str = "file") -> No
         raise ValueError(f"{what}: the path is empty; give a file name")
     path = Path(path)
     suffix = OUTPUT_SUFFIXES.get(contents)
-    if suffix is not None and (path.suffix.lower() != suffix or path.name == suffix):
+    if suffix is not None and path.suffix.lower() != suffix:  # ".png" alone has none
         raise ValueError(f"{what} {path}: a {contents} file's name must end in {suffix}")
     resolved = path.resolve()
     if any(resolved.is_relative_to(root) for root in UNWRITABLE_ROOTS):
@@ -458,15 +458,27 @@ def check_output_files(*outputs: tuple[str, str | Path | None, str]) -> None:
             check_output_file(path, what, contents)
     for index, (what, path) in enumerate(given):
         for other_what, other in given[:index]:
-            if path.resolve() == other.resolve() or (
-                    path.exists() and other.exists() and os.path.samefile(path, other)):
+            if _same_file(path, other):
                 raise ValueError(f"{other_what} {other} and {what} {path} name one file:"
                                  " give each its own")
 
 
+def _same_file(path: Path, other: Path) -> bool:
+    """Whether two paths name one file, however spelled.
+
+    ``r.wav`` and ``d/../r.wav``, a directory reached through a symbolic link, a hard link.
+    """
+    return path.resolve() == other.resolve() or (
+        path.exists() and other.exists() and os.path.samefile(path, other))
+
+
 def spec_file(spec: str | Path | None, prefixes: tuple[str, ...] = ("file:", "policy:")
               ) -> str | Path | None:  # fmt: skip
-    """The file a specification names (``file:T``, ``policy:F``), a path itself, else None."""
+    """The file a specification names, or the specification as it is.
+
+    ``file:T`` and ``policy:F``: the part after the prefix; any other specification or
+    path unchanged (None stays None).
+    """
     if spec is None or isinstance(spec, Path):
         return spec
     for prefix in prefixes:
@@ -492,8 +504,7 @@ def refuse_writing_over_inputs(outputs: tuple[tuple[str, str | Path | None], ...
             if source is None or not Path(source).is_file():
                 continue
             in_path = Path(source)
-            if out_path.resolve() == in_path.resolve() or (
-                    out_path.exists() and os.path.samefile(out_path, in_path)):
+            if _same_file(out_path, in_path):
                 raise ValueError(f"{out_what} {out_path} is the file {in_what} {in_path} reads:"
                                  " writing it would destroy the input; give another file")
 

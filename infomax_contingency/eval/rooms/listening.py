@@ -36,7 +36,7 @@ RENDER_SAMPLE_BYTES = 40
 """Memory of :func:`render_room` per sample of sound, bytes: measured 32 (peak RSS 254 MiB
 for 300 s of the quiet room at 16 kHz, 693 MiB for 1,200 s: the samples kept, joined,
 then converted for the wav), with a margin; 8 (float32 twice) let 24 h through the check,
-which needs some 43 GB."""
+which needs about 44 GB at the measured 32 bytes a sample."""
 
 
 class _RecordingRoom(FakeRoom):
